@@ -1,0 +1,1 @@
+"""cgp_core: the ROS-free physics core of cgp_sim."""

@@ -1,0 +1,1 @@
+"""cgp_sim_ros: the rclpy node over cgp_core."""

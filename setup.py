@@ -1,0 +1,46 @@
+"""cgp_sim: the ROS 2 package `cgp_sim_ros` (ament_python) with its ROS-free core `cgp_core` and the
+scenes / parameter files of `msgs_config`.
+
+Installs, with pip or colcon alike:
+- the Python packages `cgp_core`, `cgp_sim_ros`, `msgs_config` (scenes and parameter files as package data);
+- the console script `cgp-sim`;
+- the ament layout `ros2 run cgp_sim_ros sim_node` resolves:
+  share/ament_index/resource_index/packages/cgp_sim_ros, share/cgp_sim_ros/package.xml,
+  lib/cgp_sim_ros/sim_node (a data file, since pip ignores setup.cfg's install_scripts).
+The interface package `cgp_sim_msgs` (msgs_config/cgp_sim_msgs) is a separate ament_cmake package, built by
+colcon in a workspace or by `tools/build_msgs.py` into the venv (`make setup`).
+"""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "cgp_sim_ros"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    description="Rigid bodies and boid flocks of the CGP lecture, live on ROS 2 and recorded to MCAP",
+    long_description=open("README.md", encoding="utf-8").read(),
+    long_description_content_type="text/markdown",
+    license="Apache-2.0",
+    python_requires=">=3.10",
+    packages=find_packages(include=["cgp_core", "cgp_core.*", "cgp_sim_ros", "cgp_sim_ros.*", "msgs_config"]),
+    package_data={"msgs_config": ["scenes/*.yaml", "params/*.yaml"], "cgp_sim_ros": ["assets/*"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/scenes", sorted(glob("msgs_config/scenes/*.yaml"))),
+        (f"share/{PACKAGE}/params", sorted(glob("msgs_config/params/*.yaml"))),
+        (f"lib/{PACKAGE}", ["scripts/sim_node"]),
+    ],
+    # ROS packages (rclpy, *_msgs) are not listed: they come from apt on a ROS install and from
+    # requirements/ros.txt (PyPI wheels) in the venv; package.xml declares them for rosdep.
+    install_requires=["numpy>=1.26", "scipy>=1.11", "PyYAML>=6.0", "mcap>=1.2", "zstandard>=0.22", "lz4>=4.3"],
+    extras_require={
+        "test": ["pytest>=8", "pytest-timeout>=2.3", "mcap-ros2-support>=0.5", "rosbags>=0.10", "psutil>=5.9"],
+        "bench": ["pybullet", "mujoco", "pyinstrument"],
+    },
+    entry_points={"console_scripts": ["cgp-sim = cgp_sim_ros.cli:main"]},
+    zip_safe=False,
+)
