@@ -1,0 +1,179 @@
+"""Rigid bodies as structure-of-arrays: a static :class:`BodyModel` apart from the dynamic :class:`BodyState`
+(the MuJoCo split: what a scene defines never changes while stepping; what stepping changes is all in the
+state, so reset is a copy and a step is a pure function of (model, state, dt)).
+
+Conventions
+-----------
+- World frame ``world``: right-handed, z up, SI units (REP-103).
+- Every body has a *body frame* whose origin is the body's centre of mass (COM).  For sphere, box and capsule
+  the axes are the shape's own axes (box edges; capsule axis = body z).  For a particle set the axes are those
+  of the scene's particle coordinates and the origin is moved to their COM (so ``position`` is always the COM,
+  as the lecture's state vector has it), which makes the inertia tensor a full symmetric 3×3 matrix in general.
+- Orientation is a unit quaternion ``(x, y, z, w)`` mapping body to world: ``p_world = x + R(q) p_body``.
+- The state carries momenta, not velocities (the lecture's state: x, R, P, L); velocities are derived:
+  ``v = P / m``, ``I_world = R I_body Rᵀ``, ``ω = I_world⁻¹ L``.
+- Fixed bodies (walls, floors, obstacles) have ``inv_mass = 0`` and ``inv_inertia_body = 0``: every formula
+  that divides by mass multiplies by the inverse instead, so they need no special case.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .rotation import quat_to_matrix
+
+
+class Shape(enum.IntEnum):
+    """Collision / drawing shape of a body (values stored in ``BodyModel.shape``)."""
+
+    SPHERE = 0
+    BOX = 1
+    CAPSULE = 2  # a segment of length ``2 * half_length`` along body z, swept by a sphere of ``radius``
+    PARTICLES = 3  # the lecture's discrete body: point masses, each drawn and collided as a small sphere
+
+
+@dataclass
+class BodyModel:
+    """Static description of ``n`` bodies.  Arrays are indexed by body in scene order.
+
+    Attributes (shapes):
+        names:            list[str], length n — unique, ROS-name-safe.
+        shape:            (n,) int8 — :class:`Shape` values.
+        radius:           (n,) — sphere / capsule radius; particle radius for PARTICLES; 0 for boxes.
+        half_extents:     (n, 3) — box half sizes along body x, y, z; capsule: (0, 0, half_length); bounding
+                          half extents of the particle set for PARTICLES.
+        mass:             (n,) — kg (the configured mass, also for fixed bodies, for drawing / reporting).
+        inv_mass:         (n,) — 1/kg, 0 for fixed bodies.
+        inertia_body:     (n, 3, 3) — inertia tensor about the COM in body axes (kg m²).
+        inv_inertia_body: (n, 3, 3) — its inverse, zeros for fixed bodies.
+        restitution:      (n,) — coefficient of restitution e in [0, 1].
+        friction:         (n,) — Coulomb friction coefficient μ >= 0.
+        fixed:            (n,) bool — immovable (infinite mass); still collides.
+        particles:        list of (k_i, 4) arrays [x, y, z, m] in body frame (COM origin) for PARTICLES
+                          bodies, ``None`` for others.
+        color:            (n, 4) — RGBA in [0, 1] for markers.
+    """
+
+    names: list[str]
+    shape: np.ndarray
+    radius: np.ndarray
+    half_extents: np.ndarray
+    mass: np.ndarray
+    inv_mass: np.ndarray
+    inertia_body: np.ndarray
+    inv_inertia_body: np.ndarray
+    restitution: np.ndarray
+    friction: np.ndarray
+    fixed: np.ndarray
+    particles: list
+    color: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return len(self.names)
+
+    def index(self, name: str) -> int:
+        """Index of the body called ``name``; ``KeyError`` naming the known bodies otherwise."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise KeyError(f"unknown body {name!r}; bodies are: {', '.join(self.names) or '(none)'}") from None
+
+    @staticmethod
+    def empty() -> "BodyModel":
+        return BodyModel(
+            names=[],
+            shape=np.zeros(0, dtype=np.int8),
+            radius=np.zeros(0),
+            half_extents=np.zeros((0, 3)),
+            mass=np.zeros(0),
+            inv_mass=np.zeros(0),
+            inertia_body=np.zeros((0, 3, 3)),
+            inv_inertia_body=np.zeros((0, 3, 3)),
+            restitution=np.zeros(0),
+            friction=np.zeros(0),
+            fixed=np.zeros(0, dtype=bool),
+            particles=[],
+            color=np.zeros((0, 4)),
+        )
+
+
+@dataclass
+class BodyState:
+    """Dynamic state of ``n`` bodies (all float64, world frame).
+
+    Attributes (shapes):
+        position:         (n, 3) — COM x [m].
+        orientation:      (n, 4) — unit quaternion (x, y, z, w), body → world.
+        linear_momentum:  (n, 3) — P = m v [kg m/s].
+        angular_momentum: (n, 3) — L = I_world ω about the COM [kg m²/s].
+        force:            (n, 3) — force accumulator for the current step [N]; cleared after each step.
+        torque:           (n, 3) — torque accumulator about the COM [N m]; cleared after each step.
+        rotation:         (n, 3, 3) or None — only for integrators that integrate the matrix itself (the
+                          lecture's explicit Euler); when set, it is authoritative and ``orientation`` is
+                          its nearest rotation, kept in sync by that integrator.
+    """
+
+    position: np.ndarray
+    orientation: np.ndarray
+    linear_momentum: np.ndarray
+    angular_momentum: np.ndarray
+    force: np.ndarray = field(default=None)  # type: ignore[assignment]
+    torque: np.ndarray = field(default=None)  # type: ignore[assignment]
+    rotation: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        n = len(self.position)
+        if self.force is None:
+            self.force = np.zeros((n, 3))
+        if self.torque is None:
+            self.torque = np.zeros((n, 3))
+
+    @property
+    def count(self) -> int:
+        return len(self.position)
+
+    def copy(self) -> "BodyState":
+        return BodyState(
+            position=self.position.copy(),
+            orientation=self.orientation.copy(),
+            linear_momentum=self.linear_momentum.copy(),
+            angular_momentum=self.angular_momentum.copy(),
+            force=self.force.copy(),
+            torque=self.torque.copy(),
+            rotation=None if self.rotation is None else self.rotation.copy(),
+        )
+
+    def clear_accumulators(self) -> None:
+        self.force[:] = 0.0
+        self.torque[:] = 0.0
+
+    # ---- derived quantities (never stored, so they cannot go stale) ----
+
+    def rotation_matrices(self) -> np.ndarray:
+        """R (n, 3, 3): the integrator's own matrix when it keeps one, else from the quaternion."""
+        return self.rotation if self.rotation is not None else quat_to_matrix(self.orientation)
+
+    def linear_velocity(self, model: BodyModel) -> np.ndarray:
+        """v = P / m, (n, 3); zero for fixed bodies."""
+        return self.linear_momentum * model.inv_mass[:, None]
+
+    def inv_inertia_world(self, model: BodyModel, R: np.ndarray | None = None) -> np.ndarray:
+        """I_world⁻¹ = R I_body⁻¹ Rᵀ, (n, 3, 3)."""
+        R = self.rotation_matrices() if R is None else R
+        return R @ model.inv_inertia_body @ np.swapaxes(R, -1, -2)
+
+    def angular_velocity(self, model: BodyModel, R: np.ndarray | None = None) -> np.ndarray:
+        """ω = I_world⁻¹ L, (n, 3), world frame."""
+        return np.einsum("nij,nj->ni", self.inv_inertia_world(model, R), self.angular_momentum)
+
+    def kinetic_energy(self, model: BodyModel) -> np.ndarray:
+        """Per-body kinetic energy ½ P·v + ½ L·ω, (n,)."""
+        v = self.linear_velocity(model)
+        w = self.angular_velocity(model)
+        return 0.5 * np.einsum("ni,ni->n", self.linear_momentum, v) + 0.5 * np.einsum(
+            "ni,ni->n", self.angular_momentum, w
+        )

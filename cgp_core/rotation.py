@@ -1,0 +1,157 @@
+"""Rotations, vectorized over a leading batch axis.
+
+Quaternions are stored as ``(x, y, z, w)`` — the order of ROS ``geometry_msgs/Quaternion`` and
+scipy.spatial.transform — so state arrays go to messages without shuffling.  All functions accept a single
+quaternion ``(4,)`` or a batch ``(N, 4)`` (vectors ``(3,)`` / ``(N, 3)``, matrices ``(3, 3)`` / ``(N, 3, 3)``) and
+return the same rank.
+
+scipy's ``Rotation`` is not used in the hot paths: building a ``Rotation`` object costs more than the
+handful of multiply-adds below for the batch sizes of a scene, and we need the raw arrays anyway.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+IDENTITY_QUAT = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrix ``[v]x`` with ``skew(v) @ u == cross(v, u)``; ``(..., 3) -> (..., 3, 3)``."""
+    v = np.asarray(v, dtype=float)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1] = -v[..., 2]
+    out[..., 0, 2] = v[..., 1]
+    out[..., 1, 0] = v[..., 2]
+    out[..., 1, 2] = -v[..., 0]
+    out[..., 2, 0] = -v[..., 1]
+    out[..., 2, 1] = v[..., 0]
+    return out
+
+
+def quat_normalize(q: np.ndarray) -> np.ndarray:
+    """Unit quaternion(s) with ``w >= 0`` (the same rotation; the sign is fixed so outputs are canonical)."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., 3:4] < 0.0, -q, q)
+
+
+def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product ``a ⊗ b`` (apply ``b`` first, then ``a``)."""
+    ax, ay, az, aw = np.moveaxis(np.asarray(a, dtype=float), -1, 0)
+    bx, by, bz, bw = np.moveaxis(np.asarray(b, dtype=float), -1, 0)
+    return np.stack(
+        (
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ),
+        axis=-1,
+    )
+
+
+def quat_conjugate(q: np.ndarray) -> np.ndarray:
+    """Inverse rotation of a unit quaternion."""
+    q = np.array(q, dtype=float)
+    q[..., :3] *= -1.0
+    return q
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix ``R`` (columns = body axes in world coordinates) of unit quaternion(s); ``(..., 3, 3)``."""
+    x, y, z, w = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz = x * y, x * z, y * z
+    wx, wy, wz = w * x, w * y, w * z
+    R = np.empty(np.shape(x) + (3, 3))
+    R[..., 0, 0] = 1.0 - 2.0 * (yy + zz)
+    R[..., 0, 1] = 2.0 * (xy - wz)
+    R[..., 0, 2] = 2.0 * (xz + wy)
+    R[..., 1, 0] = 2.0 * (xy + wz)
+    R[..., 1, 1] = 1.0 - 2.0 * (xx + zz)
+    R[..., 1, 2] = 2.0 * (yz - wx)
+    R[..., 2, 0] = 2.0 * (xz - wy)
+    R[..., 2, 1] = 2.0 * (yz + wx)
+    R[..., 2, 2] = 1.0 - 2.0 * (xx + yy)
+    return R
+
+
+def matrix_to_quat(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion(s) of rotation matrix(es) (Shepperd's method: branch on the largest diagonal term so
+    the square root never takes a small argument).  For a slightly non-orthogonal ``R`` (e.g. the lecture's
+    explicit Euler update) this returns a quaternion close to its nearest rotation, normalized."""
+    R = np.asarray(R, dtype=float)
+    single = R.ndim == 2
+    R = R.reshape(-1, 3, 3)
+    m00, m11, m22 = R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]
+    trace = m00 + m11 + m22
+    q = np.empty((R.shape[0], 4))
+    # candidates 4*w^2, 4*x^2, 4*y^2, 4*z^2 -> pick the largest per matrix
+    cand = np.stack((1.0 + trace, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22), axis=1)
+    k = np.argmax(cand, axis=1)
+    s = 2.0 * np.sqrt(np.maximum(cand[np.arange(len(k)), k], 1e-300))
+    r21_m_r12 = R[:, 2, 1] - R[:, 1, 2]
+    r02_m_r20 = R[:, 0, 2] - R[:, 2, 0]
+    r10_m_r01 = R[:, 1, 0] - R[:, 0, 1]
+    r01_p_r10 = R[:, 0, 1] + R[:, 1, 0]
+    r02_p_r20 = R[:, 0, 2] + R[:, 2, 0]
+    r12_p_r21 = R[:, 1, 2] + R[:, 2, 1]
+    w_case = k == 0
+    q[w_case] = np.stack((r21_m_r12, r02_m_r20, r10_m_r01, 0.25 * s * s), axis=1)[w_case] / s[w_case, None]
+    x_case = k == 1
+    q[x_case] = np.stack((0.25 * s * s, r01_p_r10, r02_p_r20, r21_m_r12), axis=1)[x_case] / s[x_case, None]
+    y_case = k == 2
+    q[y_case] = np.stack((r01_p_r10, 0.25 * s * s, r12_p_r21, r02_m_r20), axis=1)[y_case] / s[y_case, None]
+    z_case = k == 3
+    q[z_case] = np.stack((r02_p_r20, r12_p_r21, 0.25 * s * s, r10_m_r01), axis=1)[z_case] / s[z_case, None]
+    q = quat_normalize(q)
+    return q[0] if single else q
+
+
+def quat_from_rotvec(phi: np.ndarray) -> np.ndarray:
+    """Exponential map: the rotation by angle ``|phi|`` about ``phi/|phi|`` (a series near zero, no 0/0)."""
+    phi = np.asarray(phi, dtype=float)
+    angle = np.linalg.norm(phi, axis=-1, keepdims=True)
+    half = 0.5 * angle
+    small = angle < 1e-8
+    # sin(a/2)/a ~ 1/2 - a^2/48 for small a
+    safe = np.where(small, 1.0, angle)
+    sinc_half = np.where(small, 0.5 - angle * angle / 48.0, np.sin(half) / safe)
+    return np.concatenate((phi * sinc_half, np.cos(half)), axis=-1)
+
+
+def quat_to_rotvec(q: np.ndarray) -> np.ndarray:
+    """Logarithm map (inverse of :func:`quat_from_rotvec`), angle in ``[0, pi]``."""
+    q = quat_normalize(q)
+    v = q[..., :3]
+    s = np.linalg.norm(v, axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(s, q[..., 3:4])
+    small = s < 1e-12
+    scale = np.where(small, 2.0, angle / np.where(small, 1.0, s))
+    return v * scale
+
+
+def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vector(s) ``v`` by unit quaternion(s) ``q`` (``R(q) @ v`` without building ``R``)."""
+    q = np.asarray(q, dtype=float)
+    v = np.asarray(v, dtype=float)
+    u = q[..., :3]
+    w = q[..., 3:4]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def quat_from_euler(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """Quaternion of fixed-axis roll (x), pitch (y), yaw (z), applied in that order (REP-103 RPY)."""
+    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
+    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
+    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
+    return np.array(
+        [
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+            cr * cp * cy + sr * sp * sy,
+        ]
+    )
