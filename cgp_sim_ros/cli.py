@@ -1,2 +1,103 @@
-def main(argv=None):
-    raise SystemExit("not yet")
+"""``cgp-sim`` (and ``ros2 run cgp_sim_ros sim_node``): run the simulation node.
+
+Every node parameter is also a flag (``--rate-hz 120`` ≡ ``--ros-args -p rate_hz:=120.0``); flags win over
+``--ros-args -p``.  Everything after ``--ros-args`` goes to ROS (remaps, namespaces, parameter files).
+
+Shutdown: Ctrl-C (SIGINT) or SIGTERM ends the run cleanly after the current tick — the bag is finished
+(summary, metadata.yaml) and its location printed.  A second Ctrl-C aborts at once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+
+from . import interface as itf
+
+
+def _bool(text: str) -> bool:
+    lowered = text.strip().lower()
+    if lowered in ("1", "true", "yes", "on"):
+        return True
+    if lowered in ("0", "false", "no", "off"):
+        return False
+    raise argparse.ArgumentTypeError(f"expected true or false, got {text!r}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="cgp-sim",
+        description="Rigid bodies and boid flocks of the CGP lecture, live on ROS 2 and recorded to MCAP.",
+        epilog="ROS arguments follow --ros-args, e.g. --ros-args -r __ns:=/sim1 -p rate_hz:=120.0. "
+               "Built-in scenes: " + ", ".join(_builtin_scenes()),
+    )
+    for spec in itf.PARAMETERS:
+        if spec.flag is None:
+            continue
+        kind = _bool if isinstance(spec.default, bool) else type(spec.default)
+        parser.add_argument(spec.flag, dest=spec.name, type=kind, default=None, metavar=spec.name.upper(),
+                            help=f"{spec.description} (default: {spec.default!r})")
+    parser.add_argument("--list-scenes", action="store_true", help="print the built-in scene names and exit")
+    return parser
+
+
+def _builtin_scenes() -> list[str]:
+    from cgp_core.scene import builtin_scene_names
+
+    return builtin_scene_names()
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv if argv is None else argv)
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+    from rclpy.signals import SignalHandlerOptions
+
+    from .node import ConfigError, SimNode
+
+    args = build_parser().parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
+    if args.list_scenes:
+        print("\n".join(_builtin_scenes()))
+        return 0
+    overrides = [Parameter(spec.name, value=getattr(args, spec.name))
+                 for spec in itf.PARAMETERS if spec.flag is not None and getattr(args, spec.name) is not None]
+
+    # Our own signal handling (not rclpy's): a stop request is a flag the loop checks between callbacks, so a
+    # tick is never cut in half and the bag is closed by this thread, in order.
+    stop = {"requested": False}
+
+    def request_stop(signum, frame):
+        if stop["requested"] and signum == signal.SIGINT:
+            raise KeyboardInterrupt  # second Ctrl-C: abort now
+        stop["requested"] = True
+
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, request_stop)
+    signal.signal(signal.SIGTERM, request_stop)
+    try:
+        node = SimNode(parameter_overrides=overrides)
+    except ConfigError as exc:
+        print(f"cgp-sim: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        while rclpy.ok() and not node.finished and not stop["requested"]:
+            executor.spin_once(timeout_sec=0.05)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.close()
+        if node.recorder is not None:
+            print(node.recorder.summary_text(), flush=True)
+        executor.remove_node(node)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,14 +1,23 @@
-"""The one interface every integrator implements.
+"""The one interface every integrator implements, and the few helpers they share.
 
 An integrator advances the free motion of all bodies over one (sub-)step ``h``: positions, orientations and
 momenta, with ``state.force`` and ``state.torque`` (world frame, torque about the COM) held constant over the
 step.  Contact impulses are not its business: the contact solver applies them to P and L before the
-integrator runs (see ARCHITECTURE.md, "The step pipeline").  Fixed bodies (``inv_mass == 0``) never move.
+integrator runs (see ARCHITECTURE.md, "The step pipeline").  Fixed bodies (``inv_mass == 0``) never move:
+their x, q, P, L are left bit-for-bit unchanged.
+
+State conventions (see :mod:`cgp_core.bodies`): world-frame momenta P and L are the state; the body-frame
+angular momentum is Π = Rᵀ L, the body angular velocity Ω = I_body⁻¹ Π and the world one ω = R Ω.
+Orientation quaternions map body to world, so a body-frame increment multiplies on the right
+(``q ⊗ dq``) and a world-frame one on the left (``dq ⊗ q``).
 """
 
 from __future__ import annotations
 
+import math
 from typing import ClassVar, Protocol
+
+import numpy as np
 
 from ..bodies import BodyModel, BodyState
 
@@ -20,3 +29,73 @@ class Integrator(Protocol):
     def step(self, model: BodyModel, state: BodyState, h: float) -> None:
         """Advance ``state`` in place by ``h`` seconds."""
         ...
+
+
+def check_step(h: float) -> float:
+    """``h`` as a float; ``ValueError`` unless it is a positive finite number of seconds."""
+    try:
+        h = float(h)
+    except (TypeError, ValueError):
+        raise ValueError(f"integrator step h must be a number of seconds, got {h!r}") from None
+    if not (math.isfinite(h) and h > 0.0):
+        raise ValueError(f"integrator step h must be a positive finite number of seconds, got {h!r}")
+    return h
+
+
+def movable_mask(model: BodyModel) -> np.ndarray:
+    """(n, 1) float: 1 for bodies that move, 0 for fixed ones — multiplies increments so that fixed bodies
+    get exactly zero without a boolean gather/scatter."""
+    return (model.inv_mass > 0.0).astype(float)[:, None]
+
+
+def kick(model: BodyModel, state: BodyState, h: float) -> None:
+    """P += h F, L += h τ for the movable bodies (the exact flow of a constant force and torque)."""
+    movable = movable_mask(model)
+    state.linear_momentum += (h * movable) * state.force
+    state.angular_momentum += (h * movable) * state.torque
+
+
+def body_angular_momentum(orientation: np.ndarray, angular_momentum: np.ndarray) -> np.ndarray:
+    """Π = Rᵀ L, (n, 3): world angular momentum in body axes (``orientation`` must be unit quaternions).
+
+    The same formula as ``rotation.quat_rotate`` by the conjugate quaternion (v + w t + u × t with
+    t = 2 u × v, u = −(x, y, z)), written with :func:`cross3` because it runs on every step.
+    """
+    u = -orientation[:, :3]
+    t = 2.0 * cross3(u, angular_momentum)
+    return angular_momentum + orientation[:, 3:] * t + cross3(u, t)
+
+
+def apply_inertia(tensor: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """Batched matrix-vector product ``tensor (n, 3, 3) @ vectors (n, 3) -> (n, 3)``."""
+    return np.einsum("nij,nj->ni", tensor, vectors)
+
+
+# Small dense kernels for (n, 3) / (n, 3, 3) batches.  np.cross and np.linalg.solve/inv are general (any
+# axis, LAPACK per matrix) and cost several times more than these few elementwise operations at both n = 1
+# and n = 1000; they are also the integrators' inner loop.
+
+
+def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b for (..., 3) arrays (same result as ``np.cross``)."""
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
+    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    out = np.empty(a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = ay * bz - az * by
+    out[..., 1] = az * bx - ax * bz
+    out[..., 2] = ax * by - ay * bx
+    return out
+
+
+def inverse3(matrices: np.ndarray) -> np.ndarray:
+    """Inverse of (..., 3, 3) matrices by the adjugate: the columns of A⁻¹ are the cross products of A's
+    rows divided by det A.  Never raises: a singular matrix gives inf/nan (with numpy's RuntimeWarning),
+    which the World's blow-up guard then catches, where ``np.linalg.inv`` would abort the whole step."""
+    r0, r1, r2 = matrices[..., 0, :], matrices[..., 1, :], matrices[..., 2, :]
+    out = np.empty(matrices.shape)
+    out[..., :, 0] = cross3(r1, r2)
+    out[..., :, 1] = cross3(r2, r0)
+    out[..., :, 2] = cross3(r0, r1)
+    inv_det = 1.0 / np.einsum("...i,...i->...", r0, out[..., :, 0])
+    out *= inv_det[..., None, None]
+    return out

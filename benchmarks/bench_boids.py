@@ -1,0 +1,326 @@
+"""Boid flock step cost on this machine (issue 4, and the boid figures of issue 7).
+
+Figures (targets from issue 7 and the lead's budget split):
+- step at 10k and 15k boids: 15k <= 7 ms (the whole 60 Hz tick at 15k, publishing included, is 16.7 ms);
+- step at 100k boids <= 80 ms, and cost(100k) / cost(10k) <= 14 (near-linear);
+- at 4k boids, >= 100x faster than a naive O(N²) numpy step with the same rules (vectorized over all pairs,
+  written below, checked against the flock on a small case before it is timed).
+
+Realistic density: the benchmark flocks are spawned at the density of the *default* flock's steady state
+(300 default boids run for 20 s; the mean number of neighbours within d gives the density), warmed up for
+``--warmup`` seconds of sim time, then timed.  Every timing reports the neighbours per boid measured while it
+ran, and the backend.  Each row is a whole ``Flock.step`` (neighbours, rules, walls, integration, frames and
+the orientation quaternions), median over the timed steps; ``max`` shows the ticks where the grid rebuilds
+its candidate list.  Grid and KD-tree / naive runs are interleaved round by round (the machine is shared).
+
+Writes a table to stdout and ``benchmarks/results/boids.json``.
+Run: ``.venv/bin/python benchmarks/bench_boids.py`` (``--quick``: fewer steps, no 100k KD-tree).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from cgp_core.bodies import BodyModel, BodyState, Shape  # noqa: E402
+from cgp_core.boids import Flock, FlockParams, Obstacles, make_search  # noqa: E402
+from cgp_core.boids.frames import frames_to_quaternions, update_frames  # noqa: E402
+from cgp_core.boids.rules import COHESION_GATE  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+DT = 1.0 / 60.0
+TARGET_15K_MS = 7.0
+TARGET_100K_MS = 80.0
+TARGET_SCALING = 14.0
+TARGET_NAIVE_RATIO = 100.0
+
+
+# ---- the naive baseline -------------------------------------------------------------------------------
+
+def naive_step(flock: Flock, dt: float) -> None:
+    """One step of ``flock`` with the same rules as ``Flock.step`` (no obstacles), but every pair of boids
+    handled as a dense N × N matrix: what a vectorized numpy implementation without a spatial structure
+    looks like.  O(N²) time and memory."""
+    p = flock.params
+    x, v = flock._x.T, flock._v.T  # (N, 3) views of the state
+    offset = x[None, :, :] - x[:, None, :]  # (N, N, 3): x_j − x_i
+    dist2 = np.einsum("ijk,ijk->ij", offset, offset)
+    within = dist2 < p.radius**2
+    np.fill_diagonal(within, False)
+    distance = np.sqrt(dist2)
+    heading = flock._heading.T
+    if p.fov_deg < 360.0:
+        visible = within & (np.einsum("ik,ijk->ij", heading, offset) > p.cos_half_fov * distance)
+    else:
+        visible = within
+    count = visible.sum(axis=1)
+    has = count > 0
+    safe = np.maximum(count, 1)[:, None]
+    crowded = (within & (dist2 < (COHESION_GATE * p.separation_radius) ** 2)).any(axis=1)
+    pulls = has & ~crowded if p.separation_weight > 0 else has
+    cohesion = (visible @ x / safe - x) * pulls[:, None]
+    close = within & (dist2 < p.separation_radius**2)
+    weight = np.where(close, (p.separation_radius - distance) / np.where(close, distance, 1.0), 0.0)
+    separation = -np.einsum("ij,ijk->ik", weight, offset)
+    alignment = (visible @ v / safe - v) * has[:, None]
+    wanted = p.cohesion_weight * cohesion + p.separation_weight * separation + p.alignment_weight * alignment
+    needed = flock._wall_acceleration().T
+    needed_norm = np.linalg.norm(needed, axis=1, keepdims=True)
+    needed *= np.minimum(1.0, p.max_acceleration / np.maximum(needed_norm, 1e-300))
+    budget = np.maximum(p.max_acceleration - np.linalg.norm(needed, axis=1, keepdims=True), 0.0)
+    wanted_norm = np.linalg.norm(wanted, axis=1, keepdims=True)
+    wanted *= np.minimum(1.0, budget / np.maximum(wanted_norm, 1e-300))
+    v += (needed + wanted) * dt
+    speed = np.linalg.norm(v, axis=1, keepdims=True)
+    v *= np.clip(speed, p.min_speed, p.max_speed) / speed
+    x += v * dt
+    if p.bounds_mode == "soft":
+        flock._clamp_to_box()
+    flock._heading[:], flock._dorsal[:] = update_frames(flock._heading, flock._dorsal, flock._v, dt, p.bank_gain,
+                                                        p.orientation_time_constant)
+    frames_to_quaternions(flock._heading, flock._dorsal, out=flock._q)
+
+
+def check_naive_matches(params: FlockParams) -> float:
+    """Largest position difference after 30 steps, naive vs Flock.step, from the same state (must be tiny:
+    same rules, different summation order)."""
+    a, b = Flock(params), Flock(params)
+    for _ in range(30):
+        a.step(DT)
+        naive_step(b, DT)
+    return float(np.abs(a.positions - b.positions).max())
+
+
+# ---- flocks at the steady-state density ---------------------------------------------------------------
+
+def steady_state_neighbors(seconds: float = 20.0) -> float:
+    """Mean neighbours within d per boid of the default flock, averaged over the last quarter of the run."""
+    flock = Flock(FlockParams())
+    samples = []
+    steps = int(seconds / DT)
+    for k in range(steps):
+        flock.step(DT)
+        if k >= 0.75 * steps:
+            samples.append(flock.mean_neighbors)
+    return float(np.mean(samples))
+
+
+def make_flock(count: int, density: float, backend: str, seed: int = 0) -> Flock:
+    """``count`` default boids spawned in a cube at ``density`` [1/m³], in a soft-walled box 3x its size."""
+    side = (count / density) ** (1.0 / 3.0)
+    params = FlockParams(count=count, seed=seed, neighbor_search=backend, spawn_center=[0.0, 0.0, 1.5 * side + 1],
+                         spawn_extent=[side, side, side], bounds_min=[-1.5 * side, -1.5 * side, 0.5],
+                         bounds_max=[1.5 * side, 1.5 * side, 3.0 * side + 1])
+    return Flock(params)
+
+
+def random_bodies(count: int, flock: Flock, seed: int = 0) -> Obstacles:
+    """``count`` fixed bodies (spheres, boxes, capsules in turn, 0.5–1.5 m) scattered through the flock's
+    spawn box: the '+ 20 bodies' of issue 7's tick, as the flock sees them."""
+    rng = np.random.default_rng(seed)
+    p = flock.params
+    low = p.spawn_center - 0.5 * p.spawn_extent
+    high = p.spawn_center + 0.5 * p.spawn_extent
+    shape = np.array([(Shape.SPHERE, Shape.BOX, Shape.CAPSULE)[k % 3] for k in range(count)], dtype=np.int8)
+    size = rng.uniform(0.5, 1.5, count)
+    half_extents = np.zeros((count, 3))
+    half_extents[shape == Shape.BOX] = size[shape == Shape.BOX, None] * [1.0, 0.6, 0.4]
+    half_extents[shape == Shape.CAPSULE, 2] = size[shape == Shape.CAPSULE]
+    radius = np.where(shape == Shape.BOX, 0.0, 0.5 * size)
+    model = BodyModel(names=[f"b{k}" for k in range(count)], shape=shape, radius=radius, half_extents=half_extents,
+                      mass=np.ones(count), inv_mass=np.zeros(count), inertia_body=np.tile(np.eye(3), (count, 1, 1)),
+                      inv_inertia_body=np.zeros((count, 3, 3)), restitution=np.zeros(count),
+                      friction=np.zeros(count), fixed=np.ones(count, bool), particles=[None] * count,
+                      color=np.ones((count, 4)))
+    q = rng.normal(size=(count, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    state = BodyState(position=rng.uniform(low, high, (count, 3)), orientation=q,
+                      linear_momentum=np.zeros((count, 3)), angular_momentum=np.zeros((count, 3)))
+    return Obstacles.from_bodies(model, state, ground=True)
+
+
+class Runner:
+    """A flock (or the naive baseline on one) warmed up and timed a few steps at a time, so variants can
+    be interleaved."""
+
+    def __init__(self, count: int, density: float, backend: str, warmup_s: float, bodies: int = 0):
+        self.backend = backend
+        self.flock = make_flock(count, density, "grid")
+        self.obstacles = random_bodies(bodies, self.flock) if bodies else None
+        self.label = backend if not bodies else f"{backend}+{bodies} bodies"
+        for _ in range(int(warmup_s / DT)):
+            self.flock.step(DT, self.obstacles)  # the warm-up uses the grid (same seed: same start for every backend)
+        if backend not in ("grid", "naive"):
+            self.flock._search = make_search(backend)
+        self.times: list[float] = []
+        self.neighbors: list[float] = []
+        self.steps_run = 0
+        search = self.flock._search
+        self.builds_before = getattr(search, "builds", 0)
+
+    def _step(self) -> None:
+        if self.backend == "naive":
+            naive_step(self.flock, DT)
+        else:
+            self.flock.step(DT, self.obstacles)
+
+    def run(self, steps: int) -> None:
+        """One untimed step (caches and the allocator settle after the other variant ran: the naive step
+        allocates gigabytes), then ``steps`` timed ones."""
+        flock = self.flock
+        self._step()
+        self.steps_run += steps + 1
+        for _ in range(steps):
+            start = time.perf_counter()
+            self._step()
+            _ = flock.orientations  # part of the step's output (computed in step)
+            self.times.append(time.perf_counter() - start)
+            if self.backend != "naive":
+                self.neighbors.append(flock.mean_neighbors)
+
+    def row(self) -> dict:
+        t = np.array(self.times) * 1e3
+        search = self.flock._search
+        row = {"boids": self.flock.count, "backend": self.label, "ms_median": float(np.median(t)),
+               "ms_mean": float(np.mean(t)), "ms_max": float(np.max(t)), "steps": len(t)}
+        if self.neighbors:
+            row["neighbors_per_boid"] = float(np.mean(self.neighbors))
+        if hasattr(search, "builds") and self.backend == "grid":
+            row["rebuilds_per_step"] = (search.builds - self.builds_before) / self.steps_run
+        return row
+
+
+def interleaved(runners: list[Runner], rounds: int, steps: int | list[int]) -> None:
+    steps = steps if isinstance(steps, list) else [steps] * len(runners)
+    for _ in range(rounds):
+        for runner, n in zip(runners, steps):
+            runner.run(n)
+
+
+def breakdown(flock: Flock, repeats: int = 15) -> dict:
+    """Where a step's time goes (medians of the stages called one by one on the current state)."""
+    from cgp_core.boids import rules
+
+    def median_ms(fn):
+        fn()
+        t = []
+        for _ in range(repeats):
+            s = time.perf_counter()
+            fn()
+            t.append(time.perf_counter() - s)
+        return float(np.median(t) * 1e3)
+
+    search = flock._search
+    points, _ = flock._work_points()
+    out = {"neighbor search: cell search (rebuild tick)": median_ms(lambda: search.pairs(points, flock.params.radius,
+                                                                                            reuse=False))}
+    search.pairs(points, flock.params.radius)
+    out["neighbor search: candidate re-test (other ticks)"] = median_ms(lambda: search.pairs(points,
+                                                                                             flock.params.radius))
+    pairs = search.pairs(points, flock.params.radius)
+    slot = pairs.order
+    positions = np.take(points, slot, axis=1)
+    velocities = np.take(flock._v, slot, axis=1).astype(np.float32)
+    headings = np.zeros((len(slot), 4), np.float32)
+    headings[:, :3] = np.take(flock._heading, slot, axis=1).T
+    p = flock.params
+    out["rules: field of view"] = median_ms(lambda: rules.visibility(pairs, headings, p.cos_half_fov))
+    out["rules: neighbour sums (incl. field of view, separation)"] = median_ms(
+        lambda: rules.neighbor_sums(pairs, positions, velocities, headings, p.separation_radius, p.cos_half_fov))
+    out["frames + quaternions"] = median_ms(lambda: (update_frames(flock._heading, flock._dorsal, flock._v, DT,
+                                                                   p.bank_gain, p.orientation_time_constant),
+                                                     frames_to_quaternions(flock._heading, flock._dorsal)))
+    out["whole step"] = median_ms(lambda: flock.step(DT))
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="fewer steps, skip the 100k KD-tree run")
+    parser.add_argument("--warmup", type=float, default=3.0, help="sim seconds before timing (default 3)")
+    args = parser.parse_args()
+    rounds, steps = (3, 10) if args.quick else (5, 20)
+
+    print("steady state of the default flock (300 boids, 20 s) ...", flush=True)
+    k_steady = steady_state_neighbors()
+    radius = FlockParams().radius
+    density = k_steady / (4.0 / 3.0 * math.pi * radius**3)
+    print(f"  {k_steady:.1f} neighbours within d = {radius} m  ->  density {density:.3f} boids/m³", flush=True)
+
+    naive_error = check_naive_matches(FlockParams(count=300, seed=1))
+    print(f"  naive baseline vs Flock.step after 30 steps: max position difference {naive_error:.2e} m")
+
+    rows = []
+
+    def measure(count, backends, rounds_, steps_, bodies=0):
+        print(f"{count} boids: {', '.join(backends)}{f' with {bodies} bodies' if bodies else ''} ...", flush=True)
+        runners = [Runner(count, density, b, args.warmup, bodies) for b in backends]
+        interleaved(runners, rounds_, steps_)
+        for r in runners:
+            rows.append(r.row())
+        return runners
+
+    measure(1_000, ["grid", "kdtree", "brute"], rounds, steps)
+    naive_runners = measure(4_000, ["grid", "naive"], rounds, [steps, 1])
+    measure(10_000, ["grid", "kdtree"], rounds, steps)
+    runners_15k = measure(15_000, ["grid", "kdtree"], rounds, steps)
+    measure(15_000, ["grid"], rounds, steps, bodies=20)
+    runners_100k = measure(100_000, ["grid"] if args.quick else ["grid", "kdtree"], max(2, rounds - 2), steps)
+
+    def find(count, backend):
+        return next(r for r in rows if r["boids"] == count and r["backend"] == backend)
+
+    grid_4k = naive_runners[0]
+    naive_ratio = float(find(4_000, "naive")["ms_median"] / np.median(np.array(grid_4k.times) * 1e3))
+    figures = [
+        {"figure": "boid step at 15k (grid, median)", "value": find(15_000, "grid")["ms_median"], "unit": "ms",
+         "target": f"<= {TARGET_15K_MS}", "pass": bool(find(15_000, "grid")["ms_median"] <= TARGET_15K_MS)},
+        {"figure": "boid step at 10k (grid, median)", "value": find(10_000, "grid")["ms_median"], "unit": "ms",
+         "target": "well under 16.7", "pass": bool(find(10_000, "grid")["ms_median"] <= 16.7 / 2)},
+        {"figure": "boid step at 100k (grid, median)", "value": find(100_000, "grid")["ms_median"], "unit": "ms",
+         "target": f"<= {TARGET_100K_MS}", "pass": bool(find(100_000, "grid")["ms_median"] <= TARGET_100K_MS)},
+        {"figure": "cost(100k) / cost(10k)", "value": find(100_000, "grid")["ms_median"]
+         / find(10_000, "grid")["ms_median"], "unit": "x", "target": f"<= {TARGET_SCALING}",
+         "pass": bool(find(100_000, "grid")["ms_median"] / find(10_000, "grid")["ms_median"] <= TARGET_SCALING)},
+        {"figure": "naive O(N²) step / grid step at 4k", "value": naive_ratio, "unit": "x",
+         "target": f">= {TARGET_NAIVE_RATIO}", "pass": bool(naive_ratio >= TARGET_NAIVE_RATIO)},
+    ]
+
+    print()
+    print(f"{'boids':>7}  {'backend':8} {'ms/step':>9} {'mean':>8} {'max':>8} {'nbrs/boid':>10} {'rebuilds/step':>14}")
+    for r in rows:
+        print(f"{r['boids']:>7}  {r['backend']:8} {r['ms_median']:9.2f} {r['ms_mean']:8.2f} {r['ms_max']:8.2f} "
+              f"{r.get('neighbors_per_boid', float('nan')):10.1f} {r.get('rebuilds_per_step', float('nan')):14.2f}")
+    print()
+    print(f"{'figure':40} {'value':>10}  {'target':>16}  result")
+    for f in figures:
+        print(f"{f['figure']:40} {f['value']:10.2f}  {f['target']:>16}  {'pass' if f['pass'] else 'SHORT'}")
+
+    parts = {"15k": breakdown(runners_15k[0].flock), "100k": breakdown(runners_100k[0].flock, repeats=5)}
+    print()
+    for size, stages in parts.items():
+        print(f"breakdown at {size} (ms, medians of the stages run one by one):")
+        for name, ms in stages.items():
+            print(f"  {name:55} {ms:8.2f}")
+
+    RESULTS.mkdir(exist_ok=True)
+    results = {"machine": {"python": platform.python_version(), "numpy": np.__version__, "cpus": os.cpu_count()},
+               "steady_state": {"neighbors_per_boid": k_steady, "density_per_m3": density, "radius_m": radius},
+               "naive_check_max_position_difference_m": naive_error, "rows": rows, "figures": figures,
+               "breakdown_ms": parts, "warmup_s": args.warmup}
+    (RESULTS / "boids.json").write_text(json.dumps(results, indent=2) + "\n")
+    print(f"\nwrote {RESULTS / 'boids.json'}")
+
+
+if __name__ == "__main__":
+    main()

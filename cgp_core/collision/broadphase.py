@@ -1,0 +1,197 @@
+"""Broad phase: which axis-aligned bounding boxes (AABBs) overlap (Ericson ch. 7).
+
+Every function takes ``lo, hi (p, 3)`` (box corners) and returns the overlapping pairs as two index arrays
+``(i, j)`` with ``i < j``, each pair once, sorted by ``(i, j)``; boxes that merely touch count as
+overlapping.  Three implementations behind that one signature:
+
+- :func:`brute_force_pairs` — every pair tested, O(p²): the reference the others are tested against.
+- :func:`grid_pairs` — **default**: a uniform grid, stored as a sorted array of cell keys instead of a hash
+  table (Ericson 7.1.2 / 7.1.5: the "sort the objects by cell" variant, which numpy does in one argsort).
+  The cell edge is the largest extent among the ordinary-sized boxes, so each box is filed under the one
+  cell holding its lower corner and any box it overlaps lies in that cell or one of its 26 neighbours;
+  visiting the cell itself and 13 of the neighbours (one of each opposite pair) meets every pair exactly
+  once.  The few boxes much larger than the typical one (walls, floors) are tested against everything by
+  brute force.  O(p log p) for the sort, O(p) work per box for the typical scene.
+- :func:`sweep_and_prune_pairs` — sort by the lower bound along the axis of largest spread and pair each box
+  with those that start before it ends (Ericson 7.5.2, single axis).  Simple and good for sparse scenes;
+  its candidate count grows as p² · (box size / world size), so dense piles favour the grid.
+
+All three are fully vectorized: the variable-length candidate lists are generated with the
+``repeat + arange`` idiom, never with a Python loop over boxes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_EMPTY = (np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp))
+
+#: a box whose largest extent exceeds this multiple of the median extent is "large" for the grid and is
+#: tested by brute force instead of being filed in cells (keeps the cells small when a scene has walls)
+LARGE_FACTOR = 4.0
+
+# the cell itself plus 13 of its 26 neighbours: one of each pair of opposite offsets
+_HALF_NEIGHBOURHOOD = np.array(
+    [(0, 0, 0)]
+    + [(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)
+       if (dx, dy, dz) > (0, 0, 0)],
+    dtype=np.int64,
+)
+
+
+def _check(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    lo = np.asarray(lo, dtype=float)
+    hi = np.asarray(hi, dtype=float)
+    if lo.ndim != 2 or lo.shape[1] != 3 or lo.shape != hi.shape:
+        raise ValueError(f"AABB corners must both be (p, 3) arrays, got {lo.shape} and {hi.shape}")
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        raise ValueError("AABB corners must be finite (a body position or orientation is NaN/inf)")
+    return lo, hi
+
+
+def _overlap(lo, hi, i, j) -> np.ndarray:
+    return np.all((lo[i] <= hi[j]) & (lo[j] <= hi[i]), axis=1)
+
+
+def _sorted_pairs(i: np.ndarray, j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Canonical order: i < j, sorted lexicographically (so results compare equal across methods)."""
+    a = np.minimum(i, j).astype(np.int64)
+    b = np.maximum(i, j).astype(np.int64)
+    order = np.argsort(a * (int(b.max(initial=0)) + 1) + b)
+    return a[order].astype(np.intp), b[order].astype(np.intp)
+
+
+def _expand_ranges(owner: np.ndarray, start: np.ndarray, count: np.ndarray):
+    """For each k, the pairs (owner[k], start[k] + r) for r in range(count[k]) — without a Python loop."""
+    total = int(count.sum())
+    if total == 0:
+        return _EMPTY
+    rep_owner = np.repeat(owner, count)
+    # position within each run: arange(total) minus the run's first output index
+    run_first = np.repeat(np.cumsum(count) - count, count)
+    rep_index = np.repeat(start, count) + (np.arange(total) - run_first)
+    return rep_owner, rep_index
+
+
+def brute_force_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """All overlapping pairs by testing every pair (O(p²) memory and time: the reference)."""
+    lo, hi = _check(lo, hi)
+    p = len(lo)
+    if p < 2:
+        return _EMPTY
+    overlap = np.all((lo[:, None, :] <= hi[None, :, :]) & (lo[None, :, :] <= hi[:, None, :]), axis=2)
+    i, j = np.nonzero(np.triu(overlap, k=1))
+    return i.astype(np.intp), j.astype(np.intp)
+
+
+def sweep_and_prune_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Single-axis sweep and prune along the axis of largest spread of the box centres."""
+    lo, hi = _check(lo, hi)
+    p = len(lo)
+    if p < 2:
+        return _EMPTY
+    axis = int(np.argmax(np.var(lo + hi, axis=0)))
+    order = np.argsort(lo[:, axis], kind="stable")
+    start_sorted = lo[order, axis]
+    # box order[k] overlaps along the axis the boxes order[k+1 .. end_k - 1] (they start before it ends)
+    end = np.searchsorted(start_sorted, hi[order, axis], side="right")
+    count = end - np.arange(1, p + 1)
+    ks, ls = _expand_ranges(np.arange(p), np.arange(1, p + 1), np.maximum(count, 0))
+    i, j = order[ks], order[ls]
+    keep = _overlap(lo, hi, i, j)
+    return _sorted_pairs(i[keep], j[keep])
+
+
+def grid_cell_size(lo: np.ndarray, hi: np.ndarray) -> float:
+    """The grid's cell edge: the largest extent among boxes no larger than ``LARGE_FACTOR`` × the median."""
+    extent = np.max(hi - lo, axis=1)
+    ordinary = extent[extent <= LARGE_FACTOR * np.median(extent)]
+    cell = float(ordinary.max()) if ordinary.size else float(extent.max())
+    return cell if cell > 0.0 else 1.0
+
+
+def grid_pairs(lo: np.ndarray, hi: np.ndarray, cell_size: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform-grid broad phase (see the module docstring).  ``cell_size`` defaults to
+    :func:`grid_cell_size`; boxes larger than a cell are handled by brute force against all boxes."""
+    lo, hi = _check(lo, hi)
+    p = len(lo)
+    if p < 2:
+        return _EMPTY
+    cell = grid_cell_size(lo, hi) if cell_size is None else float(cell_size)
+    if not (np.isfinite(cell) and cell > 0.0):
+        raise ValueError(f"grid cell size must be a positive number, got {cell_size!r}")
+    # a hair larger, so two boxes whose lower corners are exactly one cell apart cannot land two cells apart
+    # through the rounding of lo / cell
+    cell *= 1.0 + 1e-9
+    extent = np.max(hi - lo, axis=1)
+    large = extent > cell
+    small = np.flatnonzero(~large)
+    pairs_i, pairs_j = [], []
+
+    if small.size >= 2:
+        cells_per_axis = np.floor((lo[small].max(axis=0) - lo[small].min(axis=0)) / cell) + 3
+        if float(np.prod(cells_per_axis)) > 2.0 ** 62:
+            # a scene spread over more cells than an int64 key can number (a body flung kilometres away):
+            # sweep and prune needs no keys
+            i, j = sweep_and_prune_pairs(lo[small], hi[small])
+            pairs_i.append(small[i])
+            pairs_j.append(small[j])
+    if small.size >= 2 and not pairs_i:
+        coords = np.floor(lo[small] / cell).astype(np.int64)
+        coords -= coords.min(axis=0) - 1  # >= 1, so neighbour offsets of -1 stay >= 0
+        span = coords.max(axis=0) + 2
+        stride = np.array([span[1] * span[2], span[2], 1], dtype=np.int64)
+        key = coords @ stride
+        order = np.argsort(key, kind="stable")
+        targets = (key[None, :] + (_HALF_NEIGHBOURHOOD @ stride)[:, None]).ravel()  # (14 * s,)
+        cells = int(span.prod())
+        if cells <= 8 * small.size + 4096:
+            # few enough cells for a dense table: start of each cell's run in `order`, by direct indexing
+            start = np.zeros(cells + 1, dtype=np.int64)
+            np.cumsum(np.bincount(key, minlength=cells), out=start[1:])
+            first, last = start[targets], start[targets + 1]
+        else:
+            # sparse: binary search in the sorted keys (the "hash table" of Ericson 7.1.3 as a sorted array)
+            sorted_key = key[order]
+            first = np.searchsorted(sorted_key, targets, side="left")
+            last = np.searchsorted(sorted_key, targets, side="right")
+        owner = np.tile(np.arange(small.size), len(_HALF_NEIGHBOURHOOD))
+        a, k = _expand_ranges(owner, first, last - first)
+        b = order[k]
+        # within the own cell (offset 0, the first block) each pair appears twice and each box with itself
+        own_cell = np.repeat(np.arange(len(targets)) < small.size, last - first)
+        keep = ~own_cell | (a < b)
+        a, b = small[a[keep]], small[b[keep]]
+        hit = _overlap(lo, hi, a, b)
+        pairs_i.append(a[hit])
+        pairs_j.append(b[hit])
+
+    big = np.flatnonzero(large)
+    if big.size:
+        # large vs everything (large-large pairs once: only against higher-index large boxes)
+        others = np.arange(p)
+        ov = np.all((lo[big][:, None, :] <= hi[None, :, :]) & (lo[None, :, :] <= hi[big][:, None, :]), axis=2)
+        ov &= ~(large[None, :] & (others[None, :] <= big[:, None]))
+        bi, oj = np.nonzero(ov)
+        pairs_i.append(big[bi])
+        pairs_j.append(others[oj])
+
+    if not pairs_i:
+        return _EMPTY
+    return _sorted_pairs(np.concatenate(pairs_i), np.concatenate(pairs_j))
+
+
+BROAD_PHASES = {
+    "grid": grid_pairs,
+    "sweep_and_prune": sweep_and_prune_pairs,
+    "brute_force": brute_force_pairs,
+}
+DEFAULT_BROAD_PHASE = "grid"
+
+
+def get_broad_phase(name: str):
+    """The broad-phase function called ``name``; ``ValueError`` listing the valid names otherwise."""
+    try:
+        return BROAD_PHASES[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown broad phase {name!r}; valid: {', '.join(sorted(BROAD_PHASES))}") from None

@@ -1,0 +1,79 @@
+"""The rigid-body sub-step: the pipeline :class:`~cgp_core.world.World` runs ``substeps`` times per tick.
+
+:func:`step_bodies` runs the stages of ARCHITECTURE.md ("The step pipeline") in order, each named where it
+runs.  Everything about contacts — detection settings, solver settings, warm-start memory — lives in the
+``solver`` object (and its ``solver.detector``), so this function is the whole order of events and nothing
+else.
+
+Usage (no World needed)::
+
+    from cgp_core.dynamics import Ground, step_bodies
+    from cgp_core.integrators import make_integrator
+    from cgp_core.solver import make_solver
+    integrator, solver = make_integrator("symplectic_euler"), make_solver()
+    for _ in range(240):
+        step_bodies(model, state, integrator, solver, 1 / 240, gravity=(0, 0, -9.81), ground=Ground())
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .bodies import BodyModel, BodyState
+from .collision.materials import Ground
+from .forces import apply_damping, apply_gravity
+from .integrators.base import Integrator
+from .solver.base import ContactSolver
+
+__all__ = ["Ground", "step_bodies"]
+
+
+def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solver: ContactSolver, h: float, *,
+                gravity, ground: Ground | None, linear_damping: float = 0.0, angular_damping: float = 0.0) -> None:
+    """Advance all bodies by one sub-step of ``h`` seconds, in place.
+
+    Args:
+        gravity:          (3,) m/s².
+        ground:           the static plane z = 0 (:class:`Ground`), or ``None`` for a scene without one.
+        linear_damping, angular_damping: viscous rates [1/s] (:func:`cgp_core.forces.apply_damping`).
+
+    Forces and torques already in ``state.force`` / ``state.torque`` (wrench commands) are kept and act with
+    gravity over this sub-step; the accumulators are cleared at the end.
+    """
+    given = h
+    try:
+        h = float(h)
+    except (TypeError, ValueError):
+        h = float("nan")
+    if not (np.isfinite(h) and h > 0.0):
+        raise ValueError(f"sub-step h must be a positive number of seconds, got {given!r}")
+    try:
+        gravity = np.asarray(gravity, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"gravity must be 3 finite numbers [m/s²], got {gravity!r}") from None
+    if gravity.shape != (3,) or not np.isfinite(gravity).all():
+        raise ValueError(f"gravity must be 3 finite numbers [m/s²], got {gravity.tolist()}")
+
+    # 1. accumulate forces (on top of any wrench forces already accumulated by the caller)
+    apply_gravity(model, state, gravity)
+    apply_damping(model, state, linear_damping, angular_damping)
+
+    # 2. detect contacts, with speculative margins sized by the velocities the bodies are about to move with
+    inv_inertia = state.inv_inertia_world(model)
+    velocity = (state.linear_momentum + h * state.force) * model.inv_mass[:, None]
+    angular_velocity = np.einsum("nij,nj->ni", inv_inertia, state.angular_momentum + h * state.torque)
+    contacts = solver.detector.detect(model, state, h, ground=ground, velocity=velocity,
+                                      angular_velocity=angular_velocity)
+
+    # 3. solve contacts: impulses added to P and L as momentum changes at the start of the sub-step, so that
+    #    momentum + h·force + impulse satisfies non-penetration, restitution and friction
+    solver.solve_velocities(model, state, contacts, h)
+
+    # 4. integrate
+    integrator.step(model, state, h)
+
+    # 5. recover penetration (moves bodies apart; momenta untouched: adds no kinetic energy)
+    solver.recover_penetration(model, state, h)
+
+    # 6. clear accumulators
+    state.clear_accumulators()

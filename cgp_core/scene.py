@@ -1,0 +1,609 @@
+"""Scenes: YAML files (``yaml.safe_load`` only) describing a world, its rigid bodies and its boid flocks.
+
+A scene is validated completely before anything is built: every error names the file, the key path (e.g.
+``bodies[2].size``) and what is wrong, and all errors of a file are reported together.  The format
+(SI units, frame ``world``, z up as REP-103):
+
+.. code-block:: yaml
+
+    world:
+      gravity: [0, 0, -9.81]          # m/s²
+      ground: true                     # static plane z = 0
+      ground_friction: 0.6             # Coulomb μ of the ground (combined with the body's, see cgp_core.solver)
+      ground_restitution: 0.0          # e of the ground
+      integrator: implicit_midpoint    # explicit_euler | symplectic_euler | rk4 | implicit_midpoint
+      substeps: 4                      # physics sub-steps per tick (the node's `substeps` overrides)
+      linear_damping: 0.0              # 1/s
+      angular_damping: 0.0             # 1/s
+    bodies:
+      - name: crate                    # unique, ROS-name-safe ([A-Za-z][A-Za-z0-9_]*)
+        shape: box                     # sphere | box | capsule | particles
+        size: [0.4, 0.4, 0.4]          # box: full extents [m]
+        # radius: 0.2                  # sphere, capsule; particles: the radius each particle collides with
+        # length: 0.5                  # capsule: length of the axis segment (body z), without the caps
+        # particles: [[x, y, z, m], ...]  # particles: body-frame positions [m] and masses [kg]
+        mass: 2.0                      # kg — or density: kg/m³ (not for particles: masses are per particle)
+        position: [0, 0, 2]            # world position of the body origin (the COM; for particles the origin
+                                       # of the particle coordinates, the COM is computed from them)
+        orientation: [0, 0, 0, 1]      # quaternion x, y, z, w (normalized on load)
+        linear_velocity: [0, 0, 0]     # m/s, world
+        angular_velocity: [0, 0, 0]    # rad/s, world
+        restitution: 0.3
+        friction: 0.5
+        fixed: false                   # immovable (walls, ramps, obstacles)
+        color: [0.8, 0.3, 0.2, 1.0]    # RGBA for markers
+    flocks:
+      - name: fish
+        count: 300
+        spawn: {center: [0, 0, 4], extent: [8, 8, 3]}
+        radius: 2.0
+        separation_radius: 0.6
+        weights: {cohesion: 0.6, separation: 2.0, alignment: 1.0}
+        min_speed: 1.0
+        max_speed: 4.0
+        model: fish                    # sphere | fish
+        seed: 1
+        # ... and the optional keys of cgp_core.boids.FlockParams (field of view, bounds, goal, ...)
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field, fields
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from .bodies import BodyModel, BodyState, Shape
+from .inertia import particle_mass_properties, shape_mass_properties
+from .integrators import DEFAULT_INTEGRATOR, INTEGRATORS
+from .rotation import quat_normalize, quat_rotate
+
+ROS_SAFE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+MAX_BODIES = 10_000
+MAX_BOIDS_PER_FLOCK = 1_000_000
+MAX_PARTICLES_PER_BODY = 100_000
+MAX_SCENE_BYTES = 16 * 1024 * 1024
+
+
+class SceneError(ValueError):
+    """A scene that cannot be loaded; the message lists every problem as ``file: key: reason``."""
+
+    def __init__(self, source: str, problems: list[str]):
+        self.source = source
+        self.problems = problems
+        super().__init__("\n".join(f"{source}: {p}" for p in problems))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The parsed scene: plain data, validated, SI units.  Building arrays from it is World's business.
+
+
+@dataclass
+class WorldSpec:
+    gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
+    ground: bool = True
+    ground_friction: float = 0.6
+    ground_restitution: float = 0.0
+    integrator: str = DEFAULT_INTEGRATOR
+    substeps: int = 4
+    linear_damping: float = 0.0
+    angular_damping: float = 0.0
+
+
+@dataclass
+class BodySpec:
+    name: str
+    shape: Shape
+    mass: float
+    inertia_body: np.ndarray  # (3, 3) about the COM, body axes
+    radius: float = 0.0
+    half_extents: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    particles: np.ndarray | None = None  # (k, 4) body frame about the COM
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))  # COM, world
+    orientation: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0]))
+    linear_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    angular_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    restitution: float = 0.3
+    friction: float = 0.5
+    fixed: bool = False
+    color: np.ndarray = field(default_factory=lambda: np.array([0.7, 0.7, 0.75, 1.0]))
+
+
+@dataclass
+class Scene:
+    source: str
+    world: WorldSpec
+    bodies: list[BodySpec]
+    flocks: list[Any]  # cgp_core.boids.FlockParams
+
+    def build_bodies(self) -> tuple[BodyModel, BodyState]:
+        """Static model and initial state arrays of the bodies (see cgp_core.bodies for every shape)."""
+        n = len(self.bodies)
+        if n == 0:
+            return BodyModel.empty(), BodyState(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros((0, 3)))
+        mass = np.array([b.mass for b in self.bodies])
+        fixed = np.array([b.fixed for b in self.bodies])
+        inertia = np.stack([b.inertia_body for b in self.bodies])
+        inv_mass = np.where(fixed, 0.0, 1.0 / mass)
+        inv_inertia = np.linalg.inv(inertia)
+        inv_inertia[fixed] = 0.0
+        model = BodyModel(
+            names=[b.name for b in self.bodies],
+            shape=np.array([int(b.shape) for b in self.bodies], dtype=np.int8),
+            radius=np.array([b.radius for b in self.bodies]),
+            half_extents=np.stack([b.half_extents for b in self.bodies]),
+            mass=mass,
+            inv_mass=inv_mass,
+            inertia_body=inertia,
+            inv_inertia_body=inv_inertia,
+            restitution=np.array([b.restitution for b in self.bodies]),
+            friction=np.array([b.friction for b in self.bodies]),
+            fixed=fixed,
+            particles=[b.particles for b in self.bodies],
+            color=np.stack([b.color for b in self.bodies]),
+        )
+        orientation = np.stack([b.orientation for b in self.bodies])
+        from .rotation import quat_to_matrix
+
+        R = quat_to_matrix(orientation)
+        inertia_world = R @ inertia @ np.swapaxes(R, -1, -2)
+        lin_vel = np.stack([b.linear_velocity for b in self.bodies])
+        ang_vel = np.stack([b.angular_velocity for b in self.bodies])
+        movable = (~fixed)[:, None]
+        state = BodyState(
+            position=np.stack([b.position for b in self.bodies]),
+            orientation=orientation,
+            linear_momentum=mass[:, None] * lin_vel * movable,
+            angular_momentum=np.einsum("nij,nj->ni", inertia_world, ang_vel) * movable,
+        )
+        return model, state
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Loading
+
+
+def builtin_scene_dir() -> Path:
+    return Path(str(resources.files("msgs_config") / "scenes"))
+
+
+def builtin_scene_names() -> list[str]:
+    return sorted(p.stem for p in builtin_scene_dir().glob("*.yaml"))
+
+
+def resolve_scene(name_or_path: str) -> Path:
+    """A scene file path, or the name of a built-in scene (``default``, ...)."""
+    text = str(name_or_path).strip()
+    if not text:
+        raise SceneError("<scene>", [f"empty scene name; built-in scenes: {', '.join(builtin_scene_names())}"])
+    path = Path(text).expanduser()
+    if path.suffix in (".yaml", ".yml") or "/" in text:
+        if not path.is_file():
+            raise SceneError(text, ["no such scene file"])
+        return path
+    candidate = builtin_scene_dir() / f"{text}.yaml"
+    if candidate.is_file():
+        return candidate
+    raise SceneError(
+        text, [f"no built-in scene of that name; built-in scenes: {', '.join(builtin_scene_names())}"]
+    )
+
+
+def load_scene(name_or_path: str | Path) -> Scene:
+    """Read, parse (safe_load) and validate a scene file or built-in scene name."""
+    path = resolve_scene(str(name_or_path))
+    source = str(path)
+    try:
+        size = path.stat().st_size
+        if size > MAX_SCENE_BYTES:
+            raise SceneError(source, [f"file is {size} bytes; scenes are limited to {MAX_SCENE_BYTES}"])
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise SceneError(source, [f"not UTF-8 text ({exc.reason})"]) from None
+    except OSError as exc:
+        raise SceneError(source, [f"cannot read: {exc.strerror}"]) from None
+    return parse_scene(text, source)
+
+
+def parse_scene(text: str, source: str = "<string>") -> Scene:
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise SceneError(source, [f"malformed YAML: {where}{problem}"]) from None
+    return scene_from_dict(data, source)
+
+
+def scene_from_dict(data: Any, source: str = "<dict>") -> Scene:
+    """Validate a parsed scene (e.g. from YAML) and return the :class:`Scene`; raises :class:`SceneError`."""
+    v = _Validator(source)
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise SceneError(source, [f"top level must be a mapping with keys world/bodies/flocks, got {_kind(data)}"])
+    v.no_unknown_keys(data, {"world", "bodies", "flocks", "description"}, "")
+    world = _parse_world(v, data.get("world", {}))
+    bodies = _parse_bodies(v, data.get("bodies", []))
+    flocks = _parse_flocks(v, data.get("flocks", []), reserved={b.name for b in bodies})
+    v.raise_if_any()
+    return Scene(source=source, world=world, bodies=bodies, flocks=flocks)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Validation helpers: each returns a clean value or records a problem and returns a harmless default, so one
+# pass reports every problem in the file.
+
+
+def _kind(value: Any) -> str:
+    return {dict: "a mapping", list: "a list", str: "a string", bool: "a boolean", type(None): "nothing"}.get(
+        type(value), type(value).__name__
+    )
+
+
+class _Validator:
+    def __init__(self, source: str):
+        self.source = source
+        self.problems: list[str] = []
+
+    def fail(self, key: str, reason: str) -> None:
+        self.problems.append(f"{key}: {reason}" if key else reason)
+
+    def raise_if_any(self) -> None:
+        if self.problems:
+            raise SceneError(self.source, self.problems)
+
+    def no_unknown_keys(self, mapping: dict, allowed: set[str], where: str) -> None:
+        for key in mapping:
+            if key not in allowed:
+                path = f"{where}.{key}" if where else str(key)
+                self.fail(path, f"unknown key (valid: {', '.join(sorted(allowed))})")
+
+    def mapping(self, value: Any, key: str) -> dict:
+        if value is None:
+            return {}
+        if not isinstance(value, dict):
+            self.fail(key, f"must be a mapping, got {_kind(value)}")
+            return {}
+        return value
+
+    def number(self, value: Any, key: str, *, minimum: float | None = None, exclusive_min: bool = False,
+               maximum: float | None = None, default: float = 0.0) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            self.fail(key, f"must be a number, got {_kind(value)} {value!r}"[:200])
+            return default
+        x = float(value)
+        if not math.isfinite(x):
+            self.fail(key, f"must be finite, got {value!r}")
+            return default
+        if minimum is not None and (x <= minimum if exclusive_min else x < minimum):
+            self.fail(key, f"must be {'>' if exclusive_min else '>='} {minimum:g}, got {x:g}")
+            return default
+        if maximum is not None and x > maximum:
+            self.fail(key, f"must be <= {maximum:g}, got {x:g}")
+            return default
+        return x
+
+    def integer(self, value: Any, key: str, *, minimum: int | None = None, maximum: int | None = None,
+                default: int = 0) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            self.fail(key, f"must be an integer, got {_kind(value)} {value!r}"[:200])
+            return default
+        if minimum is not None and value < minimum:
+            self.fail(key, f"must be >= {minimum}, got {value}")
+            return default
+        if maximum is not None and value > maximum:
+            self.fail(key, f"must be <= {maximum}, got {value}")
+            return default
+        return value
+
+    def boolean(self, value: Any, key: str, default: bool = False) -> bool:
+        if not isinstance(value, bool):
+            self.fail(key, f"must be true or false, got {_kind(value)} {value!r}"[:200])
+            return default
+        return value
+
+    def string(self, value: Any, key: str, default: str = "") -> str:
+        if not isinstance(value, str):
+            self.fail(key, f"must be a string, got {_kind(value)}")
+            return default
+        return value
+
+    def choice(self, value: Any, key: str, options: list[str], default: str) -> str:
+        s = self.string(value, key, default)
+        if s not in options:
+            self.fail(key, f"must be one of {', '.join(options)}, got {s!r}")
+            return default
+        return s
+
+    def vector(self, value: Any, key: str, length: int, *, minimum: float | None = None,
+               exclusive_min: bool = False, default: np.ndarray | None = None) -> np.ndarray:
+        fallback = np.zeros(length) if default is None else np.asarray(default, dtype=float)
+        if not isinstance(value, (list, tuple)) or len(value) != length:
+            self.fail(key, f"must be a list of {length} numbers, got {_kind(value)} {value!r}"[:200])
+            return fallback
+        before = len(self.problems)
+        out = np.array([self.number(x, f"{key}[{i}]", minimum=minimum, exclusive_min=exclusive_min)
+                        for i, x in enumerate(value)])
+        return fallback if len(self.problems) > before else out
+
+    def name(self, value: Any, key: str, seen: set[str]) -> str:
+        s = self.string(value, key)
+        if not ROS_SAFE_NAME.match(s):
+            self.fail(key, f"{s!r} is not a ROS-safe name (letters, digits, _; starting with a letter)")
+        elif s in seen:
+            self.fail(key, f"duplicate name {s!r} (body and flock names must be unique)")
+        seen.add(s)
+        return s
+
+
+def _parse_world(v: _Validator, raw: Any) -> WorldSpec:
+    d = v.mapping(raw, "world")
+    spec = WorldSpec()
+    v.no_unknown_keys(d, {f.name for f in fields(WorldSpec)}, "world")
+    if "gravity" in d:
+        spec.gravity = v.vector(d["gravity"], "world.gravity", 3)
+    if "ground" in d:
+        spec.ground = v.boolean(d["ground"], "world.ground", True)
+    if "ground_friction" in d:
+        spec.ground_friction = v.number(d["ground_friction"], "world.ground_friction", minimum=0.0, default=0.6)
+    if "ground_restitution" in d:
+        spec.ground_restitution = v.number(d["ground_restitution"], "world.ground_restitution", minimum=0.0,
+                                           maximum=1.0)
+    if "integrator" in d:
+        spec.integrator = v.choice(d["integrator"], "world.integrator", sorted(INTEGRATORS), DEFAULT_INTEGRATOR)
+    if "substeps" in d:
+        spec.substeps = v.integer(d["substeps"], "world.substeps", minimum=1, maximum=1000, default=4)
+    for key in ("linear_damping", "angular_damping"):
+        if key in d:
+            setattr(spec, key, v.number(d[key], f"world.{key}", minimum=0.0))
+    return spec
+
+
+_BODY_KEYS = {
+    "name", "shape", "radius", "size", "length", "particles", "mass", "density", "position", "orientation",
+    "linear_velocity", "angular_velocity", "restitution", "friction", "fixed", "color",
+}
+_SHAPE_KEYS = {"sphere": {"radius"}, "box": {"size"}, "capsule": {"radius", "length"},
+               "particles": {"particles", "radius"}}
+
+
+def _parse_bodies(v: _Validator, raw: Any) -> list[BodySpec]:
+    if raw is None:
+        return []
+    if not isinstance(raw, list):
+        v.fail("bodies", f"must be a list of bodies, got {_kind(raw)}")
+        return []
+    if len(raw) > MAX_BODIES:
+        v.fail("bodies", f"{len(raw)} bodies; at most {MAX_BODIES}")
+        return []
+    seen: set[str] = set()
+    out = []
+    for i, item in enumerate(raw):
+        spec = _parse_body(v, item, f"bodies[{i}]", seen)
+        if spec is not None:
+            out.append(spec)
+    return out
+
+
+def _parse_body(v: _Validator, raw: Any, key: str, seen: set[str]) -> BodySpec | None:
+    if not isinstance(raw, dict):
+        v.fail(key, f"must be a mapping, got {_kind(raw)}")
+        return None
+    before = len(v.problems)
+    v.no_unknown_keys(raw, _BODY_KEYS, key)
+    if "name" not in raw:
+        v.fail(f"{key}.name", "missing")
+    name = v.name(raw.get("name", ""), f"{key}.name", seen) if "name" in raw else f"body{key}"
+    key = f"{key} ({name})" if "name" in raw else key
+    if "shape" in raw:
+        shape_name = v.choice(raw["shape"], f"{key}.shape", list(_SHAPE_KEYS), "sphere")
+    else:
+        v.fail(f"{key}.shape", f"missing (one of {', '.join(_SHAPE_KEYS)})")
+        shape_name = "sphere"
+    for other, keys in _SHAPE_KEYS.items():
+        for k in keys - _SHAPE_KEYS[shape_name]:
+            if k in raw:
+                v.fail(f"{key}.{k}", f"does not apply to shape {shape_name} (it is for {other})")
+
+    fixed = v.boolean(raw.get("fixed", False), f"{key}.fixed")
+    has_mass, has_density = "mass" in raw, "density" in raw
+    mass = density = None
+    if shape_name == "particles":
+        for k in ("mass", "density"):
+            if k in raw:
+                v.fail(f"{key}.{k}", "particle bodies take their mass from the particles' 4th column")
+    elif has_mass and has_density:
+        v.fail(key, "give mass or density, not both")
+    elif has_mass:
+        mass = v.number(raw["mass"], f"{key}.mass", minimum=0.0, exclusive_min=True, default=1.0)
+    elif has_density:
+        density = v.number(raw["density"], f"{key}.density", minimum=0.0, exclusive_min=True, default=1000.0)
+    else:
+        density = 1000.0  # water: a sensible default for a body given only its size
+
+    spec = BodySpec(name=name, shape=Shape[shape_name.upper()], mass=1.0, inertia_body=np.eye(3))
+    radius = half_length = None
+    size = None
+    if shape_name in ("sphere", "capsule"):
+        if "radius" not in raw:
+            v.fail(f"{key}.radius", "missing")
+        else:
+            radius = v.number(raw["radius"], f"{key}.radius", minimum=0.0, exclusive_min=True, default=0.1)
+    if shape_name == "capsule":
+        if "length" not in raw:
+            v.fail(f"{key}.length", "missing (length of the axis segment, without the caps)")
+        else:
+            half_length = 0.5 * v.number(raw["length"], f"{key}.length", minimum=0.0, exclusive_min=True)
+    if shape_name == "box":
+        if "size" not in raw:
+            v.fail(f"{key}.size", "missing (full extents [x, y, z])")
+        else:
+            size = v.vector(raw["size"], f"{key}.size", 3, minimum=0.0, exclusive_min=True, default=np.ones(3))
+
+    if shape_name == "particles":
+        spec.radius = v.number(raw.get("radius", 0.05), f"{key}.radius", minimum=0.0, exclusive_min=True,
+                               default=0.05)
+        particles = _parse_particles(v, raw.get("particles"), f"{key}.particles")
+        if particles is not None:
+            try:
+                total, com, inertia = particle_mass_properties(particles[:, :3], particles[:, 3])
+            except ValueError as exc:
+                v.fail(f"{key}.particles", str(exc))
+            else:
+                spec.mass, spec.inertia_body = total, inertia
+                spec.particles = particles.copy()
+                spec.particles[:, :3] -= com
+                spec.half_extents = np.abs(spec.particles[:, :3]).max(axis=0) + spec.radius
+                spec.position = com  # body-frame COM offset; turned into a world position below
+    elif len(v.problems) == before:
+        try:
+            spec.mass, spec.inertia_body = shape_mass_properties(
+                shape_name, radius=radius, size=size, half_length=half_length, mass=mass, density=density)
+        except ValueError as exc:
+            v.fail(key, str(exc))
+        spec.radius = radius or 0.0
+        if shape_name == "box":
+            spec.half_extents = 0.5 * size
+        elif shape_name == "capsule":
+            spec.half_extents = np.array([0.0, 0.0, half_length])
+
+    origin = v.vector(raw.get("position", [0, 0, 0]), f"{key}.position", 3)
+    q = v.vector(raw.get("orientation", [0, 0, 0, 1]), f"{key}.orientation", 4, default=np.array([0, 0, 0, 1.0]))
+    if np.linalg.norm(q) < 1e-9:
+        v.fail(f"{key}.orientation", "zero quaternion (x, y, z, w); identity is [0, 0, 0, 1]")
+        q = np.array([0.0, 0.0, 0.0, 1.0])
+    spec.orientation = quat_normalize(q)
+    spec.position = origin + quat_rotate(spec.orientation, spec.position)  # COM in world
+    spec.linear_velocity = v.vector(raw.get("linear_velocity", [0, 0, 0]), f"{key}.linear_velocity", 3)
+    spec.angular_velocity = v.vector(raw.get("angular_velocity", [0, 0, 0]), f"{key}.angular_velocity", 3)
+    spec.restitution = v.number(raw.get("restitution", 0.3), f"{key}.restitution", minimum=0.0, maximum=1.0)
+    spec.friction = v.number(raw.get("friction", 0.5), f"{key}.friction", minimum=0.0, default=0.5)
+    spec.fixed = fixed
+    if "color" in raw:
+        spec.color = v.vector(raw["color"], f"{key}.color", 4, minimum=0.0, default=spec.color)
+        if np.any(spec.color > 1.0):
+            v.fail(f"{key}.color", "RGBA components must be in [0, 1]")
+    return spec if len(v.problems) == before else None
+
+
+def _parse_particles(v: _Validator, raw: Any, key: str) -> np.ndarray | None:
+    if raw is None:
+        v.fail(key, "missing (a list of [x, y, z, mass])")
+        return None
+    if not isinstance(raw, list) or not raw:
+        v.fail(key, f"must be a non-empty list of [x, y, z, mass], got {_kind(raw)}")
+        return None
+    if len(raw) > MAX_PARTICLES_PER_BODY:
+        v.fail(key, f"{len(raw)} particles; at most {MAX_PARTICLES_PER_BODY}")
+        return None
+    before = len(v.problems)
+    rows = [v.vector(p, f"{key}[{i}]", 4) for i, p in enumerate(raw)]
+    if len(v.problems) > before:
+        return None
+    arr = np.array(rows)
+    bad = np.flatnonzero(arr[:, 3] <= 0.0)
+    if bad.size:
+        v.fail(f"{key}[{bad[0]}]", f"particle mass must be > 0, got {arr[bad[0], 3]:g}")
+        return None
+    return arr
+
+
+def _parse_flocks(v: _Validator, raw: Any, reserved: set[str]) -> list[Any]:
+    if raw is None:
+        return []
+    if not isinstance(raw, list):
+        v.fail("flocks", f"must be a list of flocks, got {_kind(raw)}")
+        return []
+    seen = set(reserved)
+    out = []
+    for i, item in enumerate(raw):
+        params = _parse_flock(v, item, f"flocks[{i}]", seen)
+        if params is not None:
+            out.append(params)
+    return out
+
+
+# YAML key -> FlockParams field, for the flat keys (numbers unless listed in the other tables).
+_FLOCK_NUMBERS = {
+    "radius": ("radius", True), "separation_radius": ("separation_radius", True),
+    "min_speed": ("min_speed", True), "max_speed": ("max_speed", True),
+    "max_acceleration": ("max_acceleration", True), "fov_deg": ("fov_deg", True),
+    "goal_weight": ("goal_weight", False), "obstacle_margin": ("obstacle_margin", False),
+    "boid_size": ("boid_size", True), "bank_gain": ("bank_gain", False),
+    "orientation_time_constant": ("orientation_time_constant", False),
+}
+_FLOCK_KEYS = {"name", "count", "seed", "spawn", "weights", "bounds", "goal", "avoid_bodies", "model",
+               "neighbor_search", *_FLOCK_NUMBERS}
+
+
+def _parse_flock(v: _Validator, raw: Any, key: str, seen: set[str]):
+    """One flock: the scene keys of the flock issue (nested ``spawn``, ``weights``, ``bounds``) mapped onto
+    :class:`cgp_core.boids.FlockParams` (whose docstring documents every field, unit and default)."""
+    from .boids import BOUNDS_MODES, MODELS, NEIGHBOR_SEARCHES, FlockParams
+
+    if not isinstance(raw, dict):
+        v.fail(key, f"must be a mapping, got {_kind(raw)}")
+        return None
+    before = len(v.problems)
+    v.no_unknown_keys(raw, _FLOCK_KEYS, key)
+    if "name" not in raw:
+        v.fail(f"{key}.name", "missing")
+    else:
+        name = v.name(raw["name"], f"{key}.name", seen)
+        key = f"{key} ({name})"
+    kwargs: dict[str, Any] = {"name": raw.get("name", "flock")}
+    if "count" not in raw:
+        v.fail(f"{key}.count", "missing (number of boids)")
+    else:
+        kwargs["count"] = v.integer(raw["count"], f"{key}.count", minimum=1, maximum=MAX_BOIDS_PER_FLOCK, default=1)
+    if "seed" in raw:
+        kwargs["seed"] = v.integer(raw["seed"], f"{key}.seed", minimum=0, maximum=2**63 - 1)
+    for yaml_key, (field_name, strictly_positive) in _FLOCK_NUMBERS.items():
+        if yaml_key in raw:
+            kwargs[field_name] = v.number(raw[yaml_key], f"{key}.{yaml_key}", minimum=0.0,
+                                          exclusive_min=strictly_positive, default=1.0)
+    spawn = v.mapping(raw.get("spawn"), f"{key}.spawn")
+    v.no_unknown_keys(spawn, {"center", "extent"}, f"{key}.spawn")
+    if "center" in spawn:
+        kwargs["spawn_center"] = v.vector(spawn["center"], f"{key}.spawn.center", 3)
+    if "extent" in spawn:
+        kwargs["spawn_extent"] = v.vector(spawn["extent"], f"{key}.spawn.extent", 3, minimum=0.0)
+    weights = v.mapping(raw.get("weights"), f"{key}.weights")
+    v.no_unknown_keys(weights, {"cohesion", "separation", "alignment"}, f"{key}.weights")
+    for rule in ("cohesion", "separation", "alignment"):
+        if rule in weights:
+            kwargs[f"{rule}_weight"] = v.number(weights[rule], f"{key}.weights.{rule}", minimum=0.0)
+    bounds = v.mapping(raw.get("bounds"), f"{key}.bounds")
+    v.no_unknown_keys(bounds, {"min", "max", "mode", "margin", "strength"}, f"{key}.bounds")
+    if "min" in bounds:
+        kwargs["bounds_min"] = v.vector(bounds["min"], f"{key}.bounds.min", 3)
+    if "max" in bounds:
+        kwargs["bounds_max"] = v.vector(bounds["max"], f"{key}.bounds.max", 3)
+    if "mode" in bounds:
+        kwargs["bounds_mode"] = v.choice(bounds["mode"], f"{key}.bounds.mode", list(BOUNDS_MODES), "soft")
+    for sub in ("margin", "strength"):
+        if sub in bounds:
+            kwargs[f"bounds_{sub}"] = v.number(bounds[sub], f"{key}.bounds.{sub}", minimum=0.0)
+    if raw.get("goal") is not None:
+        kwargs["goal"] = v.vector(raw["goal"], f"{key}.goal", 3)
+    if "avoid_bodies" in raw:
+        kwargs["avoid_bodies"] = v.boolean(raw["avoid_bodies"], f"{key}.avoid_bodies", True)
+    if "model" in raw:
+        kwargs["model"] = v.choice(raw["model"], f"{key}.model", list(MODELS), "sphere")
+    if "neighbor_search" in raw:
+        kwargs["neighbor_search"] = v.choice(raw["neighbor_search"], f"{key}.neighbor_search",
+                                             list(NEIGHBOR_SEARCHES), "grid")
+    if len(v.problems) > before:
+        return None
+    try:  # relations between fields (separation < radius, spawn box inside bounds, ...)
+        return FlockParams(**kwargs)
+    except ValueError as exc:
+        v.fail(key, str(exc).split(": ", 1)[-1])
+        return None

@@ -1,0 +1,130 @@
+"""Shared test fixtures.
+
+ROS tests run the real node as its own process (the installed ``cgp-sim`` script) and observe it from this
+process over DDS.  Isolation: every test session gets its own ``ROS_DOMAIN_ID`` (set before rclpy loads, and
+inherited by the node processes), so parallel runs on one machine never see each other.  Discovery is waited
+for with deadlines (``count_publishers`` / ``count_subscribers``), never with fixed sleeps.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+VENV_BIN = Path(sys.executable).parent
+
+# One domain per session, chosen before anything imports rclpy.  0..101 are valid with Fast DDS' default port
+# mapping; avoid 0 (the default other tools use).
+if "CGP_SIM_TEST_DOMAIN" not in os.environ:
+    os.environ["CGP_SIM_TEST_DOMAIN"] = str(random.Random(os.getpid() ^ time.time_ns()).randint(1, 101))
+os.environ["ROS_DOMAIN_ID"] = os.environ["CGP_SIM_TEST_DOMAIN"]
+os.environ.setdefault("RCUTILS_LOGGING_BUFFERED_STREAM", "0")
+os.environ["PYTHONUNBUFFERED"] = "1"
+
+
+def pytest_addoption(parser):
+    parser.addoption("--run-soak", action="store_true", default=False, help="run the long soak tests")
+
+
+def pytest_collection_modifyitems(config, items):
+    if config.getoption("--run-soak"):
+        return
+    skip = pytest.mark.skip(reason="soak test: run with `make soak`")
+    for item in items:
+        if "soak" in item.keywords:
+            item.add_marker(skip)
+
+
+def cgp_sim_executable() -> str:
+    """The installed console script (what `make setup` put in the venv)."""
+    path = VENV_BIN / "cgp-sim"
+    if not path.exists():
+        found = shutil.which("cgp-sim")
+        if found is None:
+            pytest.fail("cgp-sim is not installed: run `make setup` first")
+        return found
+    return str(path)
+
+
+class NodeProcess:
+    """A cgp_sim node running as a separate process; stdout+stderr captured to a log file."""
+
+    def __init__(self, args: list[str], log_path: Path, command: list[str] | None = None, env: dict | None = None):
+        self.log_path = log_path
+        self._log = open(log_path, "wb")
+        self.command = (command or [cgp_sim_executable()]) + list(args)
+        self.proc = subprocess.Popen(self.command, stdout=self._log, stderr=subprocess.STDOUT,
+                                     env=env or os.environ.copy(), start_new_session=True)
+
+    def log(self) -> str:
+        self._log.flush()
+        return self.log_path.read_text(errors="replace")
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def send(self, sig: int) -> None:
+        if self.alive():
+            self.proc.send_signal(sig)
+
+    def wait(self, timeout: float) -> int:
+        try:
+            return self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            raise AssertionError(f"node did not exit within {timeout} s; log:\n{self.log()[-4000:]}") from None
+
+    def stop(self, timeout: float = 20.0) -> int | None:
+        """SIGINT, then wait; SIGKILL if it hangs (which fails no test by itself: the caller asserts)."""
+        if self.alive():
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self._log.close()
+        return self.proc.returncode
+
+
+@pytest.fixture
+def start_node(tmp_path):
+    """Start `cgp-sim <args>`; every node started is stopped at teardown."""
+    started: list[NodeProcess] = []
+
+    def _start(*args: str, command: list[str] | None = None, env: dict | None = None) -> NodeProcess:
+        node = NodeProcess(list(args), tmp_path / f"node{len(started)}.log", command=command, env=env)
+        started.append(node)
+        return node
+
+    yield _start
+    for node in started:
+        node.stop()
+
+
+@pytest.fixture(scope="session")
+def ros():
+    """rclpy initialised once for the session in this (observer) process."""
+    import rclpy
+
+    rclpy.init()
+    yield rclpy
+    rclpy.try_shutdown()
+
+
+@pytest.fixture
+def probe(ros, request):
+    """An observer node in this process with helpers to wait for and collect messages."""
+    from ros_probe import Probe
+
+    p = Probe(f"probe_{os.getpid()}_{abs(hash(request.node.nodeid)) % 100000}")
+    yield p
+    p.close()

@@ -1,0 +1,159 @@
+"""Broad phase: the spatial structures find exactly the pairs the brute-force AABB test finds."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from cgp_core.collision.broadphase import (BROAD_PHASES, brute_force_pairs, get_broad_phase, grid_pairs,
+                                           sweep_and_prune_pairs)
+
+
+def random_boxes(rng, n, *, world=5.0, small=(0.02, 0.3), large_fraction=0.05, large=(1.0, 4.0)):
+    """Mixed sizes: mostly small boxes, a few large ones (walls), some of them flat (zero thickness)."""
+    centre = rng.uniform(-world / 2, world / 2, size=(n, 3))
+    half = rng.uniform(*small, size=(n, 3)) / 2
+    big = rng.random(n) < large_fraction
+    half[big] = rng.uniform(*large, size=(int(big.sum()), 3)) / 2
+    flat = rng.random(n) < 0.05
+    half[flat, 2] = 0.0
+    return centre - half, centre + half
+
+
+def as_set(pairs):
+    i, j = pairs
+    assert np.all(i < j), "pairs must be reported as i < j"
+    return set(zip(i.tolist(), j.tolist()))
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("n", [2, 37, 400])
+def test_structures_find_the_brute_force_pairs(seed, n):
+    rng = np.random.default_rng(seed)
+    lo, hi = random_boxes(rng, n)
+    reference = brute_force_pairs(lo, hi)
+    assert len(as_set(reference)) == len(reference[0])  # each pair once
+    for name in ("grid", "sweep_and_prune"):
+        found = BROAD_PHASES[name](lo, hi)
+        assert as_set(found) == as_set(reference), name
+        # canonical order too: sorted by (i, j)
+        assert np.array_equal(found[0], reference[0]) and np.array_equal(found[1], reference[1]), name
+
+
+def test_dense_pile_and_explicit_cell_sizes():
+    """A dense pile of equal spheres' boxes (the benchmark's case) and cell sizes smaller than the boxes
+    (everything takes the 'large' path) or much larger (few cells) all agree with brute force."""
+    rng = np.random.default_rng(7)
+    centre = rng.uniform([-1, -1, 0], [1, 1, 0.5], size=(500, 3))
+    lo, hi = centre - 0.1, centre + 0.1
+    reference = as_set(brute_force_pairs(lo, hi))
+    assert len(reference) > 1000
+    for cell in (None, 0.05, 0.2, 1.3, 10.0):
+        assert as_set(grid_pairs(lo, hi, cell_size=cell)) == reference, cell
+
+
+def test_touching_boxes_overlap_and_a_gap_does_not():
+    lo = np.array([[0.0, 0, 0], [1.0, 0, 0], [2.0 + 1e-9, 0, 0], [0.0, 1.0, 1.0]])
+    hi = lo + 1.0
+    # 0-1 touch along x (lo1 == hi0); 1-2 separated by 1e-9; 0-3 touch along the edge y = z = 1
+    expected = {(0, 1), (0, 3), (1, 3)}
+    for name, fn in BROAD_PHASES.items():
+        assert as_set(fn(lo, hi)) == expected, name
+
+
+def test_exactly_one_cell_apart_lower_corners():
+    """Two boxes of extent = cell size whose lower corners are exactly one cell apart touch: found."""
+    lo = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0], [0.6000001, 0.0, 0.0]])
+    hi = lo + 0.3
+    assert as_set(grid_pairs(lo, hi, cell_size=0.3)) == {(0, 1)}
+
+
+def test_degenerate_inputs():
+    for fn in BROAD_PHASES.values():
+        for p in (0, 1):
+            i, j = fn(np.zeros((p, 3)), np.ones((p, 3)))
+            assert i.size == 0 and j.size == 0
+        # identical boxes all overlap
+        assert as_set(fn(np.zeros((4, 3)), np.ones((4, 3)))) == {(a, b) for a in range(4) for b in range(a + 1, 4)}
+
+
+def test_bad_input_is_named():
+    with pytest.raises(ValueError, match=r"\(p, 3\)"):
+        grid_pairs(np.zeros((3, 2)), np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="finite"):
+        sweep_and_prune_pairs(np.array([[0.0, np.nan, 0]]), np.ones((1, 3)))
+    with pytest.raises(ValueError, match="cell size"):
+        grid_pairs(np.zeros((3, 3)), np.ones((3, 3)), cell_size=-1.0)
+    with pytest.raises(ValueError, match="unknown broad phase 'octree'; valid: brute_force, grid, sweep_and_prune"):
+        get_broad_phase("octree")
+
+
+def test_structures_agree_on_a_random_scene_of_mixed_shapes():
+    """Spheres, boxes, capsules and particle bodies of mixed sizes, randomly placed and turned: the
+    primitives' AABBs give the same overlapping pairs with every method."""
+    from _bodies import box, capsule, make_bodies, particles, sphere
+    from cgp_core.collision.primitives import build_collision_model, primitive_aabbs, primitive_poses
+    from cgp_core.rotation import quat_from_rotvec
+
+    rng = np.random.default_rng(21)
+    specs = []
+    for i in range(300):
+        position = rng.uniform(-2, 2, size=3)
+        q = quat_from_rotvec(rng.normal(size=3))
+        kind = i % 5
+        if kind == 0:
+            specs.append(sphere(rng.uniform(0.03, 0.3), position=position))
+        elif kind == 1:
+            specs.append(box(rng.uniform(0.02, 0.4, size=3), position=position, orientation=q))
+        elif kind == 2:
+            specs.append(capsule(rng.uniform(0.02, 0.1), rng.uniform(0.05, 0.5), position=position, orientation=q))
+        elif kind == 3:
+            pts = np.column_stack((rng.normal(size=(5, 3)) * 0.2, np.ones(5)))
+            specs.append(particles(pts, radius=0.05, position=position, orientation=q))
+        else:  # a few wall-sized slabs
+            specs.append(box((rng.uniform(1, 2), 0.05, rng.uniform(0.5, 1)), fixed=True, position=position,
+                             orientation=q))
+    model, state = make_bodies(specs)
+    cm = build_collision_model(model)
+    centre, R = primitive_poses(cm, state.position, state.rotation_matrices())
+    lo, hi = primitive_aabbs(cm, centre, R)
+    assert cm.count > 300  # the particle bodies add primitives
+    reference = as_set(brute_force_pairs(lo, hi))
+    assert len(reference) > 100
+    assert as_set(grid_pairs(lo, hi)) == reference
+    assert as_set(sweep_and_prune_pairs(lo, hi)) == reference
+
+
+def test_primitive_aabbs_are_tight_bounds():
+    """A turned box's AABB is the min / max of its corners; a capsule's that of its end spheres."""
+    from _bodies import box, capsule, make_bodies
+    from cgp_core.collision.primitives import build_collision_model, primitive_aabbs, primitive_poses
+    from cgp_core.rotation import quat_from_rotvec, quat_to_matrix
+
+    rng = np.random.default_rng(5)
+    q = quat_from_rotvec(rng.normal(size=3))
+    model, state = make_bodies([box((0.3, 0.2, 0.1), position=(1, 2, 3), orientation=q),
+                                capsule(0.05, 0.4, position=(-1, 0, 1), orientation=q)])
+    cm = build_collision_model(model)
+    centre, R = primitive_poses(cm, state.position, state.rotation_matrices())
+    lo, hi = primitive_aabbs(cm, centre, R)
+    Rq = quat_to_matrix(q)
+    signs = np.array([(x, y, z) for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+    corners = np.array([1.0, 2, 3]) + (signs * [0.3, 0.2, 0.1]) @ Rq.T
+    np.testing.assert_allclose(lo[0], corners.min(0), atol=1e-12)
+    np.testing.assert_allclose(hi[0], corners.max(0), atol=1e-12)
+    ends = np.array([-1.0, 0, 1]) + np.outer([-0.4, 0.4], Rq[:, 2])
+    np.testing.assert_allclose(lo[1], ends.min(0) - 0.05, atol=1e-12)
+    np.testing.assert_allclose(hi[1], ends.max(0) + 0.05, atol=1e-12)
+
+
+def test_a_body_flung_far_away_does_not_break_the_grid():
+    rng = np.random.default_rng(3)
+    lo, hi = random_boxes(rng, 50, large_fraction=0.0)
+    lo[0] += 1e9  # a million kilometres off along x: more cells than an int64 key can count
+    hi[0] += 1e9
+    lo[1] -= [3e8, 2e8, 1e8]
+    hi[1] -= [3e8, 2e8, 1e8]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no integer overflow in the cell keys
+        assert as_set(grid_pairs(lo, hi)) == as_set(brute_force_pairs(lo, hi))
