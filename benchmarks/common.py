@@ -1,0 +1,131 @@
+"""What every benchmark script shares: the results layout, the machine description, interleaved timing.
+
+Every ``bench_*.py`` writes ``benchmarks/results/<name>.json`` with at least::
+
+    {"benchmark": "<name>", "machine": {...}, "load_average": {"before": [1, 5, 15 min], "after": [...]},
+     "elapsed_s": ..., "options": {...}, "figures": [<figure>, ...], ...its own tables...}
+
+and a *figure* is ``{"id", "figure", "value", "unit", "target", "pass", "issue7"}``: ``id`` is stable (the
+aggregator ``run.py`` looks figures up by it), ``issue7`` marks the figures issue 7 sets a target for (the
+others are supporting figures: the lead's budget split, references).  ``pass`` is ``True`` / ``False``, or
+``None`` when the figure could not be measured in this run (then ``note`` says why).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def machine() -> dict:
+    """The facts a reader needs to compare two result files."""
+    info = {"python": platform.python_version(), "numpy": np.__version__, "cpus": os.cpu_count(),
+            "platform": platform.platform(), "processor": _cpu_model()}
+    try:
+        import scipy
+
+        info["scipy"] = scipy.__version__
+    except ImportError:  # pragma: no cover - scipy is a runtime dependency
+        pass
+    return info
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def load_average() -> list[float]:
+    """1, 5, 15-minute load averages (the machine is shared: other processes slow every figure down)."""
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:  # pragma: no cover - not on Linux
+        return []
+
+
+class Results:
+    """Collects one benchmark's output and writes it in the common layout.
+
+    >>> out = Results("tick", options=vars(args))
+    >>> out.figure("tick_15k_median", "full tick ...", 21.3, "ms", "<= 16.7", 21.3 <= 16.7, issue7=True)
+    >>> out.data["rows"] = rows
+    >>> out.write()
+    """
+
+    def __init__(self, name: str, options: dict | None = None):
+        self.name = name
+        self.started = time.perf_counter()
+        self.data: dict = {"benchmark": name, "machine": machine(),
+                           "load_average": {"before": load_average()}, "options": options or {}, "figures": []}
+
+    def figure(self, id: str, figure: str, value, unit: str, target: str, passed, *, issue7: bool = False,  # noqa: A002
+               **extra) -> dict:
+        entry = {"id": id, "figure": figure, "value": _plain(value), "unit": unit, "target": target,
+                 "pass": None if passed is None else bool(passed), "issue7": issue7, **extra}
+        self.data["figures"].append(entry)
+        return entry
+
+    def write(self, path: Path | None = None) -> Path:
+        self.data["load_average"]["after"] = load_average()
+        self.data["elapsed_s"] = round(time.perf_counter() - self.started, 1)
+        path = path or RESULTS / f"{self.name}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(_plain(self.data), indent=2) + "\n")
+        return path
+
+
+def _plain(value):
+    """JSON-safe copy: numpy scalars and arrays to Python numbers and lists, NaN to None."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist())
+    if isinstance(value, (np.bool_,)):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        value = float(value)
+        return None if value != value else value
+    return value
+
+
+def format_figures(figures: list[dict], width: int = 62) -> str:
+    """The figures as a plain-text table (value, target, pass / SHORT)."""
+    lines = [f"{'figure':{width}} {'value':>10} {'unit':7} {'target':>28}  result"]
+    for f in figures:
+        lines.append(f"{f['figure'][:width]:{width}} {format_value(f['value']):>10} {f['unit']:7} "
+                     f"{f['target'][:28]:>28}  {verdict(f)}")
+    return "\n".join(lines)
+
+
+def format_value(value) -> str:
+    if value is None:
+        return "n/a"
+    if isinstance(value, bool):
+        return str(value)
+    if isinstance(value, int):
+        return str(value)
+    if abs(value) >= 100:
+        return f"{value:.0f}"
+    if abs(value) >= 10:
+        return f"{value:.1f}"
+    return f"{value:.2f}"
+
+
+def verdict(figure: dict) -> str:
+    return {True: "pass", False: "SHORT", None: "n/a"}[figure["pass"]]
