@@ -137,81 +137,117 @@ def thread_cpu_s(native_id: int | None) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def make_node(scene: Path, bag_dir: Path, name: str):
+def make_node(scene: Path, bag_dir: Path | None, name: str):
     from rclpy.parameter import Parameter
 
     from cgp_sim_ros.node import SimNode
 
     return SimNode(node_name=name, parameter_overrides=[
-        Parameter("scene", value=str(scene)), Parameter("bag", value=str(bag_dir)),
+        Parameter("scene", value=str(scene)), Parameter("bag", value=str(bag_dir) if bag_dir else ""),
         Parameter("realtime", value=False)])
 
 
-def measure(scene: Path, bag_dir: Path, warmup: int, ticks: int, name: str = "cgp_sim_bench",
-            profile_ticks: int = 0) -> tuple[dict, str | None]:
-    """Build a node, run ``warmup`` ticks, then ``ticks`` ticks alternating plain / instrumented."""
-    node = make_node(scene, bag_dir, name)
-    profile_text = None
-    try:
-        world = node.world
-        for _ in range(warmup):
-            node.tick()
-        writer = node.recorder.writer
-        writer_tid = writer._thread.native_id if writer._thread is not None else None
-        timer = TickTimer(node)
-        plain, instrumented, splits = [], [], []
-        writer_cpu0, cpu0, wall0 = thread_cpu_s(writer_tid), time.process_time(), time.perf_counter()
+class Variant:
+    """One node being measured: its ticks (plain and instrumented) and its bag writer's thread CPU."""
+
+    def __init__(self, label: str, node):
+        self.label, self.node = label, node
+        self.timer = TickTimer(node)
+        self.plain: list[float] = []
+        self.instrumented: list[float] = []
+        self.splits: list[dict] = []
+        self.cpu_s = self.wall_s = self.writer_cpu_s = 0.0
+        writer = node.recorder.writer if node.recorder is not None else None
+        self.writer = writer
+        self.writer_tid = writer._thread.native_id if writer is not None and writer._thread is not None else None
+
+    def run(self, ticks: int) -> None:
+        """``ticks`` ticks, every other one instrumented."""
+        node, timer = self.node, self.timer
+        writer_cpu0, cpu0, wall0 = thread_cpu_s(self.writer_tid), time.process_time(), time.perf_counter()
         for k in range(ticks):
-            if k % 2:
+            instrument = len(self.plain) > len(self.instrumented)
+            if instrument:
                 timer.install()
             start = time.perf_counter()
             node.tick()
             elapsed = time.perf_counter() - start
-            if k % 2:
+            if instrument:
                 timer.remove()
-                instrumented.append(elapsed)
-                splits.append(timer.split(elapsed))
+                self.instrumented.append(elapsed)
+                self.splits.append(timer.split(elapsed))
             else:
-                plain.append(elapsed)
-        wall = time.perf_counter() - wall0
-        cpu = time.process_time() - cpu0
-        writer_cpu = thread_cpu_s(writer_tid) - writer_cpu0
-        backlog_mb = writer.max_queued_bytes / 1e6
-        if profile_ticks:
-            profile_text = profile(node, profile_ticks)
-        t_close = time.perf_counter()
-        node.close()
-        close_s = time.perf_counter() - t_close
-        flock = world.flocks[0]
-        plain_ms = np.array(plain) * 1e3
+                self.plain.append(elapsed)
+        if self.writer is not None:  # let the writer catch up, so the next variant's ticks run without it
+            deadline = time.monotonic() + 2.0
+            while self.writer.queued_bytes > 0 and time.monotonic() < deadline:
+                time.sleep(0.001)
+        self.wall_s += time.perf_counter() - wall0
+        self.cpu_s += time.process_time() - cpu0
+        self.writer_cpu_s += thread_cpu_s(self.writer_tid) - writer_cpu0
+
+    def row(self) -> dict:
+        world = self.node.world
+        plain_ms = np.array(self.plain) * 1e3
+        ticks = len(self.plain) + len(self.instrumented)
         row = {
-            "boids": sum(f.count for f in world.flocks), "bodies": world.body_model.count,
-            "substeps": world.substeps, "integrator": world.scene.world.integrator,
-            "ticks": ticks, "warmup_ticks": warmup,
+            "variant": self.label, "boids": sum(f.count for f in world.flocks), "bodies": world.body_model.count,
+            "substeps": world.substeps, "integrator": world.scene.world.integrator, "ticks": ticks,
             "tick_ms_median": float(np.median(plain_ms)), "tick_ms_p90": float(np.percentile(plain_ms, 90)),
             "tick_ms_max": float(plain_ms.max()), "tick_ms_mean": float(plain_ms.mean()),
-            "instrumented_tick_ms_median": float(np.median(instrumented) * 1e3),
-            "split_ms_median": {stage: float(np.median([s[stage] for s in splits]) * 1e3) for stage in STAGES},
-            "split_ms_mean": {stage: float(np.mean([s[stage] for s in splits]) * 1e3) for stage in STAGES},
-            "neighbors_per_boid": float(flock.mean_neighbors),
-            "visible_neighbors_per_boid": float(flock.mean_visible_neighbors),
-            "process_cpu_cores": cpu / wall,
-            "bag_writer_cpu_ms_per_tick": writer_cpu / ticks * 1e3,
-            "bag_payload_MB_per_tick": _bag_payload(node) / max(1, world.ticks) / 1e6,
-            "bag_backlog_max_MB": backlog_mb, "bag_dropped_messages": writer.dropped_messages,
-            "bag_error": writer.error, "bag_close_s": close_s,
-            "bag_file_MB": sum(f.stat().st_size for f in writer.files) / 1e6,
-            "sim_seconds": world.time,
+            "instrumented_tick_ms_median": float(np.median(self.instrumented) * 1e3),
+            "split_ms_median": {stage: float(np.median([s[stage] for s in self.splits]) * 1e3) for stage in STAGES},
+            "split_ms_mean": {stage: float(np.mean([s[stage] for s in self.splits]) * 1e3) for stage in STAGES},
+            "neighbors_per_boid": float(np.mean([f.mean_neighbors for f in world.flocks])) if world.flocks else 0.0,
+            "process_cpu_cores": self.cpu_s / self.wall_s,
+            "sim_seconds_at_end": world.time,
         }
-        return row, profile_text
+        if self.writer is not None:
+            row.update({
+                "bag_writer_cpu_ms_per_tick": self.writer_cpu_s / ticks * 1e3,
+                "bag_payload_MB_per_tick": self.writer._enqueued_bytes / max(1, world.ticks) / 1e6,
+                "bag_backlog_max_MB": self.writer.max_queued_bytes / 1e6,
+                "bag_dropped_messages": self.writer.dropped_messages, "bag_error": self.writer.error})
+        return row
+
+
+BLOCK_TICKS = 20
+
+
+def measure(scene: Path, bag_root: Path, warmup: int, ticks: int, name: str = "cgp_sim_bench",
+            compare_no_bag: bool = False, profile_ticks: int = 0) -> tuple[list[dict], str | None]:
+    """Build the node (and, with ``compare_no_bag``, a second one of the same scene that does not record),
+    run ``warmup`` ticks on each, then ``ticks`` ticks each in interleaved blocks of ``BLOCK_TICKS``.
+    The two nodes evolve identically (same scene, same seed, deterministic steps), so they do the same work.
+    Returns one row per variant and the profile of the recording node (``profile_ticks`` > 0)."""
+    variants = [Variant("bag", make_node(scene, bag_root, name))]
+    if compare_no_bag:
+        variants.append(Variant("no bag", make_node(scene, None, name + "_nobag")))
+    profile_text = None
+    try:
+        for v in variants:
+            for _ in range(warmup):
+                v.node.tick()
+        done = 0
+        while done < ticks:
+            block = min(BLOCK_TICKS, ticks - done)
+            for v in variants:
+                v.run(block)
+            done += block
+        rows = [v.row() for v in variants]
+        for row in rows:
+            row["warmup_ticks"] = warmup
+        if profile_ticks:
+            profile_text = profile(variants[0].node, profile_ticks)
+        t_close = time.perf_counter()
+        variants[0].node.close()
+        rows[0]["bag_close_s"] = time.perf_counter() - t_close
+        rows[0]["bag_file_MB"] = sum(f.stat().st_size for f in variants[0].writer.files) / 1e6
+        return rows, profile_text
     finally:
-        node.close()
-        node.destroy_node()
-
-
-def _bag_payload(node) -> float:
-    writer = node.recorder.writer
-    return float(writer._enqueued_bytes)
+        for v in variants:
+            v.node.close()
+            v.node.destroy_node()
 
 
 def profile(node, ticks: int) -> str:
@@ -258,19 +294,34 @@ def top_functions(profile_text: str, count: int = 15) -> list[str]:
 
 
 def print_row(row: dict) -> None:
-    print(f"  tick: median {row['tick_ms_median']:.2f} ms, p90 {row['tick_ms_p90']:.2f}, max {row['tick_ms_max']:.2f}"
-          f" (instrumented ticks: median {row['instrumented_tick_ms_median']:.2f}); {row['neighbors_per_boid']:.1f}"
-          f" neighbours/boid; {row['process_cpu_cores']:.2f} cores busy")
+    print(f"  [{row['variant']}] tick: median {row['tick_ms_median']:.2f} ms, p90 {row['tick_ms_p90']:.2f}, "
+          f"max {row['tick_ms_max']:.2f} (instrumented ticks: median {row['instrumented_tick_ms_median']:.2f}); "
+          f"{row['neighbors_per_boid']:.1f} neighbours/boid; {row['process_cpu_cores']:.2f} cores busy")
     for stage in STAGES:
-        print(f"    {stage:42} {row['split_ms_median'][stage]:7.2f} ms median  {row['split_ms_mean'][stage]:7.2f} mean")
-    print(f"    bag writer thread: {row['bag_writer_cpu_ms_per_tick']:.2f} ms CPU per tick (in parallel), "
-          f"{row['bag_payload_MB_per_tick']:.2f} MB payload per tick, backlog max {row['bag_backlog_max_MB']:.1f} MB, "
-          f"dropped {row['bag_dropped_messages']}, close {row['bag_close_s']:.2f} s")
+        print(f"    {stage:42} {row['split_ms_median'][stage]:7.2f} ms median {row['split_ms_mean'][stage]:7.2f} mean")
+    if "bag_writer_cpu_ms_per_tick" in row:
+        print(f"    bag writer thread: {row['bag_writer_cpu_ms_per_tick']:.2f} ms CPU per tick (in parallel), "
+              f"{row['bag_payload_MB_per_tick']:.2f} MB payload per tick, backlog max "
+              f"{row['bag_backlog_max_MB']:.1f} MB, dropped {row['bag_dropped_messages']}")
+
+
+def scaling_table(rows: list[dict]) -> str:
+    lines = [f"{'boids':>7} {'bodies':>6} {'tick ms':>8} {'p90':>7} {'max':>7} {'step':>7} {'bodies':>7} "
+             f"{'flock':>7} {'serialize':>9} {'publish':>8} {'record':>7} {'nbrs':>5}"]
+    for r in rows:
+        s = r["split_ms_median"]
+        lines.append(f"{r['boids']:>7} {r['bodies']:>6} {r['tick_ms_median']:8.2f} {r['tick_ms_p90']:7.2f} "
+                     f"{r['tick_ms_max']:7.2f} {s['world.step']:7.2f} "
+                     f"{s['  rigid bodies (substeps) + obstacle set']:7.2f} {s['  flock step']:7.2f} "
+                     f"{s['serialize (messages.*)']:9.2f} {s['Publisher.publish']:8.2f} "
+                     f"{s['recorder.write (caller)']:7.2f} {r['neighbors_per_boid']:5.1f}")
+    return "\n".join(lines)
 
 
 def run(quick: bool = False, warmup: int | None = None, ticks: int | None = None, scaling=None,
-        profile_ticks: int | None = None, options: dict | None = None) -> dict:
-    warmup = warmup if warmup is not None else (120 if quick else 180)
+        profile_ticks: int | None = None, compare_no_bag: bool = True, options: dict | None = None) -> dict:
+    """Measure, print, write ``results/tick.json`` (and ``results/tick_profile.txt``); returns the results."""
+    warmup = warmup if warmup is not None else (180 if quick else 300)
     ticks = ticks if ticks is not None else (120 if quick else 300)
     profile_ticks = profile_ticks if profile_ticks is not None else (40 if quick else 120)
     scaling = list(scaling) if scaling is not None else ([] if quick else list(SCALING_COUNTS))
@@ -283,10 +334,14 @@ def run(quick: bool = False, warmup: int | None = None, ticks: int | None = None
     root = Path(tempfile.mkdtemp(prefix="bench_tick_", dir=os.environ.get("BENCH_BAG_DIR")))
     rclpy.init(domain_id=int(os.environ["ROS_DOMAIN_ID"]))
     try:
-        print(f"full tick, {SCENE.name}: {warmup} warm-up ticks, {ticks} timed "
+        print(f"full tick, {SCENE.name}: {warmup} warm-up ticks, {ticks} timed"
+              f"{', interleaved with a node that does not record' if compare_no_bag else ''} "
               f"(ROS_DOMAIN_ID {os.environ['ROS_DOMAIN_ID']}, bag in {root})", flush=True)
-        main_row, profile_text = measure(SCENE, root / "bag_main", warmup, ticks, profile_ticks=profile_ticks)
-        print_row(main_row)
+        main_rows, profile_text = measure(SCENE, root / "bag_main", warmup, ticks, compare_no_bag=compare_no_bag,
+                                          profile_ticks=profile_ticks)
+        for row in main_rows:
+            print_row(row)
+        main_row = main_rows[0]
         rows = []
         for count in scaling:
             if count == main_row["boids"]:
@@ -294,8 +349,8 @@ def run(quick: bool = False, warmup: int | None = None, ticks: int | None = None
                 continue
             scene = scene_with_count(count, root)
             print(f"scaling: {count} boids ...", flush=True)
-            row, _ = measure(scene, root / f"bag_{count}", warmup=max(60, warmup // 2), ticks=max(60, ticks // 2),
-                             name=f"cgp_sim_bench_{count}")
+            (row,), _ = measure(scene, root / f"bag_{count}", warmup=max(60, warmup // 2),
+                                ticks=max(60, ticks // 2), name=f"cgp_sim_bench_{count}")
             print_row(row)
             rows.append(row)
     finally:
@@ -303,36 +358,41 @@ def run(quick: bool = False, warmup: int | None = None, ticks: int | None = None
         shutil.rmtree(root, ignore_errors=True)
 
     out.data["tick"] = main_row
+    out.data["tick_no_bag"] = main_rows[1] if len(main_rows) > 1 else None
     out.data["scaling"] = sorted(rows, key=lambda r: r["boids"]) if rows else [main_row]
     median = main_row["tick_ms_median"]
+    split = main_row["split_ms_median"]
     out.figure("tick_15k_median", "full tick, 15k boids + 20 bodies: step + publish + bag (median)", median,
                "ms", f"<= {TARGET_MS:.1f}", median <= TARGET_MS, issue7=True, p90=main_row["tick_ms_p90"],
-               max=main_row["tick_ms_max"], split_ms=main_row["split_ms_median"])
-    out.figure("tick_15k_p90", "full tick, 15k boids + 20 bodies (p90)", main_row["tick_ms_p90"], "ms",
+               max=main_row["tick_ms_max"], split_ms=split)
+    out.figure("tick_15k_p90", "full tick 15k + 20 bodies, p90", main_row["tick_ms_p90"], "ms",
                f"<= {TARGET_MS:.1f} (reference)", main_row["tick_ms_p90"] <= TARGET_MS)
-    out.figure("tick_15k_world_step", "  of which World.step (bodies + flock), median", 
-               main_row["split_ms_median"]["world.step"], "ms", "(split)", None)
+    out.figure("tick_15k_world_step", "  of which World.step: 20 bodies x 4 substeps", 
+               split["  rigid bodies (substeps) + obstacle set"], "ms", "(split)", None)
+    out.figure("tick_15k_flock_step", "  of which World.step: flock (15k, avoiding bodies)",
+               split["  flock step"], "ms", "(split)", None)
+    out.figure("tick_15k_serialize_publish", "  of which serialize + publish + recorder.write",
+               split["serialize (messages.*)"] + split["Publisher.publish"] + split["recorder.write (caller)"],
+               "ms", "(split)", None)
+    if out.data["tick_no_bag"]:
+        cost = median - out.data["tick_no_bag"]["tick_ms_median"]
+        out.figure("tick_15k_bag_cost", "  recording's cost to the tick (vs the same node without bag)", cost,
+                   "ms", "(split)", None)
     if profile_text:
         (RESULTS / "tick_profile.txt").parent.mkdir(parents=True, exist_ok=True)
         (RESULTS / "tick_profile.txt").write_text(profile_text)
-        out.data["profile_top"] = top_functions(profile_text, 25)
+        out.data["profile_top"] = top_functions(profile_text, 30)
         out.data["profile_file"] = "benchmarks/results/tick_profile.txt"
     path = out.write()
     print()
     if len(out.data["scaling"]) > 1:
-        print(f"{'boids':>7} {'bodies':>6} {'median ms':>10} {'p90':>7} {'max':>7} {'step':>7} {'flock':>7} "
-              f"{'serialize':>9} {'publish':>8} {'record':>7} {'nbrs':>5}")
-        for r in out.data["scaling"]:
-            s = r["split_ms_median"]
-            print(f"{r['boids']:>7} {r['bodies']:>6} {r['tick_ms_median']:10.2f} {r['tick_ms_p90']:7.2f} "
-                  f"{r['tick_ms_max']:7.2f} {s['world.step']:7.2f} {s['  flock step']:7.2f} "
-                  f"{s['serialize (messages.*)']:9.2f} {s['Publisher.publish']:8.2f} "
-                  f"{s['recorder.write (caller)']:7.2f} {r['neighbors_per_boid']:5.1f}")
+        print("scaling (with bag; median ms; split medians from the instrumented ticks):")
+        print(scaling_table(out.data["scaling"]))
         print()
-    print(format_figures([f for f in out.data["figures"] if f["pass"] is not None or f["issue7"]]))
+    print(format_figures(out.data["figures"]))
     if profile_text:
         print("\nprofile, top functions by cumulative time (full report in benchmarks/results/tick_profile.txt):")
-        for line in out.data.get("profile_top", [])[:15]:
+        for line in out.data.get("profile_top", [])[:20]:
             print("  " + line)
     print(f"\nwrote {path.relative_to(ROOT)}")
     return out.data
@@ -346,10 +406,13 @@ def main(argv=None) -> int:
     parser.add_argument("--scaling", type=int, nargs="*", default=None,
                         help=f"flock sizes for the scaling rows (default {' '.join(map(str, SCALING_COUNTS))}; "
                              "quick: none)")
-    parser.add_argument("--profile-ticks", type=int, default=None, help="ticks profiled (0 = no profile)")
+    parser.add_argument("--profile-ticks", type=int, default=None,
+                        help="ticks profiled (default 120; quick 40; 0 = no profile)")
+    parser.add_argument("--no-compare", action="store_true",
+                        help="skip the interleaved node without bag (the recording's cost)")
     args = parser.parse_args(argv)
     run(quick=args.quick, warmup=args.warmup, ticks=args.ticks, scaling=args.scaling,
-        profile_ticks=args.profile_ticks, options=vars(args))
+        profile_ticks=args.profile_ticks, compare_no_bag=not args.no_compare, options=vars(args))
     return 0
 
 

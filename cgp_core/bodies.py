@@ -12,6 +12,9 @@ Conventions
 - Orientation is a unit quaternion ``(x, y, z, w)`` mapping body to world: ``p_world = x + R(q) p_body``.
 - The state carries momenta, not velocities (the lecture's state: x, R, P, L); velocities are derived:
   ``v = P / m``, ``I_world = R I_body Rᵀ``, ``ω = I_world⁻¹ L``.
+  Slide errata ("Whole Model" slides): the velocity is v = P/m (the slide writes v̇ = p/m, which would be an
+  acceleration), and L = I ω is a matrix-vector product (the slide writes ``L = I × ω``); the inertia that
+  maps ω to L is the world-frame R I_body Rᵀ, not the body-frame J the particles were summed in.
 - Fixed bodies (walls, floors, obstacles) have ``inv_mass = 0`` and ``inv_inertia_body = 0``: every formula
   that divides by mass multiplies by the inverse instead, so they need no special case.
 """

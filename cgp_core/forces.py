@@ -8,7 +8,8 @@ Slide erratum ("Force projection", and "Whole Model" slides): the slides write
 ``F = F_ext (F_ext · (r_f − x̄))`` and ``τ = F_ext × (r_f − x̄)``.  Both are wrong: the linear part is F_ext
 itself (a force's effect on the COM does not depend on where it acts — Newton's second law for the system
 of particles), and the cross product is (r_f − x̄) × F_ext; the slide's order flips the sign of the torque
-(r × F, as the slide "Torque" itself says).
+(r × F, as the slide "Torque" itself says).  Also on the "Torque" slide: the length of τ is in N·m (a
+moment of force), not rad/s.
 """
 
 from __future__ import annotations
