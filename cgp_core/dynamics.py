@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from .bodies import BodyModel, BodyState
+from .checks import positive
 from .collision.materials import Ground
 from .forces import apply_damping, apply_gravity
 from .integrators.base import Integrator
@@ -40,13 +41,7 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
     Forces and torques already in ``state.force`` / ``state.torque`` (wrench commands) are kept and act with
     gravity over this sub-step; the accumulators are cleared at the end.
     """
-    given = h
-    try:
-        h = float(h)
-    except (TypeError, ValueError):
-        h = float("nan")
-    if not (np.isfinite(h) and h > 0.0):
-        raise ValueError(f"sub-step h must be a positive number of seconds, got {given!r}")
+    h = positive(h, "sub-step h [s]")
     try:
         gravity = np.asarray(gravity, dtype=float)
     except (TypeError, ValueError):

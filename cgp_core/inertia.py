@@ -19,6 +19,8 @@ import math
 
 import numpy as np
 
+from .checks import non_negative, positive
+
 from .bodies import Shape
 
 #: A particle set whose smallest principal moment is below this fraction of its largest is rejected as
@@ -99,26 +101,6 @@ def particle_mass_properties(points: np.ndarray, masses: np.ndarray) -> tuple[fl
 # ---- closed forms (homogeneous solids, about the COM, shape axes) ----------------------------------------
 
 
-def _positive(value, what: str) -> float:
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what} must be a number, got {value!r}") from None
-    if not (math.isfinite(value) and value > 0.0):
-        raise ValueError(f"{what} must be a positive finite number, got {value!r}")
-    return value
-
-
-def _non_negative(value, what: str) -> float:
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what} must be a number, got {value!r}") from None
-    if not (math.isfinite(value) and value >= 0.0):
-        raise ValueError(f"{what} must be a finite number >= 0, got {value!r}")
-    return value
-
-
 def _extents(size) -> np.ndarray:
     try:
         size = np.asarray(size, dtype=float)
@@ -133,14 +115,14 @@ def _extents(size) -> np.ndarray:
 
 def solid_sphere_inertia(mass: float, radius: float) -> np.ndarray:
     """(3, 3): I = (2/5) m r² on the diagonal."""
-    mass, radius = _positive(mass, "mass"), _positive(radius, "radius")
+    mass, radius = positive(mass, "mass"), positive(radius, "radius")
     return np.eye(3) * (0.4 * mass * radius * radius)
 
 
 def box_inertia(mass: float, size) -> np.ndarray:
     """(3, 3): a solid box with full extents ``size = (a, b, c)`` along body x, y, z:
     I = m/12 · diag(b² + c², a² + c², a² + b²)."""
-    mass = _positive(mass, "mass")
+    mass = positive(mass, "mass")
     a2, b2, c2 = _extents(size) ** 2
     return np.diag([b2 + c2, a2 + c2, a2 + b2]) * (mass / 12.0)
 
@@ -148,8 +130,8 @@ def box_inertia(mass: float, size) -> np.ndarray:
 def cylinder_inertia(mass: float, radius: float, half_length: float) -> np.ndarray:
     """(3, 3): a solid cylinder of ``radius``, axis = body z, length ``2 half_length``:
     I_zz = m r² / 2,  I_xx = I_yy = m (3 r² + (2 half_length)²) / 12."""
-    mass, radius = _positive(mass, "mass"), _positive(radius, "radius")
-    length = 2.0 * _positive(half_length, "half_length")
+    mass, radius = positive(mass, "mass"), positive(radius, "radius")
+    length = 2.0 * positive(half_length, "half_length")
     across = mass * (3.0 * radius * radius + length * length) / 12.0
     return np.diag([across, across, 0.5 * mass * radius * radius])
 
@@ -163,8 +145,8 @@ def capsule_inertia(mass: float, radius: float, half_length: float) -> np.ndarra
     about its own COM (2/5 − 9/64) m_h r², and about the capsule's centre (distance a + 3r/8, a = half_length):
     m_h [(2/5) r² + a² + (3/4) a r] by the parallel-axis theorem.
     """
-    mass, radius = _positive(mass, "mass"), _positive(radius, "radius")
-    a = _non_negative(half_length, "half_length")
+    mass, radius = positive(mass, "mass"), positive(radius, "radius")
+    a = non_negative(half_length, "half_length")
     r2 = radius * radius
     cylinder_volume = math.pi * r2 * 2.0 * a
     caps_volume = 4.0 / 3.0 * math.pi * r2 * radius
@@ -264,14 +246,14 @@ def shape_mass_properties(shape, *, radius=None, size=None, half_length=None, ma
         raise ValueError(f"{name}: give exactly one of mass and density")
 
     if name == "sphere":
-        volume = sphere_volume(_positive(radius, "radius"))
+        volume = sphere_volume(positive(radius, "radius"))
     elif name == "box":
         volume = box_volume(_extents(size))
     elif name == "capsule":
-        volume = capsule_volume(_positive(radius, "radius"), _non_negative(half_length, "half_length"))
+        volume = capsule_volume(positive(radius, "radius"), non_negative(half_length, "half_length"))
     else:
-        volume = cylinder_volume(_positive(radius, "radius"), _positive(half_length, "half_length"))
-    body_mass = _positive(mass, "mass") if mass is not None else _positive(density, "density") * volume
+        volume = cylinder_volume(positive(radius, "radius"), positive(half_length, "half_length"))
+    body_mass = positive(mass, "mass") if mass is not None else positive(density, "density") * volume
 
     if name == "sphere":
         return body_mass, solid_sphere_inertia(body_mass, radius)

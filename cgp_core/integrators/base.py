@@ -14,11 +14,11 @@ Orientation quaternions map body to world, so a body-frame increment multiplies 
 
 from __future__ import annotations
 
-import math
 from typing import ClassVar, Protocol
 
 import numpy as np
 
+from ..checks import positive
 from ..bodies import BodyModel, BodyState
 
 
@@ -33,13 +33,7 @@ class Integrator(Protocol):
 
 def check_step(h: float) -> float:
     """``h`` as a float; ``ValueError`` unless it is a positive finite number of seconds."""
-    try:
-        h = float(h)
-    except (TypeError, ValueError):
-        raise ValueError(f"integrator step h must be a number of seconds, got {h!r}") from None
-    if not (math.isfinite(h) and h > 0.0):
-        raise ValueError(f"integrator step h must be a positive finite number of seconds, got {h!r}")
-    return h
+    return positive(h, "integrator step h [s]")
 
 
 def movable_mask(model: BodyModel) -> np.ndarray:

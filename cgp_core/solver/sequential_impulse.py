@@ -459,6 +459,22 @@ class SequentialImpulseSolver:
             state.rotation[movable] = quat_to_matrix(turn) @ state.rotation[movable]
 
 
+def _friction_update(bt: _Batch, v: np.ndarray):
+    """The two friction rows of every contact of a batch: a Jacobi step from the row velocities ``v (3, k)``,
+    then clamped to the Coulomb cone |λ_t| ≤ μ λₙ with the current normal impulse.  Writes the changes into
+    ``bt.delta[1:]``; returns (λₙ before the update, new λ_t1, new λ_t2)."""
+    lam, eff, delta = bt.lam, bt.eff, bt.delta
+    normal_old = lam[0].copy()
+    t1 = lam[1] - eff[1] * v[1]
+    t2 = lam[2] - eff[2] * v[2]
+    scale = np.minimum(1.0, bt.mu * normal_old / np.maximum(np.sqrt(t1 * t1 + t2 * t2), 1e-300))
+    t1 *= scale
+    t2 *= scale
+    np.subtract(t1, lam[1], out=delta[1])
+    np.subtract(t2, lam[2], out=delta[2])
+    return normal_old, t1, t2
+
+
 def _solve_batch(Vf: np.ndarray, bt: _Batch) -> float:
     """One update of every contact of a batch: the friction rows (cone clamp with the current λₙ), then the
     normal row.  ``Vf`` is the flattened (n + 1, 6) velocity array.  Returns the largest change of a row's
@@ -468,16 +484,7 @@ def _solve_batch(Vf: np.ndarray, bt: _Batch) -> float:
     Vab, Vg = bt.gather(Vf)
     v = np.einsum("rkj,kj->rk", bt.J, Vab)  # row velocities (3, k)
     lam, eff, delta = bt.lam, bt.eff, bt.delta
-    normal_old = lam[0].copy()
-    t1_old = lam[1].copy()
-    t2_old = lam[2].copy()
-    t1 = t1_old - eff[1] * v[1]
-    t2 = t2_old - eff[2] * v[2]
-    scale = np.minimum(1.0, bt.mu * normal_old / np.maximum(np.sqrt(t1 * t1 + t2 * t2), 1e-300))
-    t1 *= scale
-    t2 *= scale
-    np.subtract(t1, t1_old, out=delta[1])
-    np.subtract(t2, t2_old, out=delta[2])
+    normal_old, t1, t2 = _friction_update(bt, v)
     vn = v[0] + bt.w_nt[0] * delta[1] + bt.w_nt[1] * delta[2]
     normal = np.maximum(normal_old - eff[0] * (vn - bt.bias), 0.0)
     np.subtract(normal, normal_old, out=delta[0])
@@ -494,16 +501,7 @@ def _solve_block_batch(Vf: np.ndarray, bt: _Batch) -> None:
     Vg = Vf.take(bt.flat).reshape(-1, 12)
     v = np.einsum("rkj,kj->rk", bt.J, Vg.take(bt.group_of, axis=0))
     lam, eff, delta = bt.lam, bt.eff, bt.delta
-    normal_old = lam[0].copy()
-    t1_old = lam[1].copy()
-    t2_old = lam[2].copy()
-    t1 = t1_old - eff[1] * v[1]
-    t2 = t2_old - eff[2] * v[2]
-    scale = np.minimum(1.0, bt.mu * normal_old / np.maximum(np.sqrt(t1 * t1 + t2 * t2), 1e-300))
-    t1 *= scale
-    t2 *= scale
-    np.subtract(t1, t1_old, out=delta[1])
-    np.subtract(t2, t2_old, out=delta[2])
+    normal_old, t1, t2 = _friction_update(bt, v)
     Vg += np.add.reduceat(np.einsum("rk,rkj->kj", delta[1:], bt.MJ[1:]), bt.group_start, axis=0)
     vn = np.einsum("kj,kj->k", bt.J[0], Vg.take(bt.group_of, axis=0))
     normal, exact = bt.blocks.solve_normal(vn, bt.bias, normal_old)
