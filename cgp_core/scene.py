@@ -1,7 +1,9 @@
-"""Scenes: YAML files (``yaml.safe_load`` only) describing a world, its rigid bodies and its boid flocks.
+"""Scenes: YAML files (YAML's safe subset only) describing a world, its rigid bodies and its boid flocks.
 
 A scene is validated completely before anything is built: every error names the file, the key path (e.g.
-``bodies[2].size``) and what is wrong, and all errors of a file are reported together.  The format
+``bodies[2].size``) and what is wrong, and all errors of a file are reported together.  Parsing uses
+PyYAML's ``SafeLoader`` (plain data only: a ``!!python/...`` tag is an error, never executed) with one
+addition: a key given twice in one mapping is an error, not silently "the last one wins".  The format
 (SI units, frame ``world``, z up as REP-103):
 
 .. code-block:: yaml
@@ -50,6 +52,7 @@ from __future__ import annotations
 
 import math
 import re
+import reprlib
 from dataclasses import dataclass, field, fields
 from importlib import resources
 from pathlib import Path
@@ -64,10 +67,14 @@ from .integrators import DEFAULT_INTEGRATOR, INTEGRATORS
 from .rotation import quat_normalize, quat_rotate
 
 ROS_SAFE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+#: body / flock names become parts of topic names (``~/bodies/<body>/odom``), which DDS limits in length
+MAX_NAME_LENGTH = 64
 MAX_BODIES = 10_000
 MAX_BOIDS_PER_FLOCK = 1_000_000
 MAX_PARTICLES_PER_BODY = 100_000
 MAX_SCENE_BYTES = 16 * 1024 * 1024
+#: a SceneError message lists at most this many problems (all of them are in ``SceneError.problems``)
+MAX_REPORTED_PROBLEMS = 50
 
 
 class SceneError(ValueError):
@@ -76,7 +83,10 @@ class SceneError(ValueError):
     def __init__(self, source: str, problems: list[str]):
         self.source = source
         self.problems = problems
-        super().__init__("\n".join(f"{source}: {p}" for p in problems))
+        shown = [f"{source}: {p}" for p in problems[:MAX_REPORTED_PROBLEMS]]
+        if len(problems) > MAX_REPORTED_PROBLEMS:
+            shown.append(f"{source}: ... and {len(problems) - MAX_REPORTED_PROBLEMS} more problems")
+        super().__init__("\n".join(shown))
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -183,6 +193,8 @@ def resolve_scene(name_or_path: str) -> Path:
         raise SceneError("<scene>", [f"empty scene name; built-in scenes: {', '.join(builtin_scene_names())}"])
     path = Path(text).expanduser()
     if path.suffix in (".yaml", ".yml") or "/" in text:
+        if path.is_dir():
+            raise SceneError(text, ["is a directory, not a scene file"])
         if not path.is_file():
             raise SceneError(text, ["no such scene file"])
         return path
@@ -210,9 +222,33 @@ def load_scene(name_or_path: str | Path) -> Scene:
     return parse_scene(text, source)
 
 
+class _SceneLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` (plain data only) that also rejects a key given twice in one mapping: PyYAML keeps
+    the last value silently, so ``{mass: 1, mass: 2}`` would drop a value the author wrote.  Keys merged in
+    with ``<<`` may still be overridden, as YAML's merge semantics say."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            first_seen: dict = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    earlier = first_seen.setdefault(key, key_node.start_mark)
+                except TypeError:  # an unhashable key: the base class reports it
+                    continue
+                if earlier is not key_node.start_mark:
+                    raise yaml.constructor.ConstructorError(
+                        "while constructing a mapping", node.start_mark,
+                        f"duplicate key {_show(key)} (first given at line {earlier.line + 1}, column "
+                        f"{earlier.column + 1})", key_node.start_mark)
+        return super().construct_mapping(node, deep=deep)
+
+
 def parse_scene(text: str, source: str = "<string>") -> Scene:
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_SceneLoader)  # a SafeLoader: never constructs Python objects
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
@@ -239,6 +275,17 @@ def scene_from_dict(data: Any, source: str = "<dict>") -> Scene:
 # ----------------------------------------------------------------------------------------------------------
 # Validation helpers: each returns a clean value or records a problem and returns a harmless default, so one
 # pass reports every problem in the file.
+
+
+_REPR = reprlib.Repr()
+_REPR.maxstring = _REPR.maxother = 60
+_REPR.maxlist = _REPR.maxdict = _REPR.maxtuple = 6
+_REPR.maxlevel = 1
+
+
+def _show(value: Any) -> str:
+    """A short repr for error messages: a scene can hold huge (or alias-expanded) values."""
+    return _REPR.repr(value)
 
 
 def _kind(value: Any) -> str:
@@ -276,11 +323,22 @@ class _Validator:
     def number(self, value: Any, key: str, *, minimum: float | None = None, exclusive_min: bool = False,
                maximum: float | None = None, default: float = 0.0) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            self.fail(key, f"must be a number, got {_kind(value)} {value!r}"[:200])
+            hint = ""
+            if isinstance(value, str):
+                try:
+                    float(value)
+                    hint = (" (YAML reads a quoted number, or an exponent without a decimal point such as 1e3, "
+                            "as text: write 1.0e3)")
+                except ValueError:
+                    pass
+            self.fail(key, f"must be a number, got {_kind(value)} {_show(value)}{hint}")
             return default
-        x = float(value)
+        try:
+            x = float(value)
+        except OverflowError:  # an integer literal beyond the float range
+            x = math.inf
         if not math.isfinite(x):
-            self.fail(key, f"must be finite, got {value!r}")
+            self.fail(key, f"must be finite, got {_show(value)}")
             return default
         if minimum is not None and (x <= minimum if exclusive_min else x < minimum):
             self.fail(key, f"must be {'>' if exclusive_min else '>='} {minimum:g}, got {x:g}")
@@ -293,7 +351,7 @@ class _Validator:
     def integer(self, value: Any, key: str, *, minimum: int | None = None, maximum: int | None = None,
                 default: int = 0) -> int:
         if isinstance(value, bool) or not isinstance(value, int):
-            self.fail(key, f"must be an integer, got {_kind(value)} {value!r}"[:200])
+            self.fail(key, f"must be an integer, got {_kind(value)} {_show(value)}")
             return default
         if minimum is not None and value < minimum:
             self.fail(key, f"must be >= {minimum}, got {value}")
@@ -305,7 +363,7 @@ class _Validator:
 
     def boolean(self, value: Any, key: str, default: bool = False) -> bool:
         if not isinstance(value, bool):
-            self.fail(key, f"must be true or false, got {_kind(value)} {value!r}"[:200])
+            self.fail(key, f"must be true or false, got {_kind(value)} {_show(value)}")
             return default
         return value
 
@@ -318,7 +376,7 @@ class _Validator:
     def choice(self, value: Any, key: str, options: list[str], default: str) -> str:
         s = self.string(value, key, default)
         if s not in options:
-            self.fail(key, f"must be one of {', '.join(options)}, got {s!r}")
+            self.fail(key, f"must be one of {', '.join(options)}, got {_show(s)}")
             return default
         return s
 
@@ -326,7 +384,7 @@ class _Validator:
                exclusive_min: bool = False, default: np.ndarray | None = None) -> np.ndarray:
         fallback = np.zeros(length) if default is None else np.asarray(default, dtype=float)
         if not isinstance(value, (list, tuple)) or len(value) != length:
-            self.fail(key, f"must be a list of {length} numbers, got {_kind(value)} {value!r}"[:200])
+            self.fail(key, f"must be a list of {length} numbers, got {_kind(value)} {_show(value)}")
             return fallback
         before = len(self.problems)
         out = np.array([self.number(x, f"{key}[{i}]", minimum=minimum, exclusive_min=exclusive_min)
@@ -334,9 +392,14 @@ class _Validator:
         return fallback if len(self.problems) > before else out
 
     def name(self, value: Any, key: str, seen: set[str]) -> str:
-        s = self.string(value, key)
+        if not isinstance(value, str):
+            self.fail(key, f"must be a string (a ROS-safe name), got {_kind(value)} {_show(value)}")
+            return ""
+        s = value
         if not ROS_SAFE_NAME.match(s):
-            self.fail(key, f"{s!r} is not a ROS-safe name (letters, digits, _; starting with a letter)")
+            self.fail(key, f"{_show(s)} is not a ROS-safe name (letters, digits, _; starting with a letter)")
+        elif len(s) > MAX_NAME_LENGTH:
+            self.fail(key, f"{_show(s)} is {len(s)} characters long; names are at most {MAX_NAME_LENGTH}")
         elif s in seen:
             self.fail(key, f"duplicate name {s!r} (body and flock names must be unique)")
         seen.add(s)

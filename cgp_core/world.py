@@ -7,7 +7,8 @@
    recover penetration, clear accumulators — the stages are named there);
 2. contain blow-ups: a body whose state went non-finite or absurd is put back to its initial state (reported
    in :attr:`World.events`); the rest of the world goes on;
-3. flocks: one step of ``dt`` each, avoiding the bodies at their end-of-tick poses;
+3. flocks: one step of ``dt`` each, avoiding the bodies at their end-of-tick poses (a flock whose state went
+   non-finite is reset, and reported, the same way);
 4. wrench schedule: count the tick off timed wrenches.
 
 Usage (no ROS needed)::
@@ -94,17 +95,22 @@ class World:
         h = self.dt / self.substeps
         model, state = self.body_model, self.body_state
         if model.count:
-            for _ in range(self.substeps):
-                self.wrenches.apply(state)
-                step_bodies(model, state, self.integrator, self.solver, h, gravity=self.gravity,
-                            ground=self.ground, linear_damping=self.scene.world.linear_damping,
-                            angular_damping=self.scene.world.angular_damping)
+            # An extreme (but accepted) force can overflow a body's state to inf / NaN within the sub-steps;
+            # numpy's warnings about it would only repeat, on stderr, what _contain_blowups reports right
+            # after as an event naming the body.
+            with np.errstate(over="ignore", invalid="ignore"):
+                for _ in range(self.substeps):
+                    self.wrenches.apply(state)
+                    step_bodies(model, state, self.integrator, self.solver, h, gravity=self.gravity,
+                                ground=self.ground, linear_damping=self.scene.world.linear_damping,
+                                angular_damping=self.scene.world.angular_damping)
             self._contain_blowups()
         if self.flocks:
             obstacles = Obstacles.from_bodies(model, state, ground=self.ground is not None) \
                 if model.count or self.ground is not None else None
             for flock in self.flocks:
                 flock.step(self.dt, obstacles)
+            self._contain_flock_blowups()
         self.wrenches.end_tick()
         self.ticks += 1
         self.time_ns += self.dt_ns
@@ -141,14 +147,22 @@ class World:
             state.rotation[bad] = init.rotation_matrices()[bad]
         state.linear_momentum[bad] = 0.0
         state.angular_momentum[bad] = 0.0
-        keep = ~np.isin(self.wrenches.body, bad)
-        if not keep.all():  # the wrench that blew it up would do it again
-            for name in ("body", "force", "torque", "point", "at_com", "body_frame", "ticks_left"):
-                setattr(self.wrenches, name, getattr(self.wrenches, name)[keep])
+        self.wrenches.remove_bodies(bad)  # the wrench that blew it up would do it again
         names = ", ".join(model.names[i] for i in bad)
         self.events.append(WorldEvent(self.time, "error",
                                       f"numerical blow-up of {names} (non-finite or > {BLOWUP_SPEED:g} m/s): "
                                       "reset to its initial pose at rest and its wrenches cleared"))
+
+    def _contain_flock_blowups(self) -> None:
+        """A flock whose state went non-finite is put back to its initial state (the boids' speeds are clamped,
+        so only a numerical fault gets here); one check per flock, O(N) and cheap next to the step."""
+        for flock in self.flocks:
+            if np.isfinite(flock.positions).all() and np.isfinite(flock.velocities).all() \
+                    and np.isfinite(flock.orientations).all():
+                continue
+            flock.reset()
+            self.events.append(WorldEvent(self.time, "error", f"numerical blow-up of flock {flock.params.name} "
+                                          "(non-finite boid state): reset to its initial state"))
 
     def take_events(self) -> list[WorldEvent]:
         events, self.events = self.events, []
@@ -175,7 +189,8 @@ class World:
         naming the bad field."""
         frame = body if frame == "body" else frame
         command = make_command(self.body_model.names, body, force=force, torque=torque, point=point, frame=frame,
-                               duration=duration, fixed=self.body_model.fixed, **limits)
+                               duration=duration, fixed=self.body_model.fixed, positions=self.body_state.position,
+                               **limits)
         self.add_commands([command])
         return command
 

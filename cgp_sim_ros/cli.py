@@ -5,6 +5,10 @@ Every node parameter is also a flag (``--rate-hz 120`` ≡ ``--ros-args -p rate_
 
 Shutdown: Ctrl-C (SIGINT) or SIGTERM ends the run cleanly after the current tick — the bag is finished
 (summary, metadata.yaml) and its location printed.  A second Ctrl-C aborts at once.
+
+Exit status: 0 after a clean shutdown (signal or ``duration`` reached); 2 for a configuration the node cannot
+start with (an invalid flag or parameter value, a scene that does not load, unparsable ROS arguments, an
+existing bag directory), with the reason on stderr and nothing published.
 """
 
 from __future__ import annotations
@@ -48,6 +52,15 @@ def _builtin_scenes() -> list[str]:
     return builtin_scene_names()
 
 
+def _ros_argument_errors() -> tuple[type[Exception], ...]:
+    """What rcl raises for unparsable ``--ros-args`` (malformed remaps, -p without a rule, flags after
+    --ros-args, an unreadable --params-file)."""
+    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+    return tuple(getattr(_rclpy, name) for name in ("RCLInvalidROSArgsError", "UnknownROSArgsError")
+                 if hasattr(_rclpy, name))
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv if argv is None else argv)
     import rclpy
@@ -57,7 +70,16 @@ def main(argv: list[str] | None = None) -> int:
 
     from .node import ConfigError, SimNode
 
-    args = build_parser().parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
+    try:
+        args = build_parser().parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
+    except _ros_argument_errors() as exc:
+        # rcl's message: the rule it could not parse first, then C source locations (noise for a user).
+        reason = str(exc).split(", at /")[0]
+        if type(exc).__name__ == "UnknownROSArgsError":
+            reason = f"{reason} after --ros-args are not ROS arguments"
+        print(f"cgp-sim: invalid ROS arguments: {reason} (cgp-sim's own flags go before --ros-args; see "
+              "--help)", file=sys.stderr)
+        return 2
     if args.list_scenes:
         print("\n".join(_builtin_scenes()))
         return 0

@@ -7,6 +7,20 @@ hand the same bytes to the recorder.  No physics here: every equation lives in `
 Threading: one single-threaded executor runs the timer, the subscriptions and the services, so they never
 interleave with a step and need no locks.  The bag is written on its own thread (:mod:`cgp_sim_ros.bag`).
 The interface (topics, QoS, parameters) is defined and documented in :mod:`cgp_sim_ros.interface`.
+
+Bad input (what a node on a shared graph must expect):
+
+- commands: a message larger than any valid command (:data:`MAX_COMMAND_BYTES`) is dropped before it is
+  decoded or recorded; every other one is validated by :func:`cgp_core.wrenches.make_command`.  A rejected
+  command is logged at once the first time its (topic, field, kind of problem) occurs, then summarized every
+  :data:`REPORT_PERIOD_S` seconds with a count (log and ``~/events``), so a flood cannot flood the log.
+  Pending commands are a bounded queue (:data:`MAX_PENDING_COMMANDS`, the oldest dropped and reported) and
+  active wrenches are bounded (``WrenchSchedule.max_active``).
+- parameters: checked at start-up (a :class:`ConfigError`: ``cgp-sim`` exits with status 2 and the reason)
+  and at run time (the parameter callback refuses the change with the reason); an override of a parameter
+  the node does not have is warned about (a typo), not fatal (parameter files may address many nodes).
+- recording: an existing, non-empty bag directory is a :class:`ConfigError`; an I/O error while recording
+  (unwritable location, disk full) is logged and the simulation and publishing go on.
 """
 
 from __future__ import annotations
@@ -20,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType, SetParametersResult
+from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from std_msgs.msg import String
@@ -27,7 +42,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from cgp_core.scene import SceneError
 from cgp_core.world import World
-from cgp_core.wrenches import WrenchError, make_command
+from cgp_core.wrenches import MAX_NAME_LENGTH, WrenchError, make_command
 
 from . import interface as itf
 from .messages import TickMessages
@@ -36,9 +51,14 @@ from .messages import TickMessages
 MAX_PENDING_COMMANDS = 2000
 #: how often (wall seconds) rejected-command reports and rate checks are summarized in the log
 REPORT_PERIOD_S = 2.0
-
-_PARAM_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
-                float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}
+#: larger than any valid ApplyWrench / WrenchStamped: their only unbounded fields are the strings `body` and
+#: `header.frame_id`, names of at most MAX_NAME_LENGTH (255) characters (≈ 620 serialized bytes in all).
+#: Anything larger is dropped on arrival, before it is decoded or recorded.
+MAX_COMMAND_BYTES = 1024
+#: a command callback goes on taking waiting commands for at most this long (wall seconds)
+COMMAND_BATCH_S = 0.002
+#: parameters rclpy itself declares or reads; an override of these is not "unknown"
+_ROS_OWN_PARAMETERS = ("use_sim_time", "start_type_description_service")
 
 
 class ConfigError(ValueError):
@@ -48,12 +68,28 @@ class ConfigError(ValueError):
 class SimNode(Node):
     def __init__(self, *, parameter_overrides=None, node_name: str = "cgp_sim"):
         super().__init__(node_name, parameter_overrides=parameter_overrides)
-        self._declare_parameters()
-        self.params = {p.name: self.get_parameter(p.name).value for p in itf.PARAMETERS}
-        problems = [msg for p in itf.PARAMETERS if (msg := _check_parameter(p, self.params[p.name]))]
+        problems = self._declare_parameters()
+        self.params = {p.name: self.get_parameter(p.name).value for p in itf.PARAMETERS
+                       if self.has_parameter(p.name)}
+        problems += [msg for p in itf.PARAMETERS if p.name in self.params
+                     and (msg := _check_parameter(p, self.params[p.name]))]
         if problems:
             raise ConfigError("invalid parameters: " + "; ".join(problems))
         self.params = {p.name: _coerce(p, v) for p, v in zip(itf.PARAMETERS, self.params.values())}
+        unknown = sorted(name for name in self._parameter_overrides
+                         if name not in itf.PARAMETER_BY_NAME and name not in _ROS_OWN_PARAMETERS
+                         and not name.startswith("qos_overrides."))
+        if unknown:
+            self.get_logger().warn(f"ignoring unknown parameter(s) {', '.join(unknown)}; cgp_sim's parameters "
+                                   f"are {', '.join(p.name for p in itf.PARAMETERS)}")
+        bag = self.params["bag"]
+        if bag:
+            # Checked before anything is built or published: recording into an old bag would mix two runs.
+            bag_path = Path(bag).expanduser()
+            if bag_path.exists() and (not bag_path.is_dir() or any(bag_path.iterdir())):
+                raise ConfigError(f"bag: {str(bag_path)!r} already exists and is "
+                                  f"{'not empty' if bag_path.is_dir() else 'not a directory'}; choose a new "
+                                  "directory (a bag is never overwritten)")
 
         seed = self.params["seed"]
         try:
@@ -68,7 +104,7 @@ class SimNode(Node):
         self._pending: collections.deque = collections.deque()
         self._dropped_commands = 0
         self._rejections: collections.Counter = collections.Counter()
-        self._last_rejection: dict[str, str] = {}
+        self._last_rejection: dict[tuple[str, str, str], str] = {}  # (source, field, kind) -> last reason
         self._delete_all_markers = False
         #: set when `duration` is reached; the main loop then shuts the node down
         self.finished = False
@@ -85,6 +121,8 @@ class SimNode(Node):
         self._window_start = time.monotonic()
         self._window_ticks = 0
         self._timer = self.create_timer(self._timer_period(), self._on_timer)
+        # Reports on their own wall-clock timer, so rejected commands are summarized while paused too.
+        self._report_timer = self.create_timer(REPORT_PERIOD_S, self._report)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         counts = f"{self.world.body_model.count} bodies, " + ", ".join(
@@ -98,15 +136,26 @@ class SimNode(Node):
 
     # ---- set-up -----------------------------------------------------------------------------------------
 
-    def _declare_parameters(self) -> None:
+    def _declare_parameters(self) -> list[str]:
+        """Declare every parameter; returns the problems with start-up values rclpy itself refuses, worded like
+        :func:`_check_parameter` (none expected: see below)."""
+        problems = []
         for p in itf.PARAMETERS:
-            # Floats are declared with dynamic typing so `-p rate_hz:=60` (an integer to the ROS parser) is
-            # accepted and converted instead of failing with a type error.
-            is_float = isinstance(p.default, float)
+            # Declared with dynamic typing, and checked by _check_parameter (at start-up and in the parameter
+            # callback), so that a value of the wrong type gets a reason naming the parameter and the expected
+            # type ("realtime must be bool, got str 'yes'") rather than rclpy's "Wrong parameter type, expected
+            # '1' got '4'"; and `-p rate_hz:=60` (an integer to the ROS parser) is accepted and converted.
+            # The type and range are stated in the descriptor for `ros2 param describe`.
             descriptor = ParameterDescriptor(
-                name=p.name, type=ParameterType.PARAMETER_NOT_SET if is_float else _PARAM_TYPES[type(p.default)],
-                description=p.description, read_only=p.read_only, dynamic_typing=is_float)
-            self.declare_parameter(p.name, p.default, descriptor)
+                name=p.name, type=ParameterType.PARAMETER_NOT_SET, description=p.description,
+                additional_constraints=_constraints(p), read_only=p.read_only, dynamic_typing=True)
+            try:
+                self.declare_parameter(p.name, p.default, descriptor)
+            except InvalidParameterTypeException:
+                value = self._parameter_overrides[p.name].value
+                problems.append(f"{p.name} must be {type(p.default).__name__}, got {type(value).__name__} "
+                                f"{_brief(value)}")
+        return problems
 
     def _make_publishers(self) -> None:
         world = self.world
@@ -125,16 +174,38 @@ class SimNode(Node):
         from geometry_msgs.msg import WrenchStamped
 
         self._apply_wrench_type = ApplyWrench
-        self.sub_apply_wrench = self.create_subscription(
-            ApplyWrench, itf.TOPIC_APPLY_WRENCH, self._on_apply_wrench, itf.COMMAND_QOS, raw=True)
+        self._wrench_stamped_type = WrenchStamped
+        self.sub_apply_wrench = self._command_subscription(ApplyWrench, itf.TOPIC_APPLY_WRENCH,
+                                                           self._on_apply_wrench)
         self.sub_body_wrench = {}
         for name, fixed in zip(self.world.body_model.names, self.world.body_model.fixed):
             if fixed:
                 continue
-            self.sub_body_wrench[name] = self.create_subscription(
+            self.sub_body_wrench[name] = self._command_subscription(
                 WrenchStamped, itf.TOPIC_BODY_WRENCH.format(body=name),
-                lambda data, body=name: self._on_body_wrench(body, data), itf.COMMAND_QOS, raw=True)
-        self._wrench_stamped_type = WrenchStamped
+                lambda data, body=name: self._on_body_wrench(body, data))
+
+    def _command_subscription(self, msg_type, topic: str, handle):
+        """A raw command subscription whose callback also takes the messages already waiting behind the first.
+
+        rclpy's executor takes one message per subscription per wait, and a wait costs a fraction of a
+        millisecond of Python, so a flood would be read at a few hundred messages per tick at best and the rest
+        overwritten in the DDS reader's bounded history.  Taking what is waiting in one go (bounded by
+        COMMAND_BATCH_S of wall time, so a tick is never held up for long) reads thousands per second."""
+        subscription = None
+
+        def take_all(data: bytes) -> None:
+            handle(data)
+            deadline = time.perf_counter() + COMMAND_BATCH_S
+            while time.perf_counter() < deadline:
+                with subscription.handle:
+                    taken = subscription.handle.take_message(msg_type, True)
+                if taken is None:
+                    return
+                handle(taken[0])
+
+        subscription = self.create_subscription(msg_type, topic, take_all, itf.COMMAND_QOS, raw=True)
+        return subscription
 
     def _make_services(self) -> None:
         self.create_service(Trigger, itf.SERVICE_RESET, self._on_reset)
@@ -143,11 +214,15 @@ class SimNode(Node):
         self.create_service(Trigger, itf.SERVICE_CLEAR_WRENCHES, self._on_clear_wrenches)
 
     def _start_recording(self, directory: str) -> None:
+        from .bag import BagExistsError
         from .recorder import Recorder
 
-        self.recorder = Recorder(self, Path(directory).expanduser(),
-                                 max_bytes=self.params["bag_max_size"],
-                                 max_duration_s=self.params["bag_max_duration"])
+        try:
+            self.recorder = Recorder(self, Path(directory).expanduser(),
+                                     max_bytes=self.params["bag_max_size"],
+                                     max_duration_s=self.params["bag_max_duration"])
+        except BagExistsError as exc:  # created between the check in __init__ and now
+            raise ConfigError(f"bag: {exc}") from None
 
     def _timer_period(self) -> float:
         # realtime=false: a zero-period timer is always ready, so the executor runs ticks back to back while
@@ -211,19 +286,24 @@ class SimNode(Node):
                 f"falling behind real time: {achieved:.1f} Hz achieved of {target:g} Hz (median tick "
                 f"{median_ms:.1f} ms); dt stays {self.world.dt * 1e3:.3f} ms, so simulated time runs slower "
                 "than the wall clock")
+        self._window_start, self._window_ticks = now, 0
+
+    def _report(self) -> None:
+        """Every REPORT_PERIOD_S of wall time: rejected / dropped commands, recording errors."""
         self._report_rejections()
         if self.recorder is not None:
             self.recorder.report_errors()
-        self._window_start, self._window_ticks = now, 0
 
     # ---- commands -----------------------------------------------------------------------------------------
 
     def _on_apply_wrench(self, data: bytes) -> None:
+        if self._oversized("apply_wrench", data):
+            return
         self._record_received(self.sub_apply_wrench.topic_name, data)
         try:
-            msg = deserialize_message(data, self._apply_wrench_type)
+            msg = self._decode(data, self._apply_wrench_type)
             if msg.duration.nanosec >= 1_000_000_000:
-                raise WrenchError("duration.nanosec", f"must be < 1e9, got {msg.duration.nanosec}")
+                raise WrenchError("duration.nanosec", f"must be < 1e9, got {msg.duration.nanosec}", "malformed")
             command = make_command(
                 self.world.body_model.names, msg.body,
                 force=(msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z),
@@ -231,19 +311,19 @@ class SimNode(Node):
                 point=(msg.point.x, msg.point.y, msg.point.z), frame=msg.header.frame_id,
                 duration=msg.duration.sec + 1e-9 * msg.duration.nanosec,
                 max_force=self.params["max_force"], max_torque=self.params["max_torque"],
-                fixed=self.world.body_model.fixed)
+                fixed=self.world.body_model.fixed, positions=self.world.body_state.position)
         except WrenchError as exc:
-            self._reject("apply_wrench", str(exc))
-            return
-        except Exception as exc:  # undecodable bytes: a peer with a mismatched definition
-            self._reject("apply_wrench", f"cannot decode message: {exc}")
+            self._reject("apply_wrench", exc)
             return
         self._enqueue(command)
 
     def _on_body_wrench(self, body: str, data: bytes) -> None:
+        source = f"bodies/{body}/wrench"
+        if self._oversized(source, data):
+            return
         self._record_received(self.sub_body_wrench[body].topic_name, data)
         try:
-            msg = deserialize_message(data, self._wrench_stamped_type)
+            msg = self._decode(data, self._wrench_stamped_type)
             command = make_command(
                 self.world.body_model.names, body,
                 force=(msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z),
@@ -251,12 +331,25 @@ class SimNode(Node):
                 point=None, frame=msg.header.frame_id, duration=0.0,
                 max_force=self.params["max_force"], max_torque=self.params["max_torque"])
         except WrenchError as exc:
-            self._reject(f"bodies/{body}/wrench", str(exc))
-            return
-        except Exception as exc:
-            self._reject(f"bodies/{body}/wrench", f"cannot decode message: {exc}")
+            self._reject(source, exc)
             return
         self._enqueue(command)
+
+    def _oversized(self, source: str, data: bytes) -> bool:
+        """Drop a message larger than any valid command, cheaply (no decoding, no recording)."""
+        if len(data) <= MAX_COMMAND_BYTES:
+            return False
+        self._reject(source, WrenchError(
+            "message", f"{len(data)} bytes, more than any valid command ({MAX_COMMAND_BYTES} bytes: body and "
+            f"header.frame_id are names of at most {MAX_NAME_LENGTH} characters); dropped unread", "too large"))
+        return True
+
+    @staticmethod
+    def _decode(data: bytes, msg_type):
+        try:
+            return deserialize_message(data, msg_type)
+        except Exception as exc:  # undecodable bytes: a peer with a mismatched definition
+            raise WrenchError("message", f"cannot decode: {exc}", "undecodable") from None
 
     def _enqueue(self, command) -> None:
         if len(self._pending) >= MAX_PENDING_COMMANDS:
@@ -271,16 +364,19 @@ class SimNode(Node):
         self._pending.clear()
         accepted = self.world.add_commands(commands)
         if accepted < len(commands):
-            self._reject("apply_wrench", f"{len(commands) - accepted} wrench(es) over the limit of "
-                         f"{self.world.wrenches.max_active} active wrenches (clear some with ~/clear_wrenches)")
+            self._reject("apply_wrench", WrenchError(
+                "wrenches", f"{len(commands) - accepted} wrench(es) over the limit of "
+                f"{self.world.wrenches.max_active} active wrenches (clear some with ~/clear_wrenches)", "too many"),
+                count=len(commands) - accepted)
 
-    def _reject(self, source: str, reason: str) -> None:
-        """Count a rejected command; the first of a kind is logged at once, the rest summarized periodically."""
-        key = f"{source}: {reason.split(':')[0]}"
-        if self._rejections[key] == 0 and key not in self._last_rejection:
-            self.get_logger().warn(f"rejected {source} command: {reason}")
-        self._rejections[key] += 1
-        self._last_rejection[key] = reason
+    def _reject(self, source: str, error: WrenchError, count: int = 1) -> None:
+        """Count rejected commands; the first of each (source, field, kind) is logged at once, the rest are
+        summarized every REPORT_PERIOD_S (see :meth:`_report_rejections`)."""
+        key = (source, error.field, error.kind)
+        if key not in self._last_rejection:
+            self.get_logger().warn(f"rejected {source} command: {error}")
+        self._rejections[key] += count
+        self._last_rejection[key] = str(error)
 
     def _report_rejections(self) -> None:
         if self._dropped_commands:
@@ -288,12 +384,12 @@ class SimNode(Node):
                                    f"commands (more than {MAX_PENDING_COMMANDS} arrived within one tick)")
             self._event({"event": "dropped_commands", "count": self._dropped_commands})
             self._dropped_commands = 0
-        for key, count in self._rejections.items():
-            if count:
-                self.get_logger().warn(f"rejected {count} {key.split(':')[0]} command(s) in the last "
-                                       f"{REPORT_PERIOD_S:g} s; last reason: {self._last_rejection[key]}")
-                self._event({"event": "rejected", "source": key.split(":")[0], "count": count,
-                             "reason": self._last_rejection[key]})
+        for (source, field, kind), count in self._rejections.items():
+            reason = self._last_rejection[(source, field, kind)]
+            self.get_logger().warn(f"rejected {count} {source} command(s) with {kind} {field} in the last "
+                                   f"{REPORT_PERIOD_S:g} s; last reason: {reason}")
+            self._event({"event": "rejected", "source": source, "field": field, "kind": kind, "count": count,
+                         "reason": reason})
         self._rejections.clear()
 
     def _record_received(self, topic: str, data: bytes) -> None:
@@ -378,6 +474,20 @@ class SimNode(Node):
             self.recorder.close()
 
 
+def _constraints(spec: itf.ParameterSpec) -> str:
+    text = type(spec.default).__name__
+    if spec.minimum is not None:
+        text += f", >= {spec.minimum:g}"
+    if spec.maximum is not None:
+        text += f", <= {spec.maximum:g}"
+    return text
+
+
+def _brief(value, limit: int = 80) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
 def _coerce(spec: itf.ParameterSpec, value):
     return float(value) if isinstance(spec.default, float) else value
 
@@ -388,7 +498,7 @@ def _check_parameter(spec: itf.ParameterSpec, value) -> str | None:
     if expected is float and isinstance(value, int) and not isinstance(value, bool):
         value = float(value)
     if not isinstance(value, expected) or (expected is int and isinstance(value, bool)):
-        return f"{spec.name} must be {expected.__name__}, got {type(value).__name__} {value!r}"
+        return f"{spec.name} must be {expected.__name__}, got {type(value).__name__} {_brief(value)}"
     if isinstance(value, float) and not math.isfinite(value):
         return f"{spec.name} must be finite, got {value}"
     if spec.minimum is not None and value < spec.minimum:

@@ -29,6 +29,7 @@ class Probe:
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
         self.received: dict[str, Received] = {}
+        self._clients: dict = {}
 
     def close(self) -> None:
         self.executor.remove_node(self.node)
@@ -74,13 +75,62 @@ class Probe:
         self.spin_until(lambda: publisher.get_subscription_count() > 0, timeout,
                         f"a subscriber on {publisher.topic_name}")
 
-    def call(self, srv_type, name: str, request, timeout: float = 20.0):
-        client = self.node.create_client(srv_type, name)
+    def client(self, srv_type, name: str, timeout: float = 20.0):
+        """One client per service for the probe's life (each new client is a new DDS discovery, see call)."""
+        client = self._clients.get(name)
+        if client is None:
+            client = self._clients[name] = self.node.create_client(srv_type, name)
         self.spin_until(client.service_is_ready, timeout, f"service {name}")
-        future = client.call_async(request)
-        self.spin_until(future.done, timeout, f"response from {name}")
-        self.node.destroy_client(client)
-        return future.result()
+        return client
+
+    def call(self, srv_type, name: str, request, timeout: float = 20.0, *, idempotent: bool = True,
+             attempt_timeout: float = 2.0):
+        """Call a service and return its response, within ``timeout``.
+
+        ``service_is_ready()`` can be true before the service's reply writer has matched this client's reply
+        reader; a reply sent then is dropped by Fast DDS after ~100 ms ("client will not receive response",
+        ros2/rmw_fastrtps#842, ros2/ros2#1253), and the future never completes.  An idempotent request is
+        therefore re-sent when no reply came within ``attempt_timeout``; a late reply to an earlier attempt is
+        ignored (replies are matched by sequence number).  A non-idempotent one (``~/step``) is sent once:
+        warm its client up first with :meth:`warm_up`."""
+        client = self.client(srv_type, name, timeout)
+        end = time.monotonic() + timeout
+        while True:
+            future = client.call_async(request)
+            attempt_end = min(end, time.monotonic() + (attempt_timeout if idempotent else timeout))
+            while not future.done() and time.monotonic() < attempt_end:
+                self.executor.spin_once(timeout_sec=0.02)
+            if future.done():
+                return future.result()
+            client.remove_pending_request(future)
+            if not idempotent or time.monotonic() >= end:
+                raise AssertionError(f"timed out after {timeout} s waiting for a response from {name}")
+
+    def warm_up(self, srv_type, name: str, request, timeout: float = 20.0) -> None:
+        """Complete one call of a request that has no effect in the current state (e.g. ``~/step`` while the
+        node runs), so that a later non-idempotent call of the same client cannot lose its reply."""
+        self.call(srv_type, name, request, timeout)
 
     def topic_types(self) -> dict[str, list[str]]:
         return dict(self.node.get_topic_names_and_types())
+
+
+def pause(probe: Probe, on: bool, node: str = "/cgp_sim") -> None:
+    """Pause (or resume) the simulator.  Before pausing, the ``~/step`` client is warmed up with a step
+    request while the node still runs (refused, without effect), so that the non-idempotent steps that follow
+    cannot lose their replies to the discovery race described in :meth:`Probe.call`."""
+    from std_srvs.srv import SetBool, Trigger
+
+    if on:
+        probe.warm_up(Trigger, f"{node}/step", Trigger.Request())
+    response = probe.call(SetBool, f"{node}/pause", SetBool.Request(data=on))
+    assert response.success, response.message
+
+
+def step(probe: Probe, node: str = "/cgp_sim"):
+    """One ``~/step`` of a paused simulator (sent once: a step is not idempotent)."""
+    from std_srvs.srv import Trigger
+
+    response = probe.call(Trigger, f"{node}/step", Trigger.Request(), idempotent=False)
+    assert response.success, response.message
+    return response

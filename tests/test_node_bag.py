@@ -19,6 +19,7 @@ from mcap_ros2.reader import read_ros2_messages
 from rosbags.highlevel import AnyReader
 from rosgraph_msgs.msg import Clock
 from std_srvs.srv import SetBool
+from ros_probe import pause
 
 PUBLISHED = {
     "/clock": "rosgraph_msgs/msg/Clock",
@@ -63,7 +64,7 @@ def test_bag_of_a_run_is_what_a_live_subscriber_saw(start_node, probe, tmp_path)
     pub = probe.publisher("/cgp_sim/apply_wrench", ApplyWrench)
     probe.wait_for_subscriber(pub)
     pub.publish(command)
-    assert probe.call(SetBool, "/cgp_sim/pause", SetBool.Request(data=False)).success
+    pause(probe, False)
     probe.spin_until(lambda: not node.alive(), 60, "the node to end after its 2 s")
     assert node.wait(10) == 0, node.log()
     probe.spin_for(0.2)

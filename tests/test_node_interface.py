@@ -24,6 +24,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import Marker, MarkerArray
+from ros_probe import pause, step
 
 DT = 1.0 / 60.0
 BOX_MASS = 2.0
@@ -76,17 +77,6 @@ def zero_g(request, start_node, probe):
                           env=env)
     probe.wait_for_publisher("/cgp_sim/bodies/box/odom", timeout=30)
     return node
-
-
-def pause(probe, on: bool):
-    response = probe.call(SetBool, "/cgp_sim/pause", SetBool.Request(data=on))
-    assert response.success, response.message
-
-
-def step(probe):
-    response = probe.call(Trigger, "/cgp_sim/step", Trigger.Request())
-    assert response.success, response.message
-    return response
 
 
 def send_until_applied(probe, publisher, msg, odom, predicate, timeout=20.0):
