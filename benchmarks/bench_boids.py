@@ -13,17 +13,15 @@ ran, and the backend.  Each row is a whole ``Flock.step`` (neighbours, rules, wa
 the orientation quaternions), median over the timed steps; ``max`` shows the ticks where the grid rebuilds
 its candidate list.  Grid and KD-tree / naive runs are interleaved round by round (the machine is shared).
 
-Writes a table to stdout and ``benchmarks/results/boids.json``.
+The scaling figure cost(100k) / cost(10k) is measured with the 10k and 100k flocks interleaved round by round.
+Writes a table to stdout and ``benchmarks/results/boids.json`` (layout: ``benchmarks/common.py``).
 Run: ``.venv/bin/python benchmarks/bench_boids.py`` (``--quick``: fewer steps, no 100k KD-tree).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -37,7 +35,9 @@ from cgp_core.boids import Flock, FlockParams, Obstacles, make_search  # noqa: E
 from cgp_core.boids.frames import frames_to_quaternions, update_frames  # noqa: E402
 from cgp_core.boids.rules import COHESION_GATE  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import Results, format_figures  # noqa: E402
+
 DT = 1.0 / 60.0
 TARGET_15K_MS = 7.0
 TARGET_100K_MS = 80.0
@@ -244,12 +244,13 @@ def breakdown(flock: Flock, repeats: int = 15) -> dict:
     return out
 
 
-def main() -> None:
+def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer steps, skip the 100k KD-tree run")
     parser.add_argument("--warmup", type=float, default=3.0, help="sim seconds before timing (default 3)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     rounds, steps = (3, 10) if args.quick else (5, 20)
+    out = Results("boids", options=vars(args))
 
     print("steady state of the default flock (300 boids, 20 s) ...", flush=True)
     k_steady = steady_state_neighbors()
@@ -262,65 +263,68 @@ def main() -> None:
 
     rows = []
 
-    def measure(count, backends, rounds_, steps_, bodies=0):
-        print(f"{count} boids: {', '.join(backends)}{f' with {bodies} bodies' if bodies else ''} ...", flush=True)
-        runners = [Runner(count, density, b, args.warmup, bodies) for b in backends]
+    def measure(specs, rounds_, steps_):
+        """``specs``: (count, backend, bodies) runners interleaved round by round (so ratios between them are
+        measured under the same machine load)."""
+        print(", ".join(f"{c} {b}{f'+{n} bodies' if n else ''}" for c, b, n in specs) + " ...", flush=True)
+        runners = [Runner(c, density, b, args.warmup, n) for c, b, n in specs]
         interleaved(runners, rounds_, steps_)
         for r in runners:
             rows.append(r.row())
         return runners
 
-    measure(1_000, ["grid", "kdtree", "brute"], rounds, steps)
-    naive_runners = measure(4_000, ["grid", "naive"], rounds, [steps, 1])
-    measure(10_000, ["grid", "kdtree"], rounds, steps)
-    runners_15k = measure(15_000, ["grid", "kdtree"], rounds, steps)
-    measure(15_000, ["grid"], rounds, steps, bodies=20)
-    runners_100k = measure(100_000, ["grid"] if args.quick else ["grid", "kdtree"], max(2, rounds - 2), steps)
+    measure([(1_000, "grid", 0), (1_000, "kdtree", 0), (1_000, "brute", 0)], rounds, steps)
+    naive_runners = measure([(4_000, "grid", 0), (4_000, "naive", 0)], rounds, [steps, 1])
+    runners_15k = measure([(15_000, "grid", 0), (15_000, "kdtree", 0), (15_000, "grid", 20)], rounds, steps)
+    # 10k and 100k interleaved: their ratio is the scaling figure
+    big = [(10_000, "grid", 0), (100_000, "grid", 0)] + ([] if args.quick else [(10_000, "kdtree", 0),
+                                                                                (100_000, "kdtree", 0)])
+    runners_big = measure(big, max(2, rounds - 2) if args.quick else rounds - 1,
+                          [steps, steps] + ([] if args.quick else [max(2, steps // 4), 2]))
 
     def find(count, backend):
         return next(r for r in rows if r["boids"] == count and r["backend"] == backend)
 
     grid_4k = naive_runners[0]
     naive_ratio = float(find(4_000, "naive")["ms_median"] / np.median(np.array(grid_4k.times) * 1e3))
-    figures = [
-        {"figure": "boid step at 15k (grid, median)", "value": find(15_000, "grid")["ms_median"], "unit": "ms",
-         "target": f"<= {TARGET_15K_MS}", "pass": bool(find(15_000, "grid")["ms_median"] <= TARGET_15K_MS)},
-        {"figure": "boid step at 10k (grid, median)", "value": find(10_000, "grid")["ms_median"], "unit": "ms",
-         "target": "well under 16.7", "pass": bool(find(10_000, "grid")["ms_median"] <= 16.7 / 2)},
-        {"figure": "boid step at 100k (grid, median)", "value": find(100_000, "grid")["ms_median"], "unit": "ms",
-         "target": f"<= {TARGET_100K_MS}", "pass": bool(find(100_000, "grid")["ms_median"] <= TARGET_100K_MS)},
-        {"figure": "cost(100k) / cost(10k)", "value": find(100_000, "grid")["ms_median"]
-         / find(10_000, "grid")["ms_median"], "unit": "x", "target": f"<= {TARGET_SCALING}",
-         "pass": bool(find(100_000, "grid")["ms_median"] / find(10_000, "grid")["ms_median"] <= TARGET_SCALING)},
-        {"figure": "naive O(N²) step / grid step at 4k", "value": naive_ratio, "unit": "x",
-         "target": f">= {TARGET_NAIVE_RATIO}", "pass": bool(naive_ratio >= TARGET_NAIVE_RATIO)},
-    ]
+    t10k, t100k, t15k = (find(n, "grid")["ms_median"] for n in (10_000, 100_000, 15_000))
+    t15k_bodies = find(15_000, "grid+20 bodies")["ms_median"]
+    out.figure("boids_100k", "boid step at 100k boids (grid, median)", t100k, "ms", f"<= {TARGET_100K_MS:g}",
+               t100k <= TARGET_100K_MS, issue7=True, neighbors_per_boid=find(100_000, "grid")["neighbors_per_boid"])
+    out.figure("boids_scaling_100k_10k", "boid step cost(100k) / cost(10k)", t100k / t10k, "x",
+               f"<= {TARGET_SCALING:g}", t100k / t10k <= TARGET_SCALING, issue7=True)
+    out.figure("boids_naive_ratio_4k", "naive O(N²) numpy step / our step, 4k boids", naive_ratio, "x",
+               f">= {TARGET_NAIVE_RATIO:g}", naive_ratio >= TARGET_NAIVE_RATIO, issue7=True)
+    out.figure("boids_15k", "boid step at 15k boids (grid, median; budget split)", t15k, "ms",
+               f"<= {TARGET_15K_MS:g}", t15k <= TARGET_15K_MS)
+    out.figure("boids_15k_bodies", "boid step at 15k boids + 20 fixed bodies (median)", t15k_bodies, "ms",
+               f"<= {TARGET_15K_MS:g}", t15k_bodies <= TARGET_15K_MS)
+    out.figure("boids_10k", "boid step at 10k boids (grid, median)", t10k, "ms", "(reference)", None)
+    figures = out.data["figures"]
 
     print()
-    print(f"{'boids':>7}  {'backend':8} {'ms/step':>9} {'mean':>8} {'max':>8} {'nbrs/boid':>10} {'rebuilds/step':>14}")
-    for r in rows:
-        print(f"{r['boids']:>7}  {r['backend']:8} {r['ms_median']:9.2f} {r['ms_mean']:8.2f} {r['ms_max']:8.2f} "
+    print(f"{'boids':>7}  {'backend':16} {'ms/step':>9} {'mean':>8} {'max':>8} {'nbrs/boid':>10} {'rebuilds/step':>14}")
+    for r in sorted(rows, key=lambda r: (r["boids"], r["backend"])):
+        print(f"{r['boids']:>7}  {r['backend']:16} {r['ms_median']:9.2f} {r['ms_mean']:8.2f} {r['ms_max']:8.2f} "
               f"{r.get('neighbors_per_boid', float('nan')):10.1f} {r.get('rebuilds_per_step', float('nan')):14.2f}")
     print()
-    print(f"{'figure':40} {'value':>10}  {'target':>16}  result")
-    for f in figures:
-        print(f"{f['figure']:40} {f['value']:10.2f}  {f['target']:>16}  {'pass' if f['pass'] else 'SHORT'}")
+    print(format_figures(figures))
 
-    parts = {"15k": breakdown(runners_15k[0].flock), "100k": breakdown(runners_100k[0].flock, repeats=5)}
+    parts = {"15k": breakdown(runners_15k[0].flock), "100k": breakdown(runners_big[1].flock, repeats=5)}
     print()
     for size, stages in parts.items():
         print(f"breakdown at {size} (ms, medians of the stages run one by one):")
         for name, ms in stages.items():
             print(f"  {name:55} {ms:8.2f}")
 
-    RESULTS.mkdir(exist_ok=True)
-    results = {"machine": {"python": platform.python_version(), "numpy": np.__version__, "cpus": os.cpu_count()},
-               "steady_state": {"neighbors_per_boid": k_steady, "density_per_m3": density, "radius_m": radius},
-               "naive_check_max_position_difference_m": naive_error, "rows": rows, "figures": figures,
-               "breakdown_ms": parts, "warmup_s": args.warmup}
-    (RESULTS / "boids.json").write_text(json.dumps(results, indent=2) + "\n")
-    print(f"\nwrote {RESULTS / 'boids.json'}")
+    out.data.update({"steady_state": {"neighbors_per_boid": k_steady, "density_per_m3": density, "radius_m": radius},
+                     "naive_check_max_position_difference_m": naive_error,
+                     "rows": sorted(rows, key=lambda r: (r["boids"], r["backend"])),
+                     "breakdown_ms": parts, "warmup_s": args.warmup})
+    path = out.write()
+    print(f"\nwrote {path}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

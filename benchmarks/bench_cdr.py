@@ -5,21 +5,24 @@ Per message, median of interleaved repetitions (each variant runs in turn, sever
   * ``rclpy objects``: build the Pose objects from the arrays, ``serialize_message`` (once: the bytes go to
     the bag; publishing the object would serialize it again inside rclpy, not counted here);
   * ``numpy``: :func:`cdr.pose_array`; ``numpy reuse``: :class:`cdr.PoseArraySerializer`;
+  * ``publish``: the numpy bytes published with ``Publisher.publish(bytes)`` vs the Pose objects built and
+    the message published with ``Publisher.publish(msg)`` (rclpy serializes it inside publish);
   * ``publish + record``: the figure of issue 7 — the numpy bytes published with ``Publisher.publish(bytes)``
-    and queued to a :class:`BagWriter`, vs the rclpy message published and serialized for the bag.
-    Target: >= 20x cheaper at 10k.
+    and the same bytes queued to a :class:`BagWriter`, vs the rclpy message built, published and serialized
+    once more for the bag (a node that records what it publishes needs the bytes; rclpy's publish does not
+    hand them back).  Target: >= 20x cheaper at 10k.
+  The publisher is a real one (reliable, depth 10, in this process's own ROS domain, no subscriber).
 - SPHERE_LIST Marker 1k / 10k / 100k points with colours, MarkerArray of 20 shapes, 8 / 20 Odometry, Clock.
 
-Writes a table to stdout and ``benchmarks/results/cdr.json``.  Run: ``.venv/bin/python benchmarks/bench_cdr.py``
-(``--quick`` for fewer repetitions).
+Writes a table to stdout and ``benchmarks/results/cdr.json`` (layout: ``benchmarks/common.py``).
+Run: ``.venv/bin/python benchmarks/bench_cdr.py`` (``--quick`` for fewer repetitions).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
+import random
 import shutil
 import sys
 import tempfile
@@ -29,6 +32,12 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+# A ROS domain of our own (before rclpy loads), as in bench_tick.py.
+if "CGP_SIM_BENCH_DOMAIN" not in os.environ:
+    os.environ["CGP_SIM_BENCH_DOMAIN"] = str(random.Random(os.getpid() ^ time.time_ns()).randint(1, 101))
+os.environ["ROS_DOMAIN_ID"] = os.environ["CGP_SIM_BENCH_DOMAIN"]
 
 from geometry_msgs.msg import Point, Pose, PoseArray  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
@@ -38,8 +47,8 @@ from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
 from cgp_sim_ros import cdr  # noqa: E402
 from cgp_sim_ros.bag import BagWriter  # noqa: E402
+from common import Results  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results"
 TARGET_RATIO_10K = 20.0
 
 
@@ -103,20 +112,23 @@ def interleaved(variants: dict, rounds: int, min_time: float = 0.02) -> dict[str
     return {name: float(np.median(s)) for name, s in samples.items()}
 
 
-def main() -> None:
+def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     rounds = 3 if args.quick else 7
     rng = np.random.default_rng(0)
-    results = {"machine": {"python": platform.python_version(), "cpus": os.cpu_count()}, "rows": []}
+    out = Results("cdr", options=vars(args))
+    results = out.data
+    results["rows"] = []
     rows = results["rows"]
 
     import rclpy
     from rclpy.context import Context
 
     context = Context()
-    rclpy.init(context=context, domain_id=(os.getpid() % 100) + 1)
+    rclpy.init(context=context, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
+    results["ros_domain_id"] = int(os.environ["ROS_DOMAIN_ID"])
     node = rclpy.create_node("bench_cdr", context=context)
     publisher = node.create_publisher(PoseArray, "bench_poses", 10)
     bag_dir = Path(tempfile.mkdtemp(prefix="bench_cdr_")) / "bag"
@@ -130,6 +142,12 @@ def main() -> None:
 
             def rclpy_serialize():
                 return serialize_message(rclpy_pose_array(5, positions, quaternions))
+
+            def rclpy_publish():
+                publisher.publish(rclpy_pose_array(5, positions, quaternions))
+
+            def numpy_publish():
+                publisher.publish(serializer.serialize(5, positions, quaternions))
 
             def rclpy_publish_record():
                 msg = rclpy_pose_array(5, positions, quaternions)
@@ -146,13 +164,16 @@ def main() -> None:
             variants = {"rclpy objects": rclpy_serialize,
                         "numpy": lambda: cdr.pose_array(5, "world", positions, quaternions),
                         "numpy reuse": lambda: serializer.serialize(5, positions, quaternions),
+                        "rclpy publish": rclpy_publish,
+                        "numpy publish": numpy_publish,
                         "rclpy publish+record": rclpy_publish_record,
                         "numpy publish+record": numpy_publish_record}
             times = interleaved(variants, rounds if n < 100_000 else max(3, rounds // 2))
             bag.flush()
             base = times["rclpy objects"]
             for name, t in times.items():
-                ref = times["rclpy publish+record"] if "publish" in name else base
+                ref = (times["rclpy publish+record"] if "record" in name else times["rclpy publish"]
+                       if "publish" in name else base)
                 rows.append({"message": f"PoseArray {n}", "variant": name, "ms": t * 1e3, "speedup": ref / t})
         results["publish_record_ratio_10k"] = next(
             r["speedup"] for r in rows if r["message"] == "PoseArray 10000" and r["variant"] == "numpy publish+record")
@@ -222,15 +243,28 @@ def main() -> None:
     print("-" * 68)
     for r in rows:
         print(f"{r['message']:<24} {r['variant']:<22} {r['ms']:10.4f} {r['speedup']:9.1f}")
+
+    def speedup(message, variant):
+        return next(r["speedup"] for r in rows if r["message"] == message and r["variant"] == variant)
+
     ratio = results["publish_record_ratio_10k"]
-    verdict = "pass" if ratio >= TARGET_RATIO_10K else "short"
+    results["publish_record_ratio"] = {n: speedup(f"PoseArray {n}", "numpy publish+record")
+                                       for n in (1_000, 10_000, 100_000)}
+    out.figure("cdr_publish_record_10k", "publish + record 10k-pose PoseArray: rclpy objects / numpy CDR",
+               ratio, "x", f">= {TARGET_RATIO_10K:g}", ratio >= TARGET_RATIO_10K, issue7=True,
+               numpy_ms=next(r["ms"] for r in rows if r["message"] == "PoseArray 10000"
+                             and r["variant"] == "numpy publish+record"),
+               rclpy_ms=next(r["ms"] for r in rows if r["message"] == "PoseArray 10000"
+                             and r["variant"] == "rclpy publish+record"))
+    publish_only = speedup("PoseArray 10000", "numpy publish")
+    out.figure("cdr_publish_10k", "publish only, 10k-pose PoseArray: rclpy objects / numpy CDR", publish_only, "x",
+               f">= {TARGET_RATIO_10K:g} (reference)", publish_only >= TARGET_RATIO_10K)
     print(f"\npublish + record a 10k PoseArray: numpy {ratio:.1f}x cheaper than rclpy objects "
-          f"(target >= {TARGET_RATIO_10K:.0f}x): {verdict}")
-    results["verdict"] = verdict
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "cdr.json").write_text(json.dumps(results, indent=2))
-    print(f"written {RESULTS / 'cdr.json'}")
+          f"(target >= {TARGET_RATIO_10K:.0f}x): {'pass' if ratio >= TARGET_RATIO_10K else 'SHORT'}")
+    path = out.write()
+    print(f"written {path}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -15,20 +15,18 @@ timings are reported next to ours.
 Also measured: the broad phases (grid, sweep and prune, brute force) on the resting pile, for the scaling
 figure (cost vs body count).
 
-Plain script: prints a table and writes ``benchmarks/results/contacts.json`` (with a ``figures`` list:
-figure, value, unit, target, pass).  The targets (issue 7, 1,000 spheres): a resting step faster than PyBullet's
+Plain script: prints a table and writes ``benchmarks/results/contacts.json`` (layout and ``figures``:
+``benchmarks/common.py``).  The targets (issue 7, 1,000 spheres): a resting step faster than PyBullet's
 (measured in the same run, or the 24 ms measured on this machine when PyBullet is absent), no sphere out of
 the box, resting penetration ≤ 1 % of r.
 
-    .venv/bin/python benchmarks/bench_contacts.py [--counts 100 1000] [--seconds 6] [--no-pybullet]
+    .venv/bin/python benchmarks/bench_contacts.py [--quick] [--counts 100 1000] [--seconds 6] [--no-pybullet]
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import pathlib
-import platform
 import sys
 import time
 
@@ -36,6 +34,7 @@ import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from cgp_core.bodies import BodyModel, BodyState, Shape  # noqa: E402
 from cgp_core.collision import BROAD_PHASES, CollisionDetector, Ground  # noqa: E402
@@ -43,6 +42,7 @@ from cgp_core.collision.primitives import build_collision_model, primitive_aabbs
 from cgp_core.dynamics import step_bodies  # noqa: E402
 from cgp_core.integrators import make_integrator  # noqa: E402
 from cgp_core.solver import make_solver  # noqa: E402
+from common import Results, format_figures  # noqa: E402
 
 RADIUS = 0.1
 BOX = 5.0
@@ -243,27 +243,26 @@ def broadphase_scaling(counts) -> list[dict]:
     return rows
 
 
-def figures(piles: list[dict]) -> list[dict]:
-    """The issue-7 figures for 1,000 spheres: figure, value, unit, target, pass (the layout the other
-    benchmarks use)."""
+def figures(out: Results, piles: list[dict]) -> None:
+    """The issue-7 figures for 1,000 spheres, added to ``out`` (layout: ``benchmarks/common.py``)."""
     ours = next((r for r in piles if r["engine"] == "cgp_sim" and r["spheres"] == 1000), None)
     if ours is None:
-        return []
+        return
     bullet = next((r for r in piles if r["engine"] == "pybullet" and r["spheres"] == 1000), None)
     ref_rest = bullet["resting_ms"] if bullet else PYBULLET_RESTING_MS
     ref_first = bullet["first_second_ms"] if bullet else PYBULLET_FIRST_SECOND_MS
-    source = "PyBullet in this run" if bullet else "PyBullet, issue 7"
-    return [
-        {"figure": "1k spheres into a box: step once resting (median)", "value": ours["resting_ms"], "unit": "ms",
-         "target": f"< {ref_rest:.1f} ({source})", "pass": ours["resting_ms"] < ref_rest},
-        {"figure": "1k spheres into a box: step in the first second (median)", "value": ours["first_second_ms"],
-         "unit": "ms", "target": f"< {ref_first:.1f} ({source}; reference)",
-         "pass": ours["first_second_ms"] < ref_first},
-        {"figure": "1k spheres into a box: spheres out of the box (tunnelled)", "value": ours["escaped"], "unit": "",
-         "target": "0", "pass": ours["escaped"] == 0},
-        {"figure": "1k spheres into a box: resting penetration, max", "value": ours["max_penetration_pct_radius"],
-         "unit": "% of r", "target": "<= 1", "pass": ours["max_penetration_pct_radius"] <= 1.0},
-    ]
+    source = "PyBullet, this run" if bullet else "PyBullet, issue 7's figure: not installed"
+    out.figure("contacts_1k_resting", "1k spheres into a box: step once resting (median)", ours["resting_ms"], "ms",
+               f"< {ref_rest:.1f} ({source})", ours["resting_ms"] < ref_rest, issue7=True,
+               pybullet_ms=ref_rest, pybullet_source=source, ratio_pybullet_over_ours=ref_rest / ours["resting_ms"])
+    out.figure("contacts_1k_escaped", "1k spheres into a box: spheres out of the box (tunnelled)", ours["escaped"],
+               "", "0", ours["escaped"] == 0, issue7=True)
+    out.figure("contacts_1k_penetration", "1k spheres into a box: resting penetration, max",
+               ours["max_penetration_pct_radius"], "% of r", "<= 1", ours["max_penetration_pct_radius"] <= 1.0,
+               issue7=True)
+    out.figure("contacts_1k_first_second", "1k spheres into a box: step in the first second (median)",
+               ours["first_second_ms"], "ms", f"< {ref_first:.1f} (reference)", ours["first_second_ms"] < ref_first,
+               pybullet_ms=ref_first)
 
 
 def main(argv=None) -> int:
@@ -272,9 +271,16 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=6.0, help="simulated time per run [s]")
     ap.add_argument("--rest-steps", type=int, default=240, help="steps at the end counted as 'resting'")
     ap.add_argument("--no-pybullet", action="store_true", help="skip PyBullet even if it is installed")
-    ap.add_argument("--scaling", type=int, nargs="*", default=[250, 500, 1000, 2000, 4000],
-                    help="sphere counts for the broad-phase scaling table")
+    ap.add_argument("--scaling", type=int, nargs="*", default=None,
+                    help="sphere counts for the broad-phase scaling table (default 250 500 1000 2000 4000; "
+                         "quick: 250 1000)")
+    ap.add_argument("--quick", action="store_true", help="4 s simulated, 120 resting steps, a smaller scaling table")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.seconds, args.rest_steps = min(args.seconds, 4.0), min(args.rest_steps, 120)
+    if args.scaling is None:
+        args.scaling = [250, 1000] if args.quick else [250, 500, 1000, 2000, 4000]
+    out = Results("contacts", options=vars(args))
 
     with_bullet = False
     if not args.no_pybullet:
@@ -283,12 +289,16 @@ def main(argv=None) -> int:
             with_bullet = True
         except ImportError:
             print("PyBullet not installed (pip install pybullet): comparing with the issue's 24 ms instead")
-    results = {"machine": platform.platform(), "python": platform.python_version(), "h": H, "piles": [],
-               "broad_phase": [], "figures": []}
+    results = out.data
+    results.update({"h": H, "piles": [], "broad_phase": [], "pybullet": None})
+    if with_bullet:
+        import pybullet
+
+        results["pybullet"] = getattr(pybullet, "__version__", None) or _pybullet_version()
     for n in args.counts:
         results["piles"].extend(run_pile(n, args.seconds, args.rest_steps, with_bullet))
     results["broad_phase"] = broadphase_scaling(args.scaling) if args.scaling else []
-    results["figures"] = figures(results["piles"])
+    figures(out, results["piles"])
 
     print(f"\nSpheres (r = {RADIUS} m) into a {BOX:g} x {BOX:g} m box, h = 1/240 s, {args.seconds:g} s simulated")
     print(f"{'engine':10} {'spheres':>7} {'1st s ms':>9} {'rest ms':>8} {'max pen mm':>10} {'% r':>6} "
@@ -300,20 +310,24 @@ def main(argv=None) -> int:
               f"{r.get('colours_resting', ''):>7}")
     if results["figures"]:
         print("\nIssue 7 figures")
-        for f in results["figures"]:
-            value = f"{f['value']:.2f}" if isinstance(f["value"], float) else str(f["value"])
-            print(f"  {f['figure']:58} {value:>7} {f['unit']:7} target {f['target']:34} "
-                  f"{'pass' if f['pass'] else 'SHORT'}")
+        print(format_figures(results["figures"]))
     if results["broad_phase"]:
         print("\nBroad phase on the settled pile (AABBs + 2 mm), median of 7")
         print(f"{'method':16} {'bodies':>7} {'pairs':>7} {'ms':>8}")
         for r in results["broad_phase"]:
             print(f"{r['broad_phase']:16} {r['bodies']:7d} {r['pairs']:7d} {r['ms']:8.3f}")
-    out = ROOT / "benchmarks" / "results" / "contacts.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(results, indent=2))
-    print(f"\nwrote {out.relative_to(ROOT)}")
+    path = out.write()
+    print(f"\nwrote {path.relative_to(ROOT)}")
     return 0
+
+
+def _pybullet_version() -> str | None:
+    try:
+        from importlib.metadata import version
+
+        return version("pybullet")
+    except Exception:  # noqa: BLE001 - the version is informative only
+        return None
 
 
 if __name__ == "__main__":

@@ -90,12 +90,7 @@ class TickTimer:
     def __init__(self, node):
         self.node = node
         self.buckets = dict.fromkeys(("step", "flock", "serialize", "out", "record"), 0.0)
-        self._targets = [(node.world, "step", "step"), (node, "_out", "out")]
-        self._targets += [(flock, "step", "flock") for flock in node.world.flocks]
-        self._targets += [(node.messages, name, "serialize")
-                          for name in ("clock", "body_poses", "body_odometry", "flock_poses", "markers")]
-        if node.recorder is not None:
-            self._targets.append((node.recorder, "write", "record"))
+        self._targets: list = []
 
     def _wrap(self, bound, bucket: str):
         buckets, clock = self.buckets, time.perf_counter
@@ -109,8 +104,15 @@ class TickTimer:
         return timed
 
     def install(self) -> None:
+        node = self.node
         for k in self.buckets:
             self.buckets[k] = 0.0
+        self._targets = [(node.world, "step", "step"), (node, "_out", "out")]
+        self._targets += [(flock, "step", "flock") for flock in node.world.flocks]
+        self._targets += [(node.messages, name, "serialize")
+                          for name in ("clock", "body_poses", "body_odometry", "flock_poses", "markers")]
+        if node.recorder is not None:
+            self._targets.append((node.recorder, "write", "record"))
         for obj, name, bucket in self._targets:
             setattr(obj, name, self._wrap(getattr(obj, name), bucket))
 
@@ -147,25 +149,43 @@ def make_node(scene: Path, bag_dir: Path | None, name: str):
         Parameter("realtime", value=False)])
 
 
-class Variant:
-    """One node being measured: its ticks (plain and instrumented) and its bag writer's thread CPU."""
+class Phase:
+    """Ticks of the node in one configuration (recording on / off): plain and instrumented tick times, the split,
+    and the CPU the bag writer threads used."""
 
-    def __init__(self, label: str, node):
-        self.label, self.node = label, node
+    def __init__(self, label: str, node, recording: bool):
+        self.label, self.node, self.recording = label, node, recording
         self.timer = TickTimer(node)
         self.plain: list[float] = []
         self.instrumented: list[float] = []
         self.splits: list[dict] = []
         self.cpu_s = self.wall_s = self.writer_cpu_s = 0.0
-        writer = node.recorder.writer if node.recorder is not None else None
-        self.writer = writer
-        self.writer_tid = writer._thread.native_id if writer is not None and writer._thread is not None else None
+        self.payload_bytes = 0
+        self.backlog_max = 0
+        self.dropped = 0
+        self.errors: list[str] = []
+        self.bags = 0
 
-    def run(self, ticks: int) -> None:
-        """``ticks`` ticks, every other one instrumented."""
+    def run(self, ticks: int, bag_dir: Path) -> None:
+        """One untimed tick, then ``ticks`` ticks, every other one instrumented.  Recording phase: the node records into
+        ``bag_dir`` (a new bag, unless the node is still recording the one it was started with); the bag is
+        finished after the block, outside the timed ticks.  Other phase: the node's recorder is closed first,
+        so no writer thread exists while it ticks."""
         node, timer = self.node, self.timer
-        writer_cpu0, cpu0, wall0 = thread_cpu_s(self.writer_tid), time.process_time(), time.perf_counter()
-        for k in range(ticks):
+        if self.recording and node.recorder is None:
+            node._start_recording(str(bag_dir))  # what the node does for its `bag` parameter
+        elif not self.recording and node.recorder is not None:
+            node.recorder.close()
+            node.recorder = None
+        node.tick()  # untimed: the first tick after a switch (a new bag's first messages, cold caches)
+        writer = node.recorder.writer if node.recorder is not None else None
+        writer_tid = writer._thread.native_id if writer is not None and writer._thread is not None else None
+        deadline = time.monotonic() + 5.0
+        while writer is not None and writer.queued_bytes > 0 and time.monotonic() < deadline:
+            time.sleep(0.001)
+        payload0 = writer._enqueued_bytes if writer is not None else 0
+        writer_cpu0, cpu0, wall0 = thread_cpu_s(writer_tid), time.process_time(), time.perf_counter()
+        for _ in range(ticks):
             instrument = len(self.plain) > len(self.instrumented)
             if instrument:
                 timer.install()
@@ -178,13 +198,22 @@ class Variant:
                 self.splits.append(timer.split(elapsed))
             else:
                 self.plain.append(elapsed)
-        if self.writer is not None:  # let the writer catch up, so the next variant's ticks run without it
-            deadline = time.monotonic() + 2.0
-            while self.writer.queued_bytes > 0 and time.monotonic() < deadline:
+        if writer is not None:  # the writer's CPU for these ticks includes catching up with them
+            deadline = time.monotonic() + 5.0
+            while writer.queued_bytes > 0 and time.monotonic() < deadline:
                 time.sleep(0.001)
         self.wall_s += time.perf_counter() - wall0
         self.cpu_s += time.process_time() - cpu0
-        self.writer_cpu_s += thread_cpu_s(self.writer_tid) - writer_cpu0
+        if writer is not None:
+            self.writer_cpu_s += thread_cpu_s(writer_tid) - writer_cpu0
+            self.backlog_max = max(self.backlog_max, writer.max_queued_bytes)
+            self.bags += 1
+            self.payload_bytes += writer._enqueued_bytes - payload0
+            node.recorder.close()  # finish this bag outside the timed ticks
+            self.dropped += writer.dropped_messages
+            if writer.error:
+                self.errors.append(writer.error)
+            node.recorder = None
 
     def row(self) -> dict:
         world = self.node.world
@@ -202,52 +231,50 @@ class Variant:
             "process_cpu_cores": self.cpu_s / self.wall_s,
             "sim_seconds_at_end": world.time,
         }
-        if self.writer is not None:
+        if self.recording:
             row.update({
                 "bag_writer_cpu_ms_per_tick": self.writer_cpu_s / ticks * 1e3,
-                "bag_payload_MB_per_tick": self.writer._enqueued_bytes / max(1, world.ticks) / 1e6,
-                "bag_backlog_max_MB": self.writer.max_queued_bytes / 1e6,
-                "bag_dropped_messages": self.writer.dropped_messages, "bag_error": self.writer.error})
+                "bag_payload_MB_per_tick": self.payload_bytes / ticks / 1e6,
+                "bag_backlog_max_MB": self.backlog_max / 1e6, "bag_dropped_messages": self.dropped,
+                "bag_errors": self.errors, "bags": self.bags})
         return row
 
 
-BLOCK_TICKS = 20
+BLOCK_TICKS = 30
 
 
 def measure(scene: Path, bag_root: Path, warmup: int, ticks: int, name: str = "cgp_sim_bench",
             compare_no_bag: bool = False, profile_ticks: int = 0) -> tuple[list[dict], str | None]:
-    """Build the node (and, with ``compare_no_bag``, a second one of the same scene that does not record),
-    run ``warmup`` ticks on each, then ``ticks`` ticks each in interleaved blocks of ``BLOCK_TICKS``.
-    The two nodes evolve identically (same scene, same seed, deterministic steps), so they do the same work.
-    Returns one row per variant and the profile of the recording node (``profile_ticks`` > 0)."""
-    variants = [Variant("bag", make_node(scene, bag_root, name))]
+    """Build the node recording into ``bag_root/bag_0`` (as ``cgp-sim --bag`` does), run ``warmup`` ticks,
+    then ``ticks`` timed ticks.  With ``compare_no_bag``, as many ticks again with recording off, interleaved
+    in blocks of ``BLOCK_TICKS`` (one node, so both phases step the same flock through the same states; each
+    recording block writes a bag of its own, finished between blocks).  Returns one row per phase and the
+    profile (``profile_ticks`` > 0, recording on)."""
+    node = make_node(scene, bag_root / "bag_0", name)
+    phases = [Phase("bag", node, recording=True)]
     if compare_no_bag:
-        variants.append(Variant("no bag", make_node(scene, None, name + "_nobag")))
+        phases.append(Phase("no bag", node, recording=False))
     profile_text = None
     try:
-        for v in variants:
-            for _ in range(warmup):
-                v.node.tick()
+        for _ in range(warmup):
+            node.tick()
         done = 0
         while done < ticks:
             block = min(BLOCK_TICKS, ticks - done)
-            for v in variants:
-                v.run(block)
+            for phase in phases:
+                phase.run(block, bag_root / f"bag_{done}")
             done += block
-        rows = [v.row() for v in variants]
+        rows = [phase.row() for phase in phases]
         for row in rows:
             row["warmup_ticks"] = warmup
         if profile_ticks:
-            profile_text = profile(variants[0].node, profile_ticks)
-        t_close = time.perf_counter()
-        variants[0].node.close()
-        rows[0]["bag_close_s"] = time.perf_counter() - t_close
-        rows[0]["bag_file_MB"] = sum(f.stat().st_size for f in variants[0].writer.files) / 1e6
+            if node.recorder is None:
+                node._start_recording(str(bag_root / "bag_profile"))
+            profile_text = profile(node, profile_ticks)
         return rows, profile_text
     finally:
-        for v in variants:
-            v.node.close()
-            v.node.destroy_node()
+        node.close()
+        node.destroy_node()
 
 
 def profile(node, ticks: int) -> str:
@@ -285,12 +312,26 @@ def _head(text: str, lines: int) -> str:
     return "\n".join(text.splitlines()[:lines])
 
 
-def top_functions(profile_text: str, count: int = 15) -> list[str]:
-    """The first ``count`` lines of the flat cumulative listing (for the summary)."""
-    lines = profile_text.split("== functions by cumulative (total) time ==", 1)[-1].splitlines()
-    body = [line.rstrip() for line in lines if line.strip() and not line.startswith(("==", "  _", "pyinstrument"))]
-    return [line for line in body if "Recorded:" not in line and "Samples:" not in line
-            and "Duration:" not in line and "Program:" not in line][:count]
+def top_functions(profile_text: str, ticks: int, count: int = 25) -> list[dict]:
+    """The flat cumulative listing as records: function, where, ms per tick, % of the tick (the harness's own
+    frame excluded)."""
+    listing = profile_text.split("== functions by cumulative (total) time ==", 1)[-1].split("== call tree ==")[0]
+    rows = []
+    for line in listing.splitlines():
+        parts = line.split()
+        if len(parts) < 3:
+            continue
+        try:
+            seconds = float(parts[0])
+        except ValueError:
+            continue
+        rows.append({"function": parts[1], "where": parts[2], "seconds": seconds})
+    rows = [r for r in rows if not r["where"].startswith("bench_tick.py")]
+    if not rows:
+        return []
+    total = max(r["seconds"] for r in rows)
+    return [{"function": r["function"], "where": r["where"], "ms_per_tick": 1e3 * r["seconds"] / ticks,
+             "percent_of_tick": 100.0 * r["seconds"] / total} for r in rows[:count]]
 
 
 def print_row(row: dict) -> None:
@@ -322,7 +363,7 @@ def run(quick: bool = False, warmup: int | None = None, ticks: int | None = None
         profile_ticks: int | None = None, compare_no_bag: bool = True, options: dict | None = None) -> dict:
     """Measure, print, write ``results/tick.json`` (and ``results/tick_profile.txt``); returns the results."""
     warmup = warmup if warmup is not None else (180 if quick else 300)
-    ticks = ticks if ticks is not None else (120 if quick else 300)
+    ticks = ticks if ticks is not None else (120 if quick else 480)
     profile_ticks = profile_ticks if profile_ticks is not None else (40 if quick else 120)
     scaling = list(scaling) if scaling is not None else ([] if quick else list(SCALING_COUNTS))
     import rclpy
@@ -381,7 +422,7 @@ def run(quick: bool = False, warmup: int | None = None, ticks: int | None = None
     if profile_text:
         (RESULTS / "tick_profile.txt").parent.mkdir(parents=True, exist_ok=True)
         (RESULTS / "tick_profile.txt").write_text(profile_text)
-        out.data["profile_top"] = top_functions(profile_text, 30)
+        out.data["profile_top"] = top_functions(profile_text, profile_ticks, 30)
         out.data["profile_file"] = "benchmarks/results/tick_profile.txt"
     path = out.write()
     print()
@@ -392,8 +433,8 @@ def run(quick: bool = False, warmup: int | None = None, ticks: int | None = None
     print(format_figures(out.data["figures"]))
     if profile_text:
         print("\nprofile, top functions by cumulative time (full report in benchmarks/results/tick_profile.txt):")
-        for line in out.data.get("profile_top", [])[:20]:
-            print("  " + line)
+        for r in out.data.get("profile_top", [])[:20]:
+            print(f"  {r['ms_per_tick']:7.2f} ms/tick {r['percent_of_tick']:5.1f} %  {r['function']}  {r['where']}")
     print(f"\nwrote {path.relative_to(ROOT)}")
     return out.data
 
@@ -402,7 +443,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer ticks, no scaling rows, shorter profile")
     parser.add_argument("--warmup", type=int, default=None, help="ticks before timing (default 180; quick 120)")
-    parser.add_argument("--ticks", type=int, default=None, help="timed ticks (default 300; quick 120)")
+    parser.add_argument("--ticks", type=int, default=None, help="timed ticks per phase (default 480; quick 120)")
     parser.add_argument("--scaling", type=int, nargs="*", default=None,
                         help=f"flock sizes for the scaling rows (default {' '.join(map(str, SCALING_COUNTS))}; "
                              "quick: none)")

@@ -68,7 +68,8 @@ class Results:
         self.name = name
         self.started = time.perf_counter()
         self.data: dict = {"benchmark": name, "machine": machine(),
-                           "load_average": {"before": load_average()}, "options": options or {}, "figures": []}
+                           "load_average": {"before": load_average()},
+                           "speed_probe": {"before": speed_probe()}, "options": options or {}, "figures": []}
 
     def figure(self, id: str, figure: str, value, unit: str, target: str, passed, *, issue7: bool = False,  # noqa: A002
                **extra) -> dict:
@@ -79,6 +80,7 @@ class Results:
 
     def write(self, path: Path | None = None) -> Path:
         self.data["load_average"]["after"] = load_average()
+        self.data["speed_probe"]["after"] = speed_probe()
         self.data["elapsed_s"] = round(time.perf_counter() - self.started, 1)
         path = path or RESULTS / f"{self.name}.json"
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -129,3 +131,27 @@ def format_value(value) -> str:
 
 def verdict(figure: dict) -> str:
     return {True: "pass", False: "SHORT", None: "n/a"}[figure["pass"]]
+
+
+def speed_probe(repeats: int = 5) -> dict:
+    """A fixed CPU workload (numpy ufuncs on 200k floats + a pure-Python loop), median ms of ``repeats``.
+
+    The load average does not see other virtual machines on the same host; this does: on a quiet machine
+    it takes the same time from run to run, so a larger value next to a figure says the machine was slower
+    than usual while it was measured."""
+    x = np.linspace(0.0, 1.0, 200_000)
+    numpy_ms, python_ms = [], []
+    for _ in range(repeats + 1):  # the first round warms up (allocator, caches) and is not counted
+        t0 = time.perf_counter()
+        y = x
+        for _ in range(10):
+            y = np.sin(y) * 0.5 + np.sqrt(np.abs(y) + 1.0)
+        t1 = time.perf_counter()
+        total = 0
+        for i in range(200_000):
+            total += i * i % 7
+        t2 = time.perf_counter()
+        numpy_ms.append((t1 - t0) * 1e3)
+        python_ms.append((t2 - t1) * 1e3)
+    return {"numpy_ms": round(float(np.median(numpy_ms[1:])), 2),
+            "python_ms": round(float(np.median(python_ms[1:])), 2)}

@@ -1,0 +1,344 @@
+"""``make bench``: run the benchmarks, then print ONE table of issue 7's figures (value, target, pass / SHORT)
+and write it as ``benchmarks/results/summary.json`` (and ``summary.md``, the tables of ``benchmarks/README.md``).
+
+Each benchmark is a plain script that runs alone and writes ``benchmarks/results/<name>.json`` in the layout of
+``benchmarks/common.py``; this script runs them one after the other in subprocesses (one at a time: the
+machine has 2 cores and the tick uses both), keeps their output in ``results/<name>.log``, and aggregates
+their figures.  A benchmark that fails or is skipped leaves its figures as ``n/a`` with the reason; the others
+still run.
+
+    .venv/bin/python benchmarks/run.py                 # everything (~10 min on the 2-core machine)
+    .venv/bin/python benchmarks/run.py --quick         # fewer repetitions (~3-4 min)
+    .venv/bin/python benchmarks/run.py --only tick cdr # some of them
+    .venv/bin/python benchmarks/run.py --no-run        # only aggregate the JSON files already there
+    .venv/bin/python benchmarks/run.py --update-readme # and put the tables into benchmarks/README.md
+    .venv/bin/python benchmarks/run.py --extras        # also bench_bag.py and bench_integrators.py
+
+Exit status: 0 when every benchmark ran (whether or not every target is met: a SHORT figure is a result,
+not an error), 1 when one failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+
+from common import (RESULTS, format_figures, format_value, load_average, machine, speed_probe,  # noqa: E402
+                    verdict)
+
+#: name -> script; the order they run in (the tick first: it is the figure that matters most, and it
+#: runs best on a machine that has not been busy for minutes)
+BENCHMARKS = {"tick": "bench_tick.py", "boids": "bench_boids.py", "cdr": "bench_cdr.py",
+              "contacts": "bench_contacts.py"}
+EXTRAS = {"bag": "bench_bag.py", "integrators": "bench_integrators.py"}
+
+#: issue 7's figures, in the issue's order: (id, the benchmark that measures it, the issue's wording)
+ISSUE7 = [
+    ("tick_15k_median", "tick", "full tick at 15,000 boids + 20 bodies: step + all publishing + bag, median"),
+    ("boids_100k", "boids", "boids step at 100,000 boids"),
+    ("boids_scaling_100k_10k", "boids", "boids step cost(100k) / cost(10k)"),
+    ("boids_naive_ratio_4k", "boids", "vs a naive O(N²) numpy boids step at 4,000 boids"),
+    ("cdr_publish_record_10k", "cdr", "publish + record a 10,000-pose PoseArray vs rclpy Pose objects"),
+    ("contacts_1k_resting", "contacts", "1,000 spheres into a 5 x 5 m box: step once resting vs PyBullet"),
+    ("contacts_1k_escaped", "contacts", "1,000 spheres into a box: no tunnelling (spheres out of the box)"),
+    ("contacts_1k_penetration", "contacts", "1,000 spheres into a box: resting penetration"),
+]
+ISSUE7_TARGETS = {  # what the issue asks, for figures whose benchmark did not run
+    "tick_15k_median": ("ms", "<= 16.7"), "boids_100k": ("ms", "<= 80"), "boids_scaling_100k_10k": ("x", "<= 14"),
+    "boids_naive_ratio_4k": ("x", ">= 100"), "cdr_publish_record_10k": ("x", ">= 20"),
+    "contacts_1k_resting": ("ms", "< PyBullet"), "contacts_1k_escaped": ("", "0"),
+    "contacts_1k_penetration": ("% of r", "<= 1"),
+}
+
+
+def run_benchmark(name: str, script: str, quick: bool, log_dir: Path) -> dict:
+    """Run one script in a subprocess (its output shown live and kept in results/<name>.log)."""
+    command = [sys.executable, str(HERE / script)] + (["--quick"] if quick and name != "integrators" else [])
+    print(f"\n=== {name}: {' '.join(Path(c).name if i < 2 else c for i, c in enumerate(command))} ===", flush=True)
+    log_path = log_dir / f"{name}.log"
+    started = time.perf_counter()
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    with log_path.open("w") as log:
+        process = subprocess.Popen(command, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                   text=True)
+        for line in process.stdout:
+            log.write(line)
+            if "[INFO]" not in line:
+                sys.stdout.write("  " + line)
+                sys.stdout.flush()
+        code = process.wait()
+    elapsed = time.perf_counter() - started
+    print(f"=== {name}: {'done' if code == 0 else f'FAILED (exit {code})'} in {elapsed:.0f} s ===", flush=True)
+    return {"script": script, "returncode": code, "elapsed_s": round(elapsed, 1),
+            "log": str(log_path.relative_to(ROOT))}
+
+
+def load(name: str) -> dict | None:
+    path = RESULTS / f"{name}.json"
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def collect(names: list[str], runs: dict[str, dict]) -> dict:
+    """The summary: issue 7's figures in order (n/a with a reason when missing), then the supporting ones."""
+    results = {name: load(name) for name in names}
+    by_id = {}
+    for name, data in results.items():
+        for figure in (data or {}).get("figures", []):
+            by_id[figure["id"]] = {**figure, "benchmark": name}
+    issue7 = []
+    for fid, bench, wording in ISSUE7:
+        if fid in by_id:
+            issue7.append({**by_id[fid], "issue7_wording": wording})
+            continue
+        run = runs.get(bench)
+        reason = (f"{BENCHMARKS.get(bench, bench)} failed (exit {run['returncode']}), see {run['log']}"
+                  if run and run["returncode"] else f"{bench} was not run" if results.get(bench) is None
+                  else f"not in results/{bench}.json")
+        unit, target = ISSUE7_TARGETS[fid]
+        issue7.append({"id": fid, "figure": wording, "value": None, "unit": unit, "target": target, "pass": None,
+                       "issue7": True, "benchmark": bench, "note": reason, "issue7_wording": wording})
+    supporting = [f for f in by_id.values() if not f.get("issue7")]
+    short = [f for f in issue7 if f["pass"] is False]
+    missing = [f for f in issue7 if f["pass"] is None]
+    return {
+        "machine": machine(),
+        "benchmarks": {name: {"ran_now": name in runs, **runs.get(name, {}),
+                              "load_average": (data or {}).get("load_average"),
+                              "speed_probe": (data or {}).get("speed_probe"),
+                              "elapsed_s": (data or {}).get("elapsed_s", runs.get(name, {}).get("elapsed_s")),
+                              "options": (data or {}).get("options")}
+                       for name, data in results.items()},
+        "figures": issue7, "supporting_figures": supporting,
+        "all_met": not short and not missing, "short": [f["id"] for f in short], "not_measured": [f["id"] for f in missing],
+    }
+
+
+# ---- the tables (stdout and summary.md / README) ---------------------------------------------------------
+
+def figures_markdown(figures: list[dict]) -> str:
+    lines = ["| figure | value | target | result |", "|---|---:|---|---|"]
+    for f in figures:
+        value = f"{format_value(f['value'])} {f['unit']}".strip() if f["value"] is not None else "n/a"
+        note = f" ({f['note']})" if f.get("note") else ""
+        lines.append(f"| {f['figure']}{note} | {value} | {f['target']} | {'**SHORT**' if f['pass'] is False else verdict(f)} |")
+    return "\n".join(lines)
+
+
+def scaling_markdown(names: list[str]) -> str:
+    """How each figure grows: the tick with the flock size, boids 1k..100k, publish+record 1k..100k,
+    spheres 100 / 1,000 and the broad phases."""
+    out = []
+    tick = load("tick") if "tick" in names else None
+    if tick and tick.get("scaling"):
+        out += ["**Full tick vs flock size** (20 bodies, bag on; median ms; the split is from the instrumented "
+                "ticks, `bench_tick.py`)", "",
+                "| boids | tick median | p90 | World.step: bodies | World.step: flock | serialize | publish | "
+                "recorder.write | neighbours/boid |", "|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+        for r in tick["scaling"]:
+            s = r["split_ms_median"]
+            out.append(f"| {r['boids']:,} | {r['tick_ms_median']:.1f} | {r['tick_ms_p90']:.1f} | "
+                       f"{s['  rigid bodies (substeps) + obstacle set']:.1f} | {s['  flock step']:.1f} | "
+                       f"{s['serialize (messages.*)']:.2f} | {s['Publisher.publish']:.2f} | "
+                       f"{s['recorder.write (caller)']:.2f} | {r['neighbors_per_boid']:.1f} |")
+        nobag = tick.get("tick_no_bag")
+        if nobag:
+            out += ["", f"Same 15k scene without recording, interleaved in blocks with the recording node: median "
+                    f"{nobag['tick_ms_median']:.1f} ms (bodies {nobag['split_ms_median']['  rigid bodies (substeps) + obstacle set']:.1f},"
+                    f" flock {nobag['split_ms_median']['  flock step']:.1f}); the bag writer thread used "
+                    f"{tick['tick'].get('bag_writer_cpu_ms_per_tick', float('nan')):.1f} ms CPU per tick for "
+                    f"{tick['tick'].get('bag_payload_MB_per_tick', float('nan')):.2f} MB, backlog max "
+                    f"{tick['tick'].get('bag_backlog_max_MB', float('nan')):.1f} MB, "
+                    f"{tick['tick'].get('bag_dropped_messages', 0)} dropped."]
+        out.append("")
+    boids = load("boids") if "boids" in names else None
+    if boids and boids.get("rows"):
+        out += ["**Boid step vs flock size** (`bench_boids.py`; flocks at the default flock's steady-state density, "
+                "median ms per `Flock.step`)", "",
+                "| boids | backend | median | mean | max | neighbours/boid |", "|---:|---|---:|---:|---:|---:|"]
+        for r in boids["rows"]:
+            nb = r.get("neighbors_per_boid")
+            out.append(f"| {r['boids']:,} | {r['backend']} | {r['ms_median']:.2f} | {r['ms_mean']:.2f} | "
+                       f"{r['ms_max']:.2f} | {'' if nb is None else f'{nb:.1f}'} |")
+        out.append("")
+    cdr = load("cdr") if "cdr" in names else None
+    if cdr and cdr.get("rows"):
+        rows = {(r["message"], r["variant"]): r for r in cdr["rows"]}
+
+        def cell(message, variant):
+            r = rows.get((message, variant))
+            return f"{r['ms']:.3f}" if r else "–"
+
+        def ratio(message, slow, fast):
+            a, b = rows.get((message, slow)), rows.get((message, fast))
+            return f"{a['ms'] / b['ms']:.0f}x" if a and b else "–"
+
+        out += ["**Serialization, publish and publish + record vs message size** (`bench_cdr.py`; ms per message, "
+                "median of interleaved repetitions; rclpy = building the rclpy message objects from the arrays)", "",
+                "| PoseArray poses | serialize: rclpy | numpy | ratio | publish: rclpy | numpy | ratio | "
+                "publish + record: rclpy | numpy | ratio |", "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+        for n in (1_000, 10_000, 100_000):
+            m = f"PoseArray {n}"
+            if (m, "numpy") not in rows:
+                continue
+            out.append(f"| {n:,} | {cell(m, 'rclpy objects')} | {cell(m, 'numpy reuse')} | "
+                       f"{ratio(m, 'rclpy objects', 'numpy reuse')} | {cell(m, 'rclpy publish')} | "
+                       f"{cell(m, 'numpy publish')} | {ratio(m, 'rclpy publish', 'numpy publish')} | "
+                       f"{cell(m, 'rclpy publish+record')} | {cell(m, 'numpy publish+record')} | "
+                       f"{ratio(m, 'rclpy publish+record', 'numpy publish+record')} |")
+        others = [m for m in dict.fromkeys(r["message"] for r in cdr["rows"]) if not m.startswith("PoseArray")]
+        if others:
+            out += ["", "| other message | serialize: rclpy | numpy | ratio |", "|---|---:|---:|---:|"]
+            for m in others:
+                fast = "numpy batch" if (m, "numpy batch") in rows else "numpy"
+                out.append(f"| {m}{' (batch)' if fast == 'numpy batch' else ''} | {cell(m, 'rclpy objects')} | "
+                           f"{cell(m, fast)} | {ratio(m, 'rclpy objects', fast)} |")
+        out.append("")
+    contacts = load("contacts") if "contacts" in names else None
+    if contacts and contacts.get("piles"):
+        out += ["**Spheres into a box vs sphere count** (`bench_contacts.py`; h = 1/240 s; ms per step, median; "
+                f"PyBullet {contacts.get('pybullet') or 'not installed'} interleaved step by step)", "",
+                "| engine | spheres | first second | resting | max penetration (% r) | out of the box |",
+                "|---|---:|---:|---:|---:|---:|"]
+        for r in contacts["piles"]:
+            out.append(f"| {r['engine']} | {r['spheres']:,} | {r['first_second_ms']:.2f} | {r['resting_ms']:.2f} | "
+                       f"{r['max_penetration_pct_radius']:.2f} | {r['escaped']} |")
+        if contacts.get("broad_phase"):
+            out += ["", "Broad phases on the settled pile (ms, median of 7):", "",
+                    "| bodies | " + " | ".join(sorted({r['broad_phase'] for r in contacts['broad_phase']})) + " |",
+                    "|---:|" + "---:|" * len({r['broad_phase'] for r in contacts['broad_phase']})]
+            phases = sorted({r["broad_phase"] for r in contacts["broad_phase"]})
+            for n in sorted({r["bodies"] for r in contacts["broad_phase"]}):
+                cells = []
+                for ph in phases:
+                    hit = next((r for r in contacts["broad_phase"] if r["bodies"] == n and r["broad_phase"] == ph), None)
+                    cells.append(f"{hit['ms']:.2f}" if hit else "–")
+                out.append(f"| {n:,} | " + " | ".join(cells) + " |")
+        out.append("")
+    return "\n".join(out)
+
+
+def profile_markdown(names: list[str], rows: int = 18) -> str:
+    tick = load("tick") if "tick" in names else None
+    top = [r for r in (tick or {}).get("profile_top") or [] if isinstance(r, dict)]
+    if not top:
+        return ""
+    ticks = (tick.get("options") or {}).get("profile_ticks")
+    lines = [f"**Profile of the 15k tick** (pyinstrument, 1 ms sampling, {ticks or 'some'} ticks with recording on; "
+             "functions by cumulative time; the profiler slows the many small calls of the rigid-body step more "
+             "than the rest, so read the percentages, not the ms; full call tree in "
+             "`benchmarks/results/tick_profile.txt`)", "",
+             "| % of tick | ms/tick (profiled) | function | where |", "|---:|---:|---|---|"]
+    for r in top[:rows]:
+        lines.append(f"| {r['percent_of_tick']:.1f} | {r['ms_per_tick']:.2f} | `{r['function']}` | {r['where']} |")
+    return "\n".join(lines) + "\n"
+
+
+def conditions_markdown(summary: dict) -> str:
+    m = summary["machine"]
+    lines = [f"Measured on {m['processor']}, {m['cpus']} cores, Python {m['python']}, numpy {m['numpy']}"
+             f"{', scipy ' + m['scipy'] if 'scipy' in m else ''}; {m['platform']}.", "",
+             "| benchmark | when | took | load average before → after (1, 5, 15 min) | speed probe numpy / python ms "
+             "before → after |", "|---|---|---:|---|---|"]
+    for name, b in summary["benchmarks"].items():
+        la, sp = b.get("load_average") or {}, b.get("speed_probe") or {}
+        probe = " → ".join(f"{p['numpy_ms']:.0f} / {p['python_ms']:.0f}" for p in (sp.get("before"), sp.get("after"))
+                           if p)
+        took = b.get("elapsed_s")
+        lines.append(f"| {name} | {'this run' if b.get('ran_now') else 'earlier run'}"
+                     f"{' (quick)' if (b.get('options') or {}).get('quick') else ''} | "
+                     f"{'' if took is None else f'{took:.0f} s'} | "
+                     f"{la.get('before')} → {la.get('after')} | {probe} |")
+    return "\n".join(lines)
+
+
+def summary_markdown(summary: dict, names: list[str]) -> str:
+    return "\n".join([
+        "### Issue 7's figures", "", figures_markdown(summary["figures"]), "",
+        "Supporting figures:", "", figures_markdown(summary["supporting_figures"]), "",
+        "### How the figures scale", "", scaling_markdown(names), profile_markdown(names),
+        "### Conditions", "", conditions_markdown(summary), ""])
+
+
+def update_readme(markdown: str) -> bool:
+    readme = HERE / "README.md"
+    start, end = "<!-- results:start -->", "<!-- results:end -->"
+    try:
+        text = readme.read_text()
+    except OSError:
+        return False
+    if start not in text or end not in text:
+        return False
+    head, rest = text.split(start, 1)
+    _, tail = rest.split(end, 1)
+    readme.write_text(f"{head}{start}\n{markdown}\n{end}{tail}")
+    return True
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="each benchmark's --quick (fewer repetitions)")
+    parser.add_argument("--only", nargs="+", choices=[*BENCHMARKS, *EXTRAS], help="run only these")
+    parser.add_argument("--skip", nargs="+", choices=[*BENCHMARKS, *EXTRAS], default=[], help="do not run these")
+    parser.add_argument("--extras", action="store_true", help="also run bench_bag.py and bench_integrators.py")
+    parser.add_argument("--no-run", action="store_true", help="run nothing; aggregate the JSON already in results/")
+    parser.add_argument("--update-readme", action="store_true",
+                        help="replace the results section of benchmarks/README.md with this run's tables")
+    args = parser.parse_args(argv)
+
+    available = {**BENCHMARKS, **EXTRAS}
+    selected = args.only or [*BENCHMARKS, *(EXTRAS if args.extras else [])]
+    selected = [n for n in selected if n not in args.skip]
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    runs: dict[str, dict] = {}
+    started = time.perf_counter()
+    load_before, probe_before = load_average(), speed_probe()
+    if not args.no_run:
+        print(f"benchmarks: {', '.join(selected)}{' (quick)' if args.quick else ''}; load average {load_before}, "
+              f"speed probe {probe_before}", flush=True)
+        for name in selected:
+            runs[name] = run_benchmark(name, available[name], args.quick, RESULTS)
+    names = [n for n in available if n in BENCHMARKS or n in selected]
+    summary = collect([n for n in BENCHMARKS] + [n for n in EXTRAS if n in selected], runs)
+    summary.update({"quick": args.quick, "elapsed_s": round(time.perf_counter() - started, 1),
+                    "load_average": {"before": load_before, "after": load_average()},
+                    "speed_probe": {"before": probe_before, "after": speed_probe()}})
+    (RESULTS / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    markdown = summary_markdown(summary, names)
+    (RESULTS / "summary.md").write_text(markdown)
+
+    print("\n" + "=" * 118)
+    print(f"issue 7 on this machine ({summary['machine']['cpus']} cores; load average {load_before} -> "
+          f"{summary['load_average']['after']}; {'quick run' if args.quick else 'full run'}, "
+          f"{summary['elapsed_s']:.0f} s)")
+    print("=" * 118)
+    print(format_figures(summary["figures"], width=70))
+    for f in summary["figures"]:
+        if f.get("note"):
+            print(f"  n/a {f['id']}: {f['note']}")
+    print(f"\nsupporting figures:\n{format_figures(summary['supporting_figures'], width=70)}")
+    verdict_line = ("every issue-7 target met" if summary["all_met"] else
+                    f"short: {', '.join(summary['short']) or '-'}; not measured: "
+                    f"{', '.join(summary['not_measured']) or '-'}")
+    print(f"\n{verdict_line}\nwrote {(RESULTS / 'summary.json').relative_to(ROOT)} and "
+          f"{(RESULTS / 'summary.md').relative_to(ROOT)}")
+    if args.update_readme:
+        print("updated benchmarks/README.md" if update_readme(markdown) else
+              "benchmarks/README.md has no <!-- results:start --> / <!-- results:end --> markers: not updated")
+    failed = [n for n, r in runs.items() if r["returncode"]]
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
