@@ -9,9 +9,13 @@ writes the MCAP file on the other core).  The node is built exactly as ``cgp-sim
 ticks are run back to back (no timer, no executor: no subscriber is connected, the publishers only serve
 DDS's history).  Scene: ``benchmarks/scenes/tick_15k.yaml``.
 
-Reported, over ``--ticks`` ticks after ``--warmup`` ticks:
+Reported, over ``--ticks`` ticks after the warm-up (at least ``--warmup`` ticks, and on until the bodies have
+settled and sleep: see ``cgp_core.world.SLEEP_SPEED``; at most 30 s of sim time):
 
-- the tick's median, p90 and max (plain ticks: every other tick; target median <= 16.7 ms = 60 Hz);
+- the tick's median, p90 and max (plain ticks: every other tick; target median <= 16.7 ms = 60 Hz), in the
+  scene's steady state: the flock swimming, the bodies at rest;
+- the median tick while the bodies still move (1 s to 6 s into the warm-up: landed, rolling, tumbling), where
+  the 20 bodies' contact solve runs every sub-step;
 - the split, measured on the other ticks by timing wrappers around the node's own objects (installed on
   every other tick only, so the plain ticks show they cost nothing): ``world.step`` (itself split into the
   rigid bodies' sub-steps and the flock's step), ``messages.*`` (serialize), ``Publisher.publish`` (the
@@ -58,6 +62,10 @@ from common import RESULTS, Results, format_figures  # noqa: E402
 SCENE = Path(__file__).resolve().parent / "scenes" / "tick_15k.yaml"
 TARGET_MS = 1e3 / 60.0
 SCALING_COUNTS = (1_000, 5_000, 15_000)
+#: warm-up ticks [first, last) timed as "bodies moving" (1 s to 6 s: landed, rolling, tumbling)
+MOVING_TICKS = (60, 360)
+#: the warm-up goes on until the bodies sleep, for at most this many ticks (30 s of sim time)
+SETTLE_TICKS = 1800
 STAGES = ("world.step", "  rigid bodies (substeps) + obstacle set", "  flock step", "serialize (messages.*)",
           "Publisher.publish", "recorder.write (caller)", "other (commands, events, reports)")
 
@@ -173,7 +181,7 @@ class Phase:
         so no writer thread exists while it ticks."""
         node, timer = self.node, self.timer
         if self.recording and node.recorder is None:
-            node._start_recording(str(bag_dir))  # what the node does for its `bag` parameter
+            node._start_recording(Path(bag_dir))  # what the node does for its `bag` parameter
         elif not self.recording and node.recorder is not None:
             node.recorder.close()
             node.recorder = None
@@ -256,8 +264,19 @@ def measure(scene: Path, bag_root: Path, warmup: int, ticks: int, name: str = "c
         phases.append(Phase("no bag", node, recording=False))
     profile_text = None
     try:
-        for _ in range(warmup):
+        # Warm-up, in two parts.  The dropped bodies land and roll in the first seconds: the ticks from 1 s to
+        # 6 s are timed as the "bodies moving" figure.  Then on until every body rests and they sleep (rolling
+        # resistance stops the balls and capsules in ~16 s of sim time; at most SETTLE_TICKS), so that the
+        # timed ticks measure the scene's steady state, as the headline figure says.
+        moving = []
+        for k in range(max(warmup, SETTLE_TICKS)):
+            start = time.perf_counter()
             node.tick()
+            if MOVING_TICKS[0] <= k < MOVING_TICKS[1]:
+                moving.append(time.perf_counter() - start)
+            if k >= warmup and node.world.bodies_asleep:
+                break
+        warmed = k + 1
         done = 0
         while done < ticks:
             block = min(BLOCK_TICKS, ticks - done)
@@ -266,10 +285,12 @@ def measure(scene: Path, bag_root: Path, warmup: int, ticks: int, name: str = "c
             done += block
         rows = [phase.row() for phase in phases]
         for row in rows:
-            row["warmup_ticks"] = warmup
+            row["warmup_ticks"] = warmed
+            row["bodies_asleep"] = bool(node.world.bodies_asleep)
+            row["bodies_moving_tick_ms_median"] = 1e3 * float(np.median(moving)) if moving else None
         if profile_ticks:
             if node.recorder is None:
-                node._start_recording(str(bag_root / "bag_profile"))
+                node._start_recording(bag_root / "bag_profile")
             profile_text = profile(node, profile_ticks)
         return rows, profile_text
     finally:
@@ -315,6 +336,8 @@ def _head(text: str, lines: int) -> str:
 def top_functions(profile_text: str, ticks: int, count: int = 25) -> list[dict]:
     """The flat cumulative listing as records: function, where, ms per tick, % of the tick (the harness's own
     frame excluded)."""
+    if not profile_text.startswith("pyinstrument"):
+        return []  # cProfile's listing has other columns; its text is in the profile file
     listing = profile_text.split("== functions by cumulative (total) time ==", 1)[-1].split("== call tree ==")[0]
     rows = []
     for line in listing.splitlines():
@@ -403,9 +426,13 @@ def run(quick: bool = False, warmup: int | None = None, ticks: int | None = None
     out.data["scaling"] = sorted(rows, key=lambda r: r["boids"]) if rows else [main_row]
     median = main_row["tick_ms_median"]
     split = main_row["split_ms_median"]
-    out.figure("tick_15k_median", "full tick, 15k boids + 20 bodies: step + publish + bag (median)", median,
+    out.figure("tick_15k_median", "full tick, 15k boids + 20 settled bodies: step + publish + bag (median)", median,
                "ms", f"<= {TARGET_MS:.1f}", median <= TARGET_MS, issue7=True, p90=main_row["tick_ms_p90"],
                max=main_row["tick_ms_max"], split_ms=split)
+    moving_ms = main_row.get("bodies_moving_tick_ms_median")
+    if moving_ms is not None:
+        out.figure("tick_15k_moving", "full tick 15k + 20 bodies while the bodies move (1-6 s), median", moving_ms,
+                   "ms", f"<= {TARGET_MS:.1f} (reference)", moving_ms <= TARGET_MS)
     out.figure("tick_15k_p90", "full tick 15k + 20 bodies, p90", main_row["tick_ms_p90"], "ms",
                f"<= {TARGET_MS:.1f} (reference)", main_row["tick_ms_p90"] <= TARGET_MS)
     out.figure("tick_15k_world_step", "  of which World.step: 20 bodies x 4 substeps", 

@@ -85,6 +85,11 @@ class BodyModel:
         except ValueError:
             raise KeyError(f"unknown body {name!r}; bodies are: {', '.join(self.names) or '(none)'}") from None
 
+    def bounding_radius(self) -> np.ndarray:
+        """(n,) radius of a sphere about each body's COM that holds its whole shape [m] (``half_extents``
+        bound the box, the capsule's segment and the particle centres; ``radius`` sweeps them)."""
+        return np.linalg.norm(self.half_extents, axis=1) + self.radius
+
     @staticmethod
     def empty() -> "BodyModel":
         return BodyModel(

@@ -17,6 +17,8 @@ addition: a key given twice in one mapping is an error, not silently "the last o
       substeps: 4                      # physics sub-steps per tick (the node's `substeps` overrides)
       linear_damping: 0.0              # 1/s
       angular_damping: 0.0             # 1/s
+      rolling_resistance: 0.01         # c_rr of every contact: a rolling ball slows at (5/7) c_rr g
+      sleep: true                      # bodies sleep once all of them rest (see cgp_core.world.SLEEP_SPEED)
     bodies:
       - name: crate                    # unique, ROS-name-safe ([A-Za-z][A-Za-z0-9_]*)
         shape: box                     # sphere | box | capsule | particles
@@ -103,6 +105,10 @@ class WorldSpec:
     substeps: int = 4
     linear_damping: float = 0.0
     angular_damping: float = 0.0
+    #: c_rr of every contact (cgp_core.solver.SolverSettings.rolling_resistance): 0.01, a rubber tyre on
+    #: asphalt or a wooden ball on wood, so balls and logs come to rest; 0 is the ideal rigid model
+    rolling_resistance: float = 0.01
+    sleep: bool = True
 
 
 @dataclass
@@ -414,6 +420,8 @@ def _parse_world(v: _Validator, raw: Any) -> WorldSpec:
         spec.gravity = v.vector(d["gravity"], "world.gravity", 3)
     if "ground" in d:
         spec.ground = v.boolean(d["ground"], "world.ground", True)
+    if "sleep" in d:
+        spec.sleep = v.boolean(d["sleep"], "world.sleep", True)
     if "ground_friction" in d:
         spec.ground_friction = v.number(d["ground_friction"], "world.ground_friction", minimum=0.0, default=0.6)
     if "ground_restitution" in d:
@@ -423,7 +431,7 @@ def _parse_world(v: _Validator, raw: Any) -> WorldSpec:
         spec.integrator = v.choice(d["integrator"], "world.integrator", sorted(INTEGRATORS), DEFAULT_INTEGRATOR)
     if "substeps" in d:
         spec.substeps = v.integer(d["substeps"], "world.substeps", minimum=1, maximum=1000, default=4)
-    for key in ("linear_damping", "angular_damping"):
+    for key in ("linear_damping", "angular_damping", "rolling_resistance"):
         if key in d:
             setattr(spec, key, v.number(d[key], f"world.{key}", minimum=0.0))
     return spec

@@ -2,11 +2,14 @@
 
 ``World.step()`` advances one *tick* of ``dt`` seconds (the node's ``1 / rate_hz``):
 
-1. rigid bodies: ``substeps`` sub-steps of ``h = dt / substeps``, each
+1. rigid bodies, unless they sleep: ``substeps`` sub-steps of ``h = dt / substeps``, each
    apply wrench commands → :func:`cgp_core.dynamics.step_bodies` (forces, contacts, solve, integrate,
    recover penetration, clear accumulators — the stages are named there);
 2. contain blow-ups: a body whose state went non-finite or absurd is put back to its initial state (reported
    in :attr:`World.events`); the rest of the world goes on;
+   then sleep: once every movable body has stayed slower than :data:`SLEEP_SPEED` for :data:`SLEEP_TIME`,
+   the bodies fall asleep (momenta zeroed, stage 1 skipped) until a wrench command or :meth:`World.reset`
+   wakes them (see :meth:`World._update_sleep`);
 3. flocks: one step of ``dt`` each, avoiding the bodies at their end-of-tick poses (a flock whose state went
    non-finite is reset, and reported, the same way);
 4. wrench schedule: count the tick off timed wrenches.
@@ -39,6 +42,17 @@ from .wrenches import WrenchCommand, WrenchSchedule, make_command
 #: a body moving faster than this [m/s] or spinning faster than this [rad/s] has blown up numerically
 BLOWUP_SPEED = 1e4
 BLOWUP_SPIN = 1e5
+
+#: Sleeping, as Box2D and Bullet do it: bodies at rest on each other cost a full contact solve per sub-step to
+#: stay where they are.  A body is *resting* while the fastest point of its bounding sphere moves slower than
+#: SLEEP_SPEED [m/s] (|v| + |ω| r, Box2D v3's measure and threshold); when every movable body has rested for
+#: SLEEP_TIME [s] (Box2D's b2_timeToSleep) the bodies sleep.  The whole set sleeps or wakes together — one
+#: island, where Box2D keeps one per connected contact group: simpler, and exact for what wakes it (only wrench
+#: commands and reset can: boids steer around bodies but never push them).  A projectile at its apex is
+#: slower than SLEEP_SPEED for a few milliseconds only, far less than SLEEP_TIME.  ``world.sleep: false`` in a
+#: scene turns it off.
+SLEEP_SPEED = 0.05
+SLEEP_TIME = 0.5
 
 
 @dataclass
@@ -74,11 +88,16 @@ class World:
         self.ground = Ground(friction=scene.world.ground_friction,
                              restitution=scene.world.ground_restitution) if scene.world.ground else None
         self.integrator = make_integrator(scene.world.integrator)
-        self.solver = make_solver()
+        self.solver = make_solver(rolling_resistance=scene.world.rolling_resistance)
         self.body_model, self._initial_body_state = scene.build_bodies()
         self.body_state = self._initial_body_state.copy()
         self.flocks = [Flock(p if seed is None else p.with_seed(seed + i)) for i, p in enumerate(scene.flocks)]
         self.wrenches = WrenchSchedule()
+        self.sleep_enabled = bool(scene.world.sleep)
+        self._bounding_radius = self.body_model.bounding_radius()
+        #: True while the bodies sleep (stage 1 skipped); ``rest_time``: how long [s] all have been resting
+        self.bodies_asleep = False
+        self.rest_time = 0.0
         self.time_ns = 0
         self.ticks = 0
         self.events: list[WorldEvent] = []
@@ -94,7 +113,9 @@ class World:
         """Advance one tick (see the module docstring for the stages)."""
         h = self.dt / self.substeps
         model, state = self.body_model, self.body_state
-        if model.count:
+        if self.bodies_asleep and self.wrenches.active:
+            self.wake()
+        if model.count and not self.bodies_asleep:
             # An extreme (but accepted) force can overflow a body's state to inf / NaN within the sub-steps;
             # numpy's warnings about it would only repeat, on stderr, what _contain_blowups reports right
             # after as an event naming the body.
@@ -105,6 +126,7 @@ class World:
                                 ground=self.ground, linear_damping=self.scene.world.linear_damping,
                                 angular_damping=self.scene.world.angular_damping)
             self._contain_blowups()
+            self._update_sleep()
         if self.flocks:
             obstacles = Obstacles.from_bodies(model, state, ground=self.ground is not None) \
                 if model.count or self.ground is not None else None
@@ -153,6 +175,29 @@ class World:
                                       f"numerical blow-up of {names} (non-finite or > {BLOWUP_SPEED:g} m/s): "
                                       "reset to its initial pose at rest and its wrenches cleared"))
 
+    def _update_sleep(self) -> None:
+        """Count how long every movable body has been resting (see :data:`SLEEP_SPEED`); after
+        :data:`SLEEP_TIME` put them to sleep with zero momenta, so they stay exactly where they rest."""
+        model, state = self.body_model, self.body_state
+        movable = ~model.fixed
+        if not self.sleep_enabled or not movable.any():
+            return
+        speed = (np.linalg.norm(state.linear_velocity(model), axis=1)
+                 + np.linalg.norm(state.angular_velocity(model), axis=1) * self._bounding_radius)
+        if bool((speed[movable] < SLEEP_SPEED).all()):
+            self.rest_time += self.dt
+        else:
+            self.rest_time = 0.0
+        if self.rest_time >= SLEEP_TIME - 1e-12:
+            self.bodies_asleep = True
+            state.linear_momentum[:] = 0.0
+            state.angular_momentum[:] = 0.0
+
+    def wake(self) -> None:
+        """Wake the bodies (a wrench command or reset does it; call it after changing ``body_state`` by hand)."""
+        self.bodies_asleep = False
+        self.rest_time = 0.0
+
     def _contain_flock_blowups(self) -> None:
         """A flock whose state went non-finite is put back to its initial state (the boids' speeds are clamped,
         so only a numerical fault gets here); one check per flock, O(N) and cheap next to the step."""
@@ -176,6 +221,7 @@ class World:
         for flock in self.flocks:
             flock.reset()
         self.wrenches.clear()
+        self.wake()
         if hasattr(self.solver, "reset"):
             self.solver.reset()
 

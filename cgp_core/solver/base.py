@@ -46,6 +46,11 @@ class SolverSettings:
                                pop-outs after a deep overlap).
         warm_start:            start each sub-step from the matched contacts' impulses of the previous one.
         max_colours:           graph colours before contacts go to the overflow batch (see colouring.py).
+        rolling_resistance:    dimensionless coefficient c_rr of rolling resistance at every contact: a torque of
+                               at most c_rr · N · r (N the normal force, r the rolling radius) opposing the
+                               bodies' relative rolling (see ``resist_rolling`` in sequential_impulse.py).
+                               0 (the default here) is the ideal rigid model, where a ball rolls for ever;
+                               scenes default to ``world.rolling_resistance: 0.01``.
     """
 
     velocity_iterations: int = 8
@@ -57,6 +62,7 @@ class SolverSettings:
     max_correction: float = 0.05
     warm_start: bool = True
     max_colours: int = 24
+    rolling_resistance: float = 0.0
 
     def __post_init__(self) -> None:
         for f in fields(self):

@@ -408,6 +408,9 @@ class SequentialImpulseSolver:
 
         # -- impulses → momenta (equal and opposite at the same point)
         impulse = _accumulate(flat_ab, np.einsum("rm,rmj->mj", lam, J), n)
+        if s.rolling_resistance > 0.0:
+            impulse[:, 3:] += resist_rolling(V, a, b, normal, point - position[a], point - position[b], lam[0],
+                                             inv_inertia, dynamic, s.rolling_resistance)
         impulse[~dynamic] = 0.0
         state.linear_momentum += impulse[:n, :3]
         state.angular_momentum += impulse[:n, 3:]
@@ -530,6 +533,47 @@ def _solve_normal_rows(Vf, bt: _Batch, Jn, MJn, eff_n, lam_n, target, lower=0.0)
         new = np.where(found, exact, new)
     lam_n[:] = new
     bt.scatter(Vf, Vab, Vg, MJn * (new - old)[:, None])
+
+
+def resist_rolling(V: np.ndarray, a: np.ndarray, b: np.ndarray, normal: np.ndarray, lever_a: np.ndarray,
+                   lever_b: np.ndarray, normal_impulse: np.ndarray, inv_inertia: np.ndarray, dynamic: np.ndarray,
+                   coefficient: float) -> np.ndarray:
+    """Angular impulses (n + 1, 3) of rolling resistance, after the contact impulses are solved.
+
+    A rigid ball on a rigid plane rolls (or spins in place) for ever; real surfaces deform and resist with a
+    torque of at most ``c_rr · N · r`` (N the normal force, r the rolling radius), the textbook
+    rolling-resistance model.  Per contact (m of them) and sub-step that is an angular impulse of at most
+    ``c_rr · λₙ · r`` (λₙ the normal impulse just solved; r the larger normal component of the two levers
+    ``p − x̄``) about the axis of the relative rotation ``ω_t = ω_b − ω_a``, opposing it: ``−J ω̂_t`` on b,
+    ``+J ω̂_t`` on a.  The spin about the normal is resisted by the same law (MuJoCo keeps separate torsional
+    and rolling coefficients; one is enough here: it only has to bring spinning balls to rest too).  J is also capped at the impulse that stops the relative rolling, shared among the
+    contacts of the body, so it only ever removes energy and never reverses a rotation.  Friction then couples
+    the slower rotation to the body's velocity in the following sub-steps: a rolling ball decelerates at
+    ``(5/7) c_rr g`` (tests/test_contacts.py checks this closed form).
+
+    V: (n + 1, 6) solved velocities [v, ω] (row n: the ground); a, b: (m,) body rows; normal: (m, 3) from a to
+    b; lever_a, lever_b: (m, 3) contact point minus each COM; normal_impulse: (m,) λₙ ≥ 0;
+    inv_inertia: (n + 1, 3, 3) world-frame; dynamic: (n + 1,) bool.
+    """
+    n1 = V.shape[0]
+    w_t = V[b, 3:] - V[a, 3:]
+    speed = np.linalg.norm(w_t, axis=1)
+    rolling = (speed > 1e-12) & (normal_impulse > 0.0)
+    out = np.zeros((n1, 3))
+    if not rolling.any():
+        return out
+    a, b, w_t, speed, normal = a[rolling], b[rolling], w_t[rolling], speed[rolling], normal[rolling]
+    axis = w_t / speed[:, None]
+    radius = np.maximum(np.abs(np.einsum("mi,mi->m", lever_a[rolling], normal)) * dynamic[a],
+                        np.abs(np.einsum("mi,mi->m", lever_b[rolling], normal)) * dynamic[b])
+    k = np.einsum("mi,mij,mj->m", axis, inv_inertia[a] + inv_inertia[b], axis)  # 1 / effective inertia
+    contacts_per_body = np.bincount(np.concatenate((a, b)), minlength=n1)
+    share = np.maximum(contacts_per_body[a] * dynamic[a], contacts_per_body[b] * dynamic[b])
+    stop = speed / (np.maximum(k, 1e-300) * np.maximum(share, 1))
+    J = np.minimum(coefficient * normal_impulse[rolling] * radius, stop)[:, None] * axis
+    np.add.at(out, b, -J)
+    np.add.at(out, a, J)
+    return out
 
 
 def _cross_rows(r: np.ndarray, D: np.ndarray) -> np.ndarray:
