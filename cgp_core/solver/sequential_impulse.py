@@ -559,21 +559,21 @@ def resist_rolling(V: np.ndarray, a: np.ndarray, b: np.ndarray, normal: np.ndarr
     w_t = V[b, 3:] - V[a, 3:]
     speed = np.linalg.norm(w_t, axis=1)
     rolling = (speed > 1e-12) & (normal_impulse > 0.0)
-    out = np.zeros((n1, 3))
     if not rolling.any():
-        return out
+        return np.zeros((n1, 3))
     a, b, w_t, speed, normal = a[rolling], b[rolling], w_t[rolling], speed[rolling], normal[rolling]
     axis = w_t / speed[:, None]
     radius = np.maximum(np.abs(np.einsum("mi,mi->m", lever_a[rolling], normal)) * dynamic[a],
                         np.abs(np.einsum("mi,mi->m", lever_b[rolling], normal)) * dynamic[b])
     k = np.einsum("mi,mij,mj->m", axis, inv_inertia[a] + inv_inertia[b], axis)  # 1 / effective inertia
-    contacts_per_body = np.bincount(np.concatenate((a, b)), minlength=n1)
+    ab = np.concatenate((a, b))
+    contacts_per_body = np.bincount(ab, minlength=n1)
     share = np.maximum(contacts_per_body[a] * dynamic[a], contacts_per_body[b] * dynamic[b])
     stop = speed / (np.maximum(k, 1e-300) * np.maximum(share, 1))
     J = np.minimum(coefficient * normal_impulse[rolling] * radius, stop)[:, None] * axis
-    np.add.at(out, b, -J)
-    np.add.at(out, a, J)
-    return out
+    # +J on a, −J on b, summed per body (one bincount over the 3 components of both ends)
+    flat = (ab[:, None] * 3 + np.arange(3)).ravel()
+    return np.bincount(flat, weights=np.concatenate((J, -J)).ravel(), minlength=3 * n1).reshape(n1, 3)
 
 
 def _cross_rows(r: np.ndarray, D: np.ndarray) -> np.ndarray:
