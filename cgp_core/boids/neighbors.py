@@ -79,25 +79,54 @@ class NeighborPairs:
 def pair_offsets(points: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     """The shared membership formula, as ``rows (P, 4)`` = ``[dx, dy, dz, r2]`` with ``d = points[:, j] −
     points[:, i]`` and ``r2 = (dx*dx + dy*dy) + dz*dz``, in float32 (``points`` is float32)."""
-    rows = np.empty((len(i), 4), dtype=np.float32)
+    rows = np.zeros((len(i), 4), dtype=np.float32)
     for axis in range(3):
         np.subtract(np.take(points[axis], j), np.take(points[axis], i), out=rows[:, axis])
     _squared_length(rows)
     return rows
 
 
-def _squared_length(rows: np.ndarray) -> np.ndarray:
-    """Fill ``rows[:, 3]`` with ``(dx*dx + dy*dy) + dz*dz`` (this exact order of operations everywhere)."""
-    r2 = rows[:, 0] * rows[:, 0]
-    r2 += rows[:, 1] * rows[:, 1]
-    r2 += rows[:, 2] * rows[:, 2]
-    rows[:, 3] = r2
+def _squared_length(rows: np.ndarray, scratch: np.ndarray | None = None) -> np.ndarray:
+    """Fill ``rows[:, 3]`` with ``(dx*dx + dy*dy) + dz*dz`` (this exact order of operations everywhere) and
+    return it (a view).  The squares are taken on whole 16-byte rows at once, into ``scratch`` (same shape as
+    ``rows``) if given: one contiguous pass instead of three strided ones.  That squares ``rows[:, 3]`` too
+    (then overwritten), so it must hold a finite value on entry: every caller has 0 there."""
+    square = np.multiply(rows, rows, out=scratch)
+    r2 = rows[:, 3]
+    np.add(square[:, 0], square[:, 1], out=r2)
+    r2 += square[:, 2]
     return r2
 
 
 def _empty_pairs(width: int, order: np.ndarray | None = None) -> NeighborPairs:
     return NeighborPairs(order=np.arange(width) if order is None else order, i=np.zeros(0, np.int32),
                          j=np.zeros(0, np.int32), rows=np.zeros((0, 4), np.float32))
+
+
+class _KeptPairs:
+    """Output of a block-by-block pair test: arrays sized for every candidate, filled front to back with the
+    pairs each block keeps (no per-block pieces to concatenate at the end: one pass less over the pairs).
+
+    ``mode="clip"`` on the gathers: the indices are valid by construction, and numpy's default
+    bounds-checking mode would copy through a buffer when writing into ``out``."""
+
+    def __init__(self, capacity: int):
+        self.i = np.empty(capacity, dtype=np.int32)
+        self.j = np.empty(capacity, dtype=np.int32)
+        self.rows = np.empty((capacity, 4), dtype=np.float32)
+        self.count = 0
+
+    def append(self, keep: np.ndarray, i: np.ndarray, j: np.ndarray, rows: np.ndarray) -> None:
+        """Append the candidates ``keep`` (indices) of a block with ends ``i``, ``j`` and ``rows``."""
+        first, end = self.count, self.count + len(keep)
+        np.take(i, keep, out=self.i[first:end], mode="clip")
+        np.take(j, keep, out=self.j[first:end], mode="clip")
+        np.take(rows, keep, axis=0, out=self.rows[first:end], mode="clip")
+        self.count = end
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(i, j, rows)`` of the kept pairs (views)."""
+        return self.i[:self.count], self.j[:self.count], self.rows[:self.count]
 
 
 def _check_points(points: np.ndarray, radius: float) -> None:
@@ -279,27 +308,26 @@ class GridSearch:
         return 2.0 * math.sqrt(largest2) + margin < cached.skin
 
     def _filter(self, points: np.ndarray, cached: _CandidateList, radius2: np.float32) -> NeighborPairs:
-        """Re-test the cached candidates at the current points (shared formula), block by block."""
+        """Re-test the cached candidates at the current points (shared formula), block by block (the block
+        temporaries are allocated once per call)."""
         width = points.shape[1]
         packed = np.zeros((width, 4), dtype=np.float32)
         for axis in range(3):
             packed[:, axis] = np.take(points[axis], cached.order)
-        out_i, out_j, out_rows = [], [], []
         count = len(cached.i)
+        kept = _KeptPairs(count)
+        block = min(count, self._BLOCK_CANDIDATES)
+        rows_buffer = np.empty((block, 4), dtype=np.float32)
+        scratch = np.empty((block, 4), dtype=np.float32)
         for first in range(0, count, self._BLOCK_CANDIDATES):
             last = min(first + self._BLOCK_CANDIDATES, count)
             i = cached.i[first:last]
             j = cached.j[first:last]
-            rows = np.take(packed, j, axis=0)
-            rows -= np.take(packed, i, axis=0)
-            near = np.flatnonzero(_squared_length(rows) < radius2)
-            out_rows.append(np.take(rows, near, axis=0))
-            out_i.append(np.take(i, near))
-            out_j.append(np.take(j, near))
-        if not out_i:
-            return _empty_pairs(width, cached.order)
-        return NeighborPairs(order=cached.order, i=np.concatenate(out_i), j=np.concatenate(out_j),
-                             rows=np.concatenate(out_rows))
+            rows = np.take(packed, j, axis=0, out=rows_buffer[:last - first], mode="clip")
+            rows -= np.take(packed, i, axis=0, out=scratch[:last - first], mode="clip")
+            kept.append(np.flatnonzero(_squared_length(rows, scratch[:last - first]) < radius2), i, j, rows)
+        i, j, rows = kept.arrays()
+        return NeighborPairs(order=cached.order, i=i, j=j, rows=rows)
 
     def _cell_search(self, points: np.ndarray, radius: float):
         """All pairs closer than ``radius`` by the cell search: ``(order, i, j, rows)`` as in NeighborPairs."""
@@ -391,7 +419,7 @@ class GridSearch:
         edges = np.concatenate(([0], np.searchsorted(cumulative, np.linspace(0, total, blocks + 1)[1:-1]), [width]))
         radius2 = np.float32(radius * radius)
         slots = np.arange(width, dtype=np.int32)
-        out_i, out_j, out_rows = [], [], []
+        kept = _KeptPairs(total)
         for first, last in zip(edges[:-1].tolist(), edges[1:].tolist()):
             if last <= first:
                 continue
@@ -409,12 +437,8 @@ class GridSearch:
             rows = np.take(packed, j, axis=0)
             rows -= np.repeat(packed[first:last], block_point_counts, axis=0)
             near = np.flatnonzero(_squared_length(rows) < radius2)
-            out_rows.append(np.take(rows, near, axis=0))
-            out_j.append(np.take(j, near))
-            out_i.append(np.take(np.repeat(slots[first:last], block_point_counts), near))
-        if not out_i:
-            return order, np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros((0, 4), np.float32)
-        return order, np.concatenate(out_i), np.concatenate(out_j), np.concatenate(out_rows)
+            kept.append(near, np.repeat(slots[first:last], block_point_counts), j, rows)
+        return (order,) + kept.arrays()
 
 
 def make_search(name: str):

@@ -10,6 +10,8 @@ matter, so the cost is proportional to the boids near bodies, not boids × bodie
 - each remaining shape tests its bounding sphere only against the boids of a few contiguous runs of a
   :class:`ColumnIndex` (boids sorted by x cell, then y), all shapes in one vectorized pass;
 - many spheres (particle sets) go through a KD-tree of their centres instead;
+- boxes and capsules then test the box (slab per axis) / the capsule (cylinder and end caps) grown by the
+  reach, per pair: a long beam's or pillar's bounding sphere holds thousands of boids, its grown box a few;
 - exact distances: one ``geometry.py`` call per shape type for the few candidates.
 """
 
@@ -187,9 +189,15 @@ class Obstacles:
             shape, point = self._candidates(points, index, centers[keep], bounds[keep], reach)
             shape = keep[shape]
             for k, exact in ((_SPHERE, self._sphere_pairs), (_BOX, self._box_exact), (_CAPSULE, self._capsule_exact)):
-                mine = kind[shape] == k
-                if np.any(mine):
-                    parts.append(self._within(exact(points, point[mine], which[shape[mine]]), reach))
+                mine = np.flatnonzero(kind[shape] == k)
+                if len(mine):
+                    mine_point, mine_shape = point[mine], which[shape[mine]]
+                    if k == _BOX:
+                        mine_point, mine_shape = self._box_prefilter(points, mine_point, mine_shape, reach)
+                    elif k == _CAPSULE:
+                        mine_point, mine_shape = self._capsule_prefilter(points, mine_point, mine_shape, reach)
+                    if len(mine_point):
+                        parts.append(self._within(exact(points, mine_point, mine_shape), reach))
         if self.ground_height is not None:
             height = points[2] - self.ground_height
             near = np.flatnonzero(height < reach)
@@ -264,6 +272,35 @@ class Obstacles:
         normal = offset / np.where(at_centre, 1.0, length)
         normal[2, at_centre] = 1.0
         return ObstacleHits(point, length - self.sphere_radii[sphere], normal)
+
+    # Prefilters: necessary conditions for ``distance < reach``, so they drop only pairs the exact test would
+    # drop too (then the hits, and their order, are the same as without them).  Padded by a relative 1e-9 so
+    # that rounding differences with ``geometry.py``'s formulas can never drop a pair.
+
+    def _box_prefilter(self, points, point, box, reach):
+        """(point, box) pairs with the point inside the box grown by ``reach`` on every side: the distance to
+        a box is at least its largest per-axis slab distance ``|local_a| − h_a``."""
+        offset = points[:, point] - self.box_centers[box].T  # (3, m) world offsets
+        rotation = self.box_rotations[box]  # (m, 3, 3), columns = box axes
+        half = self.box_half_extents[box]  # (m, 3)
+        keep = np.ones(len(point), dtype=bool)
+        for axis in range(3):
+            local = (rotation[:, 0, axis] * offset[0] + rotation[:, 1, axis] * offset[1]
+                     + rotation[:, 2, axis] * offset[2])  # component along the box axis
+            keep &= np.abs(local) < (half[:, axis] + reach) * (1.0 + 1e-9) + 1e-9
+        return point[keep], box[keep]
+
+    def _capsule_prefilter(self, points, point, capsule, reach):
+        """(point, capsule) pairs with the point inside the capsule's cylinder-with-caps grown by ``reach``:
+        the distance to a capsule is at least the distance to its axis line minus the radius, and at least the
+        distance along the axis beyond the segment's end minus the radius."""
+        offset = points[:, point] - self.capsule_centers[capsule].T  # (3, m)
+        axis = self.capsule_axes[capsule].T  # (3, m) unit
+        along = offset[0] * axis[0] + offset[1] * axis[1] + offset[2] * axis[2]
+        grown = (self.capsule_radii[capsule] + reach) * (1.0 + 1e-9) + 1e-9
+        radial2 = offset[0] * offset[0] + offset[1] * offset[1] + offset[2] * offset[2] - along * along
+        keep = (np.abs(along) < self.capsule_half_lengths[capsule] + grown) & (radial2 < grown * grown)
+        return point[keep], capsule[keep]
 
     def _box_exact(self, points, point, box) -> ObstacleHits:
         """Point-vs-box for (point, box) pairs: one ``geometry.box_distance`` call on the distinct points ×

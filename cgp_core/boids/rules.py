@@ -75,27 +75,33 @@ def visibility(pairs: NeighborPairs, headings: np.ndarray, cos_half_fov: float) 
     headings, slots as in ``pairs``.
 
     i sees j when the angle between i's heading and ``r = x_j − x_i`` is at most fov/2:
-    ``ĥ_i · r > cos(fov/2) |r|``; j sees i when ``ĥ_j · (−r) > cos(fov/2) |r|``.  Returns two ``(P,)`` bool
-    arrays.  Computed in blocks of pairs (cache-sized temporaries), gathering 16-byte heading rows."""
+    ``ĥ_i · r > cos(fov/2) |r|``; j sees i when ``ĥ_j · (−r) > cos(fov/2) |r|``.  Returns two ``(P,)`` float32
+    arrays of 0 / 1 (the weights of the neighbour sums, written directly: no bool → float pass).  Computed
+    in blocks of pairs (cache-sized temporaries allocated once), gathering 16-byte heading rows."""
     count = pairs.count
-    i_sees_j = np.empty(count, dtype=bool)
-    j_sees_i = np.empty(count, dtype=bool)
+    i_sees_j = np.empty(count, dtype=np.float32)
+    j_sees_i = np.empty(count, dtype=np.float32)
     cosine = np.float32(cos_half_fov)
+    product = np.empty((min(count, _PAIR_BLOCK), 4), dtype=np.float32)
+    along = np.empty(min(count, _PAIR_BLOCK), dtype=np.float32)
+    limit = np.empty_like(along)
     for first in range(0, count, _PAIR_BLOCK):
         last = min(first + _PAIR_BLOCK, count)
+        size = last - first
         rows = pairs.rows[first:last]
-        limit = np.sqrt(rows[:, 3])
-        limit *= cosine
-        product = np.take(headings, pairs.i[first:last], axis=0)
-        product *= rows
-        along = product[:, 0] + product[:, 1]
-        along += product[:, 2]
-        np.greater(along, limit, out=i_sees_j[first:last])
-        product = np.take(headings, pairs.j[first:last], axis=0)
-        product *= rows
-        along = product[:, 0] + product[:, 1]
-        along += product[:, 2]
-        np.less(along, -limit, out=j_sees_i[first:last])
+        block_limit = np.sqrt(rows[:, 3], out=limit[:size])
+        block_limit *= cosine
+        block_product = np.take(headings, pairs.i[first:last], axis=0, out=product[:size], mode="clip")
+        block_product *= rows
+        block_along = np.add(block_product[:, 0], block_product[:, 1], out=along[:size])
+        block_along += block_product[:, 2]
+        np.greater(block_along, block_limit, out=i_sees_j[first:last])
+        np.take(headings, pairs.j[first:last], axis=0, out=block_product, mode="clip")
+        block_product *= rows
+        np.add(block_product[:, 0], block_product[:, 1], out=block_along)
+        block_along += block_product[:, 2]
+        np.negative(block_limit, out=block_limit)
+        np.less(block_along, block_limit, out=j_sees_i[first:last])
     return i_sees_j, j_sees_i
 
 
@@ -121,10 +127,13 @@ def neighbor_sums(pairs: NeighborPairs, positions: np.ndarray, velocities: np.nd
     width = positions.shape[1]
     shape = (width, width)
     indptr = _row_starts(pairs.i, width)
-    stacked = np.empty((width, 7), dtype=np.float32)  # rows [x, y, z, vx, vy, vz, 1]: what a neighbour contributes
+    # rows [x, y, z, vx, vy, vz, 1, 0]: what a neighbour contributes.  The unused 8th column makes the rows
+    # 32 bytes: scipy's sparse × dense product is then ~20 % faster than on 7 columns
+    stacked = np.empty((width, 8), dtype=np.float32)
     stacked[:, 0:3] = positions.T
     stacked[:, 3:6] = velocities.T
     stacked[:, 6] = 1.0
+    stacked[:, 7] = 0.0
     if cos_half_fov <= -1.0:
         sees = np.ones(pairs.count, dtype=np.float32)
         matrix = scipy.sparse.csr_array((sees, pairs.j, indptr), shape=shape)
@@ -132,16 +141,15 @@ def neighbor_sums(pairs: NeighborPairs, positions: np.ndarray, velocities: np.nd
         total += matrix.T @ stacked
     else:
         i_sees_j, j_sees_i = visibility(pairs, headings, cos_half_fov)
-        forward = scipy.sparse.csr_array((i_sees_j.view(np.uint8).astype(np.float32), pairs.j, indptr), shape=shape)
-        backward = scipy.sparse.csr_array((j_sees_i.view(np.uint8).astype(np.float32), pairs.j, indptr),
-                                          shape=shape)
+        forward = scipy.sparse.csr_array((i_sees_j, pairs.j, indptr), shape=shape)
+        backward = scipy.sparse.csr_array((j_sees_i, pairs.j, indptr), shape=shape)
         total = forward @ stacked  # row i: Σ_j [i sees j] (x_j, v_j, 1)
         total += backward.T @ stacked  # row j: Σ_i [j sees i] (x_i, v_i, 1)
     # pairs near enough to matter for separation or the cohesion gate: few in a flock that keeps its spacing
     near = np.flatnonzero(pairs.dist2 < np.float32((COHESION_GATE * separation_radius) ** 2))
     crowded = np.zeros(width, dtype=bool)
-    crowded[pairs.i[near]] = True
-    crowded[pairs.j[near]] = True
+    crowded[np.take(pairs.i, near)] = True
+    crowded[np.take(pairs.j, near)] = True
     return NeighborSums(count=total[:, 6], position_sum=total[:, 0:3].T, velocity_sum=total[:, 3:6].T,
                         separation=separation(pairs, separation_radius, width, near), crowded=crowded)
 
@@ -157,10 +165,13 @@ def separation(pairs: NeighborPairs, separation_radius: float, width: int,
     s = np.float32(separation_radius)
     if candidates is None:
         candidates = np.arange(pairs.count)
-    close = candidates[pairs.dist2[candidates] < s * s]
+    # gather the candidates' whole rows first (one 16-byte row gather beats fancy-indexing the strided r² column)
+    rows = np.take(pairs.rows, candidates, axis=0)
+    is_close = rows[:, 3] < s * s
+    close = np.compress(is_close, candidates)
     if len(close) == 0:
         return np.zeros((3, width), dtype=np.float32)
-    rows = np.take(pairs.rows, close, axis=0)
+    rows = np.compress(is_close, rows, axis=0)
     r = np.sqrt(rows[:, 3])
     # weight (s − r) / r; coincident boids (r = 0) have no direction to push along: they get none here
     # and are separated as soon as their velocities differ
