@@ -53,16 +53,19 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
     apply_gravity(model, state, gravity)
     apply_damping(model, state, linear_damping, angular_damping)
 
-    # 2. detect contacts, with speculative margins sized by the velocities the bodies are about to move with
-    inv_inertia = state.inv_inertia_world(model)
+    # 2. detect contacts, with speculative margins sized by the velocities the bodies are about to move with.
+    #    The poses do not change before stage 4, so R and I_world⁻¹ (n, 3, 3) are computed once here and handed
+    #    to detection and the solver (each would otherwise rebuild them from the quaternions)
+    R = state.rotation_matrices()
+    inv_inertia = state.inv_inertia_world(model, R)
     velocity = (state.linear_momentum + h * state.force) * model.inv_mass[:, None]
     angular_velocity = np.einsum("nij,nj->ni", inv_inertia, state.angular_momentum + h * state.torque)
     contacts = solver.detector.detect(model, state, h, ground=ground, velocity=velocity,
-                                      angular_velocity=angular_velocity)
+                                      angular_velocity=angular_velocity, rotation=R)
 
     # 3. solve contacts: impulses added to P and L as momentum changes at the start of the sub-step, so that
     #    momentum + h·force + impulse satisfies non-penetration, restitution and friction
-    solver.solve_velocities(model, state, contacts, h)
+    solver.solve_velocities(model, state, contacts, h, inv_inertia=inv_inertia)
 
     # 4. integrate
     integrator.step(model, state, h)

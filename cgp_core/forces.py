@@ -21,8 +21,8 @@ from .bodies import BodyModel, BodyState
 
 def apply_gravity(model: BodyModel, state: BodyState, gravity: np.ndarray) -> None:
     """F += m g on every movable body (fixed bodies feel nothing: they are held)."""
-    movable = model.inv_mass > 0.0
-    state.force[movable] += model.mass[movable, None] * np.asarray(gravity, dtype=float)[None, :]
+    weight = model.mass[:, None] * np.asarray(gravity, dtype=float)[None, :]  # (n, 3)
+    np.add(state.force, weight, out=state.force, where=(model.inv_mass > 0.0)[:, None])
 
 
 def apply_damping(model: BodyModel, state: BodyState, linear: float, angular: float) -> None:

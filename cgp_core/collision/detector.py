@@ -76,11 +76,13 @@ class CollisionDetector:
         return self.speculative_distance + h * speed
 
     def detect(self, model: BodyModel, state: BodyState, h: float, *, ground: Ground | None,
-               velocity: np.ndarray | None = None, angular_velocity: np.ndarray | None = None) -> ContactSet:
+               velocity: np.ndarray | None = None, angular_velocity: np.ndarray | None = None,
+               rotation: np.ndarray | None = None) -> ContactSet:
         """All contacts (touching, penetrating, or within the speculative margin) at ``state``'s poses.
 
         ``velocity`` / ``angular_velocity`` ``(n, 3)`` are the velocities the bodies will move with over the
         sub-step (default: the state's current ones); they only size the speculative margins.
+        ``rotation`` ``(n, 3, 3)``: ``state.rotation_matrices()``, if the caller has it already.
         """
         cm = self.collision_model(model)
         if cm.count == 0:
@@ -90,7 +92,7 @@ class CollisionDetector:
         if angular_velocity is None:
             angular_velocity = state.angular_velocity(model)
         body_margin = self.margins(model, h, velocity, angular_velocity)
-        R = state.rotation_matrices()
+        R = state.rotation_matrices() if rotation is None else rotation
         centre, Rp = primitive_poses(cm, state.position, R)
         lo, hi = primitive_aabbs(cm, centre, Rp)
         margin = body_margin[cm.body]
@@ -123,32 +125,38 @@ class CollisionDetector:
     # ---- ground --------------------------------------------------------------------------------------
 
     def _ground_contacts(self, model, cm, centre, Rp, lo, margin, ground: Ground) -> ContactSet:
-        near = lo[:, 2] < margin
-        near &= ~cm.fixed_body[cm.body]
-        out = []
-        for shape in (SPHERE, BOX, CAPSULE):
-            p = np.flatnonzero(near & (cm.shape == shape))
+        near = (lo[:, 2] < margin) & cm.movable
+        idx, normal, sep, point, feature = [], [], [], [], []  # per shape: primitive, contact geometry
+        for shape, prims in cm.by_shape:
+            p = prims[near[prims]]
             if p.size == 0:
                 continue
             if shape == SPHERE:
-                normal, sep, point = nph.sphere_plane(centre[p], cm.radius[p])
-                ok = sep < margin[p]
-                idx, feature = p[ok], np.zeros(int(ok.sum()), np.int64)
-                normal, sep, point = normal[ok], sep[ok], point[ok]
+                n_, s_, x_ = nph.sphere_plane(centre[p], cm.radius[p])
+                ok = s_ < margin[p]
+                k, f_ = np.flatnonzero(ok), np.zeros(int(ok.sum()), np.int64)
+                n_, s_, x_ = n_[ok], s_[ok], x_[ok]
             elif shape == BOX:
-                k, normal, sep, point, feature = nph.box_plane(centre[p], Rp[p], cm.half_extents[p], margin[p])
-                idx = p[k]
+                k, n_, s_, x_, f_ = nph.box_plane(centre[p], Rp[p], cm.half_extents[p], margin[p])
             else:
-                k, normal, sep, point, feature = nph.capsule_plane(centre[p], Rp[p][:, :, 2], cm.half_extents[p, 2],
-                                                                   cm.radius[p], margin[p])
-                idx = p[k]
-            body = cm.body[idx]
-            out.append(ContactSet(
-                body_a=np.full(len(idx), GROUND, dtype=np.intp), body_b=body.astype(np.intp), normal=normal,
-                separation=sep, point=point, key=self._keys(cm, np.full(len(idx), -1), idx, feature),
-                friction=combine_friction(ground.friction, model.friction[body]),
-                restitution=combine_restitution(ground.restitution, model.restitution[body])))
-        return ContactSet.concatenate(out)
+                k, n_, s_, x_, f_ = nph.capsule_plane(centre[p], Rp[p][:, :, 2], cm.half_extents[p, 2], cm.radius[p],
+                                                      margin[p])
+            idx.append(p[k])
+            normal.append(n_)
+            sep.append(s_)
+            point.append(x_)
+            feature.append(f_)
+        if not idx:
+            return ContactSet.empty()
+        # one ContactSet for all shapes (in shape order), not one per shape and a concatenation
+        idx = np.concatenate(idx)
+        body = cm.body[idx]
+        return ContactSet(
+            body_a=np.full(len(idx), GROUND, dtype=np.intp), body_b=body.astype(np.intp),
+            normal=np.concatenate(normal), separation=np.concatenate(sep), point=np.concatenate(point),
+            key=self._keys(cm, -1, idx, np.concatenate(feature)),
+            friction=combine_friction(ground.friction, model.friction[body]),
+            restitution=combine_restitution(ground.restitution, model.restitution[body]))
 
     # ---- primitive pairs -----------------------------------------------------------------------------
 

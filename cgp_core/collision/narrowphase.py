@@ -57,13 +57,20 @@ def sphere_sphere(ca, ra, cb, rb):
     return normal, separation, point
 
 
+def _up(k: int) -> np.ndarray:
+    """``k`` copies ``(k, 3)`` of the ground's normal +z."""
+    normal = np.zeros((k, 3))
+    normal[:, 2] = 1.0
+    return normal
+
+
 def sphere_plane(c, r):
     """Ground plane z = 0 (A) vs sphere (B): normal +z; the point is under the centre, halfway between the
     plane and the sphere's lowest point."""
     separation = c[:, 2] - r
     point = c.copy()
     point[:, 2] = 0.5 * separation
-    return np.broadcast_to(_UP, c.shape).copy(), separation, point
+    return _up(len(c)), separation, point
 
 
 def point_box(p, cb, Rb, hb):
@@ -136,13 +143,14 @@ def box_plane(c, R, h, margin):
     corner index 0..7."""
     corners = _box_corners(c, R, h)
     z = corners[:, :, 2]
-    lowest = np.argsort(z, axis=1, kind="stable")[:, :4]
-    zl = np.take_along_axis(z, lowest, axis=1)
-    pts = np.take_along_axis(corners, lowest[:, :, None], axis=1)
-    pts[:, :, 2] = 0.5 * zl
-    normal = np.broadcast_to(_UP, pts.shape)
-    valid = zl < margin[:, None]
-    return _flatten(valid, normal, zl, pts, lowest)
+    lowest = np.argsort(z, axis=1, kind="stable")[:, :4]  # (k, 4) corner indices, lowest first
+    box = np.arange(len(c))[:, None]
+    pair, slot = np.nonzero(z[box, lowest] < margin[:, None])
+    vertex = lowest[pair, slot]
+    separation = z[pair, vertex]
+    point = corners[pair, vertex]
+    point[:, 2] = 0.5 * separation
+    return pair.astype(np.intp), _up(len(pair)), separation, point, vertex.astype(np.int64)
 
 
 def _box_corners(c, R, h):
@@ -154,12 +162,15 @@ def _box_corners(c, R, h):
 def capsule_plane(c, axis, hl, r, margin):
     """Ground (A) vs capsule (B): each segment end whose sphere is within ``margin``.  Feature = end 0/1."""
     e0, e1 = capsule_ends(c, axis, hl)
-    ends = np.stack((e0, e1), axis=1)  # (k, 2, 3)
+    ends = np.empty((len(c), 2, 3))  # (k, 2, 3)
+    ends[:, 0] = e0
+    ends[:, 1] = e1
     sep = ends[:, :, 2] - r[:, None]
-    pts = ends.copy()
-    pts[:, :, 2] = 0.5 * sep
-    normal = np.broadcast_to(_UP, pts.shape)
-    return _flatten(sep < margin[:, None], normal, sep, pts)
+    pair, end = np.nonzero(sep < margin[:, None])
+    separation = sep[pair, end]
+    point = ends[pair, end]
+    point[:, 2] = 0.5 * separation
+    return pair.astype(np.intp), _up(len(pair)), separation, point, end.astype(np.int64)
 
 
 # ---- capsule -----------------------------------------------------------------------------------------

@@ -20,6 +20,7 @@ import numpy as np
 
 from ..checks import positive
 from ..bodies import BodyModel, BodyState
+from ..rotation import cross3  # noqa: F401  (re-exported: the integrators import it from here)
 
 
 class Integrator(Protocol):
@@ -67,29 +68,18 @@ def apply_inertia(tensor: np.ndarray, vectors: np.ndarray) -> np.ndarray:
 
 # Small dense kernels for (n, 3) / (n, 3, 3) batches.  np.cross and np.linalg.solve/inv are general (any
 # axis, LAPACK per matrix) and cost several times more than these few elementwise operations at both n = 1
-# and n = 1000; they are also the integrators' inner loop.
-
-
-def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a × b for (..., 3) arrays (same result as ``np.cross``)."""
-    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
-    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
-    out = np.empty(a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = ay * bz - az * by
-    out[..., 1] = az * bx - ax * bz
-    out[..., 2] = ax * by - ay * bx
-    return out
+# and n = 1000; they are also the integrators' inner loop.  (cross3 lives in rotation.py, with the other
+# small vector kernels, and is re-exported here.)
 
 
 def inverse3(matrices: np.ndarray) -> np.ndarray:
     """Inverse of (..., 3, 3) matrices by the adjugate: the columns of A⁻¹ are the cross products of A's
     rows divided by det A.  Never raises: a singular matrix gives inf/nan (with numpy's RuntimeWarning),
     which the World's blow-up guard then catches, where ``np.linalg.inv`` would abort the whole step."""
-    r0, r1, r2 = matrices[..., 0, :], matrices[..., 1, :], matrices[..., 2, :]
+    # column k of the adjugate is r_{k+1} × r_{k+2} (indices mod 3): all three cross products in one call
     out = np.empty(matrices.shape)
-    out[..., :, 0] = cross3(r1, r2)
-    out[..., :, 1] = cross3(r2, r0)
-    out[..., :, 2] = cross3(r0, r1)
-    inv_det = 1.0 / np.einsum("...i,...i->...", r0, out[..., :, 0])
+    out[...] = np.swapaxes(cross3(matrices[..., [1, 2, 0], :], matrices[..., [2, 0, 1], :]), -1, -2)
+    # det A = r0 · (r1 × r2), read from the column view as before (einsum's rounding depends on the strides)
+    inv_det = 1.0 / np.einsum("...i,...i->...", matrices[..., 0, :], out[..., :, 0])
     out *= inv_det[..., None, None]
     return out

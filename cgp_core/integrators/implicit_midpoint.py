@@ -49,7 +49,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..bodies import BodyModel, BodyState
-from ..rotation import skew
+from ..rotation import norms, skew
 from .base import apply_inertia, body_angular_momentum, check_step, cross3, inverse3, kick
 
 
@@ -59,6 +59,9 @@ from .base import apply_inertia, body_angular_momentum, check_step, cross3, inve
 MAX_SPIN_PER_SOLVE = 1.0
 #: at most this many sub-steps per step (a body spinning at 1e5 rad/s with h = 1/240 s needs a few hundred)
 MAX_SUBSTEPS = 1000
+
+_IDENTITY = np.eye(3)
+_TINY = np.finfo(float).tiny
 
 
 class ImplicitMidpoint:
@@ -90,13 +93,15 @@ def free_rotation(inv_inertia: np.ndarray, orientation: np.ndarray, angular_mome
     sub-steps (each one still conserves energy and L exactly).  Only those bodies are sub-stepped, so a
     body's result never depends on which other bodies share the batch.
     """
-    spin = h * np.linalg.norm(angular_momentum, axis=1) * np.linalg.norm(inv_inertia, axis=(1, 2))
+    # h |L| ‖I_body⁻¹‖_F (the Frobenius norm as np.linalg.norm computes it, without its argument handling)
+    spin = h * norms(angular_momentum) * np.sqrt(np.add.reduce(inv_inertia * inv_inertia, axis=(1, 2)))
     spin = np.where(np.isfinite(spin), spin, 0.0)  # a non-finite body is the World's to reset
-    substeps = np.clip(np.ceil(spin / MAX_SPIN_PER_SOLVE), 1, MAX_SUBSTEPS).astype(int)
+    solves = np.ceil(spin / MAX_SPIN_PER_SOLVE)
     q = orientation.copy()
-    if substeps.max(initial=1) == 1:
+    if solves.max(initial=1.0) <= 1.0:  # the common case: one solve for every body
         _midpoint_rotation(inv_inertia, q, angular_momentum, h)
     else:
+        substeps = np.clip(solves, 1, MAX_SUBSTEPS).astype(int)
         sub_h = (h / substeps)[:, None]
         for k in range(substeps.max()):  # a loop over sub-steps, vectorized over the bodies that need them
             rows = np.flatnonzero(substeps > k)
@@ -116,7 +121,7 @@ def _midpoint_rotation(inv_inertia: np.ndarray, q: np.ndarray, angular_momentum:
     u, w = q[:, :3].copy(), q[:, 3:].copy()
     q[:, :3] = u + w * v + cross3(u, v)
     q[:, 3:] = w - np.einsum("ni,ni->n", u, v)[:, None]
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q /= norms(q, keepdims=True)
 
 
 def solve_midpoint_momentum(inv_inertia: np.ndarray, body_momentum: np.ndarray, h, *, tol: float = 1e-14,
@@ -143,20 +148,21 @@ def solve_midpoint_momentum(inv_inertia: np.ndarray, body_momentum: np.ndarray, 
     half_h = 0.5 * np.asarray(h, dtype=float)  # scalar or (n, 1)
     half_h_matrix = half_h[..., None] if half_h.ndim else half_h
     pi = body_momentum + half_h * cross3(body_momentum, apply_inertia(inv_inertia, body_momentum))
-    scale = np.linalg.norm(body_momentum, axis=1) + np.finfo(float).tiny
-    identity = np.eye(3)
+    scale = norms(body_momentum) + _TINY
     jacobian_inverse = None
     largest_update = np.inf
     for _ in range(max_iterations):
         omega = apply_inertia(inv_inertia, pi)
         residual = pi - body_momentum - half_h * cross3(pi, omega)
         if jacobian_inverse is None or largest_update > 1e-3:
-            jacobian_inverse = inverse3(identity - half_h_matrix * (skew(pi) @ inv_inertia - skew(omega)))
+            jacobian_inverse = inverse3(_IDENTITY - half_h_matrix * (skew(pi) @ inv_inertia - skew(omega)))
         update = apply_inertia(jacobian_inverse, residual)
         pi -= update
         relative = np.abs(update).max(axis=1) / scale
         # bodies already non-finite (a blow-up the World will reset) must not keep the others iterating
-        largest_update = np.max(relative, where=np.isfinite(relative), initial=0.0)
+        largest_update = relative.max(initial=0.0)
+        if not np.isfinite(largest_update):  # (the masked max only when needed: it costs more)
+            largest_update = np.max(relative, where=np.isfinite(relative), initial=0.0)
         if largest_update <= tol:
             return pi
     warnings.warn(

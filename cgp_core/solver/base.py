@@ -88,8 +88,11 @@ class ContactSolver(Protocol):
     settings: SolverSettings
     detector: CollisionDetector
 
-    def solve_velocities(self, model: BodyModel, state: BodyState, contacts: ContactSet, h: float) -> None:
-        """Add contact impulses to ``state.linear_momentum`` / ``angular_momentum`` (see module docstring)."""
+    def solve_velocities(self, model: BodyModel, state: BodyState, contacts: ContactSet, h: float, *,
+                         inv_inertia=None) -> None:
+        """Add contact impulses to ``state.linear_momentum`` / ``angular_momentum`` (see module docstring).
+        ``inv_inertia`` (n, 3, 3): the world-frame I⁻¹ at ``state``'s poses if the caller has it already
+        (default: computed from the state)."""
         ...
 
     def recover_penetration(self, model: BodyModel, state: BodyState, h: float) -> None:

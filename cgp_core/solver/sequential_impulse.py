@@ -75,7 +75,7 @@ import numpy as np
 from ..bodies import BodyModel, BodyState
 from ..collision import CollisionDetector, ContactSet
 from ..collision.detector import FEATURE_SLOTS
-from ..rotation import quat_conjugate, quat_from_rotvec, quat_multiply, quat_normalize, quat_rotate, \
+from ..rotation import norms, quat_conjugate, quat_from_rotvec, quat_multiply, quat_normalize, quat_rotate, \
     quat_to_matrix, quat_to_rotvec
 from .base import SolverSettings
 from .colouring import colour_contacts, contact_priorities
@@ -84,20 +84,26 @@ from .manifold import MAX_BLOCK, ManifoldBlocks
 #: extra sweeps over the batches holding a bouncing multi-point manifold (see the sweeps in solve_velocities)
 IMPACT_SWEEPS = 16
 
+_SIX = np.arange(6)  # a body's six entries in the flattened (n + 1, 6) velocity array
 
 
-def tangent_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def tangent_basis(normal: np.ndarray, out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Two unit tangents ``(m, 3)`` completing the unit normals to a right-handed orthonormal frame
     (n, t₁, t₂), by the branch-free construction of Duff et al. (JCGT 2017, "Building an orthonormal basis,
     revisited"); a pure function of n, so a contact whose normal does not change keeps its tangents (the
-    ground's are x and y)."""
+    ground's are x and y).  ``out`` (2, m, 3), if given, receives (t₁, t₂) (the solver's row directions)."""
     x, y, z = normal[:, 0], normal[:, 1], normal[:, 2]
     sign = np.where(z >= 0.0, 1.0, -1.0)
     a = -1.0 / (sign + z)
     b = x * y * a
-    t1 = np.stack((1.0 + sign * x * x * a, sign * b, -sign * x), axis=1)
-    t2 = np.stack((b, sign + y * y * a, -y), axis=1)
-    return t1, t2
+    t = np.empty((2,) + normal.shape) if out is None else out
+    t[0, :, 0] = 1.0 + sign * x * x * a
+    t[0, :, 1] = sign * b
+    t[0, :, 2] = -sign * x
+    t[1, :, 0] = b
+    t[1, :, 1] = sign + y * y * a
+    t[1, :, 2] = -y
+    return t[0], t[1]
 
 
 GS, GROUPED, BLOCK, OVERFLOW = 0, 1, 2, 3  # batch kinds, see _Batch
@@ -205,22 +211,24 @@ class SequentialImpulseSolver:
         by a micro-radian — which would otherwise throw away its impulse and make a stack jitter.
         """
         m = len(key)
-        prev = np.full(m, -1)
         old = self._warm_keys
         if old.size == 0 or m == 0:
-            return prev
+            return np.full(m, -1)
         pair = key // FEATURE_SLOTS
         lo = np.searchsorted(old, pair * FEATURE_SLOTS, side="left")
         hi = np.searchsorted(old, (pair + 1) * FEATURE_SLOTS, side="left")
-        best = np.full(m, np.inf)
-        for j in range(int((hi - lo).max())):  # old points of one pair: a handful (≤ 4 for boxes)
-            idx = lo + j
-            ok = idx < hi
-            idx = np.minimum(idx, old.size - 1)
-            d = np.sum((point - self._warm_point[idx]) ** 2, axis=1)
-            better = ok & (d < best)
-            prev[better] = idx[better]
-            best[better] = d[better]
+        # candidates (m, c): the old points of the same pair, a handful (≤ 4 for boxes); the nearest wins,
+        # the first one on a tie
+        idx = lo[:, None] + np.arange(max(int((hi - lo).max()), 1))
+        ok = idx < hi[:, None]
+        np.minimum(idx, old.size - 1, out=idx)
+        diff = point[:, None, :] - self._warm_point.take(idx, axis=0)  # (m, c, 3)
+        d = np.add.reduce(np.square(diff, out=diff), axis=2)  # squared distances (m, c)
+        d[~(ok & (d < np.inf))] = np.inf  # not a candidate (or a non-finite point): never matched
+        nearest = np.argmin(d, axis=1)
+        rows = np.arange(m)
+        best = d[rows, nearest]
+        prev = np.where(best < np.inf, idx[rows, nearest], -1)
         # one old point, one new point: where several new points chose the same old one, the nearest keeps it
         matched = np.flatnonzero(prev >= 0)
         if matched.size:
@@ -232,7 +240,8 @@ class SequentialImpulseSolver:
 
     # ---- stage "solve contacts" ----------------------------------------------------------------------
 
-    def solve_velocities(self, model: BodyModel, state: BodyState, contacts: ContactSet, h: float) -> None:
+    def solve_velocities(self, model: BodyModel, state: BodyState, contacts: ContactSet, h: float, *,
+                         inv_inertia: np.ndarray | None = None) -> None:
         s = self.settings
         n = model.count
         m = contacts.count
@@ -245,20 +254,23 @@ class SequentialImpulseSolver:
             if m == 0:
                 return
 
-        # -- bodies, with one extra static row (index n) standing for the ground
-        R = state.rotation_matrices()
-        inv_mass = np.append(model.inv_mass, 0.0)
+        # -- bodies, with one extra static row (index n) standing for the ground (`inv_inertia` from here on is
+        #    that padded (n + 1, 3, 3) copy of the world-frame I⁻¹)
+        world_inv_inertia = state.inv_inertia_world(model) if inv_inertia is None else inv_inertia
+        inv_mass = np.zeros(n + 1)
+        inv_mass[:n] = model.inv_mass
         dynamic = inv_mass > 0.0
+        static = ~dynamic
         inv_inertia = np.zeros((n + 1, 3, 3))
-        inv_inertia[:n] = R @ model.inv_inertia_body @ np.swapaxes(R, 1, 2)
+        inv_inertia[:n] = world_inv_inertia
         V_before = np.zeros((n + 1, 6))  # velocities before this sub-step's forces (restitution)
         V_before[:n, :3] = state.linear_momentum * model.inv_mass[:, None]
         V_before[:n, 3:] = np.einsum("nij,nj->ni", inv_inertia[:n], state.angular_momentum)
         V = np.zeros((n + 1, 6))  # the velocities being solved for: from momentum + h·force ...
         V[:n, :3] = (state.linear_momentum + h * state.force) * model.inv_mass[:, None]
         V[:n, 3:] = np.einsum("nij,nj->ni", inv_inertia[:n], state.angular_momentum + h * state.torque)
-        V[~dynamic] = 0.0
-        V_before[~dynamic] = 0.0
+        V[static] = 0.0
+        V_before[static] = 0.0
 
         # -- a contact between two bodies that cannot move needs no impulse (and has no effective mass)
         a = np.where(contacts.body_a < 0, n, contacts.body_a)
@@ -280,11 +292,14 @@ class SequentialImpulseSolver:
         # groups = contacts between the same two bodies (a box-on-box manifold, a particle body's spheres on
         # the ground ...), coloured as a whole since their points share both bodies; a persisting group keeps
         # its colour
-        groups, first, group = np.unique(a * (n + 1) + b, return_index=True, return_inverse=True)
+        groups, first, group = _unique(a * (n + 1) + b)
         group_preset = np.full(len(groups), -1)
         group_preset[group[hit]] = self._warm_colour[prev[hit]]
-        group_colour = colour_contacts(a[first], b[first], dynamic, contact_priorities(groups), s.max_colours,
-                                       preset=group_preset)
+        if ((group_preset >= 0) & (group_preset < s.max_colours)).all():
+            group_colour = group_preset  # every group persists with its colour (a resting pile): nothing to do
+        else:
+            group_colour = colour_contacts(a[first], b[first], dynamic, contact_priorities(groups), s.max_colours,
+                                           preset=group_preset)
         colour = group_colour[group]
 
         # -- contact rows, in colour order, row-major: (row n / t1 / t2, contact, 12)
@@ -295,37 +310,41 @@ class SequentialImpulseSolver:
         separation = contacts.separation[order]
         mu = contacts.friction[order]
         e = contacts.restitution[order]
-        t1, t2 = tangent_basis(normal)
-        D = np.stack((normal, t1, t2))  # (3, m, 3) row directions
+        D = np.empty((3, m, 3))  # (3, m, 3) row directions n, t₁, t₂
+        D[0] = normal
+        t1, t2 = tangent_basis(normal, out=D[1:])
+        ab = np.empty((m, 2), dtype=np.intp)  # (m, 2) body rows
+        ab[:, 0] = a
+        ab[:, 1] = b
         position = np.zeros((n + 1, 3))
         position[:n] = state.position
         point = contacts.point[order]
-        ra_x_d = _cross_rows(point - position[a], D)
-        rb_x_d = _cross_rows(point - position[b], D)
+        lever = point - position[ab.T]  # (2, m, 3): r_a, r_b
+        r_x_d = _cross_rows(lever, D)  # (2, 3, m, 3): r_a × d, r_b × d
         J = np.empty((3, m, 12))  # [−d, −r_a × d, d, r_b × d]
         J[:, :, 0:3] = -D
-        J[:, :, 3:6] = -ra_x_d
+        J[:, :, 3:6] = -r_x_d[0]
         J[:, :, 6:9] = D
-        J[:, :, 9:12] = rb_x_d
+        J[:, :, 9:12] = r_x_d[1]
         MJ = np.empty((3, m, 12))  # M⁻¹ Jᵀ
         MJ[:, :, 0:3] = J[:, :, 0:3] * inv_mass[a][:, None]
         # angular parts: each row times the (symmetric) I_world⁻¹, as a batched matmul per contact
         MJ[:, :, 3:6] = np.swapaxes(np.swapaxes(J[:, :, 3:6], 0, 1) @ inv_inertia[a], 0, 1)
         MJ[:, :, 6:9] = D * inv_mass[b][:, None]
-        MJ[:, :, 9:12] = np.swapaxes(np.swapaxes(rb_x_d, 0, 1) @ inv_inertia[b], 0, 1)
+        MJ[:, :, 9:12] = np.swapaxes(np.swapaxes(r_x_d[1], 0, 1) @ inv_inertia[b], 0, 1)
         eff = 1.0 / np.einsum("rmj,rmj->rm", J, MJ)  # effective masses 1 / (J M⁻¹ Jᵀ)
         # normal-row velocity change per unit tangent impulse (Delassus cross terms J_n M⁻¹ J_tᵀ): a batch
         # update gets the normal velocity after its friction update without a second product
         w_nt = np.einsum("mj,rmj->rm", J[0], MJ[1:])
-        ab = np.stack((a, b), axis=1)  # (m, 2) body rows
-        flat_ab = (ab[:, :, None] * 6 + np.arange(6)).reshape(m, 12)  # their entries in V.ravel()
+        flat_ab = (ab[:, :, None] * 6 + _SIX).reshape(m, 12)  # their entries in V.ravel()
         vn_before = np.einsum("mj,mj->m", J[0], V_before.reshape(-1).take(flat_ab))
         bias = -np.maximum(separation, 0.0) / h  # speculative: close the gap, no more
         # restitution: a contact approaching faster than the threshold before the sub-step whose gap closes
         # within it (at the contact-free velocity) bounces: its target is −e times the approach speed
         vn_free = np.einsum("mj,mj->m", J[0], V.reshape(-1).take(flat_ab))
         bounce = (e > 0.0) & (vn_before < -s.restitution_threshold) & (separation + h * vn_free < 0.0)
-        bias[bounce] = np.maximum(bias[bounce], -e[bounce] * vn_before[bounce])
+        if bounce.any():
+            bias[bounce] = np.maximum(bias[bounce], -e[bounce] * vn_before[bounce])
 
         # -- warm start: last sub-step's impulses of the same contacts (friction re-projected and clamped)
         lam = np.zeros((3, m))
@@ -333,27 +352,40 @@ class SequentialImpulseSolver:
             p = prev[hit]
             lam[0, hit] = self._warm_normal[p]
             f = self._warm_friction[p]
-            lt = np.stack((np.einsum("mi,mi->m", f, t1[hit]), np.einsum("mi,mi->m", f, t2[hit])))
+            lt = np.empty((2, len(p)))  # (2, k) the old friction impulse along the new tangents
+            tangents = D[1:, hit]
+            np.einsum("mi,mi->m", f, tangents[0], out=lt[0])
+            np.einsum("mi,mi->m", f, tangents[1], out=lt[1])
             lt *= np.minimum(1.0, mu[hit] * lam[0, hit] / np.maximum(np.hypot(lt[0], lt[1]), 1e-300))
             lam[1:, hit] = lt
             V += _accumulate(flat_ab, np.einsum("rm,rmj->mj", lam, MJ), n)
             V[n] = 0.0
 
-        # -- batches
-        bounds = np.searchsorted(colour, np.arange(s.max_colours + 2))
+        # -- batches: one per colour present; the groups (consecutive contacts of one body pair) never straddle
+        #    two colours, so a batch is a run of whole groups
+        new_group = np.empty(m, dtype=bool)
+        new_group[0] = True
+        np.not_equal(group[1:], group[:-1], out=new_group[1:])
+        group_start = np.flatnonzero(new_group)  # (G,) first contact of each group
+        group_size = np.empty(len(group_start), dtype=np.intp)  # (G,) its number of contacts
+        group_size[:-1] = group_start[1:] - group_start[:-1]
+        group_size[-1] = m - group_start[-1]
+        group_rank = np.cumsum(new_group) - 1  # (m,) each contact's group, counted in this order
+        run_colour = colour[group_start]  # (G,) sorted
+        batch_first = np.flatnonzero(np.concatenate(([True], run_colour[1:] != run_colour[:-1])))
+        batch_groups = zip(batch_first.tolist(), batch_first[1:].tolist() + [len(group_start)])
         batches = []
-        for c in range(s.max_colours + 1):
-            lo, hi = bounds[c], bounds[c + 1]
-            if hi == lo:
-                continue
+        for g_lo, g_hi in batch_groups:  # the batch's groups g_lo .. g_hi - 1
+            lo = int(group_start[g_lo])
+            hi = int(group_start[g_hi]) if g_hi < len(group_start) else m
             sl = slice(lo, hi)
-            starts = np.flatnonzero(np.diff(group[sl], prepend=-1))  # first contact of each group
-            if c == s.max_colours:
+            starts = group_start[g_lo:g_hi] - lo  # first contact of each group, within the batch
+            if run_colour[g_lo] == s.max_colours:
                 kind = OVERFLOW
-            elif len(starts) == hi - lo:
+            elif g_hi - g_lo == hi - lo:
                 kind = GS
             else:
-                kind = BLOCK if np.diff(np.append(starts, hi - lo)).max() <= MAX_BLOCK else GROUPED
+                kind = BLOCK if group_size[g_lo:g_hi].max() <= MAX_BLOCK else GROUPED
             if kind == GS:
                 batch_eff, batch_w, flat, group_of = eff[:, sl], w_nt[:, sl], flat_ab[sl].ravel(), None
             else:
@@ -363,8 +395,7 @@ class SequentialImpulseSolver:
                          + np.einsum("rmj,rmj->rm", J[:, sl, 6:], MJ[:, sl, 6:]) * count[b[sl]])
                 batch_eff, batch_w = 1.0 / split, np.zeros((2, hi - lo))  # Jacobi: no coupling inside either
                 if kind in (GROUPED, BLOCK):
-                    flat, group_of = flat_ab[sl][starts].ravel(), np.repeat(np.arange(len(starts)),
-                                                                            np.diff(np.append(starts, hi - lo)))
+                    flat, group_of = flat_ab[sl][starts].ravel(), group_rank[sl] - g_lo
                 else:
                     flat, group_of = flat_ab[sl].ravel(), None
             batches.append(_Batch(kind, sl, ab[sl], flat, group_of, starts, J[:, sl], MJ[:, sl], batch_eff,
@@ -409,9 +440,9 @@ class SequentialImpulseSolver:
         # -- impulses → momenta (equal and opposite at the same point)
         impulse = _accumulate(flat_ab, np.einsum("rm,rmj->mj", lam, J), n)
         if s.rolling_resistance > 0.0:
-            impulse[:, 3:] += resist_rolling(V, a, b, normal, point - position[a], point - position[b], lam[0],
-                                             inv_inertia, dynamic, s.rolling_resistance)
-        impulse[~dynamic] = 0.0
+            impulse[:, 3:] += resist_rolling(V, a, b, normal, lever[0], lever[1], lam[0], inv_inertia, dynamic,
+                                             s.rolling_resistance)
+        impulse[static] = 0.0
         state.linear_momentum += impulse[:n, :3]
         state.angular_momentum += impulse[:n, 3:]
 
@@ -495,7 +526,7 @@ def _solve_batch(Vf: np.ndarray, bt: _Batch) -> float:
     lam[1] = t1
     lam[2] = t2
     bt.scatter(Vf, Vab, Vg, np.einsum("rk,rkj->kj", delta, bt.MJ))
-    return float(np.max(np.abs(delta) / eff, initial=0.0))
+    return float((np.abs(delta) / eff).max(initial=0.0))
 
 
 def _solve_block_batch(Vf: np.ndarray, bt: _Batch) -> None:
@@ -516,7 +547,7 @@ def _solve_block_batch(Vf: np.ndarray, bt: _Batch) -> None:
     lam[1] = t1
     lam[2] = t2
     Vf[bt.flat] = Vg.ravel()
-    return float(np.max(np.abs(delta) / eff, initial=0.0))
+    return float((np.abs(delta) / eff).max(initial=0.0))
 
 
 def _solve_normal_rows(Vf, bt: _Batch, Jn, MJn, eff_n, lam_n, target, lower=0.0) -> None:
@@ -557,7 +588,7 @@ def resist_rolling(V: np.ndarray, a: np.ndarray, b: np.ndarray, normal: np.ndarr
     """
     n1 = V.shape[0]
     w_t = V[b, 3:] - V[a, 3:]
-    speed = np.linalg.norm(w_t, axis=1)
+    speed = norms(w_t)
     rolling = (speed > 1e-12) & (normal_impulse > 0.0)
     if not rolling.any():
         return np.zeros((n1, 3))
@@ -577,13 +608,28 @@ def resist_rolling(V: np.ndarray, a: np.ndarray, b: np.ndarray, normal: np.ndarr
 
 
 def _cross_rows(r: np.ndarray, D: np.ndarray) -> np.ndarray:
-    """``r[m] × D[k, m]`` for ``r (m, 3)`` and row directions ``D (3, m, 3)`` (np.cross costs more here)."""
-    x, y, z = r[:, 0], r[:, 1], r[:, 2]
-    out = np.empty_like(D)
-    out[:, :, 0] = y * D[:, :, 2] - z * D[:, :, 1]
-    out[:, :, 1] = z * D[:, :, 0] - x * D[:, :, 2]
-    out[:, :, 2] = x * D[:, :, 1] - y * D[:, :, 0]
+    """``r[s, m] × D[k, m]`` for levers ``r (2, m, 3)`` (both sides of each contact) and row directions
+    ``D (3, m, 3)``: ``(2, 3, m, 3)`` (np.cross costs more here)."""
+    x, y, z = r[:, None, :, 0], r[:, None, :, 1], r[:, None, :, 2]  # (2, 1, m)
+    out = np.empty((len(r),) + D.shape)
+    out[..., 0] = y * D[:, :, 2] - z * D[:, :, 1]
+    out[..., 1] = z * D[:, :, 0] - x * D[:, :, 2]
+    out[..., 2] = x * D[:, :, 1] - y * D[:, :, 0]
     return out
+
+
+def _unique(values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``np.unique(values, return_index=True, return_inverse=True)`` for a 1-d integer array (m ≥ 1): the sorted
+    distinct values, the index of each one's first occurrence, and each entry's index among them — the same
+    stable sort, without np.unique's overhead (it dominates at the few dozen contacts of a sub-step)."""
+    order = np.argsort(values, kind="stable")
+    ordered = values[order]
+    new = np.empty(len(values), dtype=bool)
+    new[0] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
+    inverse = np.empty(len(values), dtype=np.intp)
+    inverse[order] = np.cumsum(new) - 1
+    return ordered[new], order[new], inverse
 
 
 def _accumulate(flat_ab: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
