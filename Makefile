@@ -52,6 +52,8 @@ run: setup
 test: setup
 	@$(VPY) -m pytest tests
 
+# The soak test (tests/test_soak.py) runs CGP_SIM_SOAK_SECONDS of wall time (default 900); it is read from the
+# environment: `CGP_SIM_SOAK_SECONDS=60 make soak` or `make soak CGP_SIM_SOAK_SECONDS=60`.
 soak: setup
 	@$(VPY) -m pytest tests -m soak --run-soak
 

@@ -259,7 +259,12 @@ class BagWriter:
             raise ValueError("custom_data must map str to str")
 
         self.path = Path(path)
-        if self.path.exists() and (not self.path.is_dir() or any(self.path.iterdir())):
+        try:
+            occupied = self.path.exists() and (not self.path.is_dir() or any(self.path.iterdir()))
+            path_error = None
+        except OSError as exc:  # e.g. a name longer than NAME_MAX: an I/O error like any other (below)
+            occupied, path_error = False, exc
+        if occupied:
             raise BagExistsError(f"bag directory {str(self.path)!r} already exists and is not empty (or is not "
                                  f"a directory); refusing to overwrite a bag (choose a new directory)")
         self._name = self.path.resolve().name or "bag"
@@ -309,6 +314,8 @@ class BagWriter:
         self._thread: threading.Thread | None = None
 
         try:
+            if path_error is not None:
+                raise path_error
             self.path.mkdir(parents=True, exist_ok=True)
             self._open_file()
             self._write_metadata_yaml(sync=True)

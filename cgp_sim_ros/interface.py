@@ -87,6 +87,9 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "world.substeps).", read_only=True, minimum=0, maximum=1000, flag="--substeps"),
     ParameterSpec("realtime", True, "true: ticks paced to the wall clock; false: as fast as possible (same "
                   "results, same dt).", flag="--realtime"),
+    ParameterSpec("start_paused", False, "Start paused (time stopped, nothing published yet) until ~/pause "
+                  "is called with data: false, or ~/step steps it: other nodes can connect before the first tick.",
+                  read_only=True, flag="--start-paused"),
     ParameterSpec("duration", 0.0, "Simulated seconds to run before the node exits by itself; 0 = until "
                   "shutdown.", minimum=0.0, flag="--duration"),
     ParameterSpec("bag", "", "Directory to record an MCAP bag into (must not exist yet); empty = no recording.",

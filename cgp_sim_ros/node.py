@@ -19,8 +19,10 @@ Bad input (what a node on a shared graph must expect):
 - parameters: checked at start-up (a :class:`ConfigError`: ``cgp-sim`` exits with status 2 and the reason)
   and at run time (the parameter callback refuses the change with the reason); an override of a parameter
   the node does not have is warned about (a typo), not fatal (parameter files may address many nodes).
-- recording: an existing, non-empty bag directory is a :class:`ConfigError`; an I/O error while recording
-  (unwritable location, disk full) is logged and the simulation and publishing go on.
+- recording: the bag path is resolved once (``~``, symlinks, ``..``) and nothing is written outside that
+  directory; an existing, non-empty bag directory is a :class:`ConfigError`; a location that cannot be
+  written (beneath a regular file, a name too long, disk full...) is logged once with the path and the reason,
+  and the simulation and publishing go on without recording.
 """
 
 from __future__ import annotations
@@ -82,13 +84,20 @@ class SimNode(Node):
         if unknown:
             self.get_logger().warn(f"ignoring unknown parameter(s) {', '.join(unknown)}; cgp_sim's parameters "
                                    f"are {', '.join(p.name for p in itf.PARAMETERS)}")
-        bag = self.params["bag"]
-        if bag:
+        #: the bag directory, resolved once (``~``, symlinks and ``..`` as the OS resolves them): the recording
+        #: writes inside it and nowhere else (a lexical ``a/new/../bag`` would make ``mkdir -p`` create ``a/new``)
+        self.bag_path = _resolve_bag_path(self.params["bag"]) if self.params["bag"] else None
+        if self.bag_path is not None:
             # Checked before anything is built or published: recording into an old bag would mix two runs.
-            bag_path = Path(bag).expanduser()
-            if bag_path.exists() and (not bag_path.is_dir() or any(bag_path.iterdir())):
-                raise ConfigError(f"bag: {str(bag_path)!r} already exists and is "
-                                  f"{'not empty' if bag_path.is_dir() else 'not a directory'}; choose a new "
+            # A path that cannot even be examined (a name longer than NAME_MAX...) is not a configuration error
+            # here: the recorder reports it as it reports any unwritable location, and the simulation goes on.
+            try:
+                occupied = self.bag_path.exists() and (not self.bag_path.is_dir() or any(self.bag_path.iterdir()))
+            except OSError:
+                occupied = False
+            if occupied:
+                raise ConfigError(f"bag: {str(self.bag_path)!r} already exists and is "
+                                  f"{'not empty' if self.bag_path.is_dir() else 'not a directory'}; choose a new "
                                   "directory (a bag is never overwritten)")
 
         seed = self.params["seed"]
@@ -100,7 +109,7 @@ class SimNode(Node):
             raise ConfigError(f"scene: {exc}") from None
 
         self.messages = TickMessages(self.world, itf.WORLD_FRAME)
-        self.paused = False
+        self.paused = bool(self.params["start_paused"])
         self._pending: collections.deque = collections.deque()
         self._dropped_commands = 0
         self._rejections: collections.Counter = collections.Counter()
@@ -114,8 +123,8 @@ class SimNode(Node):
         self._make_services()
 
         self.recorder = None
-        if self.params["bag"]:
-            self._start_recording(self.params["bag"])
+        if self.bag_path is not None:
+            self._start_recording(self.bag_path)
 
         self._tick_wall_times: collections.deque = collections.deque(maxlen=512)
         self._window_start = time.monotonic()
@@ -132,7 +141,9 @@ class SimNode(Node):
             f"scene {self.world.scene.source}: {counts}; {self.params['rate_hz']:g} Hz × {self.world.substeps} "
             f"substeps, integrator {self.world.scene.world.integrator}, "
             f"{'real time' if self.params['realtime'] else 'as fast as possible'}"
-            + (f", recording to {self.recorder.directory}" if self.recorder else ""))
+            + ("" if self.recorder is None else f", recording to {self.recorder.directory}"
+               if self.recorder.recording else f", NOT recording (the bag {str(self.bag_path)!r} cannot be "
+               "written: see the error above)"))
 
     # ---- set-up -----------------------------------------------------------------------------------------
 
@@ -213,12 +224,12 @@ class SimNode(Node):
         self.create_service(Trigger, itf.SERVICE_STEP, self._on_step)
         self.create_service(Trigger, itf.SERVICE_CLEAR_WRENCHES, self._on_clear_wrenches)
 
-    def _start_recording(self, directory: str) -> None:
+    def _start_recording(self, directory: Path) -> None:
         from .bag import BagExistsError
         from .recorder import Recorder
 
         try:
-            self.recorder = Recorder(self, Path(directory).expanduser(),
+            self.recorder = Recorder(self, directory,
                                      max_bytes=self.params["bag_max_size"],
                                      max_duration_s=self.params["bag_max_duration"])
         except BagExistsError as exc:  # created between the check in __init__ and now
@@ -472,6 +483,15 @@ class SimNode(Node):
         """Finish the recording (summary, metadata.yaml); safe to call twice."""
         if self.recorder is not None:
             self.recorder.close()
+
+
+def _resolve_bag_path(text: str) -> Path:
+    """The absolute bag directory ``text`` names, resolved as the OS resolves it (``~``, symlinks, ``..``)."""
+    path = Path(text).expanduser()
+    try:
+        return path.resolve()
+    except (OSError, RuntimeError):  # a symlink loop, ...: left for the recorder to report
+        return path.absolute()
 
 
 def _constraints(spec: itf.ParameterSpec) -> str:

@@ -38,6 +38,11 @@ class Recorder:
     def write(self, topic: str, data: bytes, stamp_ns: int) -> None:
         self.writer.write(topic, data, stamp_ns, stamp_ns)
 
+    @property
+    def recording(self) -> bool:
+        """False once the bag cannot be written (see :attr:`BagWriter.error`)."""
+        return self.writer.error is None
+
     def report_errors(self) -> None:
         """Log the writer's first error once (disk full, unwritable directory...); the simulation goes on."""
         if self.writer.error and not self._error_reported:
@@ -49,7 +54,10 @@ class Recorder:
         self.report_errors()
 
     def summary_text(self) -> str:
-        files = ", ".join(p.name for p in self.writer.files) or "(none)"
+        if not self.writer.files:  # the directory or its first file could not be created
+            return (f"cgp-sim: no bag recorded ({self.writer.dropped_messages} messages not recorded): "
+                    f"{self.writer.error}")
+        files = ", ".join(p.name for p in self.writer.files)
         lines = [f"cgp-sim: bag in {self.directory} ({files}; {self.writer.committed_messages} messages"
                  + (f", {self.writer.dropped_messages} dropped" if self.writer.dropped_messages else "") + ")"]
         if self.writer.error:

@@ -56,8 +56,10 @@ def test_bag_of_a_run_is_what_a_live_subscriber_saw(start_node, probe, tmp_path)
 
     bag = tmp_path / "run"
     live = probe.subscribe("/cgp_sim/bodies/poses", PoseArray)
-    node = start_node("--scene", "zero_g", "--duration", "2.0", "--bag", str(bag))
-    probe.wait_for_messages("/cgp_sim/bodies/poses", 10, timeout=30)
+    # started paused, so that the probe has discovered everything before the first of the 120 ticks
+    node = start_node("--scene", "zero_g", "--duration", "2.0", "--bag", str(bag), "--start-paused", "true")
+    probe.spin_until(lambda: probe.node.count_publishers("/cgp_sim/bodies/poses") > 0
+                     and probe.node.count_subscribers("/cgp_sim/apply_wrench") > 0, 30, "the node's endpoints")
     command = ApplyWrench(body="box")
     command.wrench.force.x = 3.0
     command.point.z = 2.0

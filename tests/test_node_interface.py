@@ -344,3 +344,20 @@ def test_not_realtime_with_duration_ends_by_itself(start_node, probe, tmp_path):
     assert np.all(np.diff(seconds) > 0)
     if clock.messages:
         assert stamp(clock.messages[-1]) <= 2.0 + 1e-6
+
+
+def test_start_paused_holds_time_until_resumed(start_node, probe):
+    """`--start-paused true`: no tick (no /clock) until ~/pause data: false; the first tick is t = dt."""
+    clock = probe.subscribe("/clock", Clock)
+    start_node("--scene", "zero_g", "--start-paused", "true")
+    probe.spin_until(lambda: probe.node.count_publishers("/clock") > 0, 30, "the node's /clock publisher")
+    probe.client(SetBool, "/cgp_sim/pause")  # its service is up: the node is spinning, paused
+    probe.spin_for(0.5)
+    assert not clock.messages
+    pause(probe, False)
+    probe.spin_until(lambda: len(clock.messages) >= 30, 10, "the clock running")
+    stamps = [stamp(m) for m in clock.messages]
+    # time stood still for the ≥ 0.5 s it was held (the first tick is t = dt; should discovery lose the first
+    # few messages, the first one seen is still far below 0.5 s)
+    assert stamps[0] < 0.25 and round(stamps[0] / DT) * DT == pytest.approx(stamps[0], abs=2e-9)
+    assert np.allclose(np.diff(stamps), DT, atol=2e-9)
