@@ -435,7 +435,7 @@ def run(quick: bool = False, warmup: int | None = None, ticks: int | None = None
                    "ms", f"<= {TARGET_MS:.1f} (reference)", moving_ms <= TARGET_MS)
     out.figure("tick_15k_p90", "full tick 15k + 20 bodies, p90", main_row["tick_ms_p90"], "ms",
                f"<= {TARGET_MS:.1f} (reference)", main_row["tick_ms_p90"] <= TARGET_MS)
-    out.figure("tick_15k_world_step", "  of which World.step: 20 bodies x 4 substeps", 
+    out.figure("tick_15k_world_step", "  of which World.step: 20 bodies (settled: asleep)", 
                split["  rigid bodies (substeps) + obstacle set"], "ms", "(split)", None)
     out.figure("tick_15k_flock_step", "  of which World.step: flock (15k, avoiding bodies)",
                split["  flock step"], "ms", "(split)", None)

@@ -43,7 +43,7 @@ EXTRAS = {"bag": "bench_bag.py", "integrators": "bench_integrators.py"}
 
 #: issue 7's figures, in the issue's order: (id, the benchmark that measures it, the issue's wording)
 ISSUE7 = [
-    ("tick_15k_median", "tick", "full tick at 15,000 boids + 20 bodies: step + all publishing + bag, median"),
+    ("tick_15k_median", "tick", "full tick at 15,000 boids + 20 bodies (settled): step + all publishing + bag, median"),
     ("boids_100k", "boids", "boids step at 100,000 boids"),
     ("boids_scaling_100k_10k", "boids", "boids step cost(100k) / cost(10k)"),
     ("boids_naive_ratio_4k", "boids", "vs a naive O(N²) numpy boids step at 4,000 boids"),
