@@ -55,7 +55,7 @@ test: setup
 # The soak test (tests/test_soak.py) runs CGP_SIM_SOAK_SECONDS of wall time (default 900); it is read from the
 # environment: `CGP_SIM_SOAK_SECONDS=60 make soak` or `make soak CGP_SIM_SOAK_SECONDS=60`.
 soak: setup
-	@$(VPY) -m pytest tests -m soak --run-soak
+	@$(VPY) -m pytest tests -m soak --run-soak -rA  # -rA: show the figures the soak test prints
 
 bench: setup
 	@$(PIP) -r requirements/bench.txt 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)

@@ -134,3 +134,35 @@ def step(probe: Probe, node: str = "/cgp_sim"):
     response = probe.call(Trigger, f"{node}/step", Trigger.Request(), idempotent=False)
     assert response.success, response.message
     return response
+
+
+class PeerProcess:
+    """Another ROS process a test starts (a command flooder, a reader that stalls...): ``python -c code args``
+    with its output in ``log_path``, which the test polls for the marker lines the code prints."""
+
+    def __init__(self, code: str, args, log_path):
+        import subprocess
+        import sys
+
+        self._log = open(log_path, "w+")
+        self.proc = subprocess.Popen([sys.executable, "-c", code, *map(str, args)], stdout=self._log,
+                                     stderr=subprocess.STDOUT)
+
+    def output(self) -> str:
+        self._log.seek(0)
+        return self._log.read()
+
+    def printed(self, marker: str) -> bool:
+        return marker in self.output()
+
+    def stop(self) -> str:
+        """Kill it if it still runs (resuming it first if it was stopped); returns its output."""
+        import signal
+
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGCONT)
+            self.proc.kill()
+        self.proc.wait()
+        output = self.output()
+        self._log.close()
+        return output

@@ -361,3 +361,25 @@ def test_start_paused_holds_time_until_resumed(start_node, probe):
     # few messages, the first one seen is still far below 0.5 s)
     assert stamps[0] < 0.25 and round(stamps[0] / DT) * DT == pytest.approx(stamps[0], abs=2e-9)
     assert np.allclose(np.diff(stamps), DT, atol=2e-9)
+
+
+def test_names_are_relative_so_namespace_node_name_and_remaps_apply(start_node, probe):
+    """`__ns`, `__node` and a topic remap move every name: the interface is all relative names."""
+    start_node("--scene", "zero_g", "--ros-args", "-r", "__ns:=/lab", "-r", "__node:=sim2",
+               "-r", "/lab/sim2/markers:=/viz/markers")
+    expected = {
+        "/lab/sim2/bodies/poses": "geometry_msgs/msg/PoseArray",
+        "/lab/sim2/bodies/box/odom": "nav_msgs/msg/Odometry",
+        "/lab/sim2/flocks/birds/poses": "geometry_msgs/msg/PoseArray",
+        "/lab/sim2/apply_wrench": "cgp_sim_msgs/msg/ApplyWrench",
+        "/lab/sim2/bodies/box/wrench": "geometry_msgs/msg/WrenchStamped",
+        "/viz/markers": "visualization_msgs/msg/MarkerArray",
+        "/clock": "rosgraph_msgs/msg/Clock",
+    }
+    probe.spin_until(lambda: all(t in probe.topic_types() for t in expected), 30,
+                     f"the namespaced topics (have: {sorted(probe.topic_types())})")
+    types = probe.topic_types()
+    assert {t: types[t] for t in expected} == {t: [k] for t, k in expected.items()}
+    assert not any(t.startswith("/cgp_sim") or t == "/lab/sim2/markers" for t in types), sorted(types)
+    response = probe.call(SetBool, "/lab/sim2/pause", SetBool.Request(data=True))
+    assert response.success and response.message.startswith("paused")

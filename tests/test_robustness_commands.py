@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import math
 import re
-import subprocess
-import sys
 import textwrap
 import time
 
@@ -28,7 +26,7 @@ from rcl_interfaces.srv import GetParameters, SetParameters, SetParametersAtomic
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
-from ros_probe import pause, step
+from ros_probe import PeerProcess, pause, step
 
 from cgp_core.bodies import BodyState
 from cgp_core.forces import apply_force_at_point, apply_torque
@@ -407,30 +405,19 @@ def test_command_flood_from_another_process_keeps_the_tick_and_memory_bounded(st
     poses = probe.subscribe("/cgp_sim/bodies/poses", PoseArray)
     probe.wait_for_messages("/clock", 30, timeout=30)
     process = psutil.Process(node.proc.pid)
-    flood_log = open(tmp_path / "flooder.log", "w+")
-    flooder = subprocess.Popen([sys.executable, "-c", FLOODER, str(rate_per_s), str(seconds)], stdout=flood_log,
-                               stderr=subprocess.STDOUT)
+    flooder = PeerProcess(FLOODER, (rate_per_s, seconds), tmp_path / "flooder.log")
     try:
-        def flood_started() -> bool:
-            flood_log.seek(0)
-            return "FLOOD START" in flood_log.read()
-
-        probe.spin_until(flood_started, 30, "the flood to start")
+        probe.spin_until(lambda: flooder.printed("FLOOD START"), 30, "the flood to start")
         flood_start = time.monotonic()
         rss = []  # (seconds into the flood, bytes)
-        while flooder.poll() is None:
+        while flooder.proc.poll() is None:
             probe.spin_for(0.25)
             rss.append((time.monotonic() - flood_start, process.memory_info().rss))
             assert time.monotonic() - flood_start < 60, "the flooder did not finish"
         flood_end = time.monotonic()
-        flood_log.seek(0)
-        flood_output = flood_log.read()
-        assert flooder.returncode == 0, flood_output
     finally:
-        if flooder.poll() is None:
-            flooder.kill()
-        flooder.wait()
-        flood_log.close()
+        flood_output = flooder.stop()
+    assert flooder.proc.returncode == 0, flood_output
     sent = int(re.search(r"FLOOD SENT (\d+)", flood_output).group(1))
     assert sent >= 0.9 * rate_per_s * seconds, flood_output
 

@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import json
 import signal
-import subprocess
-import sys
 import textwrap
 import time
 
@@ -21,7 +19,7 @@ from geometry_msgs.msg import PoseArray
 from mcap.reader import make_reader
 from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
-from ros_probe import pause, step
+from ros_probe import PeerProcess, pause, step
 from test_node_bag import read_bag
 from test_robustness_commands import achieved_rates_reported, assert_clock_advances_by_dt, stamp_ns
 
@@ -142,21 +140,16 @@ def test_a_subscriber_that_never_reads_does_not_slow_the_tick(start_node, probe,
     baseline = clock_rate(clock, t0, time.monotonic())
 
     topics = ["/cgp_sim/flocks/school/poses", "/cgp_sim/markers", "/cgp_sim/bodies/poses"]
-    reader_log = open(tmp_path / "stalled_reader.log", "w+")
-    reader = subprocess.Popen([sys.executable, "-c", STALLED_READER, *topics], stdout=reader_log,
-                              stderr=subprocess.STDOUT)
+    reader = PeerProcess(STALLED_READER, topics, tmp_path / "stalled_reader.log")
     try:
-        def stalled() -> bool:
-            reader_log.seek(0)
-            return "STALLED" in reader_log.read()
-
-        probe.spin_until(stalled, 30, "the other process's reader to receive its first message and stall")
+        probe.spin_until(lambda: reader.printed("STALLED"), 30,
+                         "the other process's reader to receive its first message and stall")
         probe.spin_until(lambda: all(probe.node.count_subscribers(t) >= 2 for t in topics), 10,
                          "the stalled reader's subscriptions in the graph")
         rates, rss = {}, []
         for phase in ("blocked callback", "stopped process"):
             if phase == "stopped process":
-                reader.send_signal(signal.SIGSTOP)
+                reader.proc.send_signal(signal.SIGSTOP)
             start = time.monotonic()
             flock_before = len(flock.messages)
             while time.monotonic() - start < 4.0:
@@ -167,13 +160,9 @@ def test_a_subscriber_that_never_reads_does_not_slow_the_tick(start_node, probe,
             received = len(flock.messages) - flock_before
             assert received >= 0.7 * RATE_HZ * (end - start), \
                 f"{phase}: the probe got only {received} flock messages in {end - start:.1f} s"
-            assert reader.poll() is None, "the stalled reader died: nothing was tested"
+            assert reader.proc.poll() is None, "the stalled reader died: nothing was tested"
     finally:
-        if reader.poll() is None:
-            reader.send_signal(signal.SIGCONT)
-            reader.kill()
-        reader.wait()
-        reader_log.close()
+        reader.stop()
 
     log = node.log()
     print(f"slow consumer: {baseline:.1f} ticks/s before, "
