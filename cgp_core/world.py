@@ -153,11 +153,12 @@ class World:
 
     def _contain_blowups(self) -> None:
         model, state = self.body_model, self.body_state
-        v = state.linear_velocity(model)
-        w = state.angular_velocity(model)
         finite = (np.isfinite(state.position).all(1) & np.isfinite(state.orientation).all(1)
                   & np.isfinite(state.linear_momentum).all(1) & np.isfinite(state.angular_momentum).all(1))
-        with np.errstate(invalid="ignore"):
+        # a blown-up body's speeds overflow or are NaN here: that is what this check is for, not a warning
+        with np.errstate(over="ignore", invalid="ignore"):
+            v = state.linear_velocity(model)
+            w = state.angular_velocity(model)
             sane = finite & (np.linalg.norm(v, axis=1) < BLOWUP_SPEED) & (np.linalg.norm(w, axis=1) < BLOWUP_SPIN)
         bad = np.flatnonzero(~sane)
         if bad.size == 0:

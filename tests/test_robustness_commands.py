@@ -10,6 +10,7 @@ rest where it started, which is how "rejected, not applied" is observed from out
 
 from __future__ import annotations
 
+import json
 import math
 import re
 import textwrap
@@ -563,3 +564,46 @@ def test_invalid_startup_configuration_exits_2_with_the_reason(start_node, probe
     assert "ignoring unknown parameter(s) rate_hzz" in typo.log()
     probe.spin_for(0.2)
     assert all(not box.messages for box in watched), "a node that refused its configuration published"
+
+
+# ---- node: numerical blow-up ----------------------------------------------------------------------------
+
+
+def test_an_extreme_accepted_force_blows_up_one_body_which_is_reset_and_the_rest_goes_on(start_node, probe):
+    """With the force limit lifted (`max_force` 1e308), a 1e308 N command is accepted and drives the box to
+    ~1e305 m/s in one sub-step.  The world contains it: the box is put back at its initial pose, at rest, with an
+    error naming it (log and ~/events); the spinner never notices; no non-finite number is published; the
+    clock keeps its dt."""
+    from cgp_sim_msgs.msg import ApplyWrench
+
+    node = start_node("--scene", "zero_g", "--max-force", "1e308")
+    clock = probe.subscribe("/clock", Clock)
+    box = probe.subscribe("/cgp_sim/bodies/box/odom", Odometry)
+    spinner = probe.subscribe("/cgp_sim/bodies/spinner/odom", Odometry)
+    events = probe.subscribe("/cgp_sim/events", String)
+    apply = probe.publisher("/cgp_sim/apply_wrench", ApplyWrench)
+    probe.wait_for_subscriber(apply)
+    probe.wait_for_messages("/cgp_sim/bodies/box/odom", 5, timeout=30)
+    initial = odom_array(box.messages[-1])[:7]
+
+    apply.publish(apply_wrench_msg(force=(1e308, 0.0, 0.0)))
+
+    def blown_up() -> bool:
+        return any("numerical blow-up of box" in m.data for m in events.messages)
+
+    probe.spin_until(blown_up, 20, "the blow-up event")
+    after = len(box.messages)
+    probe.spin_until(lambda: len(box.messages) >= after + 10, 10, "odometry after the blow-up")
+    log = node.log()
+    assert "[ERROR]" in log and "numerical blow-up of box" in log and "reset to its initial pose" in log, log
+    event = next(json.loads(m.data) for m in events.messages if "numerical blow-up of box" in m.data)
+    assert event["event"] == "world" and event["level"] == "error"
+    # the box is back where it started, at rest; nothing non-finite was ever published
+    np.testing.assert_allclose(odom_array(box.messages[-1])[:7], initial, atol=1e-12)
+    assert np.allclose(odom_array(box.messages[-1])[7:], 0.0)
+    assert all(np.isfinite(odom_array(m)).all() for m in box.messages + spinner.messages)
+    assert "Traceback" not in log and "RuntimeWarning" not in log, log
+    # the spinner turned on at π rad/s throughout, and the clock kept its dt
+    assert all(odom_array(m)[12] == pytest.approx(math.pi, rel=1e-9) for m in spinner.messages)
+    assert_clock_advances_by_dt(clock.messages, min_count=10)
+    assert node.alive()
