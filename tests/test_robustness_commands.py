@@ -79,6 +79,23 @@ def odom_array(msg) -> np.ndarray:
                      p.orientation.w, t.linear.x, t.linear.y, t.linear.z, t.angular.x, t.angular.y, t.angular.z])
 
 
+def watch_zero_g(probe):
+    """What the zero_g tests watch: /clock, both bodies' odometry and ~/events, and the ~/apply_wrench
+    publisher (returned once the node listens on it, with the box's odometry flowing)."""
+    from types import SimpleNamespace
+
+    from cgp_sim_msgs.msg import ApplyWrench
+
+    watched = SimpleNamespace(
+        clock=probe.subscribe("/clock", Clock),
+        box=probe.subscribe("/cgp_sim/bodies/box/odom", Odometry),
+        spinner=probe.subscribe("/cgp_sim/bodies/spinner/odom", Odometry),
+        events=probe.subscribe("/cgp_sim/events", String),
+        apply=probe.publisher("/cgp_sim/apply_wrench", ApplyWrench))
+    probe.wait_for_subscriber(watched.apply)
+    return watched
+
+
 def assert_clock_advances_by_dt(clock_messages, min_count: int) -> None:
     """Simulated time only moves forward, in whole ticks of dt (a probe may miss a /clock message, never see
     a stamp off the dt grid)."""
@@ -265,17 +282,11 @@ def test_wrench_schedule_is_bounded_and_long_durations_do_not_overflow():
 
 
 def test_bad_commands_are_rejected_naming_the_field_and_nothing_is_lost(zero_g, probe):
-    from cgp_sim_msgs.msg import ApplyWrench
-
-    clock = probe.subscribe("/clock", Clock)
-    box = probe.subscribe("/cgp_sim/bodies/box/odom", Odometry)
-    spinner = probe.subscribe("/cgp_sim/bodies/spinner/odom", Odometry)
     poses = probe.subscribe("/cgp_sim/bodies/poses", PoseArray)
     birds = probe.subscribe("/cgp_sim/flocks/birds/poses", PoseArray)
-    events = probe.subscribe("/cgp_sim/events", String)
-    apply = probe.publisher("/cgp_sim/apply_wrench", ApplyWrench)
     box_wrench = probe.publisher("/cgp_sim/bodies/box/wrench", WrenchStamped)
-    probe.wait_for_subscriber(apply)
+    watched = watch_zero_g(probe)
+    clock, box, spinner, events, apply = watched.clock, watched.box, watched.spinner, watched.events, watched.apply
     probe.wait_for_subscriber(box_wrench)
     probe.wait_for_messages("/cgp_sim/bodies/box/odom", 5, timeout=30)
     start = time.monotonic()
@@ -574,15 +585,9 @@ def test_an_extreme_accepted_force_blows_up_one_body_which_is_reset_and_the_rest
     ~1e305 m/s in one sub-step.  The world contains it: the box is put back at its initial pose, at rest, with an
     error naming it (log and ~/events); the spinner never notices; no non-finite number is published; the
     clock keeps its dt."""
-    from cgp_sim_msgs.msg import ApplyWrench
-
     node = start_node("--scene", "zero_g", "--max-force", "1e308")
-    clock = probe.subscribe("/clock", Clock)
-    box = probe.subscribe("/cgp_sim/bodies/box/odom", Odometry)
-    spinner = probe.subscribe("/cgp_sim/bodies/spinner/odom", Odometry)
-    events = probe.subscribe("/cgp_sim/events", String)
-    apply = probe.publisher("/cgp_sim/apply_wrench", ApplyWrench)
-    probe.wait_for_subscriber(apply)
+    watched = watch_zero_g(probe)
+    clock, box, spinner, events, apply = watched.clock, watched.box, watched.spinner, watched.events, watched.apply
     probe.wait_for_messages("/cgp_sim/bodies/box/odom", 5, timeout=30)
     initial = odom_array(box.messages[-1])[:7]
 
