@@ -153,6 +153,7 @@ def test_force_at_com_and_at_offset_point(zero_g, probe):
     odom = probe.subscribe("/cgp_sim/bodies/box/odom", Odometry)
     pub = probe.publisher("/cgp_sim/apply_wrench", ApplyWrench)
     probe.wait_for_subscriber(pub)
+    probe.wait_for_messages("/cgp_sim/bodies/box/odom", 1)  # receiving before pausing: a paused node publishes nothing
     pause(probe, True)
 
     # A force at the COM for 0.5 s (30 ticks): a = F/m, so |v| = F · 0.5 / m.
@@ -188,6 +189,7 @@ def test_duration_semantics_and_clear(zero_g, probe):
     odom = probe.subscribe("/cgp_sim/bodies/box/odom", Odometry)
     pub = probe.publisher("/cgp_sim/apply_wrench", ApplyWrench)
     probe.wait_for_subscriber(pub)
+    probe.wait_for_messages("/cgp_sim/bodies/box/odom", 1)  # receiving before pausing: a paused node publishes nothing
     pause(probe, True)
     force = 4.0
 
@@ -239,6 +241,7 @@ def test_body_frame_wrench_turns_with_the_body(zero_g, probe):
     odom = probe.subscribe("/cgp_sim/bodies/spinner/odom", Odometry)
     pub = probe.publisher("/cgp_sim/apply_wrench", ApplyWrench)
     probe.wait_for_subscriber(pub)
+    probe.wait_for_messages("/cgp_sim/bodies/spinner/odom", 1)  # receiving before pausing: a paused node publishes nothing
     pause(probe, True)
     msg = apply_wrench("spinner", force=(1.0, 0.0, 0.0), frame="spinner", duration=2.0)
     first = send_until_applied(probe, pub, msg, odom, lambda o: np.linalg.norm(vec(o.twist.twist.linear)) > 0)
@@ -256,6 +259,7 @@ def test_body_wrench_topic_for_one_tick(zero_g, probe):
     odom = probe.subscribe("/cgp_sim/bodies/box/odom", Odometry)
     pub = probe.publisher("/cgp_sim/bodies/box/wrench", WrenchStamped)
     probe.wait_for_subscriber(pub)
+    probe.wait_for_messages("/cgp_sim/bodies/box/odom", 1)  # receiving before pausing: a paused node publishes nothing
     pause(probe, True)
     msg = WrenchStamped()
     msg.header.frame_id = "world"

@@ -472,8 +472,9 @@ def test_pending_commands_and_active_wrenches_are_bounded(zero_g, probe):
     events = probe.subscribe("/cgp_sim/events", String)
     pub = probe.publisher("/cgp_sim/bodies/box/wrench", WrenchStamped)
     probe.wait_for_subscriber(pub)
-    pause(probe, True)
+    # odometry first, then pause: a paused node publishes nothing, so the probe must be receiving already
     probe.wait_for_messages("/cgp_sim/bodies/box/odom", 1)
+    pause(probe, True)
     force = 1e-3
     msg = wrench_stamped(force=(force, 0, 0))
     for i in range(4000):  # ~8,000 / s: the idle node takes them as they come
