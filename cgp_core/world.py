@@ -125,8 +125,7 @@ class World:
                     step_bodies(model, state, self.integrator, self.solver, h, gravity=self.gravity,
                                 ground=self.ground, linear_damping=self.scene.world.linear_damping,
                                 angular_damping=self.scene.world.angular_damping)
-            self._contain_blowups()
-            self._update_sleep()
+            self._update_sleep(*self._contain_blowups())
         if self.flocks:
             obstacles = Obstacles.from_bodies(model, state, ground=self.ground is not None) \
                 if model.count or self.ground is not None else None
@@ -151,18 +150,22 @@ class World:
         self.dt_ns = max(1, round(dt * 1e9))
         self.dt = self.dt_ns * 1e-9
 
-    def _contain_blowups(self) -> None:
+    def _contain_blowups(self) -> tuple[np.ndarray, np.ndarray]:
+        """Reset every blown-up body; returns the bodies' speeds ``|v|``, ``|ω|`` (n,) each, after it (a reset
+        body is at rest), for :meth:`_update_sleep`."""
         model, state = self.body_model, self.body_state
         finite = (np.isfinite(state.position).all(1) & np.isfinite(state.orientation).all(1)
                   & np.isfinite(state.linear_momentum).all(1) & np.isfinite(state.angular_momentum).all(1))
         # a blown-up body's speeds overflow or are NaN here: that is what this check is for, not a warning
         with np.errstate(over="ignore", invalid="ignore"):
-            v = state.linear_velocity(model)
-            w = state.angular_velocity(model)
-            sane = finite & (np.linalg.norm(v, axis=1) < BLOWUP_SPEED) & (np.linalg.norm(w, axis=1) < BLOWUP_SPIN)
+            speed = np.linalg.norm(state.linear_velocity(model), axis=1)
+            spin = np.linalg.norm(state.angular_velocity(model), axis=1)
+            sane = finite & (speed < BLOWUP_SPEED) & (spin < BLOWUP_SPIN)
         bad = np.flatnonzero(~sane)
         if bad.size == 0:
-            return
+            return speed, spin
+        speed[bad] = 0.0
+        spin[bad] = 0.0
         init = self._initial_body_state
         for name in ("position", "orientation", "linear_momentum", "angular_momentum"):
             getattr(state, name)[bad] = getattr(init, name)[bad]
@@ -175,17 +178,18 @@ class World:
         self.events.append(WorldEvent(self.time, "error",
                                       f"numerical blow-up of {names} (non-finite or > {BLOWUP_SPEED:g} m/s): "
                                       "reset to its initial pose at rest and its wrenches cleared"))
+        return speed, spin
 
-    def _update_sleep(self) -> None:
-        """Count how long every movable body has been resting (see :data:`SLEEP_SPEED`); after
-        :data:`SLEEP_TIME` put them to sleep with zero momenta, so they stay exactly where they rest."""
+    def _update_sleep(self, speed: np.ndarray, spin: np.ndarray) -> None:
+        """Count how long every movable body has been resting (see :data:`SLEEP_SPEED`; ``speed`` = |v|,
+        ``spin`` = |ω|, (n,) each); after :data:`SLEEP_TIME` put them to sleep with zero momenta, so they stay
+        exactly where they rest."""
         model, state = self.body_model, self.body_state
         movable = ~model.fixed
         if not self.sleep_enabled or not movable.any():
             return
-        speed = (np.linalg.norm(state.linear_velocity(model), axis=1)
-                 + np.linalg.norm(state.angular_velocity(model), axis=1) * self._bounding_radius)
-        if bool((speed[movable] < SLEEP_SPEED).all()):
+        fastest_point = speed + spin * self._bounding_radius
+        if bool((fastest_point[movable] < SLEEP_SPEED).all()):
             self.rest_time += self.dt
         else:
             self.rest_time = 0.0

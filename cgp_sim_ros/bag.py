@@ -208,6 +208,12 @@ class _Control:
     done: threading.Event = field(default_factory=threading.Event)
 
 
+def bag_path_occupied(path: Path) -> bool:
+    """True if ``path`` exists and is not an empty directory: a bag is never written there (it would mix two
+    runs).  Raises ``OSError`` for a path that cannot be examined (a name longer than NAME_MAX, ...)."""
+    return path.exists() and (not path.is_dir() or any(path.iterdir()))
+
+
 class BagWriter:
     """Writes a rosbag2-style MCAP bag directory from already-serialized CDR messages.
 
@@ -260,7 +266,7 @@ class BagWriter:
 
         self.path = Path(path)
         try:
-            occupied = self.path.exists() and (not self.path.is_dir() or any(self.path.iterdir()))
+            occupied = bag_path_occupied(self.path)
             path_error = None
         except OSError as exc:  # e.g. a name longer than NAME_MAX: an I/O error like any other (below)
             occupied, path_error = False, exc

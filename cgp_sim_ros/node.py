@@ -91,8 +91,10 @@ class SimNode(Node):
             # Checked before anything is built or published: recording into an old bag would mix two runs.
             # A path that cannot even be examined (a name longer than NAME_MAX...) is not a configuration error
             # here: the recorder reports it as it reports any unwritable location, and the simulation goes on.
+            from .bag import bag_path_occupied
+
             try:
-                occupied = self.bag_path.exists() and (not self.bag_path.is_dir() or any(self.bag_path.iterdir()))
+                occupied = bag_path_occupied(self.bag_path)
             except OSError:
                 occupied = False
             if occupied:

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..checks import positive
 from ..bodies import BodyModel, BodyState
-from ..rotation import cross3  # noqa: F401  (re-exported: the integrators import it from here)
+from ..rotation import cross3
 
 
 class Integrator(Protocol):
@@ -69,7 +69,7 @@ def apply_inertia(tensor: np.ndarray, vectors: np.ndarray) -> np.ndarray:
 # Small dense kernels for (n, 3) / (n, 3, 3) batches.  np.cross and np.linalg.solve/inv are general (any
 # axis, LAPACK per matrix) and cost several times more than these few elementwise operations at both n = 1
 # and n = 1000; they are also the integrators' inner loop.  (cross3 lives in rotation.py, with the other
-# small vector kernels, and is re-exported here.)
+# small vector kernels.)
 
 
 def inverse3(matrices: np.ndarray) -> np.ndarray:

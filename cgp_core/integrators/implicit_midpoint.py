@@ -49,8 +49,8 @@ from typing import ClassVar
 import numpy as np
 
 from ..bodies import BodyModel, BodyState
-from ..rotation import norms, skew
-from .base import apply_inertia, body_angular_momentum, check_step, cross3, inverse3, kick
+from ..rotation import cross3, norms, skew
+from .base import apply_inertia, body_angular_momentum, check_step, inverse3, kick
 
 
 #: Largest value of h |L| ‖I_body⁻¹‖_F one implicit solve is given.  This bounds both h|Ω| (the angle turned

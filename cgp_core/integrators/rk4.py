@@ -20,8 +20,8 @@ from typing import ClassVar
 import numpy as np
 
 from ..bodies import BodyModel, BodyState
-from ..rotation import quat_normalize
-from .base import apply_inertia, body_angular_momentum, check_step, cross3, movable_mask
+from ..rotation import cross3, quat_normalize
+from .base import apply_inertia, body_angular_momentum, check_step, movable_mask
 
 
 def _orientation_rate(inv_inertia: np.ndarray, q: np.ndarray, angular_momentum: np.ndarray) -> np.ndarray:
