@@ -36,7 +36,7 @@ setup(
     ],
     # ROS packages (rclpy, *_msgs) are not listed: they come from apt on a ROS install and from
     # requirements/ros.txt (PyPI wheels) in the venv; package.xml declares them for rosdep.
-    install_requires=["numpy>=1.26", "scipy>=1.11", "PyYAML>=6.0", "mcap>=1.2", "zstandard>=0.22", "lz4>=4.3"],
+    install_requires=["numpy>=1.26", "scipy>=1.11", "numba>=0.60", "PyYAML>=6.0", "mcap>=1.2", "zstandard>=0.22", "lz4>=4.3"],
     extras_require={
         "test": ["pytest>=8", "pytest-timeout>=2.3", "mcap-ros2-support>=0.5", "rosbags>=0.10", "psutil>=5.9"],
         "bench": ["pybullet", "mujoco", "pyinstrument"],

@@ -1,0 +1,46 @@
+"""The one place cgp_core compiles Python with numba.
+
+Hot loops that numpy cannot batch (contact generation and the sequential-impulse solver for a few bodies, the
+boid neighbour sums) are written as plain Python loops that read like the lecture, and decorated with
+:func:`njit`.  numba compiles them to machine code on first call and caches the result next to the source
+(``__pycache__/*.nbi|*.nbc``), so only the first start after an install or an edit pays the compile time.
+
+The same functions run as ordinary Python under ``NUMBA_DISABLE_JIT=1`` (numba then returns the function
+unchanged), with the same results: that is how the tests check the compiled kernels against the readable ones,
+and how a student steps through a kernel in a debugger.
+
+Settings, and why:
+
+- ``cache=True``: compiled kernels are written to disk; a warm start loads them in milliseconds.
+- ``nogil=True``: a kernel releases the GIL, so the bag writer thread and DDS callbacks run on the other core
+  while it computes.
+- ``error_model="numpy"``: division by zero gives inf/nan as numpy does (the World's blow-up guard deals with
+  it) instead of raising ``ZeroDivisionError`` from inside a kernel.
+- no ``fastmath``: it lets LLVM reassociate floating-point sums, which would make compiled and plain-Python
+  results differ beyond round-off and break the bit-for-bit determinism a seed promises.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numba
+
+#: numba's own switch: with NUMBA_DISABLE_JIT=1 every kernel runs as plain Python
+JIT_DISABLED = os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")
+
+_DEFAULTS = {"cache": True, "nogil": True, "error_model": "numpy"}
+
+
+def njit(*args, **options):
+    """``numba.njit`` with cgp_core's defaults (see the module docstring); use as ``@njit`` or ``@njit(...)``."""
+    settings = {**_DEFAULTS, **options}
+    if args and callable(args[0]) and len(args) == 1 and not options:
+        return numba.njit(**settings)(args[0])
+    return numba.njit(*args, **settings)
+
+
+#: ``numba.prange`` (a plain ``range`` when the JIT is disabled); only meaningful inside ``njit(parallel=True)``
+prange = numba.prange
+
+__all__ = ["JIT_DISABLED", "njit", "prange"]
