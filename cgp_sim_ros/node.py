@@ -427,14 +427,14 @@ class SimNode(Node):
         self._delete_all_markers = True
         self._event({"event": "service", "name": "reset"})
         response.success = True
-        response.message = f"reset to the initial state of {self.world.scene.source} at t = {self.world.time:.6f} s"
+        response.message = f"reset to the initial state of {self.world.scene.source} at t = {self.world.time:.9f} s"
         return response
 
     def _on_pause(self, request, response):
         self.paused = bool(request.data)
         self._event({"event": "service", "name": "pause", "data": self.paused})
         response.success = True
-        response.message = f"{'paused' if self.paused else 'running'} at t = {self.world.time:.6f} s"
+        response.message = f"{'paused' if self.paused else 'running'} at t = {self.world.time:.9f} s"
         return response
 
     def _on_step(self, request, response):
@@ -449,12 +449,12 @@ class SimNode(Node):
         return response
 
     def _on_clear_wrenches(self, request, response):
-        count = self.world.wrenches.active + len(self._pending)
+        active, pending = self.world.wrenches.active, len(self._pending)
         self.world.clear_wrenches()
         self._pending.clear()
-        self._event({"event": "service", "name": "clear_wrenches", "cleared": count})
+        self._event({"event": "service", "name": "clear_wrenches", "cleared": active + pending})
         response.success = True
-        response.message = f"cleared {count} wrench(es)"
+        response.message = f"cleared {active} active wrench(es) and {pending} pending command(s)"
         return response
 
     # ---- parameters at run time --------------------------------------------------------------------------
