@@ -10,7 +10,7 @@ VPY := $(VENV)/bin/python
 STAMPS := $(VENV)/.stamps
 PIP := $(VPY) -m pip install --disable-pip-version-check --quiet
 
-# What `make run` passes to the node; override e.g. `make run ARGS="--scene boids_10k"`.
+# What `make run` passes to the node; override e.g. `make run ARGS="--scene pyramid"`.
 BAG_DIR ?= $(CURDIR)/bags/cgp_sim_$(shell date +%Y_%m_%d-%H_%M_%S)
 ARGS ?=
 
