@@ -192,6 +192,17 @@ def builtin_scene_names() -> list[str]:
     return sorted(p.stem for p in builtin_scene_dir().glob("*.yaml"))
 
 
+def scene_description(name_or_path: str | Path) -> str:
+    """The ``description:`` of a scene file or built-in scene (whitespace collapsed; "" when it has none)."""
+    path = resolve_scene(str(name_or_path))
+    try:
+        data = yaml.load(path.read_text(encoding="utf-8"), Loader=_SceneLoader)
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise SceneError(str(path), [f"cannot read the description: {exc}"]) from None
+    text = data.get("description", "") if isinstance(data, dict) else ""
+    return " ".join(str(text).split())
+
+
 def resolve_scene(name_or_path: str) -> Path:
     """A scene file path, or the name of a built-in scene (``default``, ...)."""
     text = str(name_or_path).strip()

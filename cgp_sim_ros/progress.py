@@ -14,6 +14,7 @@ complete line goes out every :attr:`ProgressLine.log_interval_s` through ``log``
 
 from __future__ import annotations
 
+import collections
 import math
 import sys
 import time
@@ -96,3 +97,47 @@ class ProgressLine:
             self.stream.write("\n")
             self.stream.flush()
             self._drawn = False
+
+
+class BatchProgress:
+    """The progress of a simulation run as fast as possible (the node with ``realtime:=false``): simulated
+    time (of ``duration``), ticks per wall second and the real-time factor over the last
+    :attr:`window_s` seconds (over the whole run in the final line), the time left (from the average rate
+    since the start), the bag's size.
+
+    ``status(sim_time_s, ticks, bag_bytes)`` returns the line; call it as often as you like."""
+
+    window_s = 2.0
+
+    def __init__(self, duration_s: float = 0.0, clock: Callable[[], float] = time.monotonic) -> None:
+        self.duration_s = duration_s
+        self._clock = clock
+        self._samples: collections.deque[tuple[float, float, int]] = collections.deque()  # (wall, sim, ticks)
+
+    def status(self, sim_time_s: float, ticks: int, bag_bytes: int | None = None, final: bool = False) -> str:
+        now = self._clock()
+        if not self._samples:
+            self._samples.append((now, sim_time_s, ticks))
+        first = self._samples[0]
+        while len(self._samples) > 1 and now - self._samples[1][0] >= self.window_s:
+            self._samples.popleft()
+        wall0, sim0, ticks0 = first if final else self._samples[0]
+        self._samples.append((now, sim_time_s, ticks))
+        elapsed = now - wall0
+        tick_rate = (ticks - ticks0) / elapsed if elapsed > 0 else math.nan
+        factor = (sim_time_s - sim0) / elapsed if elapsed > 0 else math.nan
+        parts = [f"t = {sim_time_s:.2f} s" + (f" of {self.duration_s:g} s" if self.duration_s > 0 else "")]
+        if self.duration_s > 0:
+            parts[0] = f"{bar(sim_time_s / self.duration_s, 20)} " + parts[0]
+        parts.append(f"{tick_rate:.0f} ticks/s" if math.isfinite(tick_rate) else "-- ticks/s")
+        parts.append(f"{factor:.2f}x real time" if math.isfinite(factor) else "--x real time")
+        if self.duration_s > 0 and not final:
+            total_elapsed = now - first[0]
+            rate = (sim_time_s - first[1]) / total_elapsed if total_elapsed > 0 else 0.0
+            left = (self.duration_s - sim_time_s) / rate if rate > 0 else math.inf
+            parts.append(f"ETA {format_duration(max(left, 0.0))}")
+        elif final:
+            parts.append(f"took {format_duration(now - first[0])}")
+        if bag_bytes is not None:
+            parts.append(f"bag {format_bytes(bag_bytes)}")
+        return ", ".join(parts)
