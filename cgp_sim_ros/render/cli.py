@@ -204,7 +204,11 @@ class _GifWriter:
 
         image = Image.fromarray(frame)
         if self.palette is None:
-            self.palette = image.quantize(colors=GIF_COLORS, method=Image.Quantize.MEDIANCUT)
+            # Median cut over the frame's *distinct* colours, each counted once: weighted by pixel count, the
+            # sky and the ground would take the whole palette and a small red ball would come out orange.
+            distinct = np.unique(frame.reshape(-1, 3), axis=0)
+            self.palette = Image.fromarray(distinct[None]).quantize(colors=GIF_COLORS,
+                                                                    method=Image.Quantize.MEDIANCUT)
         self.frames.append(image.quantize(palette=self.palette, dither=Image.Dither.NONE))
 
     def close(self) -> None:

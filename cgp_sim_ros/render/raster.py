@@ -174,6 +174,21 @@ def _raster_spheres(sx, sy, srad, center_depth, radius, colors, light, lighting,
                     image[y, x, c] = v if v < 1.0 else 1.0
 
 
+@njit
+def _resolve(image, ss, out):  # pragma: no cover - compiled
+    """out (h, w, 3) uint8 = the mean of each ss x ss block of image (h ss, w ss, 3) float in [0, 1]."""
+    height, width = out.shape[0], out.shape[1]
+    scale = 255.0 / (ss * ss)
+    for y in range(height):
+        for x in range(width):
+            for c in range(3):
+                total = 0.0
+                for i in range(ss):
+                    for j in range(ss):
+                        total += image[y * ss + i, x * ss + j, c]
+                out[y, x, c] = np.uint8(min(total * scale + 0.5, 255.0))
+
+
 class Rasterizer:
     """Renders :class:`Primitives` seen by a :class:`Camera` into ``(height, width, 3)`` uint8 RGB images."""
 
@@ -229,7 +244,6 @@ class Rasterizer:
             _raster_spheres(sx, sy, srad, depth, radius, colors.astype(np.float32), axes @ light_world,
                             np.array([AMBIENT, DIFFUSE, SPECULAR, SHININESS]), zbuf, image)
 
-        if ss > 1:  # box filter: the mean of each ss x ss block (strided sums: numpy's mean over axes is slow)
-            total = sum(image[i::ss, j::ss] for i in range(ss) for j in range(ss))
-            return (total * (255.0 / ss**2) + 0.5).astype(np.uint8)
-        return (image * 255.0 + 0.5).astype(np.uint8)
+        out = np.empty((self.height, self.width, 3), dtype=np.uint8)
+        _resolve(image, ss, out)  # box filter: the mean of each ss x ss block (numpy's mean over axes is slow)
+        return out
