@@ -25,7 +25,7 @@ STAMPS := $(VENV)/.stamps
 CONSTRAINTS := requirements/constraints-$(DISTRO).txt
 PIP := $(VPY) -m pip install --disable-pip-version-check --quiet -c $(CONSTRAINTS)
 
-# What `make run` passes to the node; override e.g. `make run ARGS="--scene boids_10k"`.
+# What `make run` passes to the node; override e.g. `make run ARGS="--scene pyramid"`.
 BAG_DIR ?= $(CURDIR)/bags/cgp_sim_$(shell date +%Y_%m_%d-%H_%M_%S)
 ARGS ?=
 

@@ -3,7 +3,7 @@ scenes / parameter files of `msgs_config`.
 
 Installs, with pip or colcon alike:
 - the Python packages `cgp_core`, `cgp_sim_ros`, `msgs_config` (scenes and parameter files as package data);
-- the console script `cgp-sim`;
+- the console scripts `cgp-sim` (the node) and `cgp-sim-render` (bags to pictures, no ROS needed);
 - the ament layout `ros2 run cgp_sim_ros sim_node` resolves:
   share/ament_index/resource_index/packages/cgp_sim_ros, share/cgp_sim_ros/package.xml,
   lib/cgp_sim_ros/sim_node (a data file, since pip ignores setup.cfg's install_scripts).
@@ -36,11 +36,15 @@ setup(
     ],
     # ROS packages (rclpy, *_msgs) are not listed: they come from apt on a ROS install and from
     # requirements/ros.txt (PyPI wheels) in the venv; package.xml declares them for rosdep.
-    install_requires=["numpy>=1.26", "scipy>=1.11", "numba>=0.60", "PyYAML>=6.0", "mcap>=1.2", "zstandard>=0.22", "lz4>=4.3"],
+    install_requires=["numpy>=1.26", "scipy>=1.11", "numba>=0.60", "PyYAML>=6.0", "mcap>=1.2", "zstandard>=0.22", "lz4>=4.3",
+                      "pillow>=10"],
     extras_require={
         "test": ["pytest>=8", "pytest-timeout>=2.3", "mcap-ros2-support>=0.5", "rosbags>=0.10", "psutil>=5.9"],
-        "bench": ["pybullet", "mujoco", "pyinstrument"],
+        "bench": ["pybullet", "mujoco", "pyinstrument", "matplotlib"],
+        # MP4 output of cgp-sim-render (a wheel that ships ffmpeg); PNG and GIF need only Pillow
+        "render": ["imageio-ffmpeg>=0.5"],
     },
-    entry_points={"console_scripts": ["cgp-sim = cgp_sim_ros.cli:main"]},
+    entry_points={"console_scripts": ["cgp-sim = cgp_sim_ros.cli:main",
+                                      "cgp-sim-render = cgp_sim_ros.render.cli:main"]},
     zip_safe=False,
 )

@@ -78,7 +78,8 @@ class ParameterSpec:
 
 
 PARAMETERS: tuple[ParameterSpec, ...] = (
-    ParameterSpec("scene", "default", "Scene file path, or a built-in scene name (default, boxes, ...).",
+    ParameterSpec("scene", "default", "Scene file path, or a built-in scene name (default, zero_g, pyramid, ...; "
+                  "`cgp-sim --list-scenes` lists them with what each shows).",
                   read_only=True, flag="--scene"),
     ParameterSpec("rate_hz", 60.0, "Ticks per second; the tick dt = 1/rate_hz of simulated time. Settable at "
                   "run time (the new dt applies from the next tick).", minimum=1.0, maximum=10000.0,

@@ -30,6 +30,7 @@ from __future__ import annotations
 import collections
 import json
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -48,6 +49,7 @@ from cgp_core.wrenches import MAX_NAME_LENGTH, WrenchError, make_command
 
 from . import interface as itf
 from .messages import TickMessages
+from .progress import BatchProgress, ProgressLine
 
 #: commands waiting for the next tick; beyond this, the oldest are dropped (and counted, and reported)
 MAX_PENDING_COMMANDS = 2000
@@ -132,6 +134,11 @@ class SimNode(Node):
         self._window_start = time.monotonic()
         self._window_ticks = 0
         self._timer = self.create_timer(self._timer_period(), self._on_timer)
+        #: batch runs (realtime:=false) show their progress: one updating line on a terminal, log lines otherwise
+        self._progress = None
+        if not self.params["realtime"]:
+            self._progress = (ProgressLine(sys.stderr, log=lambda text: self.get_logger().info(f"progress: {text}")),
+                              BatchProgress(self.params["duration"]))
         # Reports on their own wall-clock timer, so rejected commands are summarized while paused too.
         self._report_timer = self.create_timer(REPORT_PERIOD_S, self._report)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -261,9 +268,13 @@ class SimNode(Node):
         self._tick_wall_times.append(time.perf_counter() - start)
         self._window_ticks += 1
         self._periodic_reports()
+        if self._progress is not None and self._progress[0].due():
+            self._show_progress()
         duration = self.params["duration"]
         if duration > 0.0 and self.world.time_ns >= round(duration * 1e9) and not self.finished:
             self.finished = True
+            if self._progress is not None:
+                self._show_progress(final=True)
             self.get_logger().info(f"duration {duration:g} s of simulated time reached after {self.world.ticks} "
                                    "ticks; shutting down")
 
@@ -279,6 +290,15 @@ class SimNode(Node):
         if self._delete_all_markers or self.world.ticks % self.params["markers_every"] == 0:
             self._out(self.pub_markers, m.markers(t, delete_all_first=self._delete_all_markers), t)
             self._delete_all_markers = False
+
+    def _show_progress(self, final: bool = False) -> None:
+        line, status = self._progress
+        text = status.status(self.world.time, self.world.ticks,
+                             self.recorder.size_bytes() if self.recorder is not None else None, final=final)
+        if final:
+            line.finish(text)
+        else:
+            line.update(text)
 
     def _out(self, publisher, data: bytes, stamp_ns: int) -> None:
         """Publish serialized bytes and record the very same bytes."""
@@ -482,7 +502,9 @@ class SimNode(Node):
     # ---- shutdown ----------------------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Finish the recording (summary, metadata.yaml); safe to call twice."""
+        """Finish the recording (summary, metadata.yaml) and the progress line; safe to call twice."""
+        if self._progress is not None:
+            self._progress[0].finish()
         if self.recorder is not None:
             self.recorder.close()
 
