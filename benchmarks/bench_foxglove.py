@@ -7,9 +7,9 @@ processes speaking the Foxglove protocol (``tests/foxglove_client.py``), subscri
 
 - *live*: reads everything as it comes (a Python websockets reader: like the app, it keeps up or falls behind
   on its own CPU; on this 2-core machine its CPU competes with the node's);
-- *stalled*: subscribes, then never reads again: its socket fills, the SDK's per-client queue (the node's
-  ``CLIENT_BACKLOG`` messages) drops the oldest, and once its control queue (one time message per tick) is
-  full the SDK disconnects it.
+- *stalled*: subscribes, then never reads again: its socket fills and the SDK's per-client queue (the node's
+  ``CLIENT_BACKLOG`` messages) drops the oldest; it stays connected (the SDK drops a client only when its
+  control queue of statuses and service responses overflows), so the phase also reports the memory it holds.
 
 In each client state the node alternates blocks of ticks with the live view *on* (the server object hooked into
 ``_out``, as with ``foxglove:=true``) and *off* (``node.foxglove = None``, exactly the node's code path with the
@@ -17,6 +17,9 @@ parameter false), so the two medians come from the same minutes of this shared m
 directly: the hook's own cost per tick (the tick's messages handed to ``FoxgloveServer.publish`` in a loop,
 without and with a subscriber), the process's memory while a client stalls, and how long until the SDK drops a
 stalled client.
+
+A fourth client floods a command topic (20,000 rejected wrenches a second), alternately running and stopped
+(SIGSTOP): what a flood costs the tick's thread.
 
 Scenes: the default scene (what ``make run`` shows; ~10 messages, ~0.3 MB per tick) and issue 7's 15k-boid
 tick scene (~30 messages, ~1.2 MB per tick).  Writes ``benchmarks/results/foxglove.json``.  Run alone:
@@ -28,8 +31,10 @@ from __future__ import annotations
 import argparse
 import os
 import random
+import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -116,14 +121,18 @@ def wait_for(condition, timeout: float, what: str) -> None:
         time.sleep(0.01)
 
 
-def run_blocks(node, server, blocks: int, period: float, stop_when=None) -> dict:
-    """``blocks`` pairs of BLOCK ticks with the hook on, then off; paced at ``period``.  Tick times in ms."""
+def run_blocks(node, server, blocks: int, period: float, stop_when=None, switch=None) -> dict:
+    """``blocks`` pairs of BLOCK ticks with the hook on, then off (or ``switch(True / False)``); paced at
+    ``period``.  Tick times in ms."""
     on, off = [], []
     on_ticks_until_stop = None
     next_start = time.perf_counter()
     for _ in range(blocks):
         for hooked, sink in ((True, on), (False, off)):
-            node.foxglove = server if hooked else None
+            if switch is not None:
+                switch(hooked)
+            else:
+                node.foxglove = server if hooked else None
             for _ in range(BLOCK):
                 now = time.perf_counter()
                 if now < next_start:
@@ -205,27 +214,38 @@ def bench_scene(label: str, scene: str, blocks: int, log_dir: Path) -> dict:
     try:
         wait_for(lambda: all_subscribed(server), 20, "the stalled client's subscriptions")
         rss0 = rss_mb()
-        # Long enough for the SDK to drop the client (its control queue holds CLIENT_BACKLOG time messages).
-        from cgp_sim_ros.foxglove_server import CLIENT_BACKLOG
-
-        phase = run_blocks(node, server, max(blocks, -(-3 * CLIENT_BACKLOG // (2 * BLOCK))), period,
-                           stop_when=lambda: not any_subscribed(server))
+        phase = run_blocks(node, server, blocks, period, stop_when=lambda: not any_subscribed(server))
         until = phase["on_ticks_until_stop"]
         row["stalled_client"] = {"on": stats(phase["on"][:until]), "off": stats(phase["off"][:until]),
                                  "rss_growth_MB": rss_mb() - rss0, "disconnected_after_on_ticks": until}
     finally:
         stalled.stop()
+    # A client flooding a command topic (20,000 rejected wrenches a second), on in one block and stopped
+    # (SIGSTOP) in the next.  No executor runs here, so this is the cost on the tick's side: the SDK's threads
+    # taking the GIL for each message and the bounded inbox (the validation itself runs between ticks, at most
+    # COMMAND_BATCH_S per executor turn, in the real node).
+    body = next(name for name, fixed in zip(node.world.body_model.names, node.world.body_model.fixed) if not fixed)
+    flood = Peer(url, f"flood:{body}", log_dir / f"foxglove_{label}_flood.log")
+    try:
+        phase = run_blocks(node, server, blocks, period, switch=lambda on: os.kill(
+            flood.proc.pid, signal.SIGCONT if on else signal.SIGSTOP))
+        row["flooding_client"] = {"on": stats(phase["on"]), "off": stats(phase["off"])}
+    finally:
+        os.kill(flood.proc.pid, signal.SIGCONT)
+        flood.stop()
     node.close()
     node.destroy_node()
-    for name in ("no_client", "live_client", "stalled_client"):
+    for name in ("no_client", "live_client", "stalled_client", "flooding_client"):
         r = row[name]
         print(f"[{label}] {name:15} tick median: live view on {r['on']['median_ms']:.3f} ms, off "
               f"{r['off']['median_ms']:.3f} ms (p90 {r['on']['p90_ms']:.2f} / {r['off']['p90_ms']:.2f}; "
               f"{r['on']['ticks']} + {r['off']['ticks']} ticks)", flush=True)
     print(f"[{label}] live client used {row['live_client']['client_cpu_ms_per_tick']:.2f} ms CPU per tick; hook "
           f"with a live subscriber {row['hook_live_subscriber_us']:.1f} µs per tick; stalled client: RSS "
-          f"{row['stalled_client']['rss_growth_MB']:+.1f} MB, disconnected by the SDK after "
-          f"{row['stalled_client']['disconnected_after_on_ticks']} ticks with the live view on", flush=True)
+          f"{row['stalled_client']['rss_growth_MB']:+.1f} MB, "
+          + ("still connected" if row['stalled_client']['disconnected_after_on_ticks'] is None else
+             f"disconnected by the SDK after {row['stalled_client']['disconnected_after_on_ticks']} ticks"),
+          flush=True)
     return row
 
 
@@ -239,19 +259,19 @@ def main(argv=None) -> int:
 
     rclpy.init()
     out = Results("foxglove", options={"quick": args.quick, "blocks": blocks, "block_ticks": BLOCK})
-    log_dir = Path(__file__).resolve().parent / "results"
-    log_dir.mkdir(parents=True, exist_ok=True)
     rows = []
-    try:
-        for label, scene in SCENES.items():
-            rows.append(bench_scene(label, scene, blocks if label == "default" else max(2, blocks // 2), log_dir))
-    finally:
-        rclpy.try_shutdown()
+    with tempfile.TemporaryDirectory(prefix="bench_foxglove_") as log_dir:  # the client processes' output
+        try:
+            for label, scene in SCENES.items():
+                rows.append(bench_scene(label, scene, blocks if label == "default" else max(2, blocks // 2),
+                                        Path(log_dir)))
+        finally:
+            rclpy.try_shutdown()
     out.data["rows"] = rows
     for r in rows:
         s = r["scene"]
         for state, what in (("no_client", "no client"), ("live_client", "a live client"),
-                            ("stalled_client", "a stalled client")):
+                            ("stalled_client", "a stalled client"), ("flooding_client", "a flooding client")):
             on, off = r[state]["on"]["median_ms"], r[state]["off"]["median_ms"]
             out.figure(f"foxglove_{s}_{state}_delta", f"Foxglove live view, {s} scene, {what}: tick on - off",
                        on - off, "ms", f"(reference: off {off:.2f} ms)", None)

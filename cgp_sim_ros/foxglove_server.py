@@ -33,8 +33,9 @@ Bad clients, and what they get:
   reported), the executor spends at most ``COMMAND_BATCH_S`` per turn on them (ticks come first), and the
   node's own pending-command bound still applies;
 - a slow or stalled reader: the SDK queues at most :data:`CLIENT_BACKLOG` messages per client, dropping the
-  oldest data messages; a client that reads nothing is disconnected once its control queue (the time messages)
-  is full.  Logging on a channel never waits for a client (``benchmarks/bench_foxglove.py`` measures it).
+  oldest; a client that stops reading stays connected (SDK 0.30.3 drops no client for time messages piling up)
+  and costs the node that queue and its socket buffers.  Logging on a channel never waits for a client
+  (``benchmarks/bench_foxglove.py`` measures all of this).
 
 The SDK 0.30.3 accepts only the WebSocket subprotocol ``foxglove.sdk.v1`` (the current Foxglove app offers it);
 clients that offer only ``foxglove.websocket.v1`` are refused with HTTP 400 during the handshake.
@@ -75,8 +76,9 @@ EXPOSED_SERVICES: tuple[str, ...] = (
 #: Encodings clients may publish in, in the order the Foxglove app picks from (it takes the first it supports):
 #: ``cdr``, which the app writes from the definitions of our command channels; ``json`` for clients without them.
 SUPPORTED_ENCODINGS = ["cdr", "json"]
-#: Messages the SDK queues per client: data messages beyond it drop the oldest; a full control queue (time,
-#: status) disconnects the client.  ~30 ticks of the default scene's ~10 messages per tick.
+#: Messages the SDK queues per client before it drops the oldest (its control queue of statuses and service
+#: responses has the same bound, past which the SDK disconnects the client).  ~30 ticks of the default scene's
+#: ~10 messages per tick; the memory a stalled client can hold is this many of the node's messages.
 CLIENT_BACKLOG = 300
 #: Client messages and service calls waiting for the executor; beyond it the oldest are dropped and reported.
 MAX_INBOX = MAX_PENDING_COMMANDS
@@ -357,13 +359,13 @@ class FoxgloveServer:
         """Stop the server (clients are disconnected); waiting service calls fail.  Safe to call twice."""
         if self._closed:
             return
-        self._closed = True
-        self.server.stop()
+        self._closed = True  # from now on _put turns calls away at once
         with self._inbox_lock:
             waiting, self._inbox = list(self._inbox), collections.deque()
-        for item in waiting:
+        for item in waiting:  # before stopping: their handlers would otherwise hold the server's shutdown up
             if item[0] == "call" and item[3].set_running_or_notify_cancel():
                 item[3].set_exception(RuntimeError("the node is shutting down"))
+        self.server.stop()
         self._release()
 
     def _release(self) -> None:

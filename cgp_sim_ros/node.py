@@ -6,6 +6,8 @@ hand the same bytes to the recorder.  No physics here: every equation lives in `
 
 Threading: one single-threaded executor runs the timer, the subscriptions and the services, so they never
 interleave with a step and need no locks.  The bag is written on its own thread (:mod:`cgp_sim_ros.bag`).
+With ``foxglove:=true`` a Foxglove WebSocket server (:mod:`cgp_sim_ros.foxglove_server`) gets the same bytes in
+:meth:`SimNode._out`; what its clients send reaches the node through the same executor (a guard condition).
 The interface (topics, QoS, parameters) is defined and documented in :mod:`cgp_sim_ros.interface`.
 
 Bad input (what a node on a shared graph must expect):

@@ -13,7 +13,8 @@ A reader thread parses everything the server sends; tests wait on it with deadli
 
 Run as a script, it is a peer process for the benchmark: ``python foxglove_client.py URL read|stall``
 subscribes to every channel and then reads everything (``read``) or stops reading (``stall``; the socket
-fills and the server's queues for it overflow), printing ``subscribed`` once it has subscribed.
+fills and the server's queues for it overflow), printing ``subscribed`` once it has subscribed;
+``flood:<body>`` sends 20,000 non-finite wrenches a second on ``/cgp_sim/bodies/<body>/wrench``.
 """
 
 from __future__ import annotations
@@ -197,9 +198,29 @@ def _peer(url: str, mode: str) -> None:
     import signal
 
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # print the counts below when the benchmark stops us
-    client = FoxgloveClient(url, keep_messages=False, read=(mode == "read"))
+    client = FoxgloveClient(url, keep_messages=False, read=(mode != "stall"))
     if mode == "read":
         client.subscribe_all()
+    elif mode.startswith("flood:"):  # flood:<body>: 20,000 non-finite wrenches a second on its wrench topic
+        from geometry_msgs.msg import WrenchStamped
+        from rclpy.serialization import serialize_message
+
+        command = WrenchStamped()
+        command.wrench.force.x = float("inf")
+        data = serialize_message(command)
+        channel = client.advertise(f"/cgp_sim/bodies/{mode.split(':', 1)[1]}/wrench", "cdr",
+                                   "geometry_msgs/msg/WrenchStamped")
+        print("subscribed", flush=True)
+        end = time.monotonic() + 600
+        try:
+            while time.monotonic() < end and not client.closed:
+                batch_end = time.monotonic() + 0.01
+                for _ in range(200):
+                    client.publish(channel, data)
+                time.sleep(max(0.0, batch_end - time.monotonic()))
+        finally:
+            client.close()
+        return
     else:  # no reader thread: read the advertisement by hand, subscribe, then never read again
         channels = []
         while not channels:

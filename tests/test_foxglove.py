@@ -35,6 +35,7 @@ from websockets.sync.client import connect
 from foxglove_client import FoxgloveClient, ServiceCallFailed
 
 DT_NS = round(1e9 / 60)
+DT = DT_NS * 1e-9  # the tick the world integrates over: whole nanoseconds (cgp_core.world)
 BOX_MASS = 2.0
 #: what the Foxglove app sends for a request without fields (std_srvs/Trigger): the CDR header alone
 EMPTY_CDR_REQUEST = b"\x00\x01\x00\x00"
@@ -262,13 +263,13 @@ def test_client_publish_moves_a_body_and_is_recorded(live, tmp_path):
     odom = client.subscribe("/cgp_sim/bodies/box/odom")
     echo = client.subscribe("/cgp_sim/bodies/box/wrench")
 
-    # 12 N along world x at the COM for one tick: Δv = F dt / m = 0.1 m/s.
+    # 12 N along world x at the COM for one tick: Δv = F dt / m ≈ 0.1 m/s.
     channel = client.advertise("/cgp_sim/bodies/box/wrench", "cdr", "geometry_msgs/msg/WrenchStamped")
     sent = wrench_stamped((12.0, 0.0, 0.0))
     client.publish(channel, sent)
     step(client)  # same socket, after the message: the command is taken before this step
     first = last_odom(client, odom, DT_NS)
-    np.testing.assert_allclose(world_velocity(first), [12.0 / 60.0 / BOX_MASS, 0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(world_velocity(first), [12.0 / BOX_MASS * DT, 0.0, 0.0], rtol=1e-12, atol=1e-12)
 
     # JSON, the Publish panel's other encoding: ApplyWrench in the box's axes, ``point`` left out (its COM),
     # an integer where a float is expected.  The box has not turned: body z is world z.
@@ -277,7 +278,7 @@ def test_client_publish_moves_a_body_and_is_recorded(live, tmp_path):
     client.publish(channel, json.dumps(command).encode())
     step(client)
     second = last_odom(client, odom, 2 * DT_NS)
-    np.testing.assert_allclose(world_velocity(second), [0.1, 0.0, 0.1], atol=1e-9)
+    np.testing.assert_allclose(world_velocity(second), [6.0 * DT, 0.0, 6.0 * DT], rtol=1e-12, atol=1e-12)
     w = second.twist.twist.angular
     assert max(abs(w.x), abs(w.y), abs(w.z)) < 1e-9  # at the COM: no torque
 
@@ -312,7 +313,7 @@ def test_services_called_from_foxglove(live):
     for _ in range(3):
         step(client)
         speeds.append(np.linalg.norm(world_velocity(last_odom(client, odom))))
-    np.testing.assert_allclose(speeds, [0.05, 0.10, 0.15], atol=1e-9)  # 6 N / 2 kg / 60 Hz per tick
+    np.testing.assert_allclose(speeds, [3.0 * DT, 6.0 * DT, 9.0 * DT], rtol=1e-12)  # 6 N / 2 kg per tick
     cleared = deserialize_message(client.call("/cgp_sim/clear_wrenches", EMPTY_CDR_REQUEST), Trigger.Response)
     assert cleared.success and cleared.message == "cleared 1 wrench(es)"
     step(client)
@@ -399,7 +400,7 @@ def test_bad_client_input_is_rejected_and_the_node_keeps_ticking(live):
     client.wait(lambda: np.linalg.norm(world_velocity(deserialize_message(client.messages[odom][-1][1], Odometry)))
                 > 0, 20, "the valid command to move the box")
     np.testing.assert_allclose(world_velocity(deserialize_message(client.messages[odom][-1][1], Odometry)),
-                               [0.1, 0.0, 0.0], atol=1e-9)
+                               [6.0 * DT, 0.0, 0.0], rtol=1e-12, atol=1e-12)
     assert node.alive()
     assert "rejected foxglove command" in node.log()
 
@@ -439,3 +440,52 @@ def test_without_the_parameter_the_sdk_is_not_even_imported(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert "loaded: []" in out.stdout
+
+
+def _panels(node) -> set[str]:
+    """The panel ids of a layout tree (a panel id, or {first, second, ...})."""
+    return {node} if isinstance(node, str) else _panels(node["first"]) | _panels(node["second"])
+
+
+def test_the_layout_shows_what_the_default_scene_serves_and_its_kick_works(start_node):
+    """msgs_config/foxglove/cgp_sim_layout.json names only channels and services the node offers (with their
+    types), and the Publish panel's prefilled message, sent as the panel would, kicks the ball up."""
+    from pathlib import Path
+
+    layout = json.loads((Path(__file__).resolve().parents[1] / "msgs_config/foxglove/cgp_sim_layout.json")
+                        .read_text())
+    config = layout["configById"]
+    assert _panels(layout["layout"]) == set(config)
+    node = start_node("--foxglove", "true", "--foxglove-port", "0", "--start-paused", "true")  # default scene
+    client = FoxgloveClient(foxglove_url(node))
+    try:
+        client.wait(lambda: len(client.services) == len(SERVICES) and client.channels, 20, "advertisements")
+        client.channel("/cgp_sim/bodies/ball/wrench")
+        channels = {c["topic"]: c for c in client.channels.values()}
+
+        (three_d,) = [c for key, c in config.items() if key.startswith("3D!")]
+        assert three_d["followTf"] == "world"
+        assert set(three_d["topics"]) <= set(channels) and three_d["topics"]["/cgp_sim/markers"]["visible"]
+        (plot,) = [c for key, c in config.items() if key.startswith("Plot!")]
+        for path in plot["paths"]:
+            topic, fields = path["value"].split(".", 1)
+            assert channels[topic]["schemaName"] == "nav_msgs/msg/Odometry", topic
+            value = Odometry()
+            for field in fields.split("."):
+                value = getattr(value, field)  # the path names real fields
+            assert isinstance(value, float)
+        (call,) = [c for key, c in config.items() if key.startswith("CallService!")]
+        assert call["serviceName"] in client.services
+        (publish,) = [c for key, c in config.items() if key.startswith("Publish!")]
+        assert channels[publish["topicName"]]["schemaName"] == publish["datatype"]
+
+        # The panel's message, as JSON on the panel's topic and type: 900 N up for one tick on the 2 kg ball,
+        # against gravity: v_z = (900 / 2 - 9.81) dt.
+        odom = client.subscribe("/cgp_sim/bodies/ball/odom")
+        panel = client.advertise(publish["topicName"], "json", publish["datatype"])
+        client.publish(panel, publish["value"].encode())
+        step(client)
+        kicked = last_odom(client, odom, DT_NS)
+        assert world_velocity(kicked)[2] == pytest.approx((900.0 / 2.0 - 9.81) * DT, rel=1e-12)
+    finally:
+        client.close()
