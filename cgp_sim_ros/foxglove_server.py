@@ -9,8 +9,12 @@ app connects with "Open connection" → Foxglove WebSocket → ``ws://localhost:
   handed over in :meth:`SimNode._out` (no second serialization), stamped with the tick's simulation time; the
   command topics carry every command the node received (over DDS or from a Foxglove client), as the bag does.
   A channel no client subscribes to costs one ``Channel.has_sinks()`` call (~50 ns) and nothing else.
-- **Time** (capability ``time``): the simulation time, sent before the first message of each tick a client
-  receives, so the app's timeline and receive times follow ``/clock``; never backwards (a reset keeps the clock).
+- **Time** (capability ``time``): the simulation time, broadcast with the first message of each tick anyone
+  subscribed to (and to a new subscriber at once, even while paused), so the app's timeline follows ``/clock``;
+  never backwards (a reset keeps the clock).  The SDK queues time messages apart from message data (a
+  control and a data queue per client, sent in whichever order its writer picks), so a client can get a tick's
+  messages just before that tick's time: the app's receive time of a live message may be one tick off; header
+  stamps and log times are exact.
 - **Client publishing** (``clientPublish``, encodings ``cdr`` and ``json``) on the command topics
   (``~/apply_wrench``, ``~/bodies/<body>/wrench``), and the node's **services** (:data:`EXPOSED_SERVICES`,
   ``cdr`` requests).  Both are handed to the node's executor and run by the node's own callbacks: the same
@@ -184,7 +188,7 @@ class FoxgloveServer:
             self._log(channel, data, stamp_ns)
 
     def _log(self, channel: Channel, data: bytes, stamp_ns: int) -> None:
-        if stamp_ns > self._time_sent:  # the tick's time first: the app stamps what follows with it
+        if stamp_ns > self._time_sent:  # the tick's time, queued before its first message
             self._time_sent = stamp_ns
             self.server.broadcast_time(stamp_ns)
         channel.log(data, log_time=stamp_ns)  # queued per client; never waits for a client
@@ -370,6 +374,7 @@ class FoxgloveServer:
 
     def _release(self) -> None:
         self._sdk_logger.removeHandler(self._log_handler)
+        self._sdk_logger.propagate = True
         self.node.destroy_guard_condition(self._wake)
 
 
