@@ -149,8 +149,9 @@ def run_blocks(node, server, blocks: int, period: float, stop_when=None, switch=
     return {"on": on, "off": off, "on_ticks_until_stop": on_ticks_until_stop}
 
 
-def hook_cost_us(node, server, repeats: int) -> float:
-    """µs per tick that ``FoxgloveServer.publish`` takes for one tick's messages (median of ``repeats``)."""
+def hook_cost_us(node, server, repeats: int) -> tuple[float, int, int]:
+    """µs per tick that ``FoxgloveServer.publish`` takes for one tick's messages (median of ``repeats``), the
+    number of messages and their bytes."""
     captured = []
     original = node._out
     node._out = lambda publisher, data, stamp: captured.append((publisher, data, stamp))
@@ -202,12 +203,14 @@ def bench_scene(label: str, scene: str, blocks: int, log_dir: Path) -> dict:
         wait_for(lambda: all_subscribed(server), 20, "the live client's subscriptions")
         cpu0, wall0 = live.cpu_s(), time.perf_counter()
         phase = run_blocks(node, server, blocks, period)
+        ticks = len(phase["on"]) + len(phase["off"])
         row["live_client"] = {"on": stats(phase["on"]), "off": stats(phase["off"]),
-                              "client_cpu_ms_per_tick": 1e3 * (live.cpu_s() - cpu0) / (len(phase["on"]) + len(phase["off"])),
+                              "client_cpu_ms_per_tick": 1e3 * (live.cpu_s() - cpu0) / ticks,
                               "wall_s": time.perf_counter() - wall0}
         row["hook_live_subscriber_us"] = hook_cost_us(node, server, 200)[0]
     finally:
-        row["live_client"]["client_output"] = live.stop().strip().splitlines()[-1:]
+        output = live.stop()
+    row["live_client"]["client_output"] = output.strip().splitlines()[-1:]
     wait_for(lambda: not any_subscribed(server), 20, "the live client to go")
 
     stalled = Peer(url, "stall", log_dir / f"foxglove_{label}_stalled.log")

@@ -18,7 +18,11 @@ app connects with "Open connection" → Foxglove WebSocket → ``ws://localhost:
 - **Client publishing** (``clientPublish``, encodings ``cdr`` and ``json``) on the command topics
   (``~/apply_wrench``, ``~/bodies/<body>/wrench``), and the node's **services** (:data:`EXPOSED_SERVICES`,
   ``cdr`` requests).  Both are handed to the node's executor and run by the node's own callbacks: the same
-  validation, rejection reports (log + ``~/events``) and recording as DDS commands and service calls.
+  validation, rejection reports (log + ``~/events``) and recording as DDS commands and service calls.  The
+  app's Publish panel takes the first of the server's encodings it knows (``cdr``) and writes the message from
+  the definitions it has seen on channels: that the command topics are channels too is what lets it write
+  ``WrenchStamped`` and ``ApplyWrench`` (the Python SDK cannot send the ``ROS_DISTRO`` metadata that would give
+  it the common ROS types).
 
 Threads: the SDK calls the listener, the service handlers and its log records on its own threads.  They only
 append to a bounded inbox and trigger a guard condition; the node's single-threaded executor drains the inbox
@@ -35,7 +39,8 @@ Bad clients, and what they get:
   the SDK answers the client with an error status, and its log record goes the same reject path;
 - a flood: at most :data:`MAX_INBOX` client messages wait for the executor (the oldest are dropped and
   reported), the executor spends at most ``COMMAND_BATCH_S`` per turn on them (ticks come first), and the
-  node's own pending-command bound still applies;
+  node's own pending-command bound still applies.  Each message still costs a call into Python on an SDK
+  thread (the GIL): 20,000 messages a second cost the default scene's tick about 1 ms;
 - a slow or stalled reader: the SDK queues at most :data:`CLIENT_BACKLOG` messages per client, dropping the
   oldest; a client that stops reading stays connected (SDK 0.30.3 drops no client for time messages piling up)
   and costs the node that queue and its socket buffers.  Logging on a channel never waits for a client
