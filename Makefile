@@ -32,7 +32,7 @@ ARGS ?=
 MSGS_SRC := $(shell find msgs_config/cgp_sim_msgs -type f -not -path '*/__pycache__/*') tools/build_msgs.py
 PROJECT_SRC := setup.py setup.cfg package.xml README.md resource/cgp_sim_ros scripts/sim_node \
 	$(shell find cgp_core cgp_sim_ros msgs_config -type f \( -name '*.py' -o -name '*.yaml' -o -name '*.stl' \
-	-o -name '*.dae' \) -not -path '*/__pycache__/*' -not -path 'msgs_config/cgp_sim_msgs/*')
+	-o -name '*.dae' -o -name '*.json' \) -not -path '*/__pycache__/*' -not -path 'msgs_config/cgp_sim_msgs/*')
 REQUIREMENTS := $(ROS_REQUIREMENTS) requirements/python.txt requirements/dev.txt
 
 .PHONY: setup run test soak bench lock clean distclean
@@ -61,8 +61,10 @@ $(STAMPS)/project: $(STAMPS)/msgs $(PROJECT_SRC)
 	@rm -rf build cgp_sim_ros.egg-info
 	@touch $@
 
+# The live view is on (the node prints the address to open in the Foxglove app); ARGS="--foxglove false" turns
+# it off, ARGS="--foxglove-port 0" picks a free port.
 run: setup
-	@$(VENV)/bin/cgp-sim --bag "$(BAG_DIR)" $(ARGS)
+	@$(VENV)/bin/cgp-sim --bag "$(BAG_DIR)" --foxglove true $(ARGS)
 
 test: setup
 	@$(VPY) -m pytest tests

@@ -26,20 +26,22 @@ setup(
     license="Apache-2.0",
     python_requires=">=3.10",
     packages=find_packages(include=["cgp_core", "cgp_core.*", "cgp_sim_ros", "cgp_sim_ros.*", "msgs_config"]),
-    package_data={"msgs_config": ["scenes/*.yaml", "params/*.yaml"], "cgp_sim_ros": ["assets/*"]},
+    package_data={"msgs_config": ["scenes/*.yaml", "params/*.yaml", "foxglove/*.json"], "cgp_sim_ros": ["assets/*"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/scenes", sorted(glob("msgs_config/scenes/*.yaml"))),
         (f"share/{PACKAGE}/params", sorted(glob("msgs_config/params/*.yaml"))),
+        (f"share/{PACKAGE}/foxglove", sorted(glob("msgs_config/foxglove/*.json"))),
         (f"lib/{PACKAGE}", ["scripts/sim_node"]),
     ],
     # ROS packages (rclpy, *_msgs) are not listed: they come from apt on a ROS install and from
     # requirements/ros.txt (PyPI wheels) in the venv; package.xml declares them for rosdep.
-    install_requires=["numpy>=1.26", "scipy>=1.11", "numba>=0.60", "PyYAML>=6.0", "mcap>=1.2", "zstandard>=0.22", "lz4>=4.3",
-                      "pillow>=10"],
+    install_requires=["numpy>=1.26", "scipy>=1.11", "numba>=0.60", "PyYAML>=6.0", "mcap>=1.2", "zstandard>=0.22",
+                      "lz4>=4.3", "pillow>=10", "foxglove-sdk>=0.30.3,<0.31"],
     extras_require={
-        "test": ["pytest>=8", "pytest-timeout>=2.3", "mcap-ros2-support>=0.5", "rosbags>=0.10", "psutil>=5.9"],
+        "test": ["pytest>=8", "pytest-timeout>=2.3", "mcap-ros2-support>=0.5", "rosbags>=0.10", "psutil>=5.9",
+                 "websockets>=15"],
         "bench": ["pybullet", "mujoco", "pyinstrument", "matplotlib"],
         # MP4 output of cgp-sim-render (a wheel that ships ffmpeg); PNG and GIF need only Pillow
         "render": ["imageio-ffmpeg>=0.5"],

@@ -31,6 +31,10 @@ Subscribed:
 
 Services (std_srvs): ``~/reset`` (Trigger), ``~/pause`` (SetBool), ``~/step`` (Trigger, one tick while paused),
 ``~/clear_wrenches`` (Trigger).
+
+With ``foxglove:=true`` all of the above is also served over a Foxglove WebSocket (``foxglove_host``,
+``foxglove_port``): the same topics as channels, the same commands and services (see
+:mod:`cgp_sim_ros.foxglove_server`).
 """
 
 from __future__ import annotations
@@ -107,5 +111,14 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   flag="--max-torque"),
     ParameterSpec("markers_every", 1, "Publish ~/markers every N ticks (a level-of-detail option for huge "
                   "flocks; 1 = every tick).", minimum=1, maximum=10000, flag="--markers-every"),
+    ParameterSpec("foxglove", False, "Serve a live view to the Foxglove app over WebSocket (Foxglove SDK): "
+                  "every topic as the same CDR bytes, the simulation time, wrench commands and the services "
+                  "(cgp_sim_ros/foxglove_server.py).", read_only=True, flag="--foxglove"),
+    ParameterSpec("foxglove_host", "127.0.0.1", "Address the Foxglove WebSocket server listens on (127.0.0.1: "
+                  "this machine only; 0.0.0.0: every interface, and anyone who reaches it can push the bodies "
+                  "and reset the simulation).", read_only=True, flag="--foxglove-host"),
+    ParameterSpec("foxglove_port", 8765, "TCP port of the Foxglove WebSocket server (8765: the app's default); "
+                  "0 = a free port chosen by the OS, printed at start-up.", read_only=True, minimum=0,
+                  maximum=65535, flag="--foxglove-port"),
 )
 PARAMETER_BY_NAME = {p.name: p for p in PARAMETERS}

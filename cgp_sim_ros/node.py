@@ -6,6 +6,8 @@ hand the same bytes to the recorder.  No physics here: every equation lives in `
 
 Threading: one single-threaded executor runs the timer, the subscriptions and the services, so they never
 interleave with a step and need no locks.  The bag is written on its own thread (:mod:`cgp_sim_ros.bag`).
+With ``foxglove:=true`` a Foxglove WebSocket server (:mod:`cgp_sim_ros.foxglove_server`) gets the same bytes in
+:meth:`SimNode._out`; what its clients send reaches the node through the same executor (a guard condition).
 The interface (topics, QoS, parameters) is defined and documented in :mod:`cgp_sim_ros.interface`.
 
 Bad input (what a node on a shared graph must expect):
@@ -39,7 +41,7 @@ import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType, SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.node import Node
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
@@ -122,9 +124,16 @@ class SimNode(Node):
         #: set when `duration` is reached; the main loop then shuts the node down
         self.finished = False
 
+        #: every command input: topic -> (message type, handler of its serialized bytes), for other transports
+        self.command_inputs: dict[str, tuple[type, object]] = {}
         self._make_publishers()
         self._make_subscriptions()
         self._make_services()
+
+        #: the live view (parameter `foxglove`): a Foxglove WebSocket server fed in _out(), or None
+        self.foxglove = None
+        if self.params["foxglove"]:
+            self._start_foxglove()
 
         self.recorder = None
         if self.bag_path is not None:
@@ -225,6 +234,7 @@ class SimNode(Node):
                 handle(taken[0])
 
         subscription = self.create_subscription(msg_type, topic, take_all, itf.COMMAND_QOS, raw=True)
+        self.command_inputs[subscription.topic_name] = (msg_type, handle)
         return subscription
 
     def _make_services(self) -> None:
@@ -232,6 +242,14 @@ class SimNode(Node):
         self.create_service(SetBool, itf.SERVICE_PAUSE, self._on_pause)
         self.create_service(Trigger, itf.SERVICE_STEP, self._on_step)
         self.create_service(Trigger, itf.SERVICE_CLEAR_WRENCHES, self._on_clear_wrenches)
+
+    def _start_foxglove(self) -> None:
+        from .foxglove_server import FoxgloveServer, FoxgloveServerError
+
+        try:
+            self.foxglove = FoxgloveServer(self, host=self.params["foxglove_host"], port=self.params["foxglove_port"])
+        except FoxgloveServerError as exc:
+            raise ConfigError(f"foxglove: {exc}") from None
 
     def _start_recording(self, directory: Path) -> None:
         from .bag import BagExistsError
@@ -301,10 +319,12 @@ class SimNode(Node):
             line.update(text)
 
     def _out(self, publisher, data: bytes, stamp_ns: int) -> None:
-        """Publish serialized bytes and record the very same bytes."""
+        """Publish serialized bytes and record (and show in Foxglove) the very same bytes."""
         publisher.publish(data)
         if self.recorder is not None:
             self.recorder.write(publisher.topic_name, data, stamp_ns)
+        if self.foxglove is not None:
+            self.foxglove.publish(publisher, data, stamp_ns)
 
     def _periodic_reports(self) -> None:
         now = time.monotonic()
@@ -428,16 +448,14 @@ class SimNode(Node):
     def _record_received(self, topic: str, data: bytes) -> None:
         if self.recorder is not None:
             self.recorder.write(topic, data, self.world.time_ns)
+        if self.foxglove is not None:
+            self.foxglove.received(topic, data, self.world.time_ns)
 
     def _event(self, payload: dict) -> None:
         """Publish (and so record) one line on ~/events: the audit trail of what was done to the world."""
         payload = {"time": round(self.world.time, 9), **payload}
         msg = String(data=json.dumps(payload, separators=(",", ":")))
-        self.pub_events.publish(msg)
-        if self.recorder is not None:
-            from rclpy.serialization import serialize_message
-
-            self.recorder.write(self.pub_events.topic_name, serialize_message(msg), self.world.time_ns)
+        self._out(self.pub_events, serialize_message(msg), self.world.time_ns)
 
     # ---- services ----------------------------------------------------------------------------------------
 
@@ -502,7 +520,10 @@ class SimNode(Node):
     # ---- shutdown ----------------------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Finish the recording (summary, metadata.yaml) and the progress line; safe to call twice."""
+        """Stop the Foxglove server, finish the recording (summary, metadata.yaml) and the progress line; safe to
+        call twice."""
+        if self.foxglove is not None:
+            self.foxglove.close()
         if self._progress is not None:
             self._progress[0].finish()
         if self.recorder is not None:
