@@ -315,7 +315,7 @@ def test_services_called_from_foxglove(live):
         speeds.append(np.linalg.norm(world_velocity(last_odom(client, odom))))
     np.testing.assert_allclose(speeds, [3.0 * DT, 6.0 * DT, 9.0 * DT], rtol=1e-12)  # 6 N / 2 kg per tick
     cleared = deserialize_message(client.call("/cgp_sim/clear_wrenches", EMPTY_CDR_REQUEST), Trigger.Response)
-    assert cleared.success and cleared.message == "cleared 1 wrench(es)"
+    assert cleared.success and cleared.message == "cleared 1 active wrench(es) and 0 pending command(s)"
     step(client)
     assert np.linalg.norm(world_velocity(last_odom(client, odom))) == pytest.approx(speeds[-1], rel=1e-12)
 
