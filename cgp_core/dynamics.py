@@ -21,25 +21,31 @@ import numpy as np
 
 from .bodies import BodyModel, BodyState
 from .checks import positive
+from .collision.contacts import ContactSet
 from .collision.materials import Ground
 from .forces import apply_damping, apply_gravity
 from .integrators.base import Integrator
+from .sleep import Islands
 from .solver.base import ContactSolver
 
 __all__ = ["Ground", "step_bodies"]
 
 
 def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solver: ContactSolver, h: float, *,
-                gravity, ground: Ground | None, linear_damping: float = 0.0, angular_damping: float = 0.0) -> None:
-    """Advance all bodies by one sub-step of ``h`` seconds, in place.
+                gravity, ground: Ground | None, linear_damping: float = 0.0, angular_damping: float = 0.0,
+                islands: Islands | None = None) -> ContactSet:
+    """Advance all bodies (the awake ones, with ``islands``) by one sub-step of ``h`` seconds, in place.
 
     Args:
         gravity:          (3,) m/s².
         ground:           the static plane z = 0 (:class:`Ground`), or ``None`` for a scene without one.
         linear_damping, angular_damping: viscous rates [1/s] (:func:`cgp_core.forces.apply_damping`).
+        islands:          per-island sleep state (:class:`cgp_core.sleep.Islands`): sleeping bodies are left
+                          out (no forces, no integration; static to the awake ones) and an island an awake body
+                          touches is woken here.  ``None``: every body is stepped.
 
     Forces and torques already in ``state.force`` / ``state.torque`` (wrench commands) are kept and act with
-    gravity over this sub-step; the accumulators are cleared at the end.
+    gravity over this sub-step; the accumulators are cleared at the end.  Returns the contacts of the sub-step.
     """
     h = positive(h, "sub-step h [s]")
     try:
@@ -49,9 +55,14 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
     if gravity.shape != (3,) or not np.isfinite(gravity).all():
         raise ValueError(f"gravity must be 3 finite numbers [m/s²], got {gravity.tolist()}")
 
+    active = None if islands is None else islands.awake
+
     # 1. accumulate forces (on top of any wrench forces already accumulated by the caller)
     apply_gravity(model, state, gravity)
     apply_damping(model, state, linear_damping, angular_damping)
+    if active is not None:
+        state.force[~active] = 0.0  # sleeping bodies are held where they rest
+        state.torque[~active] = 0.0
 
     # 2. detect contacts, with speculative margins sized by the velocities the bodies are about to move with.
     #    The poses do not change before stage 4, so R and I_world⁻¹ (n, 3, 3) are computed once here and handed
@@ -61,17 +72,24 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
     velocity = (state.linear_momentum + h * state.force) * model.inv_mass[:, None]
     angular_velocity = np.einsum("nij,nj->ni", inv_inertia, state.angular_momentum + h * state.torque)
     contacts = solver.detector.detect(model, state, h, ground=ground, velocity=velocity,
-                                      angular_velocity=angular_velocity, rotation=R)
+                                      angular_velocity=angular_velocity, rotation=R, active=active)
+    if islands is not None and solver.detector.touched_sleeping.size:
+        # an awake body reached a sleeping island: it wakes (at rest, as it slept) and takes part from now on
+        islands.wake(solver.detector.touched_sleeping)
+        active = islands.awake
+        contacts = solver.detector.detect(model, state, h, ground=ground, velocity=velocity,
+                                          angular_velocity=angular_velocity, rotation=R, active=active)
 
     # 3. solve contacts: impulses added to P and L as momentum changes at the start of the sub-step, so that
     #    momentum + h·force + impulse satisfies non-penetration, restitution and friction
-    solver.solve_velocities(model, state, contacts, h, inv_inertia=inv_inertia)
+    solver.solve_velocities(model, state, contacts, h, inv_inertia=inv_inertia, active=active)
 
     # 4. integrate
-    integrator.step(model, state, h)
+    integrator.step(model, state, h, active=active)
 
     # 5. recover penetration (moves bodies apart; momenta untouched: adds no kinetic energy)
     solver.recover_penetration(model, state, h)
 
     # 6. clear accumulators
     state.clear_accumulators()
+    return contacts

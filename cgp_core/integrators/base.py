@@ -27,8 +27,9 @@ class Integrator(Protocol):
     #: the scene key (``world.integrator``) that selects this integrator
     name: ClassVar[str]
 
-    def step(self, model: BodyModel, state: BodyState, h: float) -> None:
-        """Advance ``state`` in place by ``h`` seconds."""
+    def step(self, model: BodyModel, state: BodyState, h: float, active: np.ndarray | None = None) -> None:
+        """Advance ``state`` in place by ``h`` seconds.  ``active`` (n,) bool: the bodies to move (default: all;
+        the others — sleeping bodies — are left bit for bit unchanged, like fixed ones)."""
         ...
 
 
@@ -37,15 +38,16 @@ def check_step(h: float) -> float:
     return positive(h, "integrator step h [s]")
 
 
-def movable_mask(model: BodyModel) -> np.ndarray:
-    """(n, 1) float: 1 for bodies that move, 0 for fixed ones — multiplies increments so that fixed bodies
-    get exactly zero without a boolean gather/scatter."""
-    return (model.inv_mass > 0.0).astype(float)[:, None]
+def movable_mask(model: BodyModel, active: np.ndarray | None = None) -> np.ndarray:
+    """(n, 1) float: 1 for bodies that move (and are ``active``, if given), 0 for fixed (or sleeping) ones —
+    multiplies increments so that those bodies get exactly zero without a boolean gather/scatter."""
+    movable = model.inv_mass > 0.0
+    return (movable if active is None else movable & active).astype(float)[:, None]
 
 
-def kick(model: BodyModel, state: BodyState, h: float) -> None:
+def kick(model: BodyModel, state: BodyState, h: float, active: np.ndarray | None = None) -> None:
     """P += h F, L += h τ for the movable bodies (the exact flow of a constant force and torque)."""
-    movable = movable_mask(model)
+    movable = movable_mask(model, active)
     state.linear_momentum += (h * movable) * state.force
     state.angular_momentum += (h * movable) * state.torque
 
