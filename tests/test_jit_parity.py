@@ -57,7 +57,7 @@ def test_compiled_and_plain_python_kernels_give_the_same_bits(tmp_path):
     ticks = 24
     compiled = run(tmp_path, "compiled", ticks)
     plain = run(tmp_path, "plain", ticks)
-    assert compiled.shape == plain.shape == (ticks, 5, 14)
-    # the scene did collide: the bodies were stopped by the ground / each other (not in free fall)
-    assert compiled[-1, :4, 9].max() > -0.5 * 9.81 * ticks / 60 * 2.0 * 0.5
+    assert compiled.shape == plain.shape == (ticks, 5, 13)  # position, orientation, P, L of 5 bodies
+    # the bodies did collide: in free fall for 0.4 s they would have dropped 0.8 m, through the ground
+    assert compiled[-1, :4, 2].min() > 0.1
     np.testing.assert_array_equal(compiled, plain)
