@@ -25,6 +25,8 @@ from .collision.contacts import ContactSet
 from .collision.materials import Ground
 from .forces import apply_damping, apply_gravity
 from .integrators.base import Integrator
+from .jit import njit
+from .rotation import quat_to_matrices
 from .sleep import Islands
 from .solver.base import ContactSolver
 
@@ -67,10 +69,10 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
     # 2. detect contacts, with speculative margins sized by the velocities the bodies are about to move with.
     #    The poses do not change before stage 4, so R and I_world⁻¹ (n, 3, 3) are computed once here and handed
     #    to detection and the solver (each would otherwise rebuild them from the quaternions)
-    R = state.rotation_matrices()
-    inv_inertia = state.inv_inertia_world(model, R)
-    velocity = (state.linear_momentum + h * state.force) * model.inv_mass[:, None]
-    angular_velocity = np.einsum("nij,nj->ni", inv_inertia, state.angular_momentum + h * state.torque)
+    R = quat_to_matrices(state.orientation) if state.rotation is None else np.ascontiguousarray(state.rotation)
+    inv_inertia, velocity, angular_velocity = coming_velocities(R, model.inv_inertia_body, model.inv_mass,
+                                                                state.linear_momentum, state.angular_momentum,
+                                                                state.force, state.torque, h)
     contacts = solver.detector.detect(model, state, h, ground=ground, velocity=velocity,
                                       angular_velocity=angular_velocity, rotation=R, active=active)
     if islands is not None and solver.detector.touched_sleeping.size:
@@ -93,3 +95,30 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
     # 6. clear accumulators
     state.clear_accumulators()
     return contacts
+
+
+@njit
+def coming_velocities(R, inv_inertia_body, inv_mass, linear_momentum, angular_momentum, force, torque, h):
+    """World-frame I⁻¹ = R I_body⁻¹ Rᵀ ``(n, 3, 3)``, and the velocities the bodies will move with over the sub-step
+    without contacts, v = (P + h F) / m and ω = I⁻¹ (L + h τ) ``(n, 3)`` each."""
+    n = len(R)
+    inv_inertia = np.empty((n, 3, 3))
+    velocity = np.empty((n, 3))
+    angular_velocity = np.empty((n, 3))
+    RW = np.empty((3, 3))
+    for i in range(n):
+        for r in range(3):
+            for c in range(3):
+                RW[r, c] = R[i, r, 0] * inv_inertia_body[i, 0, c] + R[i, r, 1] * inv_inertia_body[i, 1, c] \
+                    + R[i, r, 2] * inv_inertia_body[i, 2, c]
+        for r in range(3):
+            for c in range(3):
+                inv_inertia[i, r, c] = RW[r, 0] * R[i, c, 0] + RW[r, 1] * R[i, c, 1] + RW[r, 2] * R[i, c, 2]
+        for k in range(3):
+            velocity[i, k] = (linear_momentum[i, k] + h * force[i, k]) * inv_mass[i]
+        for r in range(3):
+            acc = 0.0
+            for c in range(3):
+                acc += inv_inertia[i, r, c] * (angular_momentum[i, c] + h * torque[i, c])
+            angular_velocity[i, r] = acc
+    return inv_inertia, velocity, angular_velocity

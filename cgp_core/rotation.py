@@ -226,3 +226,24 @@ def quat_rotate_scalar(qx, qy, qz, qw, vx, vy, vz):
     return (vx + qw * tx + (qy * tz - qz * ty),
             vy + qw * ty + (qz * tx - qx * tz),
             vz + qw * tz + (qx * ty - qy * tx))
+
+
+@njit
+def quat_to_matrices(q):
+    """:func:`quat_to_matrix` for ``(n, 4)`` quaternions as one compiled loop: ``(n, 3, 3)``."""
+    R = np.empty((len(q), 3, 3))
+    for i in range(len(q)):
+        x, y, z, w = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+        xx, yy, zz = x * x, y * y, z * z
+        xy, xz, yz = x * y, x * z, y * z
+        wx, wy, wz = w * x, w * y, w * z
+        R[i, 0, 0] = 1.0 - 2.0 * (yy + zz)
+        R[i, 0, 1] = 2.0 * (xy - wz)
+        R[i, 0, 2] = 2.0 * (xz + wy)
+        R[i, 1, 0] = 2.0 * (xy + wz)
+        R[i, 1, 1] = 1.0 - 2.0 * (xx + zz)
+        R[i, 1, 2] = 2.0 * (yz - wx)
+        R[i, 2, 0] = 2.0 * (xz - wy)
+        R[i, 2, 1] = 2.0 * (yz + wx)
+        R[i, 2, 2] = 1.0 - 2.0 * (xx + yy)
+    return R

@@ -132,12 +132,9 @@ class CollisionDetector:
                                 active, movable, centre, np.ascontiguousarray(R), lo, margin, i, j,
                                 ground is not None, ground.friction if ground is not None else 0.0,
                                 ground.restitution if ground is not None else 0.0)
-        body_a, body_b, normal, separation, point, key, friction, restitution = contacts
-        touched = (body_a >= 0) & ~active[np.maximum(body_a, 0)] & movable[np.maximum(body_a, 0)]
-        touched |= ~active[body_b] & movable[body_b]
+        body_a, body_b, normal, separation, point, key, friction, restitution, touched = contacts
         if touched.any():
-            self.touched_sleeping = np.unique(np.concatenate((body_a[touched], body_b[touched])))
-            self.touched_sleeping = self.touched_sleeping[~active[self.touched_sleeping]]
+            self.touched_sleeping = np.flatnonzero(touched)
         return ContactSet(body_a, body_b, normal, separation, point, key, friction, restitution)
 
 
@@ -197,7 +194,7 @@ def narrow_phase(prim_body, prim_shape, prim_radius, prim_half, body_friction, b
                  centre, rotation, lo, margin, pair_i, pair_j, has_ground, ground_friction, ground_restitution):
     """Contact points of the active primitives with the ground and of the candidate pairs ``pair_i, pair_j``
     (primitive indices, AABBs overlapping), as the :class:`ContactSet` fields ``(body_a, body_b, normal,
-    separation, point, key, friction, restitution)``; ground contacts first, in primitive order, then the pairs
+    separation, point, key, friction, restitution)``, and ``touched (n,)``: the sleeping bodies in a contact; ground contacts first, in primitive order, then the pairs
     in the order given.  A pair's side A is the primitive whose shape comes first in SPHERE < BOX < CAPSULE.
     Materials: friction √(μ_a μ_b), restitution max(e_a, e_b) (see :mod:`.materials`)."""
     p = len(prim_body)
@@ -274,7 +271,8 @@ def narrow_phase(prim_body, prim_shape, prim_radius, prim_half, body_friction, b
         prim_a[start:m] = a
         prim_b[start:m] = b
 
-    # -- bodies, identity keys and materials
+    # -- bodies, identity keys and materials; sleeping (movable, not active) bodies touched
+    touched = np.zeros(len(active), np.bool_)
     body_a = np.empty(m, np.int64)
     body_b = np.empty(m, np.int64)
     key = np.empty(m, np.int64)
@@ -291,8 +289,11 @@ def narrow_phase(prim_body, prim_shape, prim_radius, prim_half, body_friction, b
         friction[c] = math.sqrt(mu_a * body_friction[body_b[c]])
         restitution[c] = max(e_a, body_restitution[body_b[c]])
         key[c] = contact_key(prim_a[c], prim_b[c], feature[c], p)
+        for body in (body_a[c], body_b[c]):
+            if body >= 0 and movable[body] and not active[body]:
+                touched[body] = True
     return (body_a, body_b, normal[:m].copy(), separation[:m].copy(), point[:m].copy(), key, friction,
-            restitution)
+            restitution, touched)
 
 
 @njit

@@ -51,7 +51,7 @@ import numpy as np
 
 from ..bodies import BodyModel, BodyState
 from ..jit import njit
-from .base import check_step, kick, movable_mask
+from .base import check_step
 
 
 #: Largest value of h |L| ‖I_body⁻¹‖_F one implicit solve is given.  This bounds both h|Ω| (the angle turned
@@ -72,11 +72,34 @@ class ImplicitMidpoint:
     def step(self, model: BodyModel, state: BodyState, h: float, active: np.ndarray | None = None) -> None:
         h = check_step(h)
         state.rotation = None  # the quaternion is authoritative (a matrix left by explicit_euler is stale)
-        movable = movable_mask(model, active)
-        kick(model, state, h, active)
-        state.position += h * state.linear_momentum * (model.inv_mass[:, None] * movable)
-        state.orientation[:] = free_rotation(model.inv_inertia_body, state.orientation, state.angular_momentum, h,
-                                             movable=movable[:, 0] > 0.0)
+        movable = model.inv_mass > 0.0
+        if active is not None:
+            movable = movable & active
+        worst = _step_kernel(model.inv_mass, model.inv_inertia_body, movable, state.position, state.orientation,
+                             state.linear_momentum, state.angular_momentum, state.force, state.torque, h)
+        _warn_unconverged(worst, h)
+
+
+@njit
+def _step_kernel(inv_mass, inv_inertia, movable, position, orientation, linear_momentum, angular_momentum, force,
+                 torque, h):
+    """The whole step for the ``movable`` bodies, in place: kick (P += h F, L += h τ), drift (x += h P/m), then
+    the implicit-midpoint free rotation.  Returns what :func:`_free_rotation_kernel` returns."""
+    for i in range(len(position)):
+        if movable[i]:
+            for k in range(3):
+                linear_momentum[i, k] += h * force[i, k]
+                angular_momentum[i, k] += h * torque[i, k]
+                position[i, k] += h * linear_momentum[i, k] * inv_mass[i]
+    return _free_rotation_kernel(inv_inertia, orientation, angular_momentum, h, movable)
+
+
+def _warn_unconverged(worst: float, h: float) -> None:
+    if worst > 0.0:
+        warnings.warn(
+            f"implicit midpoint: the implicit solve did not converge in {MAX_ITERATIONS} iterations (h = {h:g} s, "
+            f"last relative update {worst:.1e}): the step is too large for the bodies' spin; energy is not "
+            "conserved exactly this step", RuntimeWarning, stacklevel=3)
 
 
 def free_rotation(inv_inertia: np.ndarray, orientation: np.ndarray, angular_momentum: np.ndarray, h: float, *,
@@ -99,11 +122,7 @@ def free_rotation(inv_inertia: np.ndarray, orientation: np.ndarray, angular_mome
     q = np.ascontiguousarray(orientation, dtype=float).copy()
     worst = _free_rotation_kernel(np.ascontiguousarray(inv_inertia, dtype=float),
                                   q, np.ascontiguousarray(angular_momentum, dtype=float), float(h), movable)
-    if worst > 0.0:
-        warnings.warn(
-            f"implicit midpoint: the implicit solve did not converge in {MAX_ITERATIONS} iterations (h = {h:g} s, "
-            f"last relative update {worst:.1e}): the step is too large for the bodies' spin; energy is not "
-            "conserved exactly this step", RuntimeWarning, stacklevel=2)
+    _warn_unconverged(worst, h)
     return q
 
 

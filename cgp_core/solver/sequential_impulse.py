@@ -503,6 +503,100 @@ def resist_rolling(V, a, b, normal, lever, lam, inv_inertia, dynamic, coefficien
         impulse[ib, 5] -= size * az
 
 
+@njit
+def solve_step(body_a, body_b, normal, separation, point, key, friction, restitution, model_inv_mass, movable,
+               world_inv_inertia, position, linear_momentum, angular_momentum, force, torque, h, old_key, old_normal,
+               old_friction, old_point, velocity_iterations, velocity_tolerance, restitution_threshold, warm_start,
+               rolling_resistance, impact_sweeps):
+    """The stage "solve contacts" for a :class:`ContactSet`'s arrays: the bodies with one extra static row (index
+    n, the ground), the contacts that can move something sorted by body pair (each manifold a run), matched
+    with last sub-step's (``old_*``, key-sorted), solved (:func:`solve_contacts`), and the impulses added to
+    ``linear_momentum`` / ``angular_momentum`` in place.  ``movable`` (n,): the bodies whose velocity may
+    change (movable and awake).
+
+    Returns the sorted contacts' ``a, b, group_start``, rows ``J, MJ, eff``, block cache, ``separation``,
+    ``toi_shift`` (for the recovery stage), the number of sweeps, the deepest penetration, and the new warm-start
+    memory ``(key, normal impulse, friction impulse (·, 3), point)`` sorted by key."""
+    n = len(position)
+    inv_mass = np.zeros(n + 1)
+    dynamic = np.zeros(n + 1, np.bool_)
+    inv_inertia = np.zeros((n + 1, 3, 3))
+    pos = np.zeros((n + 1, 3))
+    V = np.zeros((n + 1, 6))  # the velocities being solved for: from momentum + h·force ...
+    V_before = np.zeros((n + 1, 6))  # ... and before this sub-step's forces (restitution)
+    for i in range(n):
+        pos[i] = position[i]
+        if not movable[i]:
+            continue
+        dynamic[i] = True
+        inv_mass[i] = model_inv_mass[i]
+        inv_inertia[i] = world_inv_inertia[i]
+        for k in range(3):
+            V[i, k] = (linear_momentum[i, k] + h * force[i, k]) * inv_mass[i]
+            V_before[i, k] = linear_momentum[i, k] * inv_mass[i]
+        for r in range(3):
+            acc = 0.0
+            acc_before = 0.0
+            for c in range(3):
+                acc += inv_inertia[i, r, c] * (angular_momentum[i, c] + h * torque[i, c])
+                acc_before += inv_inertia[i, r, c] * angular_momentum[i, c]
+            V[i, 3 + r] = acc
+            V_before[i, 3 + r] = acc_before
+
+    # -- a contact between two bodies that cannot move needs no impulse (and has no effective mass); the rest
+    #    sorted by body pair, so each manifold is a run of consecutive contacts
+    deepest = 0.0
+    count = 0
+    pair = np.empty(len(body_b), np.int64)
+    kept = np.empty(len(body_b), np.int64)
+    for c in range(len(body_b)):
+        deepest = max(deepest, -separation[c])
+        ia = n if body_a[c] < 0 else body_a[c]
+        if dynamic[ia] or dynamic[body_b[c]]:
+            pair[count] = ia * (n + 1) + body_b[c]
+            kept[count] = c
+            count += 1
+    order = kept[:count][np.argsort(pair[:count], kind="mergesort")]
+    m = len(order)
+    a = np.empty(m, np.int64)
+    b = np.empty(m, np.int64)
+    group_start = np.empty(m + 1, np.int64)
+    G = 0
+    for q in range(m):
+        c = order[q]
+        a[q] = n if body_a[c] < 0 else body_a[c]
+        b[q] = body_b[c]
+        if q == 0 or a[q] != a[q - 1] or b[q] != b[q - 1]:
+            group_start[G] = q
+            G += 1
+    group_start[G] = m
+    group_start = group_start[:G + 1].copy()
+    normal_s, separation_s, point_s = normal[order], separation[order], point[order]
+    key_s = key[order]
+
+    prev = match_previous(key_s, point_s, old_key, old_point)
+    impulse, lam, J, MJ, eff, A, cache, cached, toi_shift, sweeps = solve_contacts(
+        a, b, group_start, normal_s, separation_s, point_s, friction[order], restitution[order], prev, old_normal,
+        old_friction, pos, inv_mass, inv_inertia, dynamic, V, V_before, h, velocity_iterations, velocity_tolerance,
+        restitution_threshold, warm_start, rolling_resistance, impact_sweeps)
+    for i in range(n):
+        for k in range(3):
+            linear_momentum[i, k] += impulse[i, k]
+            angular_momentum[i, k] += impulse[i, 3 + k]
+
+    # -- warm-start memory: the normal impulse and the world-frame friction impulse of each contact, by key
+    by_key = np.argsort(key_s, kind="mergesort")
+    warm_normal = np.empty(m)
+    warm_friction = np.empty((m, 3))
+    for q in range(m):
+        c = by_key[q]
+        warm_normal[q] = lam[c, 0]
+        for k in range(3):  # J[c, r, 6:9] is row r's direction
+            warm_friction[q, k] = lam[c, 1] * J[c, 1, 6 + k] + lam[c, 2] * J[c, 2, 6 + k]
+    return (a, b, group_start, J, MJ, eff, A, cache, cached, separation_s, toi_shift, sweeps, deepest,
+            key_s[by_key], warm_normal, warm_friction, point_s[by_key])
+
+
 # ---- stage "recover penetration" ---------------------------------------------------------------------------
 
 @njit
@@ -623,65 +717,26 @@ class SequentialImpulseSolver:
         s = self.settings
         n = model.count
         self._pending = None
-        self.stats = {"contacts": contacts.count, "manifolds": 0, "sweeps": 0,
-                      "max_penetration": float(contacts.penetration().max()) if contacts.count else 0.0}
         if model is not self._warm_model or n != self._warm_count:
             self.reset()
             self._warm_model, self._warm_count = model, n
-        if contacts.count == 0:
-            self._store_warm(np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
-            return
-
-        # -- bodies, with one extra static row (index n) standing for the ground
-        inv_mass = np.zeros(n + 1)
-        inv_mass[:n] = model.inv_mass
-        if active is not None:
-            inv_mass[:n] *= active
-        dynamic = inv_mass > 0.0
-        world_inv_inertia = state.inv_inertia_world(model) if inv_inertia is None else inv_inertia
-        inv_inertia = np.zeros((n + 1, 3, 3))
-        inv_inertia[:n][dynamic[:n]] = world_inv_inertia[dynamic[:n]]
-        V_before = np.zeros((n + 1, 6))  # velocities before this sub-step's forces (restitution)
-        V_before[:n, :3] = state.linear_momentum * inv_mass[:n, None]
-        V_before[:n, 3:] = np.einsum("nij,nj->ni", inv_inertia[:n], state.angular_momentum)
-        V = np.zeros((n + 1, 6))  # the velocities being solved for: from momentum + h·force ...
-        V[:n, :3] = (state.linear_momentum + h * state.force) * inv_mass[:n, None]
-        V[:n, 3:] = np.einsum("nij,nj->ni", inv_inertia[:n], state.angular_momentum + h * state.torque)
-        position = np.zeros((n + 1, 3))
-        position[:n] = state.position
-
-        # -- a contact between two bodies that cannot move needs no impulse (and has no effective mass); the
-        #    rest sorted by body pair, so each manifold is a run of consecutive contacts
-        a = np.where(contacts.body_a < 0, n, contacts.body_a)
-        b = contacts.body_b
-        keep = np.flatnonzero(dynamic[a] | dynamic[b])
-        pair = a[keep] * (n + 1) + b[keep]
-        order = keep[np.argsort(pair, kind="stable")]
-        m = order.size
-        if m == 0:
-            self._store_warm(np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
-            return
-        a, b = np.ascontiguousarray(a[order]), np.ascontiguousarray(b[order])
-        pair = a * (n + 1) + b
-        group_start = np.flatnonzero(np.concatenate(([True], pair[1:] != pair[:-1], [True])))
-        normal, separation = contacts.normal[order], contacts.separation[order]
-        point, key = contacts.point[order], contacts.key[order]
-
-        prev = match_previous(key, point, self._warm_keys, self._warm_point)
-        impulse, lam, J, MJ, eff, A, cache, cached, toi_shift, sweeps = solve_contacts(
-            a, b, group_start, normal, separation, point, contacts.friction[order], contacts.restitution[order],
-            prev, self._warm_normal, self._warm_friction, position, inv_mass, inv_inertia, dynamic, V, V_before,
-            float(h), s.velocity_iterations, s.velocity_tolerance, s.restitution_threshold, s.warm_start,
-            s.rolling_resistance, IMPACT_SWEEPS)
-        state.linear_momentum += impulse[:n, :3]
-        state.angular_momentum += impulse[:n, 3:]
-        self.stats.update(manifolds=len(group_start) - 1, sweeps=sweeps)
-
-        # warm-start memory: the normal impulse and the world-frame friction impulse of each contact
-        friction_vector = lam[:, 1, None] * J[:, 1, 6:9] + lam[:, 2, None] * J[:, 2, 6:9]
-        self._store_warm(key, lam[:, 0].copy(), friction_vector, point)
-        self._pending = (model, a, b, group_start, J, MJ, eff, A, cache, cached, separation, toi_shift,
-                         state.position.copy(), state.orientation.copy(), dynamic[:n].copy())
+        if inv_inertia is None:
+            inv_inertia = state.inv_inertia_world(model)
+        movable = model.inv_mass > 0.0 if active is None else (model.inv_mass > 0.0) & active
+        (a, b, group_start, J, MJ, eff, A, cache, cached, separation, toi_shift, sweeps, deepest, warm_key,
+         warm_normal, warm_friction, warm_point) = solve_step(
+            contacts.body_a, contacts.body_b, contacts.normal, contacts.separation, contacts.point, contacts.key,
+            contacts.friction, contacts.restitution, model.inv_mass, movable, np.ascontiguousarray(inv_inertia),
+            state.position, state.linear_momentum, state.angular_momentum, state.force, state.torque, float(h),
+            self._warm_keys, self._warm_normal, self._warm_friction, self._warm_point, s.velocity_iterations,
+            s.velocity_tolerance, s.restitution_threshold, s.warm_start, s.rolling_resistance, IMPACT_SWEEPS)
+        self._warm_keys, self._warm_normal, self._warm_friction, self._warm_point = (warm_key, warm_normal,
+                                                                                    warm_friction, warm_point)
+        self.stats = {"contacts": contacts.count, "manifolds": len(group_start) - 1, "sweeps": sweeps,
+                      "max_penetration": deepest}
+        if len(a):
+            self._pending = (model, a, b, group_start, J, MJ, eff, A, cache, cached, separation, toi_shift,
+                             state.position.copy(), state.orientation.copy(), movable)
 
     def recover_penetration(self, model: BodyModel, state: BodyState, h: float) -> None:
         """Move penetrating bodies apart (positions / orientations only) for the contacts of the last
