@@ -14,9 +14,9 @@ PyBullet, and the compiled kernels' start-up cost.
    same pile in PyBullet, interleaved tick by tick.  Median and p99 per tick over the first 4 s (they fall,
    land and pile up), and the ratio cgp_sim / PyBullet of the medians.
 3. **Start-up of the compiled kernels** (``cgp_core.jit``, numba ``cache=True``): a fresh process with an
-   empty numba cache directory (``NUMBA_CACHE_DIR``) imports cgp_core, builds the default scene with its bodies
-   placed so every contact kernel runs in the first ticks, and steps until they have (cold compile); then the
-   same again with the cache just written (warm: import + first ticks).
+   empty numba cache directory (``NUMBA_CACHE_DIR``) imports cgp_core and runs :func:`cgp_core.warmup.warm_up`
+   (the default scene, bodies and flock, placed so every contact kernel runs in the first ticks; cold compile);
+   then the same again with the cache just written (warm: import + first tick).
 
     .venv/bin/python benchmarks/bench_rigid.py [--quick]
 """
@@ -41,6 +41,7 @@ from common import Results  # noqa: E402
 
 from cgp_core import Shape, World, parse_scene  # noqa: E402
 from cgp_core.rotation import quat_to_matrix  # noqa: E402
+from cgp_core.warmup import warm_up  # noqa: E402
 
 H = 1.0 / 240.0
 SUBSTEPS = 4
@@ -143,9 +144,8 @@ def default_bodies_world() -> World:
 def bench_default(seconds: float) -> dict:
     import mujoco
 
+    warm_up()  # every kernel compiled / loaded before timing
     world = default_bodies_world()
-    for _ in range(3):  # compile / load the kernels before timing
-        default_bodies_world().step()
     m, d = mujoco_model(world)
     pb, client = pybullet_world(world)
     ticks = int(round(seconds * 60))
@@ -206,8 +206,8 @@ def pile_scene(count: int = 200, seed: int = 7) -> str:
 
 
 def bench_pile(seconds: float) -> dict:
+    warm_up()  # every kernel compiled / loaded before timing
     world = World(parse_scene(pile_scene()), dt=1 / 60)
-    World(parse_scene(pile_scene(8))).step()  # compile / load the kernels before timing
     pb, client = pybullet_world(world)
     ticks = int(round(seconds * 60))
     t_cgp, t_pb = np.empty(ticks), np.empty(ticks)
@@ -239,21 +239,12 @@ def bench_pile(seconds: float) -> dict:
 STARTUP = r"""
 import time
 t0 = time.perf_counter()
-import numpy as np
 from cgp_core import World
-w = World.from_scene("default")
-w.flocks = []
 t1 = time.perf_counter()
-s, names = w.body_state, w.body_model.names
-for name, xyz in {"ball": (1.6, 1.4, 0.32), "crate": (5.15, 0.0, 0.28), "capsule": (5.0, 0.0, 0.78),
-                  "tetromino": (1.8, 2.0, 0.18)}.items():
-    s.position[names.index(name)] = xyz
-w.step()
-t2 = time.perf_counter()
-for _ in range(20):
-    w.step()
-t3 = time.perf_counter()
-print(f"{t1 - t0:.3f} {t2 - t1:.3f} {t3 - t0:.3f}")
+from cgp_core.warmup import warm_up
+first = warm_up(ticks=1)
+rest = warm_up(ticks=20)
+print(f"{t1 - t0:.3f} {first:.3f} {time.perf_counter() - t0:.3f}")
 """
 
 
@@ -268,8 +259,7 @@ def bench_startup() -> dict:
                                   text=True, check=True)
             total = time.perf_counter() - started
             imp, first, ticks = map(float, done.stdout.split())
-            out[label] = {"process_s": total, "import_and_build_s": imp, "first_tick_s": first,
-                          "to_21_ticks_s": ticks}
+            out[label] = {"process_s": total, "import_s": imp, "first_tick_s": first, "to_21_ticks_s": ticks}
     return out
 
 
@@ -281,7 +271,7 @@ def main(argv=None) -> int:
 
     startup = bench_startup()
     print(f"start-up: cold (empty numba cache) {startup['cold']['process_s']:.1f} s to 21 ticks, "
-          f"warm {startup['warm']['process_s']:.2f} s (import {startup['warm']['import_and_build_s']:.2f} s, "
+          f"warm {startup['warm']['process_s']:.2f} s (import {startup['warm']['import_s']:.2f} s, "
           f"first tick {startup['warm']['first_tick_s'] * 1e3:.0f} ms)", flush=True)
     default = bench_default(6.0 if args.quick else 18.0)
     c, mj, pbt = default["cgp_sim"], default["mujoco"], default["pybullet"]

@@ -30,7 +30,7 @@ import numpy as np
 from ..bodies import BodyModel, BodyState, Shape
 from ..jit import njit
 from .box_box import box_box_contacts
-from .broadphase import DEFAULT_BROAD_PHASE, get_broad_phase
+from .broadphase import DEFAULT_BROAD_PHASE, get_broad_phase, sweep_and_prune_kernel, sweep_and_prune_pairs
 from .contacts import GROUND, ContactSet
 from .materials import Ground
 from .narrowphase import (box_capsule_contacts, box_plane_contacts, capsule_capsule_contacts, capsule_plane_contacts,
@@ -58,7 +58,7 @@ class CollisionDetector:
     """Finds the contacts of a body model at the current state.
 
     Args:
-        broad_phase: ``"grid"`` (default), ``"sweep_and_prune"`` or ``"brute_force"`` (see
+        broad_phase: ``"sweep_and_prune"`` (default, compiled), ``"grid"`` or ``"brute_force"`` (see
             :mod:`.broadphase`), used above ``SMALL_SCENE`` primitives.
         speculative_distance: gap [m] below which contacts are always reported (see the module docstring).
 
@@ -120,6 +120,8 @@ class CollisionDetector:
         # no overlap test passes
         if cm.count <= SMALL_SCENE:
             i, j = small_scene_pairs(lo, hi, cm.body, active)
+        elif self.broad_phase is sweep_and_prune_pairs:
+            i, j = sweep_and_prune_kernel(lo, hi)  # one compiled call; the pair order does not matter here
         else:
             sane = np.flatnonzero(np.isfinite(lo).all(1) & np.isfinite(hi).all(1))
             if sane.size == cm.count:
@@ -207,7 +209,8 @@ def narrow_phase(prim_body, prim_shape, prim_radius, prim_half, body_friction, b
     prim_b = np.empty(cap, np.int64)
     axis_a = np.empty(3)
     axis_b = np.empty(3)
-    m = np.int64(0)  # (not a literal 0: numba would compile the kernels it is passed to for that type too)
+    # (an int64, not a literal 0: numba would also compile the kernels it is passed to for a literal 0)
+    m = np.int64(0)
 
     # -- the ground plane z = 0 (side A) against every active primitive near it
     if has_ground:

@@ -20,6 +20,7 @@ import numpy as np
 
 from ..checks import positive
 from ..bodies import BodyModel, BodyState
+from ..jit import njit
 from ..rotation import cross3
 
 
@@ -85,3 +86,17 @@ def inverse3(matrices: np.ndarray) -> np.ndarray:
     inv_det = 1.0 / np.einsum("...i,...i->...", matrices[..., 0, :], out[..., :, 0])
     out *= inv_det[..., None, None]
     return out
+
+
+@njit
+def inverse3_into(A, out):
+    """:func:`inverse3` for one 3×3 matrix ``A``, into ``out`` (3, 3), for the compiled integrator loops."""
+    for k in range(3):
+        i, j = (k + 1) % 3, (k + 2) % 3
+        out[0, k] = A[i, 1] * A[j, 2] - A[i, 2] * A[j, 1]
+        out[1, k] = A[i, 2] * A[j, 0] - A[i, 0] * A[j, 2]
+        out[2, k] = A[i, 0] * A[j, 1] - A[i, 1] * A[j, 0]
+    inv_det = 1.0 / (A[0, 0] * out[0, 0] + A[0, 1] * out[1, 0] + A[0, 2] * out[2, 0])
+    for r in range(3):
+        for c in range(3):
+            out[r, c] *= inv_det

@@ -51,7 +51,7 @@ import numpy as np
 
 from ..bodies import BodyModel, BodyState
 from ..jit import njit
-from .base import check_step
+from .base import check_step, inverse3_into
 
 
 #: Largest value of h |L| ‖I_body⁻¹‖_F one implicit solve is given.  This bounds both h|Ω| (the angle turned
@@ -234,7 +234,7 @@ def solve_midpoint_momentum(W, pi_n, h, pi):
             jacobian[2, 1] += half_h * omega[0]
             for r in range(3):
                 jacobian[r, r] += 1.0
-            inverse3(jacobian, inverse)
+            inverse3_into(jacobian, inverse)
             fresh = False
         largest = 0.0
         for r in range(3):
@@ -246,18 +246,3 @@ def solve_midpoint_momentum(W, pi_n, h, pi):
         if largest <= TOLERANCE:
             return 0.0
     return largest
-
-
-@njit
-def inverse3(A, out):
-    """Inverse of a 3×3 matrix by the adjugate (the columns of A⁻¹ are the cross products of A's rows divided by
-    det A).  Never raises: a singular matrix gives inf/nan, which the World's blow-up guard then catches."""
-    for k in range(3):
-        i, j = (k + 1) % 3, (k + 2) % 3
-        out[0, k] = A[i, 1] * A[j, 2] - A[i, 2] * A[j, 1]
-        out[1, k] = A[i, 2] * A[j, 0] - A[i, 0] * A[j, 2]
-        out[2, k] = A[i, 0] * A[j, 1] - A[i, 1] * A[j, 0]
-    inv_det = 1.0 / (A[0, 0] * out[0, 0] + A[0, 1] * out[1, 0] + A[0, 2] * out[2, 0])
-    for r in range(3):
-        for c in range(3):
-            out[r, c] *= inv_det

@@ -8,7 +8,8 @@ name                     what it is
                          one manifold at a time (:mod:`.sequential_impulse`)
 =======================  ====================================================================================
 
-Helpers: :mod:`.manifold` (exact block solve of a contact manifold's normal rows), :mod:`.base` (the interface and :class:`SolverSettings`).
+Helpers: :mod:`.manifold` (exact block solve of a contact manifold's normal rows), :mod:`.base` (the interface
+and :class:`SolverSettings`).
 
 Materials (:mod:`cgp_core.collision.materials`, re-exported here): a contact's friction is
 ``√(μ_a μ_b)`` and its restitution ``max(e_a, e_b)`` (Box2D's rules); the ground defaults to μ = 0.6, e = 0

@@ -55,7 +55,8 @@ def _subset_table() -> np.ndarray:
     empty one last; padded with −1 to 16 entries."""
     table = np.full((MAX_BLOCK + 1, 1 << MAX_BLOCK), -1, dtype=np.int64)
     for P in range(1, MAX_BLOCK + 1):
-        masks = [sum(1 << i for i in chosen) for k in range(P, -1, -1) for chosen in itertools.combinations(range(P), k)]
+        masks = [sum(1 << i for i in chosen)
+                 for k in range(P, -1, -1) for chosen in itertools.combinations(range(P), k)]
         table[P, :len(masks)] = masks
     return table
 

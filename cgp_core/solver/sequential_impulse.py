@@ -98,12 +98,6 @@ def tangent_basis_scalar(x, y, z):
     return 1.0 + sign * x * x * a, sign * b, -sign * x, b, sign + y * y * a, -y
 
 
-def tangent_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`tangent_basis_scalar` for normals ``(m, 3)``: ``t₁, t₂ (m, 3)``."""
-    t = np.array([tangent_basis_scalar(*row) for row in np.asarray(normal, float)]).reshape(-1, 6)
-    return t[:, :3], t[:, 3:]
-
-
 # ---- warm-start matching -----------------------------------------------------------------------------------
 
 @njit
