@@ -38,7 +38,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from cgp_core.bodies import BodyModel, BodyState, Shape  # noqa: E402
 from cgp_core.collision import BROAD_PHASES, CollisionDetector, Ground  # noqa: E402
-from cgp_core.collision.primitives import build_collision_model, primitive_aabbs, primitive_poses  # noqa: E402
+from cgp_core.collision.primitives import build_collision_model, primitive_aabbs  # noqa: E402
 from cgp_core.dynamics import step_bodies  # noqa: E402
 from cgp_core.integrators import make_integrator  # noqa: E402
 from cgp_core.solver import make_solver  # noqa: E402
@@ -224,8 +224,7 @@ def broadphase_scaling(counts) -> list[dict]:
         for _ in range(int(2.0 / H)):  # let it settle into a pile
             sim.step()
         cm = build_collision_model(sim.model)
-        centre, R = primitive_poses(cm, sim.state.position, sim.state.rotation_matrices())
-        lo, hi = primitive_aabbs(cm, centre, R)
+        lo, hi = primitive_aabbs(cm, sim.state.position, sim.state.rotation_matrices())
         lo -= 0.002
         hi += 0.002
         ref = None

@@ -1,8 +1,9 @@
 """Contact detection for one sub-step: broad phase → narrow phase → :class:`ContactSet`.
 
-Three compiled stages, called from :meth:`CollisionDetector.detect`: :func:`primitive_bounds` (primitive poses,
-AABBs grown by the speculative margins), the broad phase (:func:`small_scene_pairs` for a handful of primitives,
-else the configured :mod:`.broadphase` function) and :func:`narrow_phase` (one loop over the ground and the
+Three compiled stages, called from :meth:`CollisionDetector.detect`:
+:func:`~cgp_core.collision.primitives.primitive_bounds` (primitive poses, AABBs grown by the speculative margins),
+the broad phase (:func:`small_scene_pairs` for a handful of primitives, else the configured :mod:`.broadphase`
+function) and :func:`narrow_phase` (one loop over the ground and the
 candidate pairs, each pair handed to its shape pair's kernel in :mod:`.narrowphase` / :mod:`.box_box`).
 
 Speculative contacts (Catto, "Continuous collision", GDC 2013; Box2D v3).  A pair is reported not only when
@@ -23,8 +24,6 @@ missed.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from ..bodies import BodyModel, BodyState, Shape
@@ -32,10 +31,10 @@ from ..jit import njit
 from .box_box import box_box_contacts
 from .broadphase import DEFAULT_BROAD_PHASE, get_broad_phase, sweep_and_prune_kernel, sweep_and_prune_pairs
 from .contacts import GROUND, ContactSet
-from .materials import Ground
+from .materials import Ground, combine_friction, combine_restitution
 from .narrowphase import (box_capsule_contacts, box_plane_contacts, capsule_capsule_contacts, capsule_plane_contacts,
                           sphere_box_point, sphere_capsule_point, sphere_plane_point, sphere_sphere_point, write_point)
-from .primitives import CollisionModel, build_collision_model
+from .primitives import CollisionModel, build_collision_model, primitive_bounds
 
 #: default speculative distance [m]: contacts within this gap are kept even at rest, so a resting contact
 #: does not flicker in and out (and lose its warm-start impulse) with the solver's tiny residual motion
@@ -82,12 +81,6 @@ class CollisionDetector:
             self._model = model
         return self._cmodel
 
-    def margins(self, model: BodyModel, h: float, velocity: np.ndarray, angular_velocity: np.ndarray) -> np.ndarray:
-        """Per-body speculative margin ``(n,)`` for a sub-step of ``h`` at the given velocities."""
-        cm = self.collision_model(model)
-        speed = np.linalg.norm(velocity, axis=1) + np.linalg.norm(angular_velocity, axis=1) * cm.body_reach
-        return self.speculative_distance + h * speed
-
     def detect(self, model: BodyModel, state: BodyState, h: float, *, ground: Ground | None,
                velocity: np.ndarray | None = None, angular_velocity: np.ndarray | None = None,
                rotation: np.ndarray | None = None, active: np.ndarray | None = None) -> ContactSet:
@@ -116,8 +109,8 @@ class CollisionDetector:
                                                   state.position, np.ascontiguousarray(R), velocity,
                                                   angular_velocity, float(h), self.speculative_distance)
         # a primitive whose body's state went non-finite (a numerical blow-up, which World contains after the
-        # tick) takes no part in collisions rather than stopping everyone else's step: its bounds are NaN, so
-        # no overlap test passes
+        # tick) takes no part in collisions rather than stopping everyone else's step: its bounds are NaN (see
+        # primitive_bounds), so no overlap test passes
         if cm.count <= SMALL_SCENE:
             i, j = small_scene_pairs(lo, hi, cm.body, active)
         elif self.broad_phase is sweep_and_prune_pairs:
@@ -138,37 +131,6 @@ class CollisionDetector:
         if touched.any():
             self.touched_sleeping = np.flatnonzero(touched)
         return ContactSet(body_a, body_b, normal, separation, point, key, friction, restitution)
-
-
-@njit
-def primitive_bounds(prim_body, offset, radius, half_extents, body_reach, position, rotation, velocity,
-                     angular_velocity, h, speculative_distance):
-    """Primitive centres ``(p, 3)``, AABBs ``lo, hi (p, 3)`` grown by the speculative margin, and the margins
-    ``(p,)`` (their bodies').
-
-    The margin of a body is ``speculative_distance + h (|v| + |ω| · reach)`` (see the module docstring).
-    The tight AABB of a box is its centre ± ``|R| h`` along the world axes (Ericson 4.2.6); a capsule's is its
-    segment's box grown by the radius.
-    """
-    p = len(prim_body)
-    centre = np.empty((p, 3))
-    lo = np.empty((p, 3))
-    hi = np.empty((p, 3))
-    margin = np.empty(p)
-    for k in range(p):
-        b = prim_body[k]
-        R = rotation[b]
-        v, w = velocity[b], angular_velocity[b]
-        speed = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) \
-            + math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]) * body_reach[b]
-        margin[k] = speculative_distance + h * speed
-        for r in range(3):
-            centre[k, r] = position[b, r] + R[r, 0] * offset[k, 0] + R[r, 1] * offset[k, 1] + R[r, 2] * offset[k, 2]
-            half = abs(R[r, 0]) * half_extents[k, 0] + abs(R[r, 1]) * half_extents[k, 1] \
-                + abs(R[r, 2]) * half_extents[k, 2] + radius[k]
-            lo[k, r] = centre[k, r] - half - margin[k]
-            hi[k, r] = centre[k, r] + half + margin[k]
-    return centre, lo, hi, margin
 
 
 @njit
@@ -289,8 +251,8 @@ def narrow_phase(prim_body, prim_shape, prim_radius, prim_half, body_friction, b
         else:
             body_a[c] = prim_body[prim_a[c]]
             mu_a, e_a = body_friction[body_a[c]], body_restitution[body_a[c]]
-        friction[c] = math.sqrt(mu_a * body_friction[body_b[c]])
-        restitution[c] = max(e_a, body_restitution[body_b[c]])
+        friction[c] = combine_friction(mu_a, body_friction[body_b[c]])
+        restitution[c] = combine_restitution(e_a, body_restitution[body_b[c]])
         key[c] = contact_key(prim_a[c], prim_b[c], feature[c], p)
         for body in (body_a[c], body_b[c]):
             if body >= 0 and movable[body] and not active[body]:
