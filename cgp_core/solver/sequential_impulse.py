@@ -145,24 +145,20 @@ def match_previous(key, point, old_key, old_point):
 
 # ---- stage "solve contacts" -----------------------------------------------------------------------------
 
-@njit
-def _row_velocity(J, V, a, b):
-    """J V for one row ``J (12,)`` between body rows a and b of ``V (n + 1, 6)``."""
-    acc = 0.0
-    for k in range(6):
-        acc += J[k] * V[a, k]
-    for k in range(6):
-        acc += J[6 + k] * V[b, k]
-    return acc
+@njit(inline="always")
+def _row_velocity(J, c, r, V, a, b):
+    """J V for row ``r`` of contact ``c`` (``J (m, 3, 12)``) between body rows a and b of ``V (n + 1, 6)``."""
+    return (J[c, r, 0] * V[a, 0] + J[c, r, 1] * V[a, 1] + J[c, r, 2] * V[a, 2] + J[c, r, 3] * V[a, 3]
+            + J[c, r, 4] * V[a, 4] + J[c, r, 5] * V[a, 5] + J[c, r, 6] * V[b, 0] + J[c, r, 7] * V[b, 1]
+            + J[c, r, 8] * V[b, 2] + J[c, r, 9] * V[b, 3] + J[c, r, 10] * V[b, 4] + J[c, r, 11] * V[b, 5])
 
 
-@njit
-def _apply(MJ, delta, V, a, b):
-    """V += M⁻¹ Jᵀ Δλ for one row (``MJ (12,)``)."""
+@njit(inline="always")
+def _apply(MJ, c, r, delta, V, a, b):
+    """V += M⁻¹ Jᵀ Δλ for row ``r`` of contact ``c`` (``MJ (m, 3, 12)``)."""
     for k in range(6):
-        V[a, k] += MJ[k] * delta
-    for k in range(6):
-        V[b, k] += MJ[6 + k] * delta
+        V[a, k] += MJ[c, r, k] * delta
+        V[b, k] += MJ[c, r, 6 + k] * delta
 
 
 @njit
@@ -244,7 +240,7 @@ def _solve_normal_rows(g, lo, hi, a, b, J, MJ, eff, lam, target, lower, V, A, ca
         bvec, x = scratch[0], scratch[1]
         for i in range(P):
             c = lo + i
-            bvec[i] = _row_velocity(J[c, 0], V, a[c], b[c]) - target[c]
+            bvec[i] = _row_velocity(J, c, 0, V, a[c], b[c]) - target[c]
             for j in range(P):
                 bvec[i] -= A[g, i, j] * lam[lo + j]
             must[i] = lower[c] == -np.inf
@@ -253,7 +249,7 @@ def _solve_normal_rows(g, lo, hi, a, b, J, MJ, eff, lam, target, lower, V, A, ca
                 c = lo + i
                 delta = x[i] - lam[c]
                 lam[c] = x[i]
-                _apply(MJ[c, 0], delta, V, a[c], b[c])
+                _apply(MJ, c, 0, delta, V, a[c], b[c])
                 change = max(change, abs(delta) / eff[c, 0])
             return change
     if P > MAX_BLOCK:
@@ -263,26 +259,33 @@ def _solve_normal_rows(g, lo, hi, a, b, J, MJ, eff, lam, target, lower, V, A, ca
         # converges too slowly to bring a plate to rest in 8 sweeps
         for i in range(P):
             c = lo + i
-            vn = _row_velocity(J[c, 0], V, a[c], b[c])
+            vn = _row_velocity(J, c, 0, V, a[c], b[c])
             new = max(lam[c] - eff[c, 0] / P * (vn - target[c]), lower[c])
             scratch_big[i, 0] = new - lam[c]
             lam[c] = new
         for i in range(P):
             c = lo + i
-            _apply(MJ[c, 0], scratch_big[i, 0], V, a[c], b[c])
+            _apply(MJ, c, 0, scratch_big[i, 0], V, a[c], b[c])
             change = max(change, abs(scratch_big[i, 0]) / eff[c, 0])
         return change
     for c in range(lo, hi):
-        vn = _row_velocity(J[c, 0], V, a[c], b[c])
-        new = max(lam[c] - eff[c, 0] * (vn - target[c]), lower[c])
-        delta = new - lam[c]
-        lam[c] = new
-        _apply(MJ[c, 0], delta, V, a[c], b[c])
-        change = max(change, abs(delta) / eff[c, 0])
+        change = max(change, _push_normal_row(c, J, MJ, eff, lam, target, lower, V, a[c], b[c]))
     return change
 
 
-@njit
+@njit(inline="always")
+def _push_normal_row(c, J, MJ, eff, lam, target, lower, V, a, b):
+    """One sequential-impulse update of the normal row of contact ``c`` alone (accumulated λ ≥ ``lower[c]``);
+    returns |Δλ| / eff."""
+    vn = _row_velocity(J, c, 0, V, a, b)
+    new = max(lam[c] - eff[c, 0] * (vn - target[c]), lower[c])
+    delta = new - lam[c]
+    lam[c] = new
+    _apply(MJ, c, 0, delta, V, a, b)
+    return abs(delta) / eff[c, 0]
+
+
+@njit(inline="always")
 def _solve_manifold(g, lo, hi, a, b, J, MJ, eff, lam, lam_n, bias, lower, mu, V, A, cache, cached, scratch, must,
                     scratch_big):
     """One Gauss–Seidel update of manifold ``g``: each point's two friction rows (a step on both from the same
@@ -293,8 +296,8 @@ def _solve_manifold(g, lo, hi, a, b, J, MJ, eff, lam, lam_n, bias, lower, mu, V,
     jacobi = P > 1
     split = 1.0 / P  # Jacobi with mass splitting within a manifold (see _solve_normal_rows)
     for c in range(lo, hi):
-        v1 = _row_velocity(J[c, 1], V, a[c], b[c])
-        v2 = _row_velocity(J[c, 2], V, a[c], b[c])
+        v1 = _row_velocity(J, c, 1, V, a[c], b[c])
+        v2 = _row_velocity(J, c, 2, V, a[c], b[c])
         t1 = lam[c, 1] - split * eff[c, 1] * v1
         t2 = lam[c, 2] - split * eff[c, 2] * v2
         scale = min(1.0, mu[c] * lam[c, 0] / max(math.sqrt(t1 * t1 + t2 * t2), 1e-300))
@@ -303,19 +306,22 @@ def _solve_manifold(g, lo, hi, a, b, J, MJ, eff, lam, lam_n, bias, lower, mu, V,
         d1, d2 = t1 - lam[c, 1], t2 - lam[c, 2]
         lam[c, 1], lam[c, 2] = t1, t2
         if not jacobi:
-            _apply(MJ[c, 1], d1, V, a[c], b[c])
-            _apply(MJ[c, 2], d2, V, a[c], b[c])
+            _apply(MJ, c, 1, d1, V, a[c], b[c])
+            _apply(MJ, c, 2, d2, V, a[c], b[c])
         else:
             scratch_big[c - lo, 0], scratch_big[c - lo, 1] = d1, d2
         change = max(change, abs(d1) / eff[c, 1], abs(d2) / eff[c, 2])
     if jacobi:
         for c in range(lo, hi):
-            _apply(MJ[c, 1], scratch_big[c - lo, 0], V, a[c], b[c])
-            _apply(MJ[c, 2], scratch_big[c - lo, 1], V, a[c], b[c])
+            _apply(MJ, c, 1, scratch_big[c - lo, 0], V, a[c], b[c])
+            _apply(MJ, c, 2, scratch_big[c - lo, 1], V, a[c], b[c])
     for c in range(lo, hi):
         lam_n[c] = lam[c, 0]
-    change = max(change, _solve_normal_rows(g, lo, hi, a, b, J, MJ, eff, lam_n, bias, lower, V, A, cache, cached,
-                                            scratch, must, scratch_big))
+    if P == 1:  # the common case, without the call
+        change = max(change, _push_normal_row(lo, J, MJ, eff, lam_n, bias, lower, V, a[lo], b[lo]))
+    else:
+        change = max(change, _solve_normal_rows(g, lo, hi, a, b, J, MJ, eff, lam_n, bias, lower, V, A, cache,
+                                                cached, scratch, must, scratch_big))
     for c in range(lo, hi):
         lam[c, 0] = lam_n[c]
     return change
@@ -348,8 +354,8 @@ def solve_contacts(a, b, group_start, normal, separation, point, friction, resti
     bounce = np.zeros(m, np.bool_)
     for c in range(m):
         bias[c] = -max(separation[c], 0.0) / h
-        vn_before[c] = _row_velocity(J[c, 0], V_before, a[c], b[c])
-        vn_free = _row_velocity(J[c, 0], V, a[c], b[c])
+        vn_before[c] = _row_velocity(J, c, 0, V_before, a[c], b[c])
+        vn_free = _row_velocity(J, c, 0, V, a[c], b[c])
         # restitution: a contact approaching faster than the threshold before the sub-step whose gap closes
         # within it (at the contact-free velocity) bounces: its target is −e times the approach speed
         if restitution[c] > 0.0 and vn_before[c] < -restitution_threshold and separation[c] + h * vn_free < 0.0:
@@ -370,7 +376,7 @@ def solve_contacts(a, b, group_start, normal, separation, point, friction, resti
             scale = min(1.0, friction[c] * lam[c, 0] / max(math.sqrt(t1 * t1 + t2 * t2), 1e-300))
             lam[c, 1], lam[c, 2] = t1 * scale, t2 * scale
             for r in range(3):
-                _apply(MJ[c, r], lam[c, r], V, a[c], b[c])
+                _apply(MJ, c, r, lam[c, r], V, a[c], b[c])
 
     # -- sweeps: manifold after manifold; stop once a whole sweep changed no row velocity by more than the
     #    tolerance (a warm-started resting stack is converged after one)
@@ -378,18 +384,9 @@ def solve_contacts(a, b, group_start, normal, separation, point, friction, resti
     scratch = np.empty((2, MAX_BLOCK))
     must = np.zeros(MAX_BLOCK, np.bool_)
     scratch_big = np.empty((m, 2))
-    sweeps = 0
-    for _ in range(velocity_iterations):
-        sweeps += 1
-        change = 0.0
-        for g in range(G):
-            change = max(change, _solve_manifold(g, group_start[g], group_start[g + 1], a, b, J, MJ, eff, lam, lam_n,
-                                                 bias, lower, friction, V, A, cache, cached, scratch, must,
-                                                 scratch_big))
-        if change <= velocity_tolerance:
-            break
     # impacts: manifolds (multi-point groups) converge slowest exactly when the impulse changes most, so the
-    # manifolds holding a bouncing point get extra sweeps (impacts are rare; resting ones are warm)
+    # manifolds holding a bouncing point get up to ``impact_sweeps`` extra sweeps after the regular ones
+    # (impacts are rare; resting manifolds are warm)
     impact = np.zeros(G, np.bool_)
     any_impact = False
     for g in range(G):
@@ -398,15 +395,28 @@ def solve_contacts(a, b, group_start, normal, separation, point, friction, resti
                 if bounce[c]:
                     impact[g] = True
                     any_impact = True
-    for _ in range(impact_sweeps if any_impact else 0):
+    sweeps = 0
+    impact_done = 0
+    regular = True  # the regular sweeps over every manifold first, then the impact sweeps
+    while True:
         change = 0.0
         for g in range(G):
-            if impact[g]:
+            if regular or impact[g]:
                 change = max(change, _solve_manifold(g, group_start[g], group_start[g + 1], a, b, J, MJ, eff, lam,
                                                      lam_n, bias, lower, friction, V, A, cache, cached, scratch,
                                                      must, scratch_big))
-        if change <= velocity_tolerance:
-            break
+        # each kind stops once a whole sweep changed no row velocity by more than the tolerance (a warm-started
+        # resting stack is converged after one), or after its number of sweeps
+        if regular:
+            sweeps += 1
+            if change <= velocity_tolerance or sweeps >= velocity_iterations:
+                regular = False
+                if not any_impact or impact_sweeps == 0:
+                    break
+        else:
+            impact_done += 1
+            if change <= velocity_tolerance or impact_done >= impact_sweeps:
+                break
 
     # -- time of impact of bounces on the static world (ground, fixed bodies): a speculative contact (gap s > 0)
     #    that bounced did so t* = s / |vₙ before| into the sub-step, not at its start.  The velocity is right (e
@@ -420,7 +430,7 @@ def solve_contacts(a, b, group_start, normal, separation, point, friction, resti
         if bounce[c] and separation[c] > 0.0 and not (dynamic[a[c]] and dynamic[b[c]]):
             approach = -vn_before[c]
             gap = min(separation[c], approach * h)
-            vn_after = max(_row_velocity(J[c, 0], V, a[c], b[c]), 0.0)
+            vn_after = max(_row_velocity(J, c, 0, V, a[c], b[c]), 0.0)
             toi_shift[c] = -gap * (1.0 + vn_after / approach)
 
     # -- impulses → momenta (equal and opposite at the same point)
@@ -615,7 +625,7 @@ def recover_penetration_kernel(a, b, group_start, J, MJ, eff, A, cache, cached, 
     deepest = 0.0
     needed = False
     for c in range(m):
-        s = separation[c] + _row_velocity(J[c, 0], disp, a[c], b[c])
+        s = separation[c] + _row_velocity(J, c, 0, disp, a[c], b[c])
         deepest = max(deepest, -s)
         target[c] = min(correction_fraction * (-s - slop), max_correction)
         if not math.isnan(toi_shift[c]):
@@ -635,8 +645,12 @@ def recover_penetration_kernel(a, b, group_start, J, MJ, eff, A, cache, cached, 
     scratch_big = np.empty((m, 2))
     for _ in range(iterations):
         for g in range(len(group_start) - 1):
-            _solve_normal_rows(g, group_start[g], group_start[g + 1], a, b, J, MJ, eff, lam, target, lower,
-                               correction, A, cache, cached, scratch, must, scratch_big)
+            lo, hi = group_start[g], group_start[g + 1]
+            if hi - lo == 1:
+                _push_normal_row(lo, J, MJ, eff, lam, target, lower, correction, a[lo], b[lo])
+            else:
+                _solve_normal_rows(g, lo, hi, a, b, J, MJ, eff, lam, target, lower, correction, A, cache, cached,
+                                   scratch, must, scratch_big)
     for i in range(n):
         if not dynamic[i]:
             continue
