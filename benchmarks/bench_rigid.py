@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -254,12 +255,16 @@ def bench_startup() -> dict:
         env.pop("NUMBA_DISABLE_JIT", None)
         out = {}
         for label in ("cold", "warm"):
-            started = time.perf_counter()
+            started, cpu = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
             done = subprocess.run([sys.executable, "-c", STARTUP], env=env, cwd=HERE.parent, capture_output=True,
                                   text=True, check=True)
             total = time.perf_counter() - started
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
             imp, first, ticks = map(float, done.stdout.split())
-            out[label] = {"process_s": total, "import_s": imp, "first_tick_s": first, "to_21_ticks_s": ticks}
+            # CPU time (user + system) of the child: what the compile costs on an idle core, whatever the load
+            cpu_s = (after.ru_utime - cpu.ru_utime) + (after.ru_stime - cpu.ru_stime)
+            out[label] = {"process_s": total, "cpu_s": cpu_s, "import_s": imp, "first_tick_s": first,
+                          "to_21_ticks_s": ticks}
     return out
 
 
@@ -270,7 +275,8 @@ def main(argv=None) -> int:
     out = Results("rigid", options=vars(args))
 
     startup = bench_startup()
-    print(f"start-up: cold (empty numba cache) {startup['cold']['process_s']:.1f} s to 21 ticks, "
+    print(f"start-up: cold (empty numba cache) {startup['cold']['process_s']:.1f} s to 21 ticks "
+          f"({startup['cold']['cpu_s']:.1f} s CPU), "
           f"warm {startup['warm']['process_s']:.2f} s (import {startup['warm']['import_s']:.2f} s, "
           f"first tick {startup['warm']['first_tick_s'] * 1e3:.0f} ms)", flush=True)
     default = bench_default(6.0 if args.quick else 18.0)
@@ -298,9 +304,10 @@ def main(argv=None) -> int:
                pile["cgp_sim"]["median"], "ms", "<= 16.7", pile["cgp_sim"]["median"] <= 16.7)
     out.figure("rigid_pile_200_vs_pybullet", "200-body pile: cgp_sim / PyBullet (median tick)",
                pile["cgp_sim"]["median"] / pile["pybullet"]["median"], "x", "(reference)", None)
-    out.figure("rigid_compile_cold", "compiled rigid kernels: fresh process, empty cache, to 21 ticks",
-               startup["cold"]["process_s"], "s", "(well under 30)", None)
-    out.figure("rigid_start_warm", "compiled rigid kernels: fresh process, warm cache, to 21 ticks",
+    out.figure("rigid_compile_cold", "compiled kernels: fresh process, empty numba cache, to 21 ticks (CPU time)",
+               startup["cold"]["cpu_s"], "s", "(well under 30; once, in make setup)", None,
+               wall_s=startup["cold"]["process_s"])
+    out.figure("rigid_start_warm", "compiled kernels: fresh process, warm cache, to 21 ticks (wall)",
                startup["warm"]["process_s"], "s", "(well under 5)", None)
     out.data.update(default=default, pile=pile, startup=startup)
     print(f"wrote {out.write()}")
