@@ -38,7 +38,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from cgp_core.bodies import BodyModel, BodyState, Shape  # noqa: E402
 from cgp_core.collision import BROAD_PHASES, CollisionDetector, Ground  # noqa: E402
-from cgp_core.collision.primitives import build_collision_model, primitive_aabbs, primitive_poses  # noqa: E402
+from cgp_core.collision.primitives import build_collision_model, primitive_aabbs  # noqa: E402
 from cgp_core.dynamics import step_bodies  # noqa: E402
 from cgp_core.integrators import make_integrator  # noqa: E402
 from cgp_core.solver import make_solver  # noqa: E402
@@ -187,7 +187,7 @@ def run_pile(n: int, seconds: float, rest_steps: int, with_bullet: bool) -> list
     steps = int(round(seconds / H))
     first = int(round(1.0 / H))
     times = {s.name: np.zeros(steps) for s in sims}
-    extra = {s.name: {"contacts": [], "colours": []} for s in sims}
+    extra = {s.name: {"contacts": [], "manifolds": []} for s in sims}
     for k in range(steps):
         for s in sims:  # interleaved, so both see the same machine load
             t0 = time.perf_counter()
@@ -195,7 +195,7 @@ def run_pile(n: int, seconds: float, rest_steps: int, with_bullet: bool) -> list
             times[s.name][k] = time.perf_counter() - t0
             if isinstance(s, Ours) and k >= steps - rest_steps:
                 extra[s.name]["contacts"].append(s.solver.stats["contacts"])
-                extra[s.name]["colours"].append(s.solver.stats["colours"])
+                extra[s.name]["manifolds"].append(s.solver.stats["manifolds"])
     rows = []
     for s in sims:
         pen = s.penetrations()
@@ -212,7 +212,7 @@ def run_pile(n: int, seconds: float, rest_steps: int, with_bullet: bool) -> list
         }
         if extra[s.name]["contacts"]:
             row["contacts_resting"] = int(np.median(extra[s.name]["contacts"]))
-            row["colours_resting"] = int(np.median(extra[s.name]["colours"]))
+            row["manifolds_resting"] = int(np.median(extra[s.name]["manifolds"]))
         rows.append(row)
     return rows
 
@@ -224,8 +224,7 @@ def broadphase_scaling(counts) -> list[dict]:
         for _ in range(int(2.0 / H)):  # let it settle into a pile
             sim.step()
         cm = build_collision_model(sim.model)
-        centre, R = primitive_poses(cm, sim.state.position, sim.state.rotation_matrices())
-        lo, hi = primitive_aabbs(cm, centre, R)
+        lo, hi = primitive_aabbs(cm, sim.state.position, sim.state.rotation_matrices())
         lo -= 0.002
         hi += 0.002
         ref = None
@@ -302,12 +301,12 @@ def main(argv=None) -> int:
 
     print(f"\nSpheres (r = {RADIUS} m) into a {BOX:g} x {BOX:g} m box, h = 1/240 s, {args.seconds:g} s simulated")
     print(f"{'engine':10} {'spheres':>7} {'1st s ms':>9} {'rest ms':>8} {'max pen mm':>10} {'% r':>6} "
-          f"{'mean pen mm':>11} {'escaped':>7} {'contacts':>8} {'colours':>7}")
+          f"{'mean pen mm':>11} {'escaped':>7} {'contacts':>8} {'manifolds':>9}")
     for r in results["piles"]:
         print(f"{r['engine']:10} {r['spheres']:7d} {r['first_second_ms']:9.2f} {r['resting_ms']:8.2f} "
               f"{r['max_penetration_mm']:10.3f} {r['max_penetration_pct_radius']:6.2f} "
               f"{r['mean_penetration_mm']:11.3f} {r['escaped']:7d} {r.get('contacts_resting', ''):>8} "
-              f"{r.get('colours_resting', ''):>7}")
+              f"{r.get('manifolds_resting', ''):>9}")
     if results["figures"]:
         print("\nIssue 7 figures")
         print(format_figures(results["figures"]))

@@ -21,25 +21,33 @@ import numpy as np
 
 from .bodies import BodyModel, BodyState
 from .checks import positive
+from .collision.contacts import ContactSet
 from .collision.materials import Ground
 from .forces import apply_damping, apply_gravity
 from .integrators.base import Integrator
+from .jit import njit
+from .rotation import quat_to_matrices
+from .sleep import Islands
 from .solver.base import ContactSolver
 
 __all__ = ["Ground", "step_bodies"]
 
 
 def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solver: ContactSolver, h: float, *,
-                gravity, ground: Ground | None, linear_damping: float = 0.0, angular_damping: float = 0.0) -> None:
-    """Advance all bodies by one sub-step of ``h`` seconds, in place.
+                gravity, ground: Ground | None, linear_damping: float = 0.0, angular_damping: float = 0.0,
+                islands: Islands | None = None) -> ContactSet:
+    """Advance all bodies (the awake ones, with ``islands``) by one sub-step of ``h`` seconds, in place.
 
     Args:
         gravity:          (3,) m/s².
         ground:           the static plane z = 0 (:class:`Ground`), or ``None`` for a scene without one.
         linear_damping, angular_damping: viscous rates [1/s] (:func:`cgp_core.forces.apply_damping`).
+        islands:          per-island sleep state (:class:`cgp_core.sleep.Islands`): sleeping bodies are left
+                          out (no forces, no integration; static to the awake ones) and an island an awake body
+                          touches is woken here.  ``None``: every body is stepped.
 
     Forces and torques already in ``state.force`` / ``state.torque`` (wrench commands) are kept and act with
-    gravity over this sub-step; the accumulators are cleared at the end.
+    gravity over this sub-step; the accumulators are cleared at the end.  Returns the contacts of the sub-step.
     """
     h = positive(h, "sub-step h [s]")
     try:
@@ -49,29 +57,68 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
     if gravity.shape != (3,) or not np.isfinite(gravity).all():
         raise ValueError(f"gravity must be 3 finite numbers [m/s²], got {gravity.tolist()}")
 
+    active = None if islands is None else islands.awake
+
     # 1. accumulate forces (on top of any wrench forces already accumulated by the caller)
     apply_gravity(model, state, gravity)
     apply_damping(model, state, linear_damping, angular_damping)
+    if active is not None:
+        state.force[~active] = 0.0  # sleeping bodies are held where they rest
+        state.torque[~active] = 0.0
 
     # 2. detect contacts, with speculative margins sized by the velocities the bodies are about to move with.
     #    The poses do not change before stage 4, so R and I_world⁻¹ (n, 3, 3) are computed once here and handed
     #    to detection and the solver (each would otherwise rebuild them from the quaternions)
-    R = state.rotation_matrices()
-    inv_inertia = state.inv_inertia_world(model, R)
-    velocity = (state.linear_momentum + h * state.force) * model.inv_mass[:, None]
-    angular_velocity = np.einsum("nij,nj->ni", inv_inertia, state.angular_momentum + h * state.torque)
+    R = quat_to_matrices(state.orientation) if state.rotation is None else np.ascontiguousarray(state.rotation)
+    inv_inertia, velocity, angular_velocity = coming_velocities(R, model.inv_inertia_body, model.inv_mass,
+                                                                state.linear_momentum, state.angular_momentum,
+                                                                state.force, state.torque, h)
     contacts = solver.detector.detect(model, state, h, ground=ground, velocity=velocity,
-                                      angular_velocity=angular_velocity, rotation=R)
+                                      angular_velocity=angular_velocity, rotation=R, active=active)
+    if islands is not None and solver.detector.touched_sleeping.size:
+        # an awake body reached a sleeping island: it wakes (at rest, as it slept) and takes part from now on
+        islands.wake(solver.detector.touched_sleeping)
+        active = islands.awake
+        contacts = solver.detector.detect(model, state, h, ground=ground, velocity=velocity,
+                                          angular_velocity=angular_velocity, rotation=R, active=active)
 
     # 3. solve contacts: impulses added to P and L as momentum changes at the start of the sub-step, so that
     #    momentum + h·force + impulse satisfies non-penetration, restitution and friction
-    solver.solve_velocities(model, state, contacts, h, inv_inertia=inv_inertia)
+    solver.solve_velocities(model, state, contacts, h, inv_inertia=inv_inertia, active=active)
 
     # 4. integrate
-    integrator.step(model, state, h)
+    integrator.step(model, state, h, active=active)
 
     # 5. recover penetration (moves bodies apart; momenta untouched: adds no kinetic energy)
     solver.recover_penetration(model, state, h)
 
     # 6. clear accumulators
     state.clear_accumulators()
+    return contacts
+
+
+@njit
+def coming_velocities(R, inv_inertia_body, inv_mass, linear_momentum, angular_momentum, force, torque, h):
+    """World-frame I⁻¹ = R I_body⁻¹ Rᵀ ``(n, 3, 3)``, and the velocities the bodies will move with over the sub-step
+    without contacts, v = (P + h F) / m and ω = I⁻¹ (L + h τ) ``(n, 3)`` each."""
+    n = len(R)
+    inv_inertia = np.empty((n, 3, 3))
+    velocity = np.empty((n, 3))
+    angular_velocity = np.empty((n, 3))
+    RW = np.empty((3, 3))
+    for i in range(n):
+        for r in range(3):
+            for c in range(3):
+                RW[r, c] = R[i, r, 0] * inv_inertia_body[i, 0, c] + R[i, r, 1] * inv_inertia_body[i, 1, c] \
+                    + R[i, r, 2] * inv_inertia_body[i, 2, c]
+        for r in range(3):
+            for c in range(3):
+                inv_inertia[i, r, c] = RW[r, 0] * R[i, c, 0] + RW[r, 1] * R[i, c, 1] + RW[r, 2] * R[i, c, 2]
+        for k in range(3):
+            velocity[i, k] = (linear_momentum[i, k] + h * force[i, k]) * inv_mass[i]
+        for r in range(3):
+            acc = 0.0
+            for c in range(3):
+                acc += inv_inertia[i, r, c] * (angular_momentum[i, c] + h * torque[i, c])
+            angular_velocity[i, r] = acc
+    return inv_inertia, velocity, angular_velocity

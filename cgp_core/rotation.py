@@ -11,6 +11,8 @@ handful of multiply-adds below for the batch sizes of a scene, and we need the r
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 IDENTITY_QUAT = np.array([0.0, 0.0, 0.0, 1.0])
@@ -174,3 +176,74 @@ def quat_from_euler(roll: float, pitch: float, yaw: float) -> np.ndarray:
             cr * cp * cy + sr * sp * sy,
         ]
     )
+
+
+# ---- one quaternion at a time, for the compiled kernels (cgp_core.jit) -------------------------------------
+# The same formulas as quat_from_rotvec / quat_to_rotvec / quat_multiply / quat_rotate above, written for one
+# quaternion with scalar arithmetic, so compiled loops call them without allocating.
+
+from .jit import njit  # noqa: E402  (kept next to its only users)
+
+
+@njit
+def rotvec_to_quat_scalar(px, py, pz):
+    """Exponential map of one rotation vector: ``(x, y, z, w)`` (a series near zero, no 0/0)."""
+    angle = math.sqrt(px * px + py * py + pz * pz)
+    if angle < 1e-8:
+        sinc_half = 0.5 - angle * angle / 48.0  # sin(a/2)/a ~ 1/2 - a^2/48
+    else:
+        sinc_half = math.sin(0.5 * angle) / angle
+    return px * sinc_half, py * sinc_half, pz * sinc_half, math.cos(0.5 * angle)
+
+
+@njit
+def quat_to_rotvec_scalar(x, y, z, w):
+    """Logarithm map of one quaternion (normalized here, w >= 0 taken), angle in [0, pi]."""
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    x, y, z, w = x / norm, y / norm, z / norm, w / norm
+    if w < 0.0:
+        x, y, z, w = -x, -y, -z, -w
+    s = math.sqrt(x * x + y * y + z * z)
+    scale = 2.0 if s < 1e-12 else 2.0 * math.atan2(s, w) / s
+    return x * scale, y * scale, z * scale
+
+
+@njit
+def quat_multiply_scalar(ax, ay, az, aw, bx, by, bz, bw):
+    """Hamilton product ``a ⊗ b`` of two quaternions given by components."""
+    return (aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz)
+
+
+@njit
+def quat_rotate_scalar(qx, qy, qz, qw, vx, vy, vz):
+    """``R(q) v`` for one unit quaternion: v + w t + u × t with t = 2 u × v."""
+    tx = 2.0 * (qy * vz - qz * vy)
+    ty = 2.0 * (qz * vx - qx * vz)
+    tz = 2.0 * (qx * vy - qy * vx)
+    return (vx + qw * tx + (qy * tz - qz * ty),
+            vy + qw * ty + (qz * tx - qx * tz),
+            vz + qw * tz + (qx * ty - qy * tx))
+
+
+@njit
+def quat_to_matrices(q):
+    """:func:`quat_to_matrix` for ``(n, 4)`` quaternions as one compiled loop: ``(n, 3, 3)``."""
+    R = np.empty((len(q), 3, 3))
+    for i in range(len(q)):
+        x, y, z, w = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+        xx, yy, zz = x * x, y * y, z * z
+        xy, xz, yz = x * y, x * z, y * z
+        wx, wy, wz = w * x, w * y, w * z
+        R[i, 0, 0] = 1.0 - 2.0 * (yy + zz)
+        R[i, 0, 1] = 2.0 * (xy - wz)
+        R[i, 0, 2] = 2.0 * (xz + wy)
+        R[i, 1, 0] = 2.0 * (xy + wz)
+        R[i, 1, 1] = 1.0 - 2.0 * (xx + zz)
+        R[i, 1, 2] = 2.0 * (yz - wx)
+        R[i, 2, 0] = 2.0 * (xz - wy)
+        R[i, 2, 1] = 2.0 * (yz + wx)
+        R[i, 2, 2] = 1.0 - 2.0 * (xx + yy)
+    return R

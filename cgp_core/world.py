@@ -2,14 +2,15 @@
 
 ``World.step()`` advances one *tick* of ``dt`` seconds (the node's ``1 / rate_hz``):
 
-1. rigid bodies, unless they sleep: ``substeps`` sub-steps of ``h = dt / substeps``, each
+1. rigid bodies, unless all sleep: ``substeps`` sub-steps of ``h = dt / substeps``, each
    apply wrench commands → :func:`cgp_core.dynamics.step_bodies` (forces, contacts, solve, integrate,
-   recover penetration, clear accumulators — the stages are named there);
+   recover penetration, clear accumulators — the stages are named there; sleeping islands are left out);
 2. contain blow-ups: a body whose state went non-finite or absurd is put back to its initial state (reported
    in :attr:`World.events`); the rest of the world goes on;
-   then sleep: once every movable body has stayed slower than :data:`SLEEP_SPEED` for :data:`SLEEP_TIME`,
-   the bodies fall asleep (momenta zeroed, stage 1 skipped) until a wrench command or :meth:`World.reset`
-   wakes them (see :meth:`World._update_sleep`);
+   then sleep, per island (:mod:`cgp_core.sleep`): an island of touching movable bodies that have all stayed
+   slower than :data:`SLEEP_SPEED` for :data:`SLEEP_TIME` falls asleep (momenta zeroed, left out of stage 1)
+   until a wrench command on one of its bodies, an awake body touching it, :meth:`World.reset` or
+   :meth:`World.wake` wakes it;
 3. flocks: one step of ``dt`` each, avoiding the bodies at their end-of-tick poses (a flock whose state went
    non-finite is reset, and reported, the same way);
 4. wrench schedule: count the tick off timed wrenches.
@@ -22,6 +23,19 @@ Usage (no ROS needed)::
     for _ in range(60):
         world.step()
     print(world.time, world.body_state.position)
+
+Changing the bodies between ticks (spawn, delete, teleport) — the contract the rigid-body pipeline keeps:
+
+- ``body_model`` is static while stepping, and may be **replaced by a new object** between ticks (bodies
+  appended or removed, its arrays built by concatenating or selecting), with ``body_state`` replaced to match.
+  Every per-body cache of the pipeline is keyed on the model object and its body count, and rebuilt when either
+  changes: the collision primitives (``solver.detector``), the warm-start impulses (``solver``: a new model
+  starts cold), the islands and rest timers (:class:`cgp_core.sleep.Islands`: every body awake), the compiled
+  kernels' work arrays (allocated per call).  Nothing per-body is carried over from the old model.
+- A body's state may be edited in place between ticks (a teleport: position, orientation, momenta); then call
+  :meth:`World.wake` with that body (``world.wake([i])`` or ``world.wake(["crate"])``), which wakes its island
+  (a sleeping body would otherwise stay where it slept, ignoring the edit for collisions with other sleepers).
+  The warm-start impulses of its old contacts are matched by position and fade out on their own.
 """
 
 from __future__ import annotations
@@ -36,6 +50,7 @@ from .dynamics import Ground, step_bodies
 from .integrators import make_integrator
 from .rotation import quat_rotate, quat_conjugate
 from .scene import Scene, load_scene
+from .sleep import SLEEP_SPEED, SLEEP_TIME, Islands
 from .solver import make_solver
 from .wrenches import WrenchCommand, WrenchSchedule, make_command
 
@@ -43,16 +58,10 @@ from .wrenches import WrenchCommand, WrenchSchedule, make_command
 BLOWUP_SPEED = 1e4
 BLOWUP_SPIN = 1e5
 
-#: Sleeping, as Box2D and Bullet do it: bodies at rest on each other cost a full contact solve per sub-step to
-#: stay where they are.  A body is *resting* while the fastest point of its bounding sphere moves slower than
-#: SLEEP_SPEED [m/s] (|v| + |ω| r, Box2D v3's measure and threshold); when every movable body has rested for
-#: SLEEP_TIME [s] (Box2D's b2_timeToSleep) the bodies sleep.  The whole set sleeps or wakes together — one
-#: island, where Box2D keeps one per connected contact group: simpler, and exact for what wakes it (only wrench
-#: commands and reset can: boids steer around bodies but never push them).  A projectile at its apex is
-#: slower than SLEEP_SPEED for a few milliseconds only, far less than SLEEP_TIME.  ``world.sleep: false`` in a
-#: scene turns it off.
-SLEEP_SPEED = 0.05
-SLEEP_TIME = 0.5
+#: Sleeping per island, as Box2D does it (SLEEP_SPEED [m/s], SLEEP_TIME [s]: see :mod:`cgp_core.sleep`).
+#: Boids steer around bodies but never push them, so they never wake one.  ``world.sleep: false`` in a scene
+#: turns sleeping off.
+__all__ = ["World", "WorldEvent", "SLEEP_SPEED", "SLEEP_TIME", "BLOWUP_SPEED", "BLOWUP_SPIN"]
 
 
 @dataclass
@@ -94,10 +103,7 @@ class World:
         self.flocks = [Flock(p if seed is None else p.with_seed(seed + i)) for i, p in enumerate(scene.flocks)]
         self.wrenches = WrenchSchedule()
         self.sleep_enabled = bool(scene.world.sleep)
-        self._bounding_radius = self.body_model.bounding_radius()
-        #: True while the bodies sleep (stage 1 skipped); ``rest_time``: how long [s] all have been resting
-        self.bodies_asleep = False
-        self.rest_time = 0.0
+        self._islands: Islands | None = None  # per-island sleep state of body_model (see islands())
         self.time_ns = 0
         self.ticks = 0
         self.events: list[WorldEvent] = []
@@ -113,8 +119,9 @@ class World:
         """Advance one tick (see the module docstring for the stages)."""
         h = self.dt / self.substeps
         model, state = self.body_model, self.body_state
-        if self.bodies_asleep and self.wrenches.active:
-            self.wake()
+        islands = self.islands()
+        if islands is not None and self.wrenches.active:
+            islands.wake(self.wrenches.body)  # a wrench wakes the island of the body it acts on
         if model.count and not self.bodies_asleep:
             # An extreme (but accepted) force can overflow a body's state to inf / NaN within the sub-steps;
             # numpy's warnings about it would only repeat, on stderr, what _contain_blowups reports right
@@ -122,10 +129,10 @@ class World:
             with np.errstate(over="ignore", invalid="ignore"):
                 for _ in range(self.substeps):
                     self.wrenches.apply(state)
-                    step_bodies(model, state, self.integrator, self.solver, h, gravity=self.gravity,
-                                ground=self.ground, linear_damping=self.scene.world.linear_damping,
-                                angular_damping=self.scene.world.angular_damping)
-            self._update_sleep(*self._contain_blowups())
+                    contacts = step_bodies(model, state, self.integrator, self.solver, h, gravity=self.gravity,
+                                           ground=self.ground, linear_damping=self.scene.world.linear_damping,
+                                           angular_damping=self.scene.world.angular_damping, islands=islands)
+            self._update_sleep(contacts, *self._contain_blowups())
         if self.flocks:
             obstacles = Obstacles.from_bodies(model, state, ground=self.ground is not None) \
                 if model.count or self.ground is not None else None
@@ -174,34 +181,61 @@ class World:
         state.linear_momentum[bad] = 0.0
         state.angular_momentum[bad] = 0.0
         self.wrenches.remove_bodies(bad)  # the wrench that blew it up would do it again
+        if self._islands is not None and self._islands.matches(model):
+            self._islands.wake(bad)
         names = ", ".join(model.names[i] for i in bad)
         self.events.append(WorldEvent(self.time, "error",
                                       f"numerical blow-up of {names} (non-finite or > {BLOWUP_SPEED:g} m/s): "
                                       "reset to its initial pose at rest and its wrenches cleared"))
         return speed, spin
 
-    def _update_sleep(self, speed: np.ndarray, spin: np.ndarray) -> None:
-        """Count how long every movable body has been resting (see :data:`SLEEP_SPEED`; ``speed`` = |v|,
-        ``spin`` = |ω|, (n,) each); after :data:`SLEEP_TIME` put them to sleep with zero momenta, so they stay
-        exactly where they rest."""
-        model, state = self.body_model, self.body_state
-        movable = ~model.fixed
-        if not self.sleep_enabled or not movable.any():
-            return
-        fastest_point = speed + spin * self._bounding_radius
-        if bool((fastest_point[movable] < SLEEP_SPEED).all()):
-            self.rest_time += self.dt
-        else:
-            self.rest_time = 0.0
-        if self.rest_time >= SLEEP_TIME - 1e-12:
-            self.bodies_asleep = True
-            state.linear_momentum[:] = 0.0
-            state.angular_momentum[:] = 0.0
+    def islands(self) -> Islands | None:
+        """The per-island sleep state of the current ``body_model`` (``None`` with ``world.sleep: false``),
+        rebuilt — every body awake — when the model object or its body count changed."""
+        if not self.sleep_enabled:
+            return None
+        if self._islands is None or not self._islands.matches(self.body_model):
+            self._islands = Islands(self.body_model)
+        return self._islands
 
-    def wake(self) -> None:
-        """Wake the bodies (a wrench command or reset does it; call it after changing ``body_state`` by hand)."""
-        self.bodies_asleep = False
-        self.rest_time = 0.0
+    @property
+    def bodies_asleep(self) -> bool:
+        """True while every movable body sleeps (the rigid-body sub-steps are skipped)."""
+        islands = self.islands()
+        return islands is not None and islands.all_asleep
+
+    @property
+    def rest_time(self) -> float:
+        """How long [s] the least rested awake movable body has been resting (0 when none is awake)."""
+        islands = self.islands()
+        if islands is None or not islands.awake.any():
+            return 0.0
+        return float(islands.rest_time[islands.awake].min())
+
+    def _update_sleep(self, contacts, speed: np.ndarray, spin: np.ndarray) -> None:
+        """Islands from the last sub-step's ``contacts``, rest timers from ``speed`` = |v|, ``spin`` = |ω| (n,)
+        each; islands rested for :data:`SLEEP_TIME` fall asleep with zero momenta, so they stay exactly where
+        they rest (:meth:`cgp_core.sleep.Islands.update`)."""
+        islands = self.islands()
+        if islands is None:
+            return
+        islands.update(self.body_state, self.body_model, contacts.body_a, contacts.body_b, speed, spin, self.dt)
+
+    def wake(self, bodies=None) -> None:
+        """Wake sleeping bodies: ``None`` = all; else the islands of ``bodies`` (indices or names).  A wrench
+        command, a touch and reset do it by themselves; call it after editing ``body_state`` by hand (a
+        teleport)."""
+        islands = self.islands()
+        if islands is None:
+            return
+        if bodies is None:
+            islands.wake()
+            return
+        index = [self.body_model.index(b) if isinstance(b, str) else int(b) for b in np.atleast_1d(bodies)]
+        for i in index:
+            if not 0 <= i < self.body_model.count:
+                raise IndexError(f"body index {i} out of range: there are {self.body_model.count} bodies")
+        islands.wake(index)
 
     def _contain_flock_blowups(self) -> None:
         """A flock whose state went non-finite is put back to its initial state (the boids' speeds are clamped,

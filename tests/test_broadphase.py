@@ -92,7 +92,7 @@ def test_structures_agree_on_a_random_scene_of_mixed_shapes():
     """Spheres, boxes, capsules and particle bodies of mixed sizes, randomly placed and turned: the
     primitives' AABBs give the same overlapping pairs with every method."""
     from _bodies import box, capsule, make_bodies, particles, sphere
-    from cgp_core.collision.primitives import build_collision_model, primitive_aabbs, primitive_poses
+    from cgp_core.collision.primitives import build_collision_model, primitive_aabbs
     from cgp_core.rotation import quat_from_rotvec
 
     rng = np.random.default_rng(21)
@@ -115,8 +115,7 @@ def test_structures_agree_on_a_random_scene_of_mixed_shapes():
                              orientation=q))
     model, state = make_bodies(specs)
     cm = build_collision_model(model)
-    centre, R = primitive_poses(cm, state.position, state.rotation_matrices())
-    lo, hi = primitive_aabbs(cm, centre, R)
+    lo, hi = primitive_aabbs(cm, state.position, state.rotation_matrices())
     assert cm.count > 300  # the particle bodies add primitives
     reference = as_set(brute_force_pairs(lo, hi))
     assert len(reference) > 100
@@ -127,7 +126,7 @@ def test_structures_agree_on_a_random_scene_of_mixed_shapes():
 def test_primitive_aabbs_are_tight_bounds():
     """A turned box's AABB is the min / max of its corners; a capsule's that of its end spheres."""
     from _bodies import box, capsule, make_bodies
-    from cgp_core.collision.primitives import build_collision_model, primitive_aabbs, primitive_poses
+    from cgp_core.collision.primitives import build_collision_model, primitive_aabbs
     from cgp_core.rotation import quat_from_rotvec, quat_to_matrix
 
     rng = np.random.default_rng(5)
@@ -135,8 +134,7 @@ def test_primitive_aabbs_are_tight_bounds():
     model, state = make_bodies([box((0.3, 0.2, 0.1), position=(1, 2, 3), orientation=q),
                                 capsule(0.05, 0.4, position=(-1, 0, 1), orientation=q)])
     cm = build_collision_model(model)
-    centre, R = primitive_poses(cm, state.position, state.rotation_matrices())
-    lo, hi = primitive_aabbs(cm, centre, R)
+    lo, hi = primitive_aabbs(cm, state.position, state.rotation_matrices())
     Rq = quat_to_matrix(q)
     signs = np.array([(x, y, z) for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
     corners = np.array([1.0, 2, 3]) + (signs * [0.3, 0.2, 0.1]) @ Rq.T

@@ -377,3 +377,17 @@ def test_a_blown_up_body_does_not_stop_the_others():
     with np.errstate(invalid="ignore"):
         simulate(model, state, 60)
     assert np.isfinite(state.position[1]).all() and state.position[1, 2] < 0.5
+
+
+def test_a_body_whose_speed_overflows_does_not_drag_its_neighbour_along():
+    """A body pushed to a speed whose square overflows (|v| = inf: its speculative margin is unbounded) is left
+    out of collisions, as a NaN body is; its neighbour keeps its own motion (World then resets the runaway)."""
+    model, state = make_bodies([sphere(0.1, position=(0, 0, 1)),
+                                sphere(0.1, position=(0.5, 0, 1), angular_velocity=(0, 0, 3.0))])
+    spin = state.angular_momentum[1].copy()
+    state.linear_momentum[0] = (1e200, 0.0, 0.0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        solver = simulate(model, state, 1, gravity=NO_GRAVITY, ground=None)
+    assert solver.stats["contacts"] == 0
+    np.testing.assert_array_equal(state.angular_momentum[1], spin)
+    np.testing.assert_array_equal(state.position[1], (0.5, 0, 1))

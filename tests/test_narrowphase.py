@@ -266,7 +266,7 @@ def box_box_distance(ca, Ra, ha, cb, Rb, hb):
     edges = [(i, j) for i in range(8) for j in range(8) if i < j and np.sum(corners[i] != corners[j]) == 1]
     for i, j in edges:
         for k, l in edges:
-            s, t, x1, x2 = nph.closest_segment_segment(va[i:i + 1], va[j:j + 1], vb[k:k + 1], vb[l:l + 1])
+            s, t, x1, x2 = nph.closest_segments(va[i:i + 1], va[j:j + 1], vb[k:k + 1], vb[l:l + 1])
             best = min(best, np.linalg.norm(x1 - x2))
     return best
 

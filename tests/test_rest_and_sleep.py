@@ -148,3 +148,118 @@ def test_scene_rejects_a_bad_rolling_resistance_or_sleep():
         parse_scene("world: {rolling_resistance: -0.1, sleep: maybe}\n")
     assert "world.rolling_resistance: must be >= 0" in str(err.value)
     assert "world.sleep: must be true or false" in str(err.value)
+
+
+# ---- islands: one rolling ball does not keep a resting pile awake -------------------------------------------
+
+ISLANDS = """
+world: {{sleep: true, rolling_resistance: 0.01}}
+bodies:
+  - {{name: low, shape: box, size: [0.4, 0.4, 0.4], mass: 2.0, position: [0, 0, 0.2]}}
+  - {{name: high, shape: box, size: [0.4, 0.4, 0.4], mass: 2.0, position: [0, 0, 0.6]}}
+  - {{name: lone, shape: box, size: [0.4, 0.4, 0.4], mass: 2.0, position: [0, 3, 0.2]}}
+  - {{name: ball, shape: sphere, radius: 0.1, mass: 1.0, position: [{ball_x}, 0, 0.1], linear_velocity: [{ball_v}, 0, 0],
+     angular_velocity: [0, {ball_w}, 0]}}
+"""
+
+
+def islands_world(ball_x, ball_v) -> World:
+    return World(parse_scene(ISLANDS.format(ball_x=ball_x, ball_v=ball_v, ball_w=ball_v / 0.1)), dt=1 / 60)
+
+
+def asleep(w: World, name: str) -> bool:
+    return bool(w.islands().asleep[w.body_model.index(name)])
+
+
+def test_a_resting_stack_sleeps_and_stays_exactly_still_while_a_ball_rolls_elsewhere():
+    w = islands_world(ball_x=3.0, ball_v=1.0)  # rolling away from the stack, for ~14 s (a = 5/7 c_rr g)
+    while not asleep(w, "low"):
+        assert w.time < 3.0, "the stack never fell asleep"
+        w.step()
+    assert asleep(w, "high") and asleep(w, "lone") and not asleep(w, "ball")
+    # the stack is one island (the boxes touch), the lone box another, the ball a third
+    island = w.islands().island
+    assert island[0] == island[1] != island[2] != island[3]
+    stack = w.body_state.copy()
+    for _ in range(120):
+        w.step()
+        assert asleep(w, "low") and asleep(w, "high") and not asleep(w, "ball")
+    np.testing.assert_array_equal(w.body_state.position[:3], stack.position[:3])
+    np.testing.assert_array_equal(w.body_state.orientation[:3], stack.orientation[:3])
+    assert w.body_state.position[3, 0] > stack.position[3, 0] + 1.0  # the ball rolled on, 2 s more
+    assert not w.bodies_asleep
+
+
+def test_a_ball_rolling_into_a_sleeping_stack_wakes_it_and_pushes_it():
+    w = islands_world(ball_x=-3.0, ball_v=3.0)  # the stack sleeps after ~0.5 s; the ball arrives after ~1 s
+    woke = None
+    slept = False
+    while w.time < 3.0:
+        w.step()
+        slept |= asleep(w, "low")
+        if slept and woke is None and not asleep(w, "low"):
+            woke = w.time
+            assert not asleep(w, "high")  # the whole island
+            assert asleep(w, "lone")  # not the other one
+    assert slept and woke is not None
+    ball_x = w.body_state.position[3, 0]
+    assert ball_x < -0.2 + 1e-3  # it did not pass through the stack
+    assert w.body_state.position[0, 0] > 1e-3  # the stack was pushed along +x
+
+
+def test_a_wrench_wakes_the_island_of_its_body_only():
+    w = islands_world(ball_x=3.0, ball_v=0.0)
+    while not w.bodies_asleep:
+        assert w.time < 3.0, "never fell asleep"
+        w.step()
+    lone = w.body_state.position[2].copy()
+    w.apply_wrench("high", force=[0.0, 30.0, 0.0], point=[0.0, 0.0, 0.75])
+    w.step()
+    assert not asleep(w, "high") and not asleep(w, "low")  # the stack: one island
+    assert asleep(w, "lone") and asleep(w, "ball")
+    np.testing.assert_array_equal(w.body_state.position[2], lone)
+    assert w.body_state.linear_momentum[1, 1] > 0.0
+
+
+def test_wake_named_bodies_after_a_teleport():
+    w = islands_world(ball_x=3.0, ball_v=0.0)
+    while not w.bodies_asleep:
+        w.step()
+    lone = w.body_model.index("lone")
+    w.body_state.position[lone, 2] = 1.0  # teleported 0.8 m up
+    w.wake(["lone"])
+    assert not asleep(w, "lone") and asleep(w, "low") and asleep(w, "ball")
+    for _ in range(60):
+        w.step()
+    assert w.body_state.position[lone, 2] == pytest.approx(0.2, abs=2e-3)  # fell back down
+    with pytest.raises(KeyError, match="unknown body"):
+        w.wake(["nobody"])
+
+
+def test_a_new_body_model_object_starts_every_cache_afresh():
+    """Removing a body (the model and state replaced by new objects built by selecting rows): the sleep state,
+    the collision primitives and the warm-start memory are rebuilt for the new model, nothing stale is reused."""
+    from dataclasses import replace as dc_replace
+
+    from cgp_core import BodyState
+
+    w = islands_world(ball_x=3.0, ball_v=0.0)
+    while not w.bodies_asleep:
+        w.step()
+    keep = np.array([0, 1, 3])  # delete the lone box
+    m = w.body_model
+    w.body_model = dc_replace(m, names=[m.names[i] for i in keep], particles=[m.particles[i] for i in keep],
+                              **{f: getattr(m, f)[keep] for f in ("shape", "radius", "half_extents", "mass",
+                                                                  "inv_mass", "inertia_body", "inv_inertia_body",
+                                                                  "restitution", "friction", "fixed", "color")})
+    st = w.body_state
+    w.body_state = BodyState(position=st.position[keep], orientation=st.orientation[keep],
+                             linear_momentum=st.linear_momentum[keep], angular_momentum=st.angular_momentum[keep])
+    assert not w.bodies_asleep  # a new model: every body awake
+    assert w.islands().count == 3
+    w.step()
+    assert w.solver.detector.collision_model(w.body_model).body_reach.shape == (3,)
+    for _ in range(60):
+        w.step()
+    np.testing.assert_allclose(w.body_state.position[:2, 2], [0.2, 0.6], atol=2e-3)  # the stack still stands
+    assert w.bodies_asleep  # and sleeps again

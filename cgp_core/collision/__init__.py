@@ -3,7 +3,7 @@ the contact set the solver consumes.
 
 - :mod:`.primitives` — bodies as convex primitives (a particle body is one sphere per particle).
 - :mod:`.broadphase` — AABB overlap: uniform grid (default), sweep and prune, brute force (the reference).
-- :mod:`.narrowphase`, :mod:`.box_box` — contact points per shape-pair type, vectorized over pairs.
+- :mod:`.narrowphase`, :mod:`.box_box` — contact points per shape-pair type, one compiled kernel each.
 - :mod:`.detector` — :class:`CollisionDetector`: the above, with speculative margins, into a :class:`ContactSet`.
 - :mod:`.materials` — the ground plane and the friction / restitution combination rules.
 """

@@ -1,6 +1,6 @@
 """Box–box contact: the separating-axis test (SAT) picks the contact normal, face clipping builds the
 contact manifold (Ericson 4.4.1 for the 15 axes; the manifold as in Box2D / Bullet / Gregorius' GDC 2013
-talk "The Separating Axis Test between convex polyhedra"), vectorized over box pairs.
+talk "The Separating Axis Test between convex polyhedra"), one compiled kernel per box pair.
 
 1. **SAT.**  The 15 candidate axes are the 3 face normals of A, the 3 of B and the 9 cross products of an
    edge direction of A with one of B.  On each axis the boxes' projections are intervals; the *separation*
@@ -26,9 +26,12 @@ edge pair (i of A, j of B).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from .narrowphase import closest_segment_segment
+from ..jit import njit
+from .narrowphase import _rows, closest_segment_segment, multi_point_batch, write_point
 
 #: an edge axis must beat the best face axis by this much (relative to the separation, plus the absolute
 #: part) to be chosen; B's face must beat A's by the same (keeps reference face and features stable)
@@ -37,235 +40,287 @@ AXIS_ABSOLUTE_TOLERANCE = 5e-5  # [m]
 
 _EDGE_FEATURE_BASE = 288
 _CYCLE = np.array([(1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)])  # quad corners, counter-clockwise
+_CANDIDATES = 24  # 4 incident corners, 4 reference corners, 16 edge crossings
 
 
+@njit
 def _cross2(ax, ay, bx, by):
     return ax * by - ay * bx
 
 
-def sat_separations(ca, Ra, ha, cb, Rb, hb):
-    """Separations along the 15 SAT axes: face axes of A ``(k, 3)``, of B ``(k, 3)``, edge axes ``(k, 3, 3)``
-    (−inf where the edges are parallel), and the unit edge axes ``(k, 3, 3, 3)`` in world coordinates."""
+@njit
+def box_box_contacts(ca, Ra, ha, cb, Rb, hb, margin, normal, separation, point, feature, m):
+    """Box A vs box B: up to 4 points, normal from A to B, written into the output buffers from row ``m``
+    (see :mod:`.narrowphase`); returns the next free row."""
     d = cb - ca
-    C = np.einsum("kmi,kmj->kij", Ra, Rb)  # C[i, j] = a_i · b_j
-    absC = np.abs(C)
-    dA = np.einsum("kmi,km->ki", Ra, d)  # d in A's axes
-    dB = np.einsum("kmj,km->kj", Rb, d)
-    sep_a = np.abs(dA) - ha - np.einsum("kij,kj->ki", absC, hb)
-    sep_b = np.abs(dB) - hb - np.einsum("kij,ki->kj", absC, ha)
+    C = np.empty((3, 3))  # C[i, j] = a_i · b_j
+    for i in range(3):
+        for j in range(3):
+            C[i, j] = Ra[0, i] * Rb[0, j] + Ra[1, i] * Rb[1, j] + Ra[2, i] * Rb[2, j]
+    dA = np.empty(3)  # d in A's axes, in B's
+    dB = np.empty(3)
+    for i in range(3):
+        dA[i] = Ra[0, i] * d[0] + Ra[1, i] * d[1] + Ra[2, i] * d[2]
+        dB[i] = Rb[0, i] * d[0] + Rb[1, i] * d[1] + Rb[2, i] * d[2]
 
-    eye = np.eye(3)
-    # L_ij = a_i × b_j expressed in A's axes (a_i = e_i, b_j = column j of C) and in B's axes
-    # (a_i = row i of C, b_j = e_j)
-    L_in_a = np.cross(eye[None, :, None, :], np.swapaxes(C, 1, 2)[:, None, :, :])  # (k, i, j, 3)
-    L_in_b = np.cross(C[:, :, None, :], eye[None, None, :, :])  # (k, i, j, 3)
-    length = np.linalg.norm(L_in_a, axis=-1)
-    radius_a = np.einsum("kijm,km->kij", np.abs(L_in_a), ha)
-    radius_b = np.einsum("kijm,km->kij", np.abs(L_in_b), hb)
-    centre_gap = np.abs(np.einsum("kijm,km->kij", L_in_a, dA))
-    usable = length > 1e-6
-    sep_e = np.where(usable, (centre_gap - radius_a - radius_b) / np.where(usable, length, 1.0), -np.inf)
-    L_world = np.einsum("knm,kijm->kijn", Ra, L_in_a) / np.where(usable, length, 1.0)[..., None]
-    return sep_a, sep_b, sep_e, L_world
+    # -- SAT: face axes of A, of B (the first of equal maxima wins)
+    ia, best_a = np.int64(0), -np.inf
+    ib, best_b = np.int64(0), -np.inf
+    for i in range(3):
+        sa = abs(dA[i]) - ha[i] - (abs(C[i, 0]) * hb[0] + abs(C[i, 1]) * hb[1] + abs(C[i, 2]) * hb[2])
+        if sa > best_a:
+            ia, best_a = i, sa
+        sb = abs(dB[i]) - hb[i] - (abs(C[0, i]) * ha[0] + abs(C[1, i]) * ha[1] + abs(C[2, i]) * ha[2])
+        if sb > best_b:
+            ib, best_b = i, sb
+    # edge axes L_ij = a_i × b_j, in A's axes (a_i = e_i, b_j = column j of C) and in B's (a_i = row i of C,
+    # b_j = e_j); cross products of (nearly) parallel edges are not separating directions and are skipped
+    ie, best_e = np.int64(0), -np.inf
+    La = np.empty(3)
+    Lb = np.empty(3)
+    for i in range(3):
+        for j in range(3):
+            i1, i2 = (i + 1) % 3, (i + 2) % 3
+            La[:] = 0.0
+            La[i1] = -C[i2, j]
+            La[i2] = C[i1, j]
+            j1, j2 = (j + 1) % 3, (j + 2) % 3
+            Lb[:] = 0.0
+            Lb[j1] = C[i, j2]
+            Lb[j2] = -C[i, j1]
+            length = math.sqrt(La[0] * La[0] + La[1] * La[1] + La[2] * La[2])
+            if length <= 1e-6:
+                continue
+            radius_a = abs(La[0]) * ha[0] + abs(La[1]) * ha[1] + abs(La[2]) * ha[2]
+            radius_b = abs(Lb[0]) * hb[0] + abs(Lb[1]) * hb[1] + abs(Lb[2]) * hb[2]
+            gap = abs(La[0] * dA[0] + La[1] * dA[1] + La[2] * dA[2])
+            se = (gap - radius_a - radius_b) / length
+            if se > best_e:
+                ie, best_e = 3 * i + j, se
+
+    use_b = best_b > best_a + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(best_a)
+    best_face = best_b if use_b else best_a
+    use_edge = best_e > best_face + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(best_face)
+    best = best_e if use_edge else best_face
+    if not best < margin:
+        return m
+    if use_edge:
+        return _edge_contact(ca, Ra, ha, cb, Rb, hb, C, ie // 3, ie % 3, margin, best, normal, separation, point,
+                             feature, m)
+    if use_b:
+        return _face_contact(cb, Rb, hb, ca, Ra, ha, ib, use_b, margin, best, normal, separation, point, feature, m)
+    return _face_contact(ca, Ra, ha, cb, Rb, hb, ia, use_b, margin, best, normal, separation, point, feature, m)
 
 
-def box_box(ca, Ra, ha, cb, Rb, hb, margin):
-    """Box A vs box B, ``k`` pairs.  Returns ``(pair, normal, separation, point, feature)`` (see
-    :mod:`.narrowphase`), up to 4 points per pair, normal from A to B."""
-    k = len(ca)
-    sep_a, sep_b, sep_e, L_world = sat_separations(ca, Ra, ha, cb, Rb, hb)
-    ia = np.argmax(sep_a, axis=1)
-    ib = np.argmax(sep_b, axis=1)
-    rows = np.arange(k)
-    best_a = sep_a[rows, ia]
-    best_b = sep_b[rows, ib]
-    flat_e = sep_e.reshape(k, 9)
-    ie = np.argmax(flat_e, axis=1)
-    best_e = flat_e[rows, ie]
-
-    use_b = best_b > best_a + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * np.abs(best_a)
-    best_face = np.where(use_b, best_b, best_a)
-    use_edge = best_e > best_face + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * np.abs(best_face)
-    best = np.where(use_edge, best_e, best_face)
-    touching = best < margin
-
-    out = []
-    face = np.flatnonzero(touching & ~use_edge)
-    if face.size:
-        out.append(_face_contacts(face, ca, Ra, ha, cb, Rb, hb, ia, ib, use_b, margin, best))
-    edge = np.flatnonzero(touching & use_edge)
-    if edge.size:
-        out.append(_edge_contacts(edge, ca, Ra, ha, cb, Rb, hb, ie, L_world, margin, best))
-    if not out:
-        return (np.zeros(0, np.intp), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64))
-    return tuple(np.concatenate([o[f] for o in out]) for f in range(5))
-
-
-def _edge_contacts(sel, ca, Ra, ha, cb, Rb, hb, ie, L_world, margin, best):
-    i, j = np.divmod(ie[sel], 3)
-    ca, Ra, ha, cb, Rb, hb = ca[sel], Ra[sel], ha[sel], cb[sel], Rb[sel], hb[sel]
-    rows = np.arange(len(sel))
-    L = L_world[sel, i, j]
-    L = np.where((np.einsum("ki,ki->k", L, cb - ca) < 0.0)[:, None], -L, L)  # from A towards B
+@njit
+def _edge_contact(ca, Ra, ha, cb, Rb, hb, C, i, j, margin, best, normal, separation, point, feature, m):
+    """One point midway between the closest points of the two supporting edges (edge i of A, j of B)."""
+    # the axis a_i × b_j in world coordinates, unit, from A towards B
+    ai, bj = Ra[:, i], Rb[:, j]
+    L = np.empty(3)
+    L[0] = ai[1] * bj[2] - ai[2] * bj[1]
+    L[1] = ai[2] * bj[0] - ai[0] * bj[2]
+    L[2] = ai[0] * bj[1] - ai[1] * bj[0]
+    length = math.sqrt(L[0] * L[0] + L[1] * L[1] + L[2] * L[2])
+    L /= length
+    if L[0] * (cb[0] - ca[0]) + L[1] * (cb[1] - ca[1]) + L[2] * (cb[2] - ca[2]) < 0.0:
+        L *= -1.0
     # supporting edge of A along +L, of B along −L: the corner furthest that way, with the edge's own
     # coordinate set to the middle
-    sa = np.where(np.einsum("kmi,km->ki", Ra, L) >= 0.0, 1.0, -1.0)
-    sb = np.where(np.einsum("kmi,km->ki", Rb, L) >= 0.0, -1.0, 1.0)
-    sa[rows, i] = 0.0
-    sb[rows, j] = 0.0
-    mid_a = ca + np.einsum("kij,kj->ki", Ra, sa * ha)
-    mid_b = cb + np.einsum("kij,kj->ki", Rb, sb * hb)
-    dir_a = Ra[rows, :, i] * ha[rows, i][:, None]
-    dir_b = Rb[rows, :, j] * hb[rows, j][:, None]
-    _, _, xa, xb = closest_segment_segment(mid_a - dir_a, mid_a + dir_a, mid_b - dir_b, mid_b + dir_b)
-    separation = np.einsum("ki,ki->k", xb - xa, L)
+    p1, q1, p2, q2 = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    for r in range(3):
+        mid_a = ca[r]
+        mid_b = cb[r]
+        for k in range(3):
+            if k != i:
+                s = 1.0 if Ra[0, k] * L[0] + Ra[1, k] * L[1] + Ra[2, k] * L[2] >= 0.0 else -1.0
+                mid_a += Ra[r, k] * s * ha[k]
+            if k != j:
+                s = -1.0 if Rb[0, k] * L[0] + Rb[1, k] * L[1] + Rb[2, k] * L[2] >= 0.0 else 1.0
+                mid_b += Rb[r, k] * s * hb[k]
+        p1[r], q1[r] = mid_a - Ra[r, i] * ha[i], mid_a + Ra[r, i] * ha[i]
+        p2[r], q2[r] = mid_b - Rb[r, j] * hb[j], mid_b + Rb[r, j] * hb[j]
+    _, _, x1, y1, z1, x2, y2, z2 = closest_segment_segment(p1, q1, p2, q2)
+    sep = (x2 - x1) * L[0] + (y2 - y1) * L[1] + (z2 - z1) * L[2]
     # apart: never report more gap than the SAT bound (the clamped closest points of two edges that do not
     # face each other can be farther apart than the boxes are)
-    separation = np.where(best[sel] > 0.0, np.minimum(separation, best[sel]), separation)
-    keep = separation < margin[sel]
-    feature = _EDGE_FEATURE_BASE + 3 * i + j
-    point = 0.5 * (xa + xb)
-    return sel[keep].astype(np.intp), L[keep], separation[keep], point[keep], feature[keep].astype(np.int64)
+    if best > 0.0:
+        sep = min(sep, best)
+    if sep < margin:
+        m = write_point(normal, separation, point, feature, m, L[0], L[1], L[2], sep, 0.5 * (x1 + x2),
+                        0.5 * (y1 + y2), 0.5 * (z1 + z2), _EDGE_FEATURE_BASE + 3 * i + j)
+    return m
 
 
-def _face_contacts(sel, ca, Ra, ha, cb, Rb, hb, ia, ib, use_b, margin, best):
-    n = len(sel)
-    rows = np.arange(n)
-    flip = use_b[sel]
-    f3 = flip[:, None]
-    f33 = flip[:, None, None]
-    # reference box R owns the face; incident box I
-    cR = np.where(f3, cb[sel], ca[sel])
-    cI = np.where(f3, ca[sel], cb[sel])
-    RR = np.where(f33, Rb[sel], Ra[sel])
-    RI = np.where(f33, Ra[sel], Rb[sel])
-    hR = np.where(f3, hb[sel], ha[sel])
-    hI = np.where(f3, ha[sel], hb[sel])
-    axis = np.where(flip, ib[sel], ia[sel])
-
-    n_axis = RR[rows, :, axis]
-    side = np.where(np.einsum("ki,ki->k", n_axis, cI - cR) >= 0.0, 1.0, -1.0)
-    n_ref = n_axis * side[:, None]
-    face_centre = cR + n_ref * hR[rows, axis][:, None]
+@njit
+def _face_contact(cR, RR, hR, cI, RI, hI, axis, flip, margin, best, normal, separation, point, feature, m):
+    """Face contact: box R owns the reference face (normal along its axis ``axis``), box I is incident.
+    ``flip``: R is B (the normal written is then reversed, so it still points from A to B)."""
+    n_ref = np.empty(3)
+    side = 1.0 if (RR[0, axis] * (cI[0] - cR[0]) + RR[1, axis] * (cI[1] - cR[1])
+                   + RR[2, axis] * (cI[2] - cR[2])) >= 0.0 else -1.0
     iu, iv = (axis + 1) % 3, (axis + 2) % 3
-    u, v = RR[rows, :, iu], RR[rows, :, iv]
-    hu, hv = hR[rows, iu], hR[rows, iv]
+    hu, hv = hR[iu], hR[iv]
+    u, v = RR[:, iu], RR[:, iv]
+    face_centre = np.empty(3)
+    for r in range(3):
+        n_ref[r] = RR[r, axis] * side
+        face_centre[r] = cR[r] + n_ref[r] * hR[axis]
 
     # incident face: the face of I most anti-parallel to n_ref
-    dots = np.einsum("kmi,km->ki", RI, n_ref)
-    kI = np.argmax(np.abs(dots), axis=1)
-    s_inc = np.where(dots[rows, kI] > 0.0, -1.0, 1.0)
-    n_inc = RI[rows, :, kI] * s_inc[:, None]
-    inc_centre = cI + n_inc * hI[rows, kI][:, None]
+    kI, best_dot, dot_kI = np.int64(0), -1.0, 0.0
+    for k in range(3):
+        dot = RI[0, k] * n_ref[0] + RI[1, k] * n_ref[1] + RI[2, k] * n_ref[2]
+        if abs(dot) > best_dot:
+            kI, best_dot, dot_kI = k, abs(dot), dot
+    s_inc = -1.0 if dot_kI > 0.0 else 1.0
     k1, k2 = (kI + 1) % 3, (kI + 2) % 3
-    e1 = RI[rows, :, k1] * hI[rows, k1][:, None]
-    e2 = RI[rows, :, k2] * hI[rows, k2][:, None]
-    inc_world = inc_centre[:, None, :] + _CYCLE[None, :, 0:1] * e1[:, None, :] + _CYCLE[None, :, 1:2] * e2[:, None, :]
+    n_inc = np.empty(3)
+    rel_c = np.empty(3)  # incident face centre − reference face centre
+    for r in range(3):
+        n_inc[r] = RI[r, kI] * s_inc
+        rel_c[r] = cI[r] + n_inc[r] * hI[kI] - face_centre[r]
 
     # everything in the reference face frame (x along u, y along v, z along n_ref from the face)
-    rel = inc_world - face_centre[:, None, :]
-    qx = np.einsum("kvi,ki->kv", rel, u)
-    qy = np.einsum("kvi,ki->kv", rel, v)
-    qz = np.einsum("kvi,ki->kv", rel, n_ref)
-    px = _CYCLE[None, :, 0] * hu[:, None]  # reference corners (k, 4)
-    py = _CYCLE[None, :, 1] * hv[:, None]
-    size = (hu + hv)[:, None]
+    qx, qy, qz = np.empty(4), np.empty(4), np.empty(4)  # incident corners
+    px, py = np.empty(4), np.empty(4)  # reference corners
+    for c in range(4):
+        rel0 = rel_c[0] + _CYCLE[c, 0] * RI[0, k1] * hI[k1] + _CYCLE[c, 1] * RI[0, k2] * hI[k2]
+        rel1 = rel_c[1] + _CYCLE[c, 0] * RI[1, k1] * hI[k1] + _CYCLE[c, 1] * RI[1, k2] * hI[k2]
+        rel2 = rel_c[2] + _CYCLE[c, 0] * RI[2, k1] * hI[k1] + _CYCLE[c, 1] * RI[2, k2] * hI[k2]
+        qx[c] = rel0 * u[0] + rel1 * u[1] + rel2 * u[2]
+        qy[c] = rel0 * v[0] + rel1 * v[1] + rel2 * v[2]
+        qz[c] = rel0 * n_ref[0] + rel1 * n_ref[1] + rel2 * n_ref[2]
+        px[c] = _CYCLE[c, 0] * hu
+        py[c] = _CYCLE[c, 1] * hv
+    size = hu + hv
     eps = 1e-9 * size
+    X, Y, Z = np.empty(_CANDIDATES), np.empty(_CANDIDATES), np.empty(_CANDIDATES)
+    valid = np.zeros(_CANDIDATES, np.bool_)
 
     # (a) incident corners inside the reference rectangle
-    a_ok = (np.abs(qx) <= hu[:, None] + eps) & (np.abs(qy) <= hv[:, None] + eps)
+    for c in range(4):
+        X[c], Y[c], Z[c] = qx[c], qy[c], qz[c]
+        valid[c] = abs(qx[c]) <= hu + eps and abs(qy[c]) <= hv + eps
 
     # (b) reference corners inside the projected incident quad; their height on the incident plane
-    ex = np.roll(qx, -1, axis=1) - qx
-    ey = np.roll(qy, -1, axis=1) - qy
-    orient = np.sign(np.sum(_cross2(qx, qy, np.roll(qx, -1, axis=1), np.roll(qy, -1, axis=1)), axis=1))
-    side_b = _cross2(ex[:, None, :], ey[:, None, :], px[:, :, None] - qx[:, None, :],
-                     py[:, :, None] - qy[:, None, :])  # [ref corner, incident edge]
-    edge_len = np.hypot(ex, ey)[:, None, :]
-    b_ok = (np.all(orient[:, None, None] * side_b >= -1e-9 * edge_len * size[:, :, None], axis=2)
-            & (orient[:, None] != 0))
-    rel_c = inc_centre - face_centre
-    nu = np.einsum("ki,ki->k", n_inc, u)
-    nv = np.einsum("ki,ki->k", n_inc, v)
-    nn = np.einsum("ki,ki->k", n_inc, n_ref)  # <= -1/sqrt(3): the incident face is never edge-on
-    x0 = np.einsum("ki,ki->k", rel_c, u)
-    y0 = np.einsum("ki,ki->k", rel_c, v)
-    z0 = np.einsum("ki,ki->k", rel_c, n_ref)
-    pz = z0[:, None] - (nu[:, None] * (px - x0[:, None]) + nv[:, None] * (py - y0[:, None])) / nn[:, None]
+    ex, ey, edge_len = np.empty(4), np.empty(4), np.empty(4)
+    turn = 0.0
+    for c in range(4):
+        c1 = (c + 1) % 4
+        ex[c], ey[c] = qx[c1] - qx[c], qy[c1] - qy[c]
+        edge_len[c] = math.sqrt(ex[c] * ex[c] + ey[c] * ey[c])
+        turn += _cross2(qx[c], qy[c], qx[c1], qy[c1])
+    orient = 1.0 if turn > 0.0 else (-1.0 if turn < 0.0 else 0.0)
+    nu = n_inc[0] * u[0] + n_inc[1] * u[1] + n_inc[2] * u[2]
+    nv = n_inc[0] * v[0] + n_inc[1] * v[1] + n_inc[2] * v[2]
+    nn = n_inc[0] * n_ref[0] + n_inc[1] * n_ref[1] + n_inc[2] * n_ref[2]  # <= −1/√3: never edge-on
+    x0 = rel_c[0] * u[0] + rel_c[1] * u[1] + rel_c[2] * u[2]
+    y0 = rel_c[0] * v[0] + rel_c[1] * v[1] + rel_c[2] * v[2]
+    z0 = rel_c[0] * n_ref[0] + rel_c[1] * n_ref[1] + rel_c[2] * n_ref[2]
+    for r in range(4):
+        inside = orient != 0.0
+        for c in range(4):
+            if orient * _cross2(ex[c], ey[c], px[r] - qx[c], py[r] - qy[c]) < -1e-9 * edge_len[c] * size:
+                inside = False
+        X[4 + r], Y[4 + r] = px[r], py[r]
+        Z[4 + r] = z0 - (nu * (px[r] - x0) + nv * (py[r] - y0)) / nn
+        valid[4 + r] = inside
 
-    # (c) reference edge (P_a → P_a+1) × incident edge (Q_b → Q_b+1) crossings
-    rx = (np.roll(px, -1, axis=1) - px)[:, :, None]
-    ry = (np.roll(py, -1, axis=1) - py)[:, :, None]
-    sx, sy = ex[:, None, :], ey[:, None, :]
-    wx = qx[:, None, :] - px[:, :, None]
-    wy = qy[:, None, :] - py[:, :, None]
-    denom = _cross2(rx, ry, sx, sy)
-    ok_denom = np.abs(denom) > 1e-9 * np.hypot(rx, ry) * np.hypot(sx, sy)
-    safe = np.where(ok_denom, denom, 1.0)
-    t = _cross2(wx, wy, sx, sy) / safe
-    w = _cross2(wx, wy, rx, ry) / safe
-    c_ok = ok_denom & (t >= 0.0) & (t <= 1.0) & (w >= 0.0) & (w <= 1.0)
-    cx = px[:, :, None] + t * rx
-    cy = py[:, :, None] + t * ry
-    cz = qz[:, None, :] + w * (np.roll(qz, -1, axis=1) - qz)[:, None, :]
-
-    X = np.concatenate((qx, px, cx.reshape(n, 16)), axis=1)  # (n, 24)
-    Y = np.concatenate((qy, py, cy.reshape(n, 16)), axis=1)
-    Z = np.concatenate((qz, pz, cz.reshape(n, 16)), axis=1)
-    valid = np.concatenate((a_ok, b_ok, c_ok.reshape(n, 16)), axis=1)
+    # (c) reference edge (P_r → P_r+1) × incident edge (Q_c → Q_c+1) crossings
+    for r in range(4):
+        rx, ry = px[(r + 1) % 4] - px[r], py[(r + 1) % 4] - py[r]
+        for c in range(4):
+            slot = 8 + 4 * r + c
+            sx, sy = ex[c], ey[c]
+            wx, wy = qx[c] - px[r], qy[c] - py[r]
+            denom = _cross2(rx, ry, sx, sy)
+            ok = abs(denom) > 1e-9 * math.sqrt(rx * rx + ry * ry) * math.sqrt(sx * sx + sy * sy)
+            safe = denom if ok else 1.0
+            t = _cross2(wx, wy, sx, sy) / safe
+            w = _cross2(wx, wy, rx, ry) / safe
+            valid[slot] = ok and 0.0 <= t <= 1.0 and 0.0 <= w <= 1.0
+            X[slot] = px[r] + t * rx
+            Y[slot] = py[r] + t * ry
+            Z[slot] = qz[c] + w * (qz[(c + 1) % 4] - qz[c])
 
     # merge duplicates: a candidate coinciding with an earlier valid one is dropped
-    dist2 = (X[:, :, None] - X[:, None, :]) ** 2 + (Y[:, :, None] - Y[:, None, :]) ** 2
-    close = dist2 <= ((1e-4 * size) ** 2)[:, :, None]
-    earlier = np.tril(np.ones((24, 24), dtype=bool), k=-1)  # [j, i]: i < j
-    valid &= ~np.any(close & earlier[None] & valid[:, None, :], axis=2)
+    close = (1e-4 * size) * (1e-4 * size)
+    keep = valid.copy()
+    for j in range(_CANDIDATES):
+        for i in range(j):
+            if valid[i] and valid[j] and (X[j] - X[i]) * (X[j] - X[i]) + (Y[j] - Y[i]) * (Y[j] - Y[i]) <= close:
+                keep[j] = False
+                break
+    valid = keep
 
     # apart (speculative contact): when the incident feature nearest the reference face lies outside the
     # clipping region (or is dropped by the reduction), every kept point is farther than the boxes really
     # are.  Lower the points together (keeping their relative heights, i.e. the tilt) until the nearest
     # reports the SAT separation, a lower bound of the true gap, so a fast approach is never let through
-    Z_geom = Z
-    apart = best[sel] > 0.0
-    Z = _lower_to(Z, valid, best[sel], apart)
-    valid &= Z < margin[sel][:, None]
-    valid = _reduce_to_four(X / hu[:, None], Y / hv[:, None], valid)
-    Z = _lower_to(Z, valid, best[sel], apart)
+    Z_geom = Z.copy()
+    apart = best > 0.0
+    _lower_to(Z, valid, best, apart)
+    for s in range(_CANDIDATES):
+        valid[s] = valid[s] and Z[s] < margin
+    _reduce_to_four(X, Y, hu, hv, valid)
+    _lower_to(Z, valid, best, apart)
 
-    pair, slot = np.nonzero(valid)
-    fc = face_centre[pair]
-    point = (fc + X[pair, slot][:, None] * u[pair] + Y[pair, slot][:, None] * v[pair]
-             + (0.5 * Z_geom[pair, slot])[:, None] * n_ref[pair])
-    normal = np.where(flip[pair][:, None], -n_ref[pair], n_ref[pair])
-    face_id = flip.astype(np.int64) * 6 + axis * 2 + (side > 0)
-    feature = face_id[pair] * 24 + slot
-    return sel[pair].astype(np.intp), normal, Z[pair, slot], point, feature.astype(np.int64)
+    face_id = (6 if flip else 0) + axis * 2 + (1 if side > 0.0 else 0)
+    sign = -1.0 if flip else 1.0
+    for s in range(_CANDIDATES):
+        if valid[s]:
+            half = 0.5 * Z_geom[s]
+            m = write_point(normal, separation, point, feature, m,
+                            sign * n_ref[0], sign * n_ref[1], sign * n_ref[2], Z[s],
+                            face_centre[0] + X[s] * u[0] + Y[s] * v[0] + half * n_ref[0],
+                            face_centre[1] + X[s] * u[1] + Y[s] * v[1] + half * n_ref[1],
+                            face_centre[2] + X[s] * u[2] + Y[s] * v[2] + half * n_ref[2],
+                            face_id * _CANDIDATES + s)
+    return m
 
 
-
+@njit
 def _lower_to(Z, valid, best, apart):
-    """Shift the rows of ``Z`` flagged ``apart`` down so their smallest valid entry is at most ``best``."""
-    if not apart.any():
-        return Z
-    nearest = np.min(np.where(valid, Z, np.inf), axis=1)
-    shift = np.where(apart & np.isfinite(nearest), np.maximum(nearest - best, 0.0), 0.0)
-    return Z - shift[:, None]
+    """If ``apart``, shift ``Z`` down (in place) so its smallest valid entry is at most ``best``."""
+    if not apart:
+        return
+    nearest = np.inf
+    for s in range(len(Z)):
+        if valid[s] and Z[s] < nearest:
+            nearest = Z[s]
+    if nearest < np.inf:
+        shift = max(nearest - best, 0.0)
+        for s in range(len(Z)):
+            Z[s] -= shift
 
 
-def _reduce_to_four(X, Y, valid):
-    """Keep at most 4 valid candidates per row: the extreme ones along the face's diagonal directions
-    (``X``, ``Y`` in units of the face's half sizes).  Unlike "deepest point first" (Bullet), this choice
-    does not flip between nearly equal candidates from one step to the next — a box turned on another has an
-    octagonal contact region whose 8 corners are all equally deep — which kept a stack of turned boxes
+@njit
+def _reduce_to_four(X, Y, hu, hv, valid):
+    """Keep at most 4 valid candidates (in place): the extreme ones along the face's diagonal directions
+    (``X / hu``, ``Y / hv``: in units of the face's half sizes).  Unlike "deepest point first" (Bullet), this
+    choice does not flip between nearly equal candidates from one step to the next — a box turned on another
+    has an octagonal contact region whose 8 corners are all equally deep — which kept a stack of turned boxes
     jittering."""
-    count = valid.sum(axis=1)
-    many = np.flatnonzero(count > 4)
-    if many.size == 0:
-        return valid
-    x, y, ok = X[many], Y[many], valid[many]
-    r = np.arange(len(many))
-    keep = np.zeros_like(ok)
-    for dx, dy in ((1, 1), (-1, 1), (-1, -1), (1, -1)):
-        keep[r, np.argmax(np.where(ok, dx * x + dy * y, -np.inf), axis=1)] = True
-    valid = valid.copy()
-    valid[many] = keep
-    return valid
+    count = 0
+    for s in range(len(valid)):
+        if valid[s]:
+            count += 1
+    if count <= 4:
+        return
+    keep = np.zeros(len(valid), np.bool_)
+    for dx, dy in ((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)):
+        best, best_s = -np.inf, -1
+        for s in range(len(valid)):
+            if valid[s]:
+                score = dx * (X[s] / hu) + dy * (Y[s] / hv)
+                if score > best:
+                    best, best_s = score, s
+        keep[best_s] = True
+    valid[:] = keep
+
+
+def box_box(ca, Ra, ha, cb, Rb, hb, margin):
+    """Box A vs box B, ``k`` pairs as stacked arrays.  Returns ``(pair, normal, separation, point, feature)``
+    (see :mod:`.narrowphase`), up to 4 points per pair, normal from A to B."""
+    return multi_point_batch(box_box_contacts, 4, len(ca), _rows(ca, Ra, ha, cb, Rb, hb, margin))

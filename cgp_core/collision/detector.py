@@ -1,5 +1,11 @@
 """Contact detection for one sub-step: broad phase → narrow phase → :class:`ContactSet`.
 
+Three compiled stages, called from :meth:`CollisionDetector.detect`:
+:func:`~cgp_core.collision.primitives.primitive_bounds` (primitive poses, AABBs grown by the speculative margins),
+the broad phase (:func:`small_scene_pairs` for a handful of primitives, else the configured :mod:`.broadphase`
+function) and :func:`narrow_phase` (one loop over the ground and the
+candidate pairs, each pair handed to its shape pair's kernel in :mod:`.narrowphase` / :mod:`.box_box`).
+
 Speculative contacts (Catto, "Continuous collision", GDC 2013; Box2D v3).  A pair is reported not only when
 it touches but whenever its gap may close within the coming sub-step: each body gets a *margin*
 
@@ -21,12 +27,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..bodies import BodyModel, BodyState, Shape
-from . import narrowphase as nph
-from .box_box import box_box
-from .broadphase import DEFAULT_BROAD_PHASE, brute_force_pairs, get_broad_phase
+from ..jit import njit
+from .box_box import box_box_contacts
+from .broadphase import DEFAULT_BROAD_PHASE, get_broad_phase, sweep_and_prune_kernel, sweep_and_prune_pairs
 from .contacts import GROUND, ContactSet
 from .materials import Ground, combine_friction, combine_restitution
-from .primitives import CollisionModel, build_collision_model, primitive_aabbs, primitive_poses
+from .narrowphase import (box_capsule_contacts, box_plane_contacts, capsule_capsule_contacts, capsule_plane_contacts,
+                          sphere_box_point, sphere_capsule_point, sphere_plane_point, sphere_sphere_point, write_point)
+from .primitives import CollisionModel, build_collision_model, primitive_bounds
 
 #: default speculative distance [m]: contacts within this gap are kept even at rest, so a resting contact
 #: does not flicker in and out (and lose its warm-start impulse) with the solver's tiny residual motion
@@ -36,8 +44,11 @@ DEFAULT_SPECULATIVE_DISTANCE = 0.002
 #: primitive pair, which the solver uses to match contacts across sub-steps
 FEATURE_SLOTS = 512
 
-#: up to this many primitives the broad phase is brute force whatever is configured
-SMALL_SCENE = 32
+#: up to this many primitives the broad phase tests every pair (compiled) whatever is configured
+SMALL_SCENE = 64
+
+#: most contact points one primitive pair (or a primitive and the ground) can give (box–box, box–plane)
+MAX_POINTS_PER_PAIR = 4
 
 SPHERE, BOX, CAPSULE = int(Shape.SPHERE), int(Shape.BOX), int(Shape.CAPSULE)
 
@@ -46,11 +57,12 @@ class CollisionDetector:
     """Finds the contacts of a body model at the current state.
 
     Args:
-        broad_phase: ``"grid"`` (default), ``"sweep_and_prune"`` or ``"brute_force"`` (see
-            :mod:`.broadphase`).
+        broad_phase: ``"sweep_and_prune"`` (default, compiled), ``"grid"`` or ``"brute_force"`` (see
+            :mod:`.broadphase`), used above ``SMALL_SCENE`` primitives.
         speculative_distance: gap [m] below which contacts are always reported (see the module docstring).
 
-    The collision primitives of a model are built on first use and cached (the model is static).
+    The collision primitives of a model are built on first use and cached, keyed on the model object (the
+    model is static; a new model — bodies spawned or deleted — is a new object and gets new primitives).
     """
 
     def __init__(self, broad_phase: str = DEFAULT_BROAD_PHASE,
@@ -64,151 +76,199 @@ class CollisionDetector:
         self._cmodel: CollisionModel | None = None
 
     def collision_model(self, model: BodyModel) -> CollisionModel:
-        if model is not self._model:
+        if model is not self._model or self._cmodel is None or len(self._cmodel.body_reach) != model.count:
             self._cmodel = build_collision_model(model)
             self._model = model
         return self._cmodel
 
-    def margins(self, model: BodyModel, h: float, velocity: np.ndarray, angular_velocity: np.ndarray) -> np.ndarray:
-        """Per-body speculative margin ``(n,)`` for a sub-step of ``h`` at the given velocities."""
-        cm = self.collision_model(model)
-        speed = np.linalg.norm(velocity, axis=1) + np.linalg.norm(angular_velocity, axis=1) * cm.body_reach
-        return self.speculative_distance + h * speed
-
     def detect(self, model: BodyModel, state: BodyState, h: float, *, ground: Ground | None,
                velocity: np.ndarray | None = None, angular_velocity: np.ndarray | None = None,
-               rotation: np.ndarray | None = None) -> ContactSet:
+               rotation: np.ndarray | None = None, active: np.ndarray | None = None) -> ContactSet:
         """All contacts (touching, penetrating, or within the speculative margin) at ``state``'s poses.
 
         ``velocity`` / ``angular_velocity`` ``(n, 3)`` are the velocities the bodies will move with over the
         sub-step (default: the state's current ones); they only size the speculative margins.
         ``rotation`` ``(n, 3, 3)``: ``state.rotation_matrices()``, if the caller has it already.
+        ``active`` ``(n,)`` bool: the bodies being stepped (default: every movable one).  Only pairs with an
+        active body are tested; a sleeping movable body (movable, not active) is tested against the active ones
+        and acts as static, and the contacts that touch one are reported in :attr:`touched_sleeping` (the
+        caller wakes it: see :mod:`cgp_core.sleep`).
         """
         cm = self.collision_model(model)
+        self.touched_sleeping = np.zeros(0, np.intp)
         if cm.count == 0:
             return ContactSet.empty()
         if velocity is None:
             velocity = state.linear_velocity(model)
         if angular_velocity is None:
             angular_velocity = state.angular_velocity(model)
-        body_margin = self.margins(model, h, velocity, angular_velocity)
         R = state.rotation_matrices() if rotation is None else rotation
-        centre, Rp = primitive_poses(cm, state.position, R)
-        lo, hi = primitive_aabbs(cm, centre, Rp)
-        margin = body_margin[cm.body]
-        # a body whose state went non-finite (a numerical blow-up, which World contains after the tick)
-        # takes no part in collisions rather than stopping everyone else's step
-        sane = np.isfinite(lo).all(axis=1) & np.isfinite(hi).all(axis=1) & np.isfinite(margin)
-        live = np.flatnonzero(sane) if not sane.all() else None
-
-        parts = []
-        if ground is not None:
-            parts.append(self._ground_contacts(model, cm, centre, Rp, np.where(sane[:, None], lo, np.inf),
-                                               margin, ground))
-
-        # a handful of primitives: testing every pair is cheaper than building any structure
-        broad_phase = brute_force_pairs if cm.count <= SMALL_SCENE else self.broad_phase
-        if live is None:
-            i, j = broad_phase(lo - margin[:, None], hi + margin[:, None])
+        movable = ~cm.fixed_body
+        active = movable if active is None else active & movable
+        centre, lo, hi, margin = primitive_bounds(cm.body, cm.offset, cm.radius, cm.half_extents, cm.body_reach,
+                                                  state.position, np.ascontiguousarray(R), velocity,
+                                                  angular_velocity, float(h), self.speculative_distance)
+        # a primitive whose body's state went non-finite (a numerical blow-up, which World contains after the
+        # tick) takes no part in collisions rather than stopping everyone else's step: its bounds are NaN (see
+        # primitive_bounds), so no overlap test passes
+        if cm.count <= SMALL_SCENE:
+            i, j = small_scene_pairs(lo, hi, cm.body, active)
+        elif self.broad_phase is sweep_and_prune_pairs:
+            i, j = sweep_and_prune_kernel(lo, hi)  # one compiled call; the pair order does not matter here
         else:
-            i, j = broad_phase(lo[live] - margin[live, None], hi[live] + margin[live, None])
-            i, j = live[i], live[j]
-        keep = (cm.body[i] != cm.body[j]) & ~(cm.fixed_body[cm.body[i]] & cm.fixed_body[cm.body[j]])
-        i, j = i[keep], j[keep]
-        if i.size:
-            swap = cm.shape[i] > cm.shape[j]
-            a = np.where(swap, j, i)
-            b = np.where(swap, i, j)
-            parts.append(self._pair_contacts(model, cm, centre, Rp, margin, a, b))
-        return ContactSet.concatenate(parts)
+            sane = np.flatnonzero(np.isfinite(lo).all(1) & np.isfinite(hi).all(1))
+            if sane.size == cm.count:
+                i, j = self.broad_phase(lo, hi)
+            else:
+                i, j = self.broad_phase(lo[sane], hi[sane])
+                i, j = sane[i], sane[j]
+            i, j = np.ascontiguousarray(i, np.int64), np.ascontiguousarray(j, np.int64)
+        contacts = narrow_phase(cm.body, cm.shape, cm.radius, cm.half_extents, model.friction, model.restitution,
+                                active, movable, centre, np.ascontiguousarray(R), lo, margin, i, j,
+                                ground is not None, ground.friction if ground is not None else 0.0,
+                                ground.restitution if ground is not None else 0.0)
+        body_a, body_b, normal, separation, point, key, friction, restitution, touched = contacts
+        if touched.any():
+            self.touched_sleeping = np.flatnonzero(touched)
+        return ContactSet(body_a, body_b, normal, separation, point, key, friction, restitution)
 
-    # ---- ground --------------------------------------------------------------------------------------
 
-    def _ground_contacts(self, model, cm, centre, Rp, lo, margin, ground: Ground) -> ContactSet:
-        near = (lo[:, 2] < margin) & cm.movable
-        idx, normal, sep, point, feature = [], [], [], [], []  # per shape: primitive, contact geometry
-        for shape, prims in cm.by_shape:
-            p = prims[near[prims]]
-            if p.size == 0:
+@njit
+def small_scene_pairs(lo, hi, prim_body, active):
+    """Every overlapping pair ``i < j`` of AABBs of different bodies, at least one of them active, in (i, j)
+    order: the broad phase for a handful of primitives, where building any structure costs more."""
+    p = len(lo)
+    count = 0
+    pi = np.empty(p * (p - 1) // 2 + 1, np.int64)
+    pj = np.empty(p * (p - 1) // 2 + 1, np.int64)
+    for i in range(p):
+        for j in range(i + 1, p):
+            if prim_body[i] == prim_body[j] or not (active[prim_body[i]] or active[prim_body[j]]):
                 continue
+            if lo[i, 0] <= hi[j, 0] and lo[j, 0] <= hi[i, 0] and lo[i, 1] <= hi[j, 1] and lo[j, 1] <= hi[i, 1] \
+                    and lo[i, 2] <= hi[j, 2] and lo[j, 2] <= hi[i, 2]:
+                pi[count] = i
+                pj[count] = j
+                count += 1
+    return pi[:count], pj[:count]
+
+
+@njit
+def narrow_phase(prim_body, prim_shape, prim_radius, prim_half, body_friction, body_restitution, active, movable,
+                 centre, rotation, lo, margin, pair_i, pair_j, has_ground, ground_friction, ground_restitution):
+    """Contact points of the active primitives with the ground and of the candidate pairs ``pair_i, pair_j``
+    (primitive indices, AABBs overlapping), as the :class:`ContactSet` fields ``(body_a, body_b, normal,
+    separation, point, key, friction, restitution)``, and ``touched (n,)``: the sleeping bodies in a contact; ground contacts first, in primitive order, then the pairs
+    in the order given.  A pair's side A is the primitive whose shape comes first in SPHERE < BOX < CAPSULE.
+    Materials: friction √(μ_a μ_b), restitution max(e_a, e_b) (see :mod:`.materials`)."""
+    p = len(prim_body)
+    cap = MAX_POINTS_PER_PAIR * (p + len(pair_i)) + 1
+    normal = np.empty((cap, 3))
+    separation = np.empty(cap)
+    point = np.empty((cap, 3))
+    feature = np.empty(cap, np.int64)
+    prim_a = np.empty(cap, np.int64)  # −1: the ground
+    prim_b = np.empty(cap, np.int64)
+    axis_a = np.empty(3)
+    axis_b = np.empty(3)
+    # (an int64, not a literal 0: numba would also compile the kernels it is passed to for a literal 0)
+    m = np.int64(0)
+
+    # -- the ground plane z = 0 (side A) against every active primitive near it
+    if has_ground:
+        for k in range(p):
+            if not active[prim_body[k]] or not lo[k, 2] < margin[k]:
+                continue
+            start = m
+            shape = prim_shape[k]
             if shape == SPHERE:
-                n_, s_, x_ = nph.sphere_plane(centre[p], cm.radius[p])
-                ok = s_ < margin[p]
-                k, f_ = np.flatnonzero(ok), np.zeros(int(ok.sum()), np.int64)
-                n_, s_, x_ = n_[ok], s_[ok], x_[ok]
+                nx, ny, nz, s, px, py, pz = sphere_plane_point(centre[k], prim_radius[k])
+                if s < margin[k]:
+                    m = write_point(normal, separation, point, feature, m, nx, ny, nz, s, px, py, pz, 0)
             elif shape == BOX:
-                k, n_, s_, x_, f_ = nph.box_plane(centre[p], Rp[p], cm.half_extents[p], margin[p])
+                m = box_plane_contacts(centre[k], rotation[prim_body[k]], prim_half[k], margin[k], normal,
+                                       separation, point, feature, m)
             else:
-                k, n_, s_, x_, f_ = nph.capsule_plane(centre[p], Rp[p][:, :, 2], cm.half_extents[p, 2], cm.radius[p],
-                                                      margin[p])
-            idx.append(p[k])
-            normal.append(n_)
-            sep.append(s_)
-            point.append(x_)
-            feature.append(f_)
-        if not idx:
-            return ContactSet.empty()
-        # one ContactSet for all shapes (in shape order), not one per shape and a concatenation
-        idx = np.concatenate(idx)
-        body = cm.body[idx]
-        return ContactSet(
-            body_a=np.full(len(idx), GROUND, dtype=np.intp), body_b=body.astype(np.intp),
-            normal=np.concatenate(normal), separation=np.concatenate(sep), point=np.concatenate(point),
-            key=self._keys(cm, -1, idx, np.concatenate(feature)),
-            friction=combine_friction(ground.friction, model.friction[body]),
-            restitution=combine_restitution(ground.restitution, model.restitution[body]))
+                _column(rotation[prim_body[k]], 2, axis_b)
+                m = capsule_plane_contacts(centre[k], axis_b, prim_half[k, 2], prim_radius[k], margin[k], normal,
+                                           separation, point, feature, m)
+            prim_a[start:m] = -1
+            prim_b[start:m] = k
 
-    # ---- primitive pairs -----------------------------------------------------------------------------
+    # -- primitive pairs
+    for q in range(len(pair_i)):
+        i, j = pair_i[q], pair_j[q]
+        bi, bj = prim_body[i], prim_body[j]
+        if bi == bj or not (active[bi] or active[bj]):
+            continue
+        a, b = (j, i) if prim_shape[i] > prim_shape[j] else (i, j)
+        sa, sb = prim_shape[a], prim_shape[b]
+        Ra, Rb = rotation[prim_body[a]], rotation[prim_body[b]]
+        limit = margin[a] + margin[b]
+        start = m
+        if sa == SPHERE and sb != BOX and sb != CAPSULE:
+            nx, ny, nz, s, px, py, pz = sphere_sphere_point(centre[a, 0], centre[a, 1], centre[a, 2], prim_radius[a],
+                                                            centre[b, 0], centre[b, 1], centre[b, 2], prim_radius[b])
+            if s < limit:
+                m = write_point(normal, separation, point, feature, m, nx, ny, nz, s, px, py, pz, 0)
+        elif sa == SPHERE and sb == BOX:
+            nx, ny, nz, s, px, py, pz = sphere_box_point(centre[a], prim_radius[a], centre[b], Rb, prim_half[b])
+            if s < limit:
+                m = write_point(normal, separation, point, feature, m, nx, ny, nz, s, px, py, pz, 0)
+        elif sa == SPHERE:
+            _column(Rb, 2, axis_b)
+            nx, ny, nz, s, px, py, pz = sphere_capsule_point(centre[a], prim_radius[a], centre[b], axis_b,
+                                                             prim_half[b, 2], prim_radius[b])
+            if s < limit:
+                m = write_point(normal, separation, point, feature, m, nx, ny, nz, s, px, py, pz, 0)
+        elif sa == BOX and sb == BOX:
+            m = box_box_contacts(centre[a], Ra, prim_half[a], centre[b], Rb, prim_half[b], limit, normal, separation,
+                                 point, feature, m)
+        elif sa == BOX:
+            _column(Rb, 2, axis_b)
+            m = box_capsule_contacts(centre[a], Ra, prim_half[a], centre[b], axis_b, prim_half[b, 2], prim_radius[b],
+                                     limit, normal, separation, point, feature, m)
+        else:
+            _column(Ra, 2, axis_a)
+            _column(Rb, 2, axis_b)
+            m = capsule_capsule_contacts(centre[a], axis_a, prim_half[a, 2], prim_radius[a], centre[b], axis_b,
+                                         prim_half[b, 2], prim_radius[b], limit, normal, separation, point, feature, m)
+        prim_a[start:m] = a
+        prim_b[start:m] = b
 
-    def _pair_contacts(self, model, cm, centre, Rp, margin, a, b) -> ContactSet:
-        sa, sb = cm.shape[a], cm.shape[b]
-        pair_margin = margin[a] + margin[b]
-        out = []
-        for ta, tb in ((SPHERE, SPHERE), (SPHERE, BOX), (SPHERE, CAPSULE), (BOX, BOX), (BOX, CAPSULE),
-                       (CAPSULE, CAPSULE)):
-            sel = np.flatnonzero((sa == ta) & (sb == tb))
-            if sel.size == 0:
-                continue
-            pa, pb, m = a[sel], b[sel], pair_margin[sel]
-            ca, cb = centre[pa], centre[pb]
-            if (ta, tb) == (SPHERE, SPHERE):
-                single = nph.sphere_sphere(ca, cm.radius[pa], cb, cm.radius[pb])
-            elif (ta, tb) == (SPHERE, BOX):
-                single = nph.sphere_box(ca, cm.radius[pa], cb, Rp[pb], cm.half_extents[pb])
-            elif (ta, tb) == (SPHERE, CAPSULE):
-                single = nph.sphere_capsule(ca, cm.radius[pa], cb, Rp[pb][:, :, 2], cm.half_extents[pb, 2],
-                                            cm.radius[pb])
-            else:
-                single = None
-            if single is not None:
-                normal, sep, point = single
-                ok = sep < m
-                k = np.flatnonzero(ok)
-                normal, sep, point, feature = normal[ok], sep[ok], point[ok], np.zeros(len(k), np.int64)
-            elif (ta, tb) == (BOX, BOX):
-                k, normal, sep, point, feature = box_box(ca, Rp[pa], cm.half_extents[pa], cb, Rp[pb],
-                                                         cm.half_extents[pb], m)
-            elif (ta, tb) == (BOX, CAPSULE):
-                k, normal, sep, point, feature = nph.box_capsule(ca, Rp[pa], cm.half_extents[pa], cb,
-                                                                 Rp[pb][:, :, 2], cm.half_extents[pb, 2],
-                                                                 cm.radius[pb], m)
-            else:
-                k, normal, sep, point, feature = nph.capsule_capsule(
-                    ca, Rp[pa][:, :, 2], cm.half_extents[pa, 2], cm.radius[pa],
-                    cb, Rp[pb][:, :, 2], cm.half_extents[pb, 2], cm.radius[pb], m)
-            if len(k) == 0:
-                continue
-            prim_a, prim_b = pa[k], pb[k]
-            body_a, body_b = cm.body[prim_a], cm.body[prim_b]
-            out.append(ContactSet(
-                body_a=body_a.astype(np.intp), body_b=body_b.astype(np.intp), normal=normal, separation=sep,
-                point=point, key=self._keys(cm, prim_a, prim_b, feature),
-                friction=combine_friction(model.friction[body_a], model.friction[body_b]),
-                restitution=combine_restitution(model.restitution[body_a], model.restitution[body_b])))
-        return ContactSet.concatenate(out)
+    # -- bodies, identity keys and materials; sleeping (movable, not active) bodies touched
+    touched = np.zeros(len(active), np.bool_)
+    body_a = np.empty(m, np.int64)
+    body_b = np.empty(m, np.int64)
+    key = np.empty(m, np.int64)
+    friction = np.empty(m)
+    restitution = np.empty(m)
+    for c in range(m):
+        body_b[c] = prim_body[prim_b[c]]
+        if prim_a[c] < 0:
+            body_a[c] = GROUND
+            mu_a, e_a = ground_friction, ground_restitution
+        else:
+            body_a[c] = prim_body[prim_a[c]]
+            mu_a, e_a = body_friction[body_a[c]], body_restitution[body_a[c]]
+        friction[c] = combine_friction(mu_a, body_friction[body_b[c]])
+        restitution[c] = combine_restitution(e_a, body_restitution[body_b[c]])
+        key[c] = contact_key(prim_a[c], prim_b[c], feature[c], p)
+        for body in (body_a[c], body_b[c]):
+            if body >= 0 and movable[body] and not active[body]:
+                touched[body] = True
+    return (body_a, body_b, normal[:m].copy(), separation[:m].copy(), point[:m].copy(), key, friction,
+            restitution, touched)
 
-    @staticmethod
-    def _keys(cm: CollisionModel, prim_a: np.ndarray, prim_b: np.ndarray, feature: np.ndarray) -> np.ndarray:
-        """Contact identity: (primitive A + 1, primitive B, feature) packed into one int64 (A = −1: ground)."""
-        p = np.int64(cm.count + 1)
-        return ((np.asarray(prim_a, np.int64) + 1) * p + np.asarray(prim_b, np.int64)) * FEATURE_SLOTS + feature
+
+@njit
+def contact_key(prim_a, prim_b, feature, primitive_count):
+    """Contact identity: (primitive A + 1, primitive B, feature) packed into one int64 (A = −1: the ground)."""
+    return ((prim_a + 1) * (primitive_count + 1) + prim_b) * FEATURE_SLOTS + feature
+
+
+@njit
+def _column(R, k, out):
+    out[0] = R[0, k]
+    out[1] = R[1, k]
+    out[2] = R[2, k]

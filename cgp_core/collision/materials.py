@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..jit import njit
+
 DEFAULT_GROUND_FRICTION = 0.6
 DEFAULT_GROUND_RESTITUTION = 0.0
 
@@ -41,11 +43,13 @@ class Ground:
                 raise ValueError(f"ground {name} must be a number in [0, {top:g}], got {value!r}")
 
 
-def combine_friction(mu_a: np.ndarray, mu_b: np.ndarray) -> np.ndarray:
-    """Pair friction ``√(μ_a μ_b)`` (elementwise)."""
-    return np.sqrt(np.asarray(mu_a, dtype=float) * np.asarray(mu_b, dtype=float))
+@njit
+def combine_friction(mu_a, mu_b):
+    """Pair friction ``√(μ_a μ_b)`` (numbers or arrays, elementwise; compiled, so the narrow phase calls it)."""
+    return np.sqrt(mu_a * mu_b)
 
 
-def combine_restitution(e_a: np.ndarray, e_b: np.ndarray) -> np.ndarray:
-    """Pair restitution ``max(e_a, e_b)`` (elementwise)."""
-    return np.maximum(np.asarray(e_a, dtype=float), np.asarray(e_b, dtype=float))
+@njit
+def combine_restitution(e_a, e_b):
+    """Pair restitution ``max(e_a, e_b)`` (numbers or arrays, elementwise)."""
+    return np.maximum(e_a, e_b)

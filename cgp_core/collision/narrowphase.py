@@ -1,297 +1,411 @@
-"""Narrow phase: contact points of primitive pairs, one vectorized function per shape-pair type
-(Ericson ch. 4–5).  Box–box (SAT with face clipping) lives in :mod:`.box_box`.
+"""Narrow phase: contact points of primitive pairs, one compiled function per shape-pair type, written for one
+pair as a plain loop (Ericson ch. 4–5).  Box–box (SAT with face clipping) lives in :mod:`.box_box`.
 
-Every function works on ``k`` pairs at once, with side A and side B fixed by the function name (the plane
-z = 0 is always A; otherwise A is the shape that comes first in SPHERE < BOX < CAPSULE).  It returns, per
-contact point, the unit ``normal`` from A to B, the signed ``separation`` (negative = penetration) and the
-world ``point`` midway between the surfaces (see :mod:`.contacts`).
+Side A and side B are fixed by the function name (the plane z = 0 is always A; otherwise A is the shape that
+comes first in SPHERE < BOX < CAPSULE).  Every function gives, per contact point, the unit ``normal`` from A to
+B, the signed ``separation`` (negative = penetration) and the world ``point`` midway between the surfaces (see
+:mod:`.contacts`).
 
-Functions that can give several points per pair return ``(pair, normal, separation, point, feature)`` where
-``pair`` indexes the input pairs and ``feature`` (small int) names the geometric feature that made the point
-(a box vertex, a capsule end ...), stable from one step to the next so the solver can warm start it.  They
-keep a candidate only if its separation is below the pair's ``margin`` (the speculative distance).  Shapes:
-centres ``(k, 3)``, rotations ``(k, 3, 3)`` (columns = body axes in world), radii ``(k,)``, box half extents
-``(k, 3)``, capsule axes ``(k, 3)`` (unit) and half lengths ``(k,)``.
+Two kinds of kernels (all :func:`cgp_core.jit.njit`, so they also run as plain Python):
+
+- one-point pairs (sphere–sphere, sphere–plane, sphere–box, sphere–capsule) return the point as a tuple
+  ``(nx, ny, nz, separation, px, py, pz)``;
+- pairs that can give several points (box–plane, capsule–plane, capsule–capsule, box–capsule, box–box) write
+  each kept point into output buffers ``normal (cap, 3)``, ``separation (cap,)``, ``point (cap, 3)``,
+  ``feature (cap,)`` at row ``m`` on and return the next free row.  ``feature`` (small int) names the geometric
+  feature that made the point (a box vertex, a capsule end ...), stable from one step to the next so the solver
+  can warm start it.  They keep a candidate only if its separation is below the pair's ``margin`` (the
+  speculative distance).
+
+Shapes: centres ``(3,)``, rotations ``(3, 3)`` (columns = body axes in world), box half extents ``(3,)``, capsule
+axes ``(3,)`` (unit) with half lengths and radii as floats.  The batch functions at the end (``sphere_sphere``,
+``box_plane`` ...) run a kernel over ``k`` pairs given as stacked arrays, for tests and interactive use; the
+detector calls the kernels directly from its own compiled loop.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from ..jit import njit
+
 _TINY = 1e-12
-_UP = np.array([0.0, 0.0, 1.0])
 
 #: capsule pairs whose axes make an angle with sine below this are "parallel" and get two contact points
 #: (the ends of their overlap), so a capsule lying on another does not rock on a single point
 CAPSULE_PARALLEL_SINE = 0.05
 
+#: golden-section iterations of the box–capsule search (the bracket shrinks by 0.618 each: 24 → 1e-5 of the
+#: segment)
+GOLDEN_SECTION_ITERATIONS = 24
+_INV_PHI = (math.sqrt(5.0) - 1.0) / 2.0
+
 #: the 8 box corners as signs of the half extents; vertex v has signs _CORNERS[v]
 _CORNERS = np.array([(sx, sy, sz) for sx in (-1.0, 1.0) for sy in (-1.0, 1.0) for sz in (-1.0, 1.0)])
 
 
-def unit_vectors(v: np.ndarray, fallback: np.ndarray = _UP) -> tuple[np.ndarray, np.ndarray]:
-    """``v / |v|`` along the last axis and ``|v|``; ``fallback`` where ``|v|`` is ~0 (coincident centres)."""
-    length = np.linalg.norm(v, axis=-1)
-    degenerate = length < _TINY
-    unit = v / np.where(degenerate, 1.0, length)[..., None]
-    if degenerate.any():
-        unit[degenerate] = fallback
-    return unit, length
+# ---- small vector helpers ------------------------------------------------------------------------------
+
+@njit
+def write_point(normal, separation, point, feature, m, nx, ny, nz, sep, px, py, pz, feat):
+    """Store one contact point in row ``m`` of the output buffers; returns ``m + 1``."""
+    normal[m, 0] = nx
+    normal[m, 1] = ny
+    normal[m, 2] = nz
+    separation[m] = sep
+    point[m, 0] = px
+    point[m, 1] = py
+    point[m, 2] = pz
+    feature[m] = feat
+    return m + 1
 
 
-def _flatten(valid: np.ndarray, normal, separation, point, feature=None):
-    """Candidates ``(k, c, ...)`` with ``valid (k, c)`` → flat arrays of the valid ones, with pair index."""
-    pair, slot = np.nonzero(valid)
-    feat = slot if feature is None else feature[pair, slot]
-    return (pair.astype(np.intp), normal[pair, slot], separation[pair, slot], point[pair, slot],
-            feat.astype(np.int64))
+@njit
+def _clamp01(x):
+    return min(max(x, 0.0), 1.0)
 
 
 # ---- sphere ------------------------------------------------------------------------------------------
 
-def sphere_sphere(ca, ra, cb, rb):
-    """Sphere A vs sphere B: one point per pair, along the line of centres (+z if the centres coincide)."""
-    normal, dist = unit_vectors(cb - ca)
-    separation = dist - ra - rb
-    point = ca + normal * (ra + 0.5 * separation)[:, None]
-    return normal, separation, point
+@njit
+def sphere_sphere_point(ax, ay, az, ra, bx, by, bz, rb):
+    """Sphere A vs sphere B (centres and radii): one point, along the line of centres (+z if the centres
+    coincide)."""
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if dist < _TINY:
+        nx, ny, nz = 0.0, 0.0, 1.0
+    else:
+        nx, ny, nz = dx / dist, dy / dist, dz / dist
+    sep = dist - ra - rb
+    reach = ra + 0.5 * sep
+    return nx, ny, nz, sep, ax + nx * reach, ay + ny * reach, az + nz * reach
 
 
-def _up(k: int) -> np.ndarray:
-    """``k`` copies ``(k, 3)`` of the ground's normal +z."""
-    normal = np.zeros((k, 3))
-    normal[:, 2] = 1.0
-    return normal
-
-
-def sphere_plane(c, r):
+@njit
+def sphere_plane_point(c, r):
     """Ground plane z = 0 (A) vs sphere (B): normal +z; the point is under the centre, halfway between the
     plane and the sphere's lowest point."""
-    separation = c[:, 2] - r
-    point = c.copy()
-    point[:, 2] = 0.5 * separation
-    return _up(len(c)), separation, point
+    sep = c[2] - r
+    return 0.0, 0.0, 1.0, sep, c[0], c[1], 0.5 * sep
 
 
-def point_box(p, cb, Rb, hb):
-    """Signed distance from points ``p (k, 3)`` to boxes (negative inside), the box's outward normal
-    ``(k, 3)`` at its closest surface point (towards the point) and that surface point ``(k, 3)``.
+@njit
+def point_box(px, py, pz, cb, Rb, hb):
+    """Signed distance from a point to a box (negative inside), the box's outward unit normal at its closest
+    surface point (towards the point) and that surface point: ``(distance, nx, ny, nz, sx, sy, sz)``.
     Inside, the closest surface is the face of least penetration (Ericson 5.1.4 + the inside case)."""
-    local = np.einsum("kji,kj->ki", Rb, p - cb)  # Rᵀ (p − c)
-    clamped = np.clip(local, -hb, hb)
-    diff = local - clamped
-    dist_out = np.linalg.norm(diff, axis=1)
-    inside = dist_out <= _TINY
-    n_local = diff / np.where(inside, 1.0, dist_out)[:, None]
-    surface = clamped
-    distance = dist_out
-    if inside.any():
-        li, hi_ = local[inside], hb[inside]
-        depth = hi_ - np.abs(li)  # distance to each pair of faces (>= 0)
-        axis = np.argmin(depth, axis=1)
-        rows = np.arange(len(axis))
-        sign = np.where(li[rows, axis] >= 0.0, 1.0, -1.0)
-        n_in = np.zeros_like(li)
-        n_in[rows, axis] = sign
-        surf_in = li.copy()
-        surf_in[rows, axis] = sign * hi_[rows, axis]
-        n_local[inside] = n_in
-        surface = surface.copy()
-        surface[inside] = surf_in
-        distance = distance.copy()
-        distance[inside] = -depth[rows, axis]
-    normal = np.einsum("kij,kj->ki", Rb, n_local)
-    surface_world = cb + np.einsum("kij,kj->ki", Rb, surface)
-    return distance, normal, surface_world
+    dx, dy, dz = px - cb[0], py - cb[1], pz - cb[2]
+    # the point in box axes, Rᵀ (p − c), and clamped to the box
+    l0 = Rb[0, 0] * dx + Rb[1, 0] * dy + Rb[2, 0] * dz
+    l1 = Rb[0, 1] * dx + Rb[1, 1] * dy + Rb[2, 1] * dz
+    l2 = Rb[0, 2] * dx + Rb[1, 2] * dy + Rb[2, 2] * dz
+    c0 = min(max(l0, -hb[0]), hb[0])
+    c1 = min(max(l1, -hb[1]), hb[1])
+    c2 = min(max(l2, -hb[2]), hb[2])
+    e0, e1, e2 = l0 - c0, l1 - c1, l2 - c2
+    dist = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    if dist > _TINY:
+        n0, n1, n2 = e0 / dist, e1 / dist, e2 / dist
+        s0, s1, s2 = c0, c1, c2
+    else:
+        # inside: push out through the nearest face (the first of equally near ones)
+        d0, d1, d2 = hb[0] - abs(l0), hb[1] - abs(l1), hb[2] - abs(l2)
+        n0 = n1 = n2 = 0.0
+        s0, s1, s2 = l0, l1, l2
+        if d0 <= d1 and d0 <= d2:
+            n0 = 1.0 if l0 >= 0.0 else -1.0
+            s0 = n0 * hb[0]
+            dist = -d0
+        elif d1 <= d2:
+            n1 = 1.0 if l1 >= 0.0 else -1.0
+            s1 = n1 * hb[1]
+            dist = -d1
+        else:
+            n2 = 1.0 if l2 >= 0.0 else -1.0
+            s2 = n2 * hb[2]
+            dist = -d2
+    nx = Rb[0, 0] * n0 + Rb[0, 1] * n1 + Rb[0, 2] * n2
+    ny = Rb[1, 0] * n0 + Rb[1, 1] * n1 + Rb[1, 2] * n2
+    nz = Rb[2, 0] * n0 + Rb[2, 1] * n1 + Rb[2, 2] * n2
+    sx = cb[0] + Rb[0, 0] * s0 + Rb[0, 1] * s1 + Rb[0, 2] * s2
+    sy = cb[1] + Rb[1, 0] * s0 + Rb[1, 1] * s1 + Rb[1, 2] * s2
+    sz = cb[2] + Rb[2, 0] * s0 + Rb[2, 1] * s1 + Rb[2, 2] * s2
+    return dist, nx, ny, nz, sx, sy, sz
 
 
-def sphere_box(c, r, cb, Rb, hb):
-    """Sphere A vs box B: one point per pair, at the box surface point closest to the centre."""
-    dist, n_box, surface = point_box(c, cb, Rb, hb)
-    separation = dist - r
-    point = surface + n_box * (0.5 * separation)[:, None]
-    return -n_box, separation, point
+@njit
+def sphere_box_point(c, r, cb, Rb, hb):
+    """Sphere A vs box B: one point, at the box surface point closest to the centre."""
+    dist, nx, ny, nz, sx, sy, sz = point_box(c[0], c[1], c[2], cb, Rb, hb)
+    sep = dist - r
+    half = 0.5 * sep
+    return -nx, -ny, -nz, sep, sx + nx * half, sy + ny * half, sz + nz * half
 
 
-def closest_on_segments(p, a, b):
-    """Closest points on segments ``a–b`` to points ``p`` (all ``(k, 3)``), and the parameter t in [0, 1]."""
-    ab = b - a
-    denom = np.einsum("ki,ki->k", ab, ab)
-    t = np.einsum("ki,ki->k", p - a, ab) / np.where(denom > _TINY, denom, 1.0)
-    t = np.clip(t, 0.0, 1.0)
-    return a + ab * t[:, None], t
+@njit
+def closest_on_segment(px, py, pz, ax, ay, az, bx, by, bz):
+    """Closest point on the segment a–b to the point p, and its parameter t in [0, 1]."""
+    ux, uy, uz = bx - ax, by - ay, bz - az
+    denom = ux * ux + uy * uy + uz * uz
+    t = ((px - ax) * ux + (py - ay) * uy + (pz - az) * uz) / (denom if denom > _TINY else 1.0)
+    t = _clamp01(t)
+    return ax + ux * t, ay + uy * t, az + uz * t, t
 
 
-def capsule_ends(c, axis, half_length):
-    """Segment end points ``(k, 3)`` x2 of capsules: ``c ∓ half_length · axis``."""
-    d = axis * half_length[:, None]
-    return c - d, c + d
-
-
-def sphere_capsule(c, r, cc, axis, hl, rc):
+@njit
+def sphere_capsule_point(c, r, cc, axis, hl, rc):
     """Sphere A vs capsule B: sphere–sphere against the closest point of the capsule's segment."""
-    a, b = capsule_ends(cc, axis, hl)
-    q, _ = closest_on_segments(c, a, b)
-    return sphere_sphere(c, r, q, rc)
+    qx, qy, qz, _ = closest_on_segment(c[0], c[1], c[2], cc[0] - axis[0] * hl, cc[1] - axis[1] * hl,
+                                       cc[2] - axis[2] * hl, cc[0] + axis[0] * hl, cc[1] + axis[1] * hl,
+                                       cc[2] + axis[2] * hl)
+    return sphere_sphere_point(c[0], c[1], c[2], r, qx, qy, qz, rc)
 
 
 # ---- plane -------------------------------------------------------------------------------------------
 
-def box_plane(c, R, h, margin):
+@njit
+def box_plane_contacts(c, R, h, margin, normal, separation, point, feature, m):
     """Ground (A) vs box (B): the (up to) 4 lowest corners with separation below ``margin``.  A box lying on a
-    face gives its 4 bottom corners (a stable support polygon), on an edge 2, on a corner 1.  Feature =
-    corner index 0..7."""
-    corners = _box_corners(c, R, h)
-    z = corners[:, :, 2]
-    lowest = np.argsort(z, axis=1, kind="stable")[:, :4]  # (k, 4) corner indices, lowest first
-    box = np.arange(len(c))[:, None]
-    pair, slot = np.nonzero(z[box, lowest] < margin[:, None])
-    vertex = lowest[pair, slot]
-    separation = z[pair, vertex]
-    point = corners[pair, vertex]
-    point[:, 2] = 0.5 * separation
-    return pair.astype(np.intp), _up(len(pair)), separation, point, vertex.astype(np.int64)
+    face gives its 4 bottom corners (a stable support polygon), on an edge 2, on a corner 1.  Feature = corner
+    index 0..7, lowest first (ties in corner order)."""
+    z = np.empty(8)
+    order = np.empty(8, np.int64)
+    for v in range(8):
+        z[v] = c[2] + R[2, 0] * _CORNERS[v, 0] * h[0] + R[2, 1] * _CORNERS[v, 1] * h[1] \
+            + R[2, 2] * _CORNERS[v, 2] * h[2]
+        # insertion sort by height (stable)
+        k = v
+        while k > 0 and z[order[k - 1]] > z[v]:
+            order[k] = order[k - 1]
+            k -= 1
+        order[k] = v
+    for slot in range(4):
+        v = order[slot]
+        if z[v] < margin:
+            lx = _CORNERS[v, 0] * h[0]
+            ly = _CORNERS[v, 1] * h[1]
+            lz = _CORNERS[v, 2] * h[2]
+            m = write_point(normal, separation, point, feature, m, 0.0, 0.0, 1.0, z[v],
+                            c[0] + R[0, 0] * lx + R[0, 1] * ly + R[0, 2] * lz,
+                            c[1] + R[1, 0] * lx + R[1, 1] * ly + R[1, 2] * lz, 0.5 * z[v], v)
+    return m
 
 
-def _box_corners(c, R, h):
-    """World corners ``(k, 8, 3)`` of boxes, corner v at signs ``_CORNERS[v]``."""
-    local = _CORNERS[None, :, :] * h[:, None, :]  # (k, 8, 3)
-    return c[:, None, :] + np.einsum("kij,kvj->kvi", R, local)
-
-
-def capsule_plane(c, axis, hl, r, margin):
-    """Ground (A) vs capsule (B): each segment end whose sphere is within ``margin``.  Feature = end 0/1."""
-    e0, e1 = capsule_ends(c, axis, hl)
-    ends = np.empty((len(c), 2, 3))  # (k, 2, 3)
-    ends[:, 0] = e0
-    ends[:, 1] = e1
-    sep = ends[:, :, 2] - r[:, None]
-    pair, end = np.nonzero(sep < margin[:, None])
-    separation = sep[pair, end]
-    point = ends[pair, end]
-    point[:, 2] = 0.5 * separation
-    return pair.astype(np.intp), _up(len(pair)), separation, point, end.astype(np.int64)
+@njit
+def capsule_plane_contacts(c, axis, hl, r, margin, normal, separation, point, feature, m):
+    """Ground (A) vs capsule (B): each segment end whose sphere is within ``margin``.  Feature = end 0 (c − hl
+    axis) or 1 (c + hl axis)."""
+    for end in range(2):
+        s = -1.0 if end == 0 else 1.0
+        ex, ey, ez = c[0] + s * axis[0] * hl, c[1] + s * axis[1] * hl, c[2] + s * axis[2] * hl
+        sep = ez - r
+        if sep < margin:
+            m = write_point(normal, separation, point, feature, m, 0.0, 0.0, 1.0, sep, ex, ey, 0.5 * sep, end)
+    return m
 
 
 # ---- capsule -----------------------------------------------------------------------------------------
 
+@njit
 def closest_segment_segment(p1, q1, p2, q2):
-    """Closest points between segments ``p1–q1`` and ``p2–q2`` (Ericson 5.1.9, vectorized with the
-    degenerate (zero-length) and parallel cases folded in): returns ``s, t`` in [0, 1] and the two points."""
-    d1 = q1 - p1
-    d2 = q2 - p2
-    r = p1 - p2
-    a = np.einsum("ki,ki->k", d1, d1)
-    e = np.einsum("ki,ki->k", d2, d2)
-    f = np.einsum("ki,ki->k", d2, r)
-    c = np.einsum("ki,ki->k", d1, r)
-    b = np.einsum("ki,ki->k", d1, d2)
-    denom = a * e - b * b
-    a_ok = a > _TINY
-    e_ok = e > _TINY
-    safe_a = np.where(a_ok, a, 1.0)
-    safe_e = np.where(e_ok, e, 1.0)
-    # general case: s from the infinite lines; parallel lines (denom ~ 0): any s works, take 0 and let the
-    # clamping of t below pick the right end
-    parallel = denom <= 1e-12 * a * e
-    s = np.where(parallel, 0.0, np.clip((b * f - c * e) / np.where(parallel, 1.0, denom), 0.0, 1.0))
-    t = (b * s + f) / safe_e
-    below, above = t < 0.0, t > 1.0
-    t = np.clip(t, 0.0, 1.0)
-    s = np.where(below, np.clip(-c / safe_a, 0.0, 1.0), np.where(above, np.clip((b - c) / safe_a, 0.0, 1.0), s))
-    # degenerate segments: a point against a segment
-    s = np.where(~a_ok, 0.0, s)
-    t = np.where(~a_ok, np.clip(f / safe_e, 0.0, 1.0), t)
-    t = np.where(~e_ok, 0.0, t)
-    s = np.where(~e_ok & a_ok, np.clip(-c / safe_a, 0.0, 1.0), s)
-    return s, t, p1 + d1 * s[:, None], p2 + d2 * t[:, None]
+    """Closest points between segments ``p1–q1`` and ``p2–q2`` (Ericson 5.1.9, with the degenerate
+    (zero-length) and parallel cases): returns ``s, t`` in [0, 1] and the two points' coordinates
+    ``(s, t, x1, y1, z1, x2, y2, z2)``."""
+    d1x, d1y, d1z = q1[0] - p1[0], q1[1] - p1[1], q1[2] - p1[2]
+    d2x, d2y, d2z = q2[0] - p2[0], q2[1] - p2[1], q2[2] - p2[2]
+    rx, ry, rz = p1[0] - p2[0], p1[1] - p2[1], p1[2] - p2[2]
+    a = d1x * d1x + d1y * d1y + d1z * d1z
+    e = d2x * d2x + d2y * d2y + d2z * d2z
+    f = d2x * rx + d2y * ry + d2z * rz
+    if a <= _TINY and e <= _TINY:  # both points
+        s = t = 0.0
+    elif a <= _TINY:  # a point against a segment
+        s = 0.0
+        t = _clamp01(f / e)
+    else:
+        c = d1x * rx + d1y * ry + d1z * rz
+        if e <= _TINY:
+            t = 0.0
+            s = _clamp01(-c / a)
+        else:
+            b = d1x * d2x + d1y * d2y + d1z * d2z
+            denom = a * e - b * b
+            # parallel lines (denom ~ 0): any s works, take 0 and let the clamping of t pick the right end
+            s = _clamp01((b * f - c * e) / denom) if denom > 1e-12 * a * e else 0.0
+            t = (b * s + f) / e
+            if t < 0.0:
+                t = 0.0
+                s = _clamp01(-c / a)
+            elif t > 1.0:
+                t = 1.0
+                s = _clamp01((b - c) / a)
+    return (s, t, p1[0] + d1x * s, p1[1] + d1y * s, p1[2] + d1z * s,
+            p2[0] + d2x * t, p2[1] + d2y * t, p2[2] + d2z * t)
 
 
-def capsule_capsule(ca, axa, hla, ra, cb, axb, hlb, rb, margin):
-    """Capsule A vs capsule B: the closest points of the two segments (one contact), or, when the axes are
-    parallel within ``CAPSULE_PARALLEL_SINE`` and overlap, the two ends of the overlap (two contacts)."""
-    p1, q1 = capsule_ends(ca, axa, hla)
-    p2, q2 = capsule_ends(cb, axb, hlb)
-    _, _, x1, x2 = closest_segment_segment(p1, q1, p2, q2)
-    k = len(ca)
-    pa = np.empty((k, 2, 3))
-    pb = np.empty((k, 2, 3))
-    pa[:, 0], pb[:, 0] = x1, x2
-    pa[:, 1], pb[:, 1] = x1, x2
-    two = np.zeros(k, dtype=bool)
-
-    sine = np.linalg.norm(np.cross(axa, axb), axis=1)
-    parallel = (sine < CAPSULE_PARALLEL_SINE) & (hla > _TINY) & (hlb > _TINY)
-    if parallel.any():
-        d1 = (q1 - p1)[parallel]
-        len2 = np.einsum("ki,ki->k", d1, d1)
-        s_p2 = np.einsum("ki,ki->k", p2[parallel] - p1[parallel], d1) / len2
-        s_q2 = np.einsum("ki,ki->k", q2[parallel] - p1[parallel], d1) / len2
-        lo = np.maximum(0.0, np.minimum(s_p2, s_q2))
-        hi = np.minimum(1.0, np.maximum(s_p2, s_q2))
-        overlap = hi - lo > 1e-3
-        ends_a = p1[parallel][:, None, :] + np.stack((lo, hi), axis=1)[:, :, None] * d1[:, None, :]  # (kp, 2, 3)
-        seg_a, seg_b = p2[parallel], q2[parallel]
-        ends_b = np.stack([closest_on_segments(ends_a[:, j], seg_a, seg_b)[0] for j in range(2)], axis=1)
-        idx = np.flatnonzero(parallel)[overlap]
-        pa[idx] = ends_a[overlap]
-        pb[idx] = ends_b[overlap]
-        two[idx] = True
-
-    ra2 = np.repeat(ra, 2)
-    rb2 = np.repeat(rb, 2)
-    normal, sep, point = sphere_sphere(pa.reshape(-1, 3), ra2, pb.reshape(-1, 3), rb2)
-    valid = (sep.reshape(k, 2) < margin[:, None]) & np.stack((np.ones(k, bool), two), axis=1)
-    return _flatten(valid, normal.reshape(k, 2, 3), sep.reshape(k, 2), point.reshape(k, 2, 3))
+@njit
+def capsule_capsule_contacts(ca, axa, hla, ra, cb, axb, hlb, rb, margin, normal, separation, point, feature, m):
+    """Capsule A vs capsule B: the closest points of the two segments (one contact, feature 0), or, when the
+    axes are parallel within ``CAPSULE_PARALLEL_SINE`` and overlap, the two ends of the overlap (features 0
+    and 1)."""
+    p1, q1, p2, q2 = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    for i in range(3):
+        p1[i], q1[i] = ca[i] - axa[i] * hla, ca[i] + axa[i] * hla
+        p2[i], q2[i] = cb[i] - axb[i] * hlb, cb[i] + axb[i] * hlb
+    sx = axa[1] * axb[2] - axa[2] * axb[1]
+    sy = axa[2] * axb[0] - axa[0] * axb[2]
+    sz = axa[0] * axb[1] - axa[1] * axb[0]
+    if math.sqrt(sx * sx + sy * sy + sz * sz) < CAPSULE_PARALLEL_SINE and hla > _TINY and hlb > _TINY:
+        # the overlap of B's segment projected on A's, as parameters of A's segment
+        d1x, d1y, d1z = q1[0] - p1[0], q1[1] - p1[1], q1[2] - p1[2]
+        len2 = d1x * d1x + d1y * d1y + d1z * d1z
+        s_p2 = ((p2[0] - p1[0]) * d1x + (p2[1] - p1[1]) * d1y + (p2[2] - p1[2]) * d1z) / len2
+        s_q2 = ((q2[0] - p1[0]) * d1x + (q2[1] - p1[1]) * d1y + (q2[2] - p1[2]) * d1z) / len2
+        lo = max(0.0, min(s_p2, s_q2))
+        hi = min(1.0, max(s_p2, s_q2))
+        if hi - lo > 1e-3:
+            for end in range(2):
+                s = lo if end == 0 else hi
+                ax, ay, az = p1[0] + s * d1x, p1[1] + s * d1y, p1[2] + s * d1z
+                bx, by, bz, _ = closest_on_segment(ax, ay, az, p2[0], p2[1], p2[2], q2[0], q2[1], q2[2])
+                nx, ny, nz, sep, px, py, pz = sphere_sphere_point(ax, ay, az, ra, bx, by, bz, rb)
+                if sep < margin:
+                    m = write_point(normal, separation, point, feature, m, nx, ny, nz, sep, px, py, pz, end)
+            return m
+    _, _, x1, y1, z1, x2, y2, z2 = closest_segment_segment(p1, q1, p2, q2)
+    nx, ny, nz, sep, px, py, pz = sphere_sphere_point(x1, y1, z1, ra, x2, y2, z2, rb)
+    if sep < margin:
+        m = write_point(normal, separation, point, feature, m, nx, ny, nz, sep, px, py, pz, 0)
+    return m
 
 
-def _segment_box_closest_parameter(p0, p1, cb, Rb, hb, iterations: int = 24):
+@njit
+def segment_box_closest_parameter(p0, p1, cb, Rb, hb):
     """Parameter t in [0, 1] of the segment point closest to (deepest in) the box, by golden-section search:
     the signed distance to a convex set is a convex function, and so is its restriction to a segment."""
-    inv_phi = (np.sqrt(5.0) - 1.0) / 2.0
-    lo = np.zeros(len(p0))
-    hi = np.ones(len(p0))
-    d = p1 - p0
-
-    def f(t):
-        return point_box(p0 + d * t[:, None], cb, Rb, hb)[0]
-
-    x1 = hi - inv_phi * (hi - lo)
-    x2 = lo + inv_phi * (hi - lo)
-    f1, f2 = f(x1), f(x2)
-    for _ in range(iterations):
-        left = f1 < f2  # the minimum is in [lo, x2]
-        hi = np.where(left, x2, hi)
-        lo = np.where(left, lo, x1)
-        new_x = np.where(left, hi - inv_phi * (hi - lo), lo + inv_phi * (hi - lo))
-        new_f = f(new_x)
-        x2n = np.where(left, x1, new_x)
-        f2n = np.where(left, f1, new_f)
-        x1 = np.where(left, new_x, x2)
-        f1 = np.where(left, new_f, f2)
-        x2, f2 = x2n, f2n
+    dx, dy, dz = p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]
+    lo, hi = 0.0, 1.0
+    x1 = hi - _INV_PHI * (hi - lo)
+    x2 = lo + _INV_PHI * (hi - lo)
+    f1 = point_box(p0[0] + dx * x1, p0[1] + dy * x1, p0[2] + dz * x1, cb, Rb, hb)[0]
+    f2 = point_box(p0[0] + dx * x2, p0[1] + dy * x2, p0[2] + dz * x2, cb, Rb, hb)[0]
+    for _ in range(GOLDEN_SECTION_ITERATIONS):
+        if f1 < f2:  # the minimum is in [lo, x2]
+            hi = x2
+            x2, f2 = x1, f1
+            x1 = hi - _INV_PHI * (hi - lo)
+            f1 = point_box(p0[0] + dx * x1, p0[1] + dy * x1, p0[2] + dz * x1, cb, Rb, hb)[0]
+        else:  # in [x1, hi]
+            lo = x1
+            x1, f1 = x2, f2
+            x2 = lo + _INV_PHI * (hi - lo)
+            f2 = point_box(p0[0] + dx * x2, p0[1] + dy * x2, p0[2] + dz * x2, cb, Rb, hb)[0]
     return 0.5 * (lo + hi)
 
 
-def box_capsule(cb, Rb, hb, cc, axis, hl, rc, margin):
+@njit
+def box_capsule_contacts(cb, Rb, hb, cc, axis, hl, rc, margin, normal, separation, point, feature, m):
     """Box A vs capsule B — an approximation: the capsule is tested as spheres of its radius at three points
     of its segment, the two ends (features 0, 1) and the point of the segment deepest in / closest to the box
     (feature 2, found by golden-section search, kept only if it is deeper than both ends).  Exact for a capsule
     lying on a face (two end contacts), across an edge or poking in with an end; for a capsule crossing a box
     edge obliquely the middle point is still the true closest point, so only the contact count (≤ 3) is
     approximate."""
-    e0, e1 = capsule_ends(cc, axis, hl)
-    t = _segment_box_closest_parameter(e0, e1, cb, Rb, hb)
-    mid = e0 + (e1 - e0) * t[:, None]
-    k = len(cb)
-    samples = np.stack((e0, e1, mid), axis=1).reshape(-1, 3)
-    rep = np.repeat(np.arange(k), 3)
-    dist, n_box, surface = point_box(samples, cb[rep], Rb[rep], hb[rep])
-    sep = (dist - np.repeat(rc, 3)).reshape(k, 3)
-    point = (surface + n_box * (0.5 * (dist - np.repeat(rc, 3)))[:, None]).reshape(k, 3, 3)
-    normal = n_box.reshape(k, 3, 3)
+    e0, e1 = np.empty(3), np.empty(3)
+    for i in range(3):
+        e0[i] = cc[i] - axis[i] * hl
+        e1[i] = cc[i] + axis[i] * hl
+    t = segment_box_closest_parameter(e0, e1, cb, Rb, hb)
+    sep = np.empty(3)
+    out = np.empty((3, 6))  # per sample: normal, point
+    for k in range(3):
+        s = 0.0 if k == 0 else (1.0 if k == 1 else t)
+        dist, nx, ny, nz, sx, sy, sz = point_box(e0[0] + (e1[0] - e0[0]) * s, e0[1] + (e1[1] - e0[1]) * s,
+                                                 e0[2] + (e1[2] - e0[2]) * s, cb, Rb, hb)
+        sep[k] = dist - rc
+        half = 0.5 * sep[k]
+        out[k, 0], out[k, 1], out[k, 2] = nx, ny, nz
+        out[k, 3], out[k, 4], out[k, 5] = sx + nx * half, sy + ny * half, sz + nz * half
     tol = 1e-6 + 1e-4 * rc
-    interior = (sep[:, 2] < np.minimum(sep[:, 0], sep[:, 1]) - tol) & (t > 1e-3) & (t < 1.0 - 1e-3)
-    valid = sep < margin[:, None]
-    valid[:, 2] &= interior
-    return _flatten(valid, normal, sep, point)
+    interior = sep[2] < min(sep[0], sep[1]) - tol and 1e-3 < t < 1.0 - 1e-3
+    for k in range(3):
+        if sep[k] < margin and (k < 2 or interior):
+            m = write_point(normal, separation, point, feature, m, out[k, 0], out[k, 1], out[k, 2], sep[k],
+                            out[k, 3], out[k, 4], out[k, 5], k)
+    return m
+
+
+# ---- batch forms (k pairs as stacked arrays) -------------------------------------------------------------
+
+def _rows(*arrays):
+    return [np.ascontiguousarray(a, dtype=float) for a in arrays]
+
+
+def _single_point_batch(kernel, k, args):
+    normal, separation, point = np.empty((k, 3)), np.empty(k), np.empty((k, 3))
+    for i in range(k):
+        nx, ny, nz, s, px, py, pz = kernel(*(a[i] for a in args))
+        normal[i] = nx, ny, nz
+        separation[i] = s
+        point[i] = px, py, pz
+    return normal, separation, point
+
+
+def sphere_sphere(ca, ra, cb, rb):
+    """``k`` sphere pairs: ``(normal (k, 3), separation (k,), point (k, 3))``."""
+    ca, ra, cb, rb = _rows(ca, ra, cb, rb)
+    return _single_point_batch(lambda a, r, b, s: sphere_sphere_point(a[0], a[1], a[2], r, b[0], b[1], b[2], s),
+                               len(ca), (ca, ra, cb, rb))
+
+
+def sphere_plane(c, r):
+    c, r = _rows(c, r)
+    return _single_point_batch(sphere_plane_point, len(c), (c, r))
+
+
+def sphere_box(c, r, cb, Rb, hb):
+    return _single_point_batch(sphere_box_point, len(c), _rows(c, r, cb, Rb, hb))
+
+
+def sphere_capsule(c, r, cc, axis, hl, rc):
+    return _single_point_batch(sphere_capsule_point, len(c), _rows(c, r, cc, axis, hl, rc))
+
+
+def multi_point_batch(kernel, per_pair: int, k: int, args):
+    """Run a multi-point kernel over ``k`` pairs: ``(pair, normal, separation, point, feature)`` of the kept
+    points, ``pair`` indexing the input pairs."""
+    cap = per_pair * k
+    normal, separation, point = np.empty((cap, 3)), np.empty(cap), np.empty((cap, 3))
+    feature, pair = np.empty(cap, np.int64), np.empty(cap, np.intp)
+    m = 0
+    for i in range(k):
+        m_next = kernel(*(a[i] for a in args), normal, separation, point, feature, m)
+        pair[m:m_next] = i
+        m = m_next
+    return pair[:m], normal[:m], separation[:m], point[:m], feature[:m]
+
+
+def box_plane(c, R, h, margin):
+    return multi_point_batch(box_plane_contacts, 4, len(c), _rows(c, R, h, margin))
+
+
+def capsule_plane(c, axis, hl, r, margin):
+    return multi_point_batch(capsule_plane_contacts, 2, len(c), _rows(c, axis, hl, r, margin))
+
+
+def capsule_capsule(ca, axa, hla, ra, cb, axb, hlb, rb, margin):
+    return multi_point_batch(capsule_capsule_contacts, 2, len(ca), _rows(ca, axa, hla, ra, cb, axb, hlb, rb, margin))
+
+
+def box_capsule(cb, Rb, hb, cc, axis, hl, rc, margin):
+    return multi_point_batch(box_capsule_contacts, 3, len(cb), _rows(cb, Rb, hb, cc, axis, hl, rc, margin))
+
+
+def closest_segments(p1, q1, p2, q2):
+    """:func:`closest_segment_segment` over ``k`` segment pairs: ``s, t (k,)`` and the points ``(k, 3)`` x2."""
+    p1, q1, p2, q2 = _rows(p1, q1, p2, q2)
+    out = np.array([closest_segment_segment(p1[i], q1[i], p2[i], q2[i]) for i in range(len(p1))]).reshape(-1, 8)
+    return out[:, 0], out[:, 1], out[:, 2:5], out[:, 5:8]

@@ -5,17 +5,20 @@ lecture's discrete body) is one small sphere of ``model.radius`` per particle, a
 offset — so a particle body collides exactly as it is drawn.  The broad and narrow phases work on primitives;
 contacts are reported per body.
 
-Built once per :class:`~cgp_core.bodies.BodyModel` (the model is static); :func:`primitive_poses` places the
-primitives at the bodies' current poses.
+Built once per :class:`~cgp_core.bodies.BodyModel` (the model is static); :func:`primitive_bounds` places the
+primitives at the bodies' current poses and bounds them.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
 from ..bodies import BodyModel, Shape
+from ..jit import njit
 
 
 @dataclass
@@ -106,16 +109,50 @@ def build_collision_model(model: BodyModel) -> CollisionModel:
                           extent=extent, body_reach=body_reach, fixed_body=np.asarray(model.inv_mass) <= 0.0)
 
 
-def primitive_poses(cmodel: CollisionModel, position: np.ndarray, rotation: np.ndarray):
-    """World centres ``(p, 3)`` and rotations ``(p, 3, 3)`` of the primitives for body poses
-    ``position (n, 3)``, ``rotation (n, 3, 3)``."""
-    R = rotation[cmodel.body]
-    centre = position[cmodel.body] + np.einsum("pij,pj->pi", R, cmodel.offset)
-    return centre, R
+@njit
+def primitive_bounds(prim_body, offset, radius, half_extents, body_reach, position, rotation, velocity,
+                     angular_velocity, h, speculative_distance):
+    """Primitive centres ``(p, 3)``, AABBs ``lo, hi (p, 3)`` grown by the speculative margin (NaN for a primitive
+    whose bounds or margin are not finite), and the margins ``(p,)`` (their bodies').
+
+    The margin of a body is ``speculative_distance + h (|v| + |ω| · reach)`` (see the module docstring).
+    The tight AABB of a box is its centre ± ``|R| h`` along the world axes (Ericson 4.2.6); a capsule's is its
+    segment's box grown by the radius.
+    """
+    p = len(prim_body)
+    centre = np.empty((p, 3))
+    lo = np.empty((p, 3))
+    hi = np.empty((p, 3))
+    margin = np.empty(p)
+    for k in range(p):
+        b = prim_body[k]
+        R = rotation[b]
+        v, w = velocity[b], angular_velocity[b]
+        speed = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) \
+            + math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]) * body_reach[b]
+        margin[k] = speculative_distance + h * speed
+        sane = math.isfinite(margin[k])
+        for r in range(3):
+            centre[k, r] = position[b, r] + R[r, 0] * offset[k, 0] + R[r, 1] * offset[k, 1] + R[r, 2] * offset[k, 2]
+            half = abs(R[r, 0]) * half_extents[k, 0] + abs(R[r, 1]) * half_extents[k, 1] \
+                + abs(R[r, 2]) * half_extents[k, 2] + radius[k]
+            lo[k, r] = centre[k, r] - half - margin[k]
+            hi[k, r] = centre[k, r] + half + margin[k]
+            sane = sane and math.isfinite(lo[k, r]) and math.isfinite(hi[k, r])
+        if not sane:
+            # a body whose state or speed went non-finite (a numerical blow-up, which World contains after the
+            # tick) takes no part in collisions rather than dragging others along: NaN bounds overlap nothing
+            lo[k, :] = np.nan
+            hi[k, :] = np.nan
+    return centre, lo, hi, margin
 
 
-def primitive_aabbs(cmodel: CollisionModel, centre: np.ndarray, R: np.ndarray):
-    """Tight world AABBs ``lo, hi (p, 3)`` (Ericson 4.2.6: the box's half widths along world axes are
-    ``|R| h``; a capsule is its segment's box grown by the radius)."""
-    half = np.einsum("pij,pj->pi", np.abs(R), cmodel.half_extents) + cmodel.radius[:, None]
-    return centre - half, centre + half
+def primitive_aabbs(cmodel: CollisionModel, position: np.ndarray, rotation: np.ndarray):
+    """Tight world AABBs ``lo, hi (p, 3)`` of the primitives for body poses ``position (n, 3)``, ``rotation
+    (n, 3, 3)`` (:func:`primitive_bounds` with no margin)."""
+    n = len(position)
+    _, lo, hi, _ = primitive_bounds(cmodel.body, cmodel.offset, cmodel.radius, cmodel.half_extents,
+                                    cmodel.body_reach, np.ascontiguousarray(position, dtype=float),
+                                    np.ascontiguousarray(rotation, dtype=float), np.zeros((n, 3)), np.zeros((n, 3)),
+                                    0.0, 0.0)
+    return lo, hi

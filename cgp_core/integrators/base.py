@@ -20,6 +20,7 @@ import numpy as np
 
 from ..checks import positive
 from ..bodies import BodyModel, BodyState
+from ..jit import njit
 from ..rotation import cross3
 
 
@@ -27,8 +28,9 @@ class Integrator(Protocol):
     #: the scene key (``world.integrator``) that selects this integrator
     name: ClassVar[str]
 
-    def step(self, model: BodyModel, state: BodyState, h: float) -> None:
-        """Advance ``state`` in place by ``h`` seconds."""
+    def step(self, model: BodyModel, state: BodyState, h: float, active: np.ndarray | None = None) -> None:
+        """Advance ``state`` in place by ``h`` seconds.  ``active`` (n,) bool: the bodies to move (default: all;
+        the others — sleeping bodies — are left bit for bit unchanged, like fixed ones)."""
         ...
 
 
@@ -37,15 +39,16 @@ def check_step(h: float) -> float:
     return positive(h, "integrator step h [s]")
 
 
-def movable_mask(model: BodyModel) -> np.ndarray:
-    """(n, 1) float: 1 for bodies that move, 0 for fixed ones — multiplies increments so that fixed bodies
-    get exactly zero without a boolean gather/scatter."""
-    return (model.inv_mass > 0.0).astype(float)[:, None]
+def movable_mask(model: BodyModel, active: np.ndarray | None = None) -> np.ndarray:
+    """(n, 1) float: 1 for bodies that move (and are ``active``, if given), 0 for fixed (or sleeping) ones —
+    multiplies increments so that those bodies get exactly zero without a boolean gather/scatter."""
+    movable = model.inv_mass > 0.0
+    return (movable if active is None else movable & active).astype(float)[:, None]
 
 
-def kick(model: BodyModel, state: BodyState, h: float) -> None:
+def kick(model: BodyModel, state: BodyState, h: float, active: np.ndarray | None = None) -> None:
     """P += h F, L += h τ for the movable bodies (the exact flow of a constant force and torque)."""
-    movable = movable_mask(model)
+    movable = movable_mask(model, active)
     state.linear_momentum += (h * movable) * state.force
     state.angular_momentum += (h * movable) * state.torque
 
@@ -83,3 +86,17 @@ def inverse3(matrices: np.ndarray) -> np.ndarray:
     inv_det = 1.0 / np.einsum("...i,...i->...", matrices[..., 0, :], out[..., :, 0])
     out *= inv_det[..., None, None]
     return out
+
+
+@njit
+def inverse3_into(A, out):
+    """:func:`inverse3` for one 3×3 matrix ``A``, into ``out`` (3, 3), for the compiled integrator loops."""
+    for k in range(3):
+        i, j = (k + 1) % 3, (k + 2) % 3
+        out[0, k] = A[i, 1] * A[j, 2] - A[i, 2] * A[j, 1]
+        out[1, k] = A[i, 2] * A[j, 0] - A[i, 0] * A[j, 2]
+        out[2, k] = A[i, 0] * A[j, 1] - A[i, 1] * A[j, 0]
+    inv_det = 1.0 / (A[0, 0] * out[0, 0] + A[0, 1] * out[1, 0] + A[0, 2] * out[2, 0])
+    for r in range(3):
+        for c in range(3):
+            out[r, c] *= inv_det

@@ -52,10 +52,10 @@ class ExplicitEuler:
         self._written_rotation: np.ndarray | None = None  # the state.rotation array of the last step
         self._written_orientation: np.ndarray | None = None  # (n, 4) the quaternions that step wrote
 
-    def step(self, model: BodyModel, state: BodyState, h: float) -> None:
+    def step(self, model: BodyModel, state: BodyState, h: float, active: np.ndarray | None = None) -> None:
         h = check_step(h)
         R = self._matrices(state)
-        movable = movable_mask(model)
+        movable = movable_mask(model, active)
 
         # ω = (R J Rᵀ)⁻¹ L = R⁻ᵀ J⁻¹ R⁻¹ L: with the drifting (non-orthogonal) R this is not R J⁻¹ Rᵀ L.
         # Written with J⁻¹ so that fixed bodies (J⁻¹ = 0) get ω = 0 without a special case.
@@ -63,9 +63,9 @@ class ExplicitEuler:
         body_l = apply_inertia(R_inv, state.angular_momentum)
         omega = apply_inertia(np.swapaxes(R_inv, -1, -2), apply_inertia(model.inv_inertia_body, body_l))
 
-        state.position += h * state.linear_momentum * model.inv_mass[:, None]
+        state.position += h * state.linear_momentum * (model.inv_mass[:, None] * movable)
         state.linear_momentum += (h * movable) * state.force
-        R += h * (skew(omega) @ R)  # [ω×T ω×N ω×B] = ω̂ R, column by column
+        R += h * movable[:, :, None] * (skew(omega) @ R)  # [ω×T ω×N ω×B] = ω̂ R, column by column
         state.angular_momentum += (h * movable) * state.torque
 
         q_new = nearest_rotation_quat(R)

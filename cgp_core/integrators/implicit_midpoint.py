@@ -25,7 +25,7 @@ cay(A) = (I − A/2)⁻¹ (I + A/2) is a rotation for skew A.  Hence
   flips with the right period instead of gaining energy (explicit treatments gain 100 % and more in the
   tennis-racket test).
 
-The implicit equation is solved by Newton's method on all bodies at once with the full (possibly
+The implicit equation is solved by Newton's method, body by body in a compiled loop, with the full (possibly
 non-diagonal, e.g. particle-set) body tensor, to round-off (see :func:`solve_midpoint_momentum`).
 
 Why the default: it is the only scheme here whose free rotation conserves both quadratic invariants
@@ -43,14 +43,15 @@ rotation keeps its second order and its invariants.
 
 from __future__ import annotations
 
+import math
 import warnings
 from typing import ClassVar
 
 import numpy as np
 
 from ..bodies import BodyModel, BodyState
-from ..rotation import cross3, norms, skew
-from .base import apply_inertia, body_angular_momentum, check_step, inverse3, kick
+from ..jit import njit
+from .base import check_step, inverse3_into
 
 
 #: Largest value of h |L| ‖I_body⁻¹‖_F one implicit solve is given.  This bounds both h|Ω| (the angle turned
@@ -60,8 +61,7 @@ MAX_SPIN_PER_SOLVE = 1.0
 #: at most this many sub-steps per step (a body spinning at 1e5 rad/s with h = 1/240 s needs a few hundred)
 MAX_SUBSTEPS = 1000
 
-_IDENTITY = np.eye(3)
-_TINY = np.finfo(float).tiny
+_TINY = float(np.finfo(float).tiny)
 
 
 class ImplicitMidpoint:
@@ -69,13 +69,37 @@ class ImplicitMidpoint:
 
     name: ClassVar[str] = "implicit_midpoint"
 
-    def step(self, model: BodyModel, state: BodyState, h: float) -> None:
+    def step(self, model: BodyModel, state: BodyState, h: float, active: np.ndarray | None = None) -> None:
         h = check_step(h)
         state.rotation = None  # the quaternion is authoritative (a matrix left by explicit_euler is stale)
-        kick(model, state, h)
-        state.position += h * state.linear_momentum * model.inv_mass[:, None]
-        state.orientation[:] = free_rotation(model.inv_inertia_body, state.orientation, state.angular_momentum,
-                                             h, movable=model.inv_mass > 0.0)
+        movable = model.inv_mass > 0.0
+        if active is not None:
+            movable = movable & active
+        worst = _step_kernel(model.inv_mass, model.inv_inertia_body, movable, state.position, state.orientation,
+                             state.linear_momentum, state.angular_momentum, state.force, state.torque, h)
+        _warn_unconverged(worst, h)
+
+
+@njit
+def _step_kernel(inv_mass, inv_inertia, movable, position, orientation, linear_momentum, angular_momentum, force,
+                 torque, h):
+    """The whole step for the ``movable`` bodies, in place: kick (P += h F, L += h τ), drift (x += h P/m), then
+    the implicit-midpoint free rotation.  Returns what :func:`_free_rotation_kernel` returns."""
+    for i in range(len(position)):
+        if movable[i]:
+            for k in range(3):
+                linear_momentum[i, k] += h * force[i, k]
+                angular_momentum[i, k] += h * torque[i, k]
+                position[i, k] += h * linear_momentum[i, k] * inv_mass[i]
+    return _free_rotation_kernel(inv_inertia, orientation, angular_momentum, h, movable)
+
+
+def _warn_unconverged(worst: float, h: float) -> None:
+    if worst > 0.0:
+        warnings.warn(
+            f"implicit midpoint: the implicit solve did not converge in {MAX_ITERATIONS} iterations (h = {h:g} s, "
+            f"last relative update {worst:.1e}): the step is too large for the bodies' spin; energy is not "
+            "conserved exactly this step", RuntimeWarning, stacklevel=3)
 
 
 def free_rotation(inv_inertia: np.ndarray, orientation: np.ndarray, angular_momentum: np.ndarray, h: float, *,
@@ -90,86 +114,135 @@ def free_rotation(inv_inertia: np.ndarray, orientation: np.ndarray, angular_mome
         movable: (n,) bool; where False the quaternion is returned bit for bit unchanged.
 
     A body with h |L| ‖I_body⁻¹‖_F > ``MAX_SPIN_PER_SOLVE`` takes the step as that many equal implicit-midpoint
-    sub-steps (each one still conserves energy and L exactly).  Only those bodies are sub-stepped, so a
-    body's result never depends on which other bodies share the batch.
+    sub-steps (each one still conserves energy and L exactly).  Each body is solved on its own, so its result
+    never depends on which other bodies share the batch.
     """
-    # h |L| ‖I_body⁻¹‖_F (the Frobenius norm as np.linalg.norm computes it, without its argument handling)
-    spin = h * norms(angular_momentum) * np.sqrt(np.add.reduce(inv_inertia * inv_inertia, axis=(1, 2)))
-    spin = np.where(np.isfinite(spin), spin, 0.0)  # a non-finite body is the World's to reset
-    solves = np.ceil(spin / MAX_SPIN_PER_SOLVE)
-    q = orientation.copy()
-    if solves.max(initial=1.0) <= 1.0:  # the common case: one solve for every body
-        _midpoint_rotation(inv_inertia, q, angular_momentum, h)
-    else:
-        substeps = np.clip(solves, 1, MAX_SUBSTEPS).astype(int)
-        sub_h = (h / substeps)[:, None]
-        for k in range(substeps.max()):  # a loop over sub-steps, vectorized over the bodies that need them
-            rows = np.flatnonzero(substeps > k)
-            q_rows = q[rows]
-            _midpoint_rotation(inv_inertia[rows], q_rows, angular_momentum[rows], sub_h[rows])
-            q[rows] = q_rows
-    if movable is not None:
-        q = np.where(movable[:, None], q, orientation)  # renormalizing could change a fixed body's last digit
+    n = len(orientation)
+    movable = np.ones(n, dtype=bool) if movable is None else np.ascontiguousarray(movable, dtype=bool)
+    q = np.ascontiguousarray(orientation, dtype=float).copy()
+    worst = _free_rotation_kernel(np.ascontiguousarray(inv_inertia, dtype=float),
+                                  q, np.ascontiguousarray(angular_momentum, dtype=float), float(h), movable)
+    _warn_unconverged(worst, h)
     return q
 
 
-def _midpoint_rotation(inv_inertia: np.ndarray, q: np.ndarray, angular_momentum: np.ndarray, h) -> None:
-    """One implicit-midpoint step of the free rotation, ``q`` (n, 4) updated in place; h scalar or (n, 1)."""
-    pi_mid = solve_midpoint_momentum(inv_inertia, body_angular_momentum(q, angular_momentum), h)
-    v = (0.5 * h) * apply_inertia(inv_inertia, pi_mid)  # h Ω_mid / 2
-    # q ⊗ [v, 1] = [u + w v + u × v,  w − u·v] for q = [u, w]; normalized, that is q ⊗ cay(h Ω̂_mid)
-    u, w = q[:, :3].copy(), q[:, 3:].copy()
-    q[:, :3] = u + w * v + cross3(u, v)
-    q[:, 3:] = w - np.einsum("ni,ni->n", u, v)[:, None]
-    q /= norms(q, keepdims=True)
+#: Newton iterations of the implicit solve at most (2 are typical at h = 1/240 s)
+MAX_ITERATIONS = 50
+#: the implicit solve stops when the relative update is below this (round-off is ~1e-16)
+TOLERANCE = 1e-14
 
 
-def solve_midpoint_momentum(inv_inertia: np.ndarray, body_momentum: np.ndarray, h, *, tol: float = 1e-14,
-                            max_iterations: int = 50) -> np.ndarray:
-    """Solve Π_mid = Πₙ + (h/2) Π_mid × (W Π_mid) for all bodies at once.
+@njit
+def _free_rotation_kernel(inv_inertia, q, angular_momentum, h, movable):
+    """:func:`free_rotation` in place on ``q``, body by body; returns the largest relative update of a body
+    whose solve did not converge (0 if all did)."""
+    worst = 0.0
+    pi_mid = np.empty(3)
+    for i in range(len(q)):
+        if not movable[i]:
+            continue
+        W, L = inv_inertia[i], angular_momentum[i]
+        frobenius = 0.0
+        for r in range(3):
+            for c in range(3):
+                frobenius += W[r, c] * W[r, c]
+        spin = h * math.sqrt(L[0] * L[0] + L[1] * L[1] + L[2] * L[2]) * math.sqrt(frobenius)
+        if not math.isfinite(spin):  # a non-finite body is the World's to reset
+            spin = 0.0
+        substeps = int(min(max(math.ceil(spin / MAX_SPIN_PER_SOLVE), 1.0), MAX_SUBSTEPS))
+        sub_h = h / substeps
+        for _ in range(substeps):
+            worst = max(worst, _midpoint_rotation(W, q[i], L, sub_h, pi_mid))
+    return worst
+
+
+@njit
+def _midpoint_rotation(W, q, L, h, pi_mid):
+    """One implicit-midpoint step of the free rotation of one body, ``q`` (4,) updated in place."""
+    # Π = Rᵀ L: L rotated by the conjugate quaternion (v + w t + u × t with t = 2 u × v, u = −(x, y, z))
+    ux, uy, uz, w = -q[0], -q[1], -q[2], q[3]
+    tx, ty, tz = 2.0 * (uy * L[2] - uz * L[1]), 2.0 * (uz * L[0] - ux * L[2]), 2.0 * (ux * L[1] - uy * L[0])
+    pi_n = np.empty(3)
+    pi_n[0] = L[0] + w * tx + (uy * tz - uz * ty)
+    pi_n[1] = L[1] + w * ty + (uz * tx - ux * tz)
+    pi_n[2] = L[2] + w * tz + (ux * ty - uy * tx)
+    unconverged = solve_midpoint_momentum(W, pi_n, h, pi_mid)
+    # v = h Ω_mid / 2;  q ⊗ [v, 1] = [u + w v + u × v,  w − u·v] for q = [u, w]; normalized, q ⊗ cay(h Ω̂_mid)
+    v0 = 0.5 * h * (W[0, 0] * pi_mid[0] + W[0, 1] * pi_mid[1] + W[0, 2] * pi_mid[2])
+    v1 = 0.5 * h * (W[1, 0] * pi_mid[0] + W[1, 1] * pi_mid[1] + W[1, 2] * pi_mid[2])
+    v2 = 0.5 * h * (W[2, 0] * pi_mid[0] + W[2, 1] * pi_mid[1] + W[2, 2] * pi_mid[2])
+    x, y, z = q[0], q[1], q[2]
+    nx = x + w * v0 + (y * v2 - z * v1)
+    ny = y + w * v1 + (z * v0 - x * v2)
+    nz = z + w * v2 + (x * v1 - y * v0)
+    nw = w - (x * v0 + y * v1 + z * v2)
+    norm = math.sqrt(nx * nx + ny * ny + nz * nz + nw * nw)
+    q[0], q[1], q[2], q[3] = nx / norm, ny / norm, nz / norm, nw / norm
+    return unconverged
+
+
+@njit
+def solve_midpoint_momentum(W, pi_n, h, pi):
+    """Solve Π_mid = Πₙ + (h/2) Π_mid × (W Π_mid) for one body; the answer goes into ``pi`` (3,).
 
     Newton's method from the explicit predictor Πₙ + (h/2) Πₙ × WΠₙ, already within O((hΩ)²) of the
     answer.  The Jacobian 1 − (h/2)(Π̂ W − (WΠ)^) is re-evaluated only while the updates are large
     (relative size > 1e-3); after that its inverse is kept (the chord method), whose contraction rate is
     then ~ h‖W‖|ΔΠ| ≪ 1, so a further iteration costs two matrix-vector products and a cross product.
-    Stops when the largest relative update is ≤ ``tol`` (round-off is ~1e-16): for the tennis-racket case
-    at h = 1/240 s that is 2 iterations with one 3×3 inverse per body.
+    Stops when the relative update is ≤ ``TOLERANCE`` (round-off is ~1e-16): for the tennis-racket case
+    at h = 1/240 s that is 2 iterations with one 3×3 inverse.
 
     Args:
-        inv_inertia: (n, 3, 3) W = I_body⁻¹ (zeros for fixed bodies, which then give Π_mid = Πₙ).
-        body_momentum: (n, 3) Πₙ, body frame.
-        h: step [s], a scalar or (n, 1) per body.
+        W: (3, 3) I_body⁻¹ (zeros for fixed bodies, which then give Π_mid = Πₙ).
+        pi_n: (3,) Πₙ, body frame.
+        h: step [s].
 
-    Returns:
-        (n, 3) Π_mid.  If some bodies have not converged after ``max_iterations`` (not seen below
-        ``MAX_SPIN_PER_SOLVE``) a RuntimeWarning is issued and the last iterate is returned: the step built
-        from it still turns the body rigidly and keeps L, so the energy stays bounded, just not exact.
+    Returns 0 when converged, else the last relative update: the step built from the last iterate still turns
+    the body rigidly and keeps L, so the energy stays bounded, just not exact (not seen below
+    ``MAX_SPIN_PER_SOLVE``).  A non-finite body (a blow-up the World will reset) returns 0.
     """
-    half_h = 0.5 * np.asarray(h, dtype=float)  # scalar or (n, 1)
-    half_h_matrix = half_h[..., None] if half_h.ndim else half_h
-    pi = body_momentum + half_h * cross3(body_momentum, apply_inertia(inv_inertia, body_momentum))
-    scale = norms(body_momentum) + _TINY
-    jacobian_inverse = None
-    largest_update = np.inf
-    for _ in range(max_iterations):
-        omega = apply_inertia(inv_inertia, pi)
-        residual = pi - body_momentum - half_h * cross3(pi, omega)
-        if jacobian_inverse is None or largest_update > 1e-3:
-            jacobian_inverse = inverse3(_IDENTITY - half_h_matrix * (skew(pi) @ inv_inertia - skew(omega)))
-        update = apply_inertia(jacobian_inverse, residual)
-        pi -= update
-        relative = np.abs(update).max(axis=1) / scale
-        # bodies already non-finite (a blow-up the World will reset) must not keep the others iterating
-        largest_update = relative.max(initial=0.0)
-        if not np.isfinite(largest_update):  # (the masked max only when needed: it costs more)
-            largest_update = np.max(relative, where=np.isfinite(relative), initial=0.0)
-        if largest_update <= tol:
-            return pi
-    warnings.warn(
-        f"implicit midpoint: the implicit solve did not converge in {max_iterations} iterations (h up to "
-        f"{np.max(h):g} s, last relative update {largest_update:.1e}): the step is too large for the bodies' "
-        "spin; energy is not conserved exactly this step",
-        RuntimeWarning,
-        stacklevel=2,
-    )
-    return pi
+    half_h = 0.5 * h
+    omega = np.empty(3)
+    residual = np.empty(3)
+    jacobian = np.empty((3, 3))
+    inverse = np.empty((3, 3))
+    for r in range(3):
+        omega[r] = W[r, 0] * pi_n[0] + W[r, 1] * pi_n[1] + W[r, 2] * pi_n[2]
+    pi[0] = pi_n[0] + half_h * (pi_n[1] * omega[2] - pi_n[2] * omega[1])
+    pi[1] = pi_n[1] + half_h * (pi_n[2] * omega[0] - pi_n[0] * omega[2])
+    pi[2] = pi_n[2] + half_h * (pi_n[0] * omega[1] - pi_n[1] * omega[0])
+    scale = math.sqrt(pi_n[0] * pi_n[0] + pi_n[1] * pi_n[1] + pi_n[2] * pi_n[2]) + _TINY
+    largest = np.inf
+    fresh = True
+    for _ in range(MAX_ITERATIONS):
+        for r in range(3):
+            omega[r] = W[r, 0] * pi[0] + W[r, 1] * pi[1] + W[r, 2] * pi[2]
+        residual[0] = pi[0] - pi_n[0] - half_h * (pi[1] * omega[2] - pi[2] * omega[1])
+        residual[1] = pi[1] - pi_n[1] - half_h * (pi[2] * omega[0] - pi[0] * omega[2])
+        residual[2] = pi[2] - pi_n[2] - half_h * (pi[0] * omega[1] - pi[1] * omega[0])
+        if fresh or largest > 1e-3:
+            # 1 − (h/2)(Π̂ W − Ω̂), Π̂ the cross-product matrix of Π
+            for c in range(3):
+                jacobian[0, c] = -half_h * (-pi[2] * W[1, c] + pi[1] * W[2, c])
+                jacobian[1, c] = -half_h * (pi[2] * W[0, c] - pi[0] * W[2, c])
+                jacobian[2, c] = -half_h * (-pi[1] * W[0, c] + pi[0] * W[1, c])
+            jacobian[0, 1] += half_h * -omega[2]
+            jacobian[0, 2] += half_h * omega[1]
+            jacobian[1, 0] += half_h * omega[2]
+            jacobian[1, 2] += half_h * -omega[0]
+            jacobian[2, 0] += half_h * -omega[1]
+            jacobian[2, 1] += half_h * omega[0]
+            for r in range(3):
+                jacobian[r, r] += 1.0
+            inverse3_into(jacobian, inverse)
+            fresh = False
+        largest = 0.0
+        for r in range(3):
+            update = inverse[r, 0] * residual[0] + inverse[r, 1] * residual[1] + inverse[r, 2] * residual[2]
+            pi[r] -= update
+            largest = max(largest, abs(update) / scale)
+        if not math.isfinite(largest):
+            return 0.0
+        if largest <= TOLERANCE:
+            return 0.0
+    return largest

@@ -40,10 +40,10 @@ class RK4:
 
     name: ClassVar[str] = "rk4"
 
-    def step(self, model: BodyModel, state: BodyState, h: float) -> None:
+    def step(self, model: BodyModel, state: BodyState, h: float, active: np.ndarray | None = None) -> None:
         h = check_step(h)
         state.rotation = None  # the quaternion is authoritative (a matrix left by explicit_euler is stale)
-        movable = movable_mask(model)
+        movable = movable_mask(model, active)
         inv_mass = model.inv_mass[:, None]
         W = model.inv_inertia_body
         force = movable * state.force
@@ -60,8 +60,8 @@ class RK4:
         kq3 = _orientation_rate(W, q0 + (0.5 * h) * kq2, L2)
         kq4 = _orientation_rate(W, q0 + h * kq3, L4)
         # ẋ stages: P0/m, P2/m, P2/m, P4/m
-        state.position += (h / 6.0) * (P0 + 4.0 * P2 + P4) * inv_mass
+        state.position += (h / 6.0) * (P0 + 4.0 * P2 + P4) * (inv_mass * movable)
         q_new = quat_normalize(q0 + (h / 6.0) * (kq1 + 2.0 * kq2 + 2.0 * kq3 + kq4))
         state.orientation[:] = np.where(movable > 0.0, q_new, q0)
-        state.linear_momentum[:] = P4
-        state.angular_momentum[:] = L4
+        state.linear_momentum[:] = np.where(movable > 0.0, P4, P0)
+        state.angular_momentum[:] = np.where(movable > 0.0, L4, L0)

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..bodies import BodyModel, BodyState
 from ..rotation import quat_from_rotvec, quat_multiply, quat_normalize, quat_rotate
-from .base import apply_inertia, body_angular_momentum, check_step, kick
+from .base import apply_inertia, body_angular_momentum, check_step, kick, movable_mask
 
 
 class SymplecticEuler:
@@ -30,13 +30,14 @@ class SymplecticEuler:
 
     name: ClassVar[str] = "symplectic_euler"
 
-    def step(self, model: BodyModel, state: BodyState, h: float) -> None:
+    def step(self, model: BodyModel, state: BodyState, h: float, active: np.ndarray | None = None) -> None:
         h = check_step(h)
         state.rotation = None  # the quaternion is authoritative (a matrix left by explicit_euler is stale)
-        kick(model, state, h)
-        state.position += h * state.linear_momentum * model.inv_mass[:, None]
+        movable = movable_mask(model, active)
+        kick(model, state, h, active)
+        state.position += h * state.linear_momentum * (model.inv_mass[:, None] * movable)
         q = state.orientation
         omega_body = apply_inertia(model.inv_inertia_body, body_angular_momentum(q, state.angular_momentum))
         omega = quat_rotate(q, omega_body)  # ω = R I_body⁻¹ Rᵀ L
         q_new = quat_normalize(quat_multiply(quat_from_rotvec(h * omega), q))
-        state.orientation[:] = np.where(model.inv_mass[:, None] > 0.0, q_new, q)
+        state.orientation[:] = np.where(movable > 0.0, q_new, q)

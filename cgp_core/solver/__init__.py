@@ -4,12 +4,12 @@
 name                     what it is
 =======================  ====================================================================================
 ``sequential_impulse``   **default**: sequential impulses (projected Gauss–Seidel) with warm starting,
-                         restitution, Coulomb friction cone and split-impulse penetration recovery, vectorized
-                         by graph colouring (:mod:`.sequential_impulse`)
+                         restitution, Coulomb friction cone and split-impulse penetration recovery, compiled,
+                         one manifold at a time (:mod:`.sequential_impulse`)
 =======================  ====================================================================================
 
-Helpers: :mod:`.colouring` (conflict-free batches of contacts), :mod:`.manifold` (exact block solve of a
-contact manifold's normal rows), :mod:`.base` (the interface and :class:`SolverSettings`).
+Helpers: :mod:`.manifold` (exact block solve of a contact manifold's normal rows), :mod:`.base` (the interface
+and :class:`SolverSettings`).
 
 Materials (:mod:`cgp_core.collision.materials`, re-exported here): a contact's friction is
 ``√(μ_a μ_b)`` and its restitution ``max(e_a, e_b)`` (Box2D's rules); the ground defaults to μ = 0.6, e = 0
