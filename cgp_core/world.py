@@ -370,7 +370,7 @@ class World:
     def delete(self, name: str) -> str:
         """Remove a body or a flock (from the scene or spawned); returns its kind.  A body's wrench commands go
         with it; the other bodies keep their order.  :class:`EditError` ``unknown`` if there is none."""
-        kind = self._kind_or_unknown(name)
+        kind = self.kind_of(name)
         self._remove([name])
         return kind
 
@@ -434,7 +434,8 @@ class World:
         return EntityState("body", state.position[i].copy(), state.orientation[i].copy(), v, w,
                            (v - v0) / self.dt, (w - w0) / self.dt)
 
-    def _kind_or_unknown(self, name: str) -> str:
+    def kind_of(self, name: str) -> str:
+        """``"body"`` or ``"flock"``; :class:`EditError` ``unknown`` (naming the entities there are) if neither."""
         kind = self.entity_kind(name)
         if kind is None:
             known = self.entity_names()
@@ -443,12 +444,12 @@ class World:
         return kind
 
     def _body_index(self, name: str) -> int:
-        if self._kind_or_unknown(name) != "body":
+        if self.kind_of(name) != "body":
             raise EditError("not_possible", f"{name!r} is a flock, not a body")
         return self.body_model.names.index(name)
 
     def _flock(self, name: str) -> Flock:
-        if self._kind_or_unknown(name) != "flock":
+        if self.kind_of(name) != "flock":
             raise EditError("not_possible", f"{name!r} is a body, not a flock")
         return next(f for f in self.flocks if f.params.name == name)
 
