@@ -22,7 +22,9 @@ reset or STOPPED keeps the clock running (no ``SCOPE_TIME``), so TF buffers and 
 
 from __future__ import annotations
 
+import inspect
 import time
+import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import unquote, urlparse
@@ -132,13 +134,41 @@ class SimulationInterfaces:
         # tick.  Their own reentrant group lets the timer run meanwhile (still one thread: no locks needed), and
         # lets a second stepping request be answered (refused) at once instead of queueing.
         stepping_group = ReentrantCallbackGroup()
-        self.services = [node.create_service(srv_type, name, callback,
+        self.services = [node.create_service(srv_type, name, self._guarded(name, callback),
                                              callback_group=stepping_group if srv_type is StepSimulation else None)
                          for srv_type, name, callback in services]
         self.action_server = ActionServer(node, SimulateSteps, itf.ACTION_SIMULATE_STEPS, self._simulate_steps,
                                           callback_group=stepping_group,
                                           goal_callback=lambda goal: GoalResponse.ACCEPT,
                                           cancel_callback=lambda goal_handle: CancelResponse.ACCEPT)
+
+    def _guarded(self, name: str, callback):
+        """``callback`` that answers OPERATION_FAILED (and logs the traceback) instead of raising: a bug in one
+        request must not take the simulation down (an exception in a callback ends rclpy's spin)."""
+        service = name.removeprefix("~/")
+
+        def failed(response, exc: Exception):
+            self.node.get_logger().error(f"{service} failed: {exc!r}\n{traceback.format_exc()}")
+            if hasattr(response, "result"):
+                response.result = Result(result=FAILED, error_message=f"internal error: {exc!r}")
+            self.node._event({"event": "service", "name": service, "result": "OPERATION_FAILED",
+                              "message": f"internal error: {exc!r}"})
+            return response
+
+        if inspect.iscoroutinefunction(callback):
+            async def guarded_async(request, response):
+                try:
+                    return await callback(request, response)
+                except Exception as exc:  # noqa: BLE001 - see the docstring
+                    return failed(response, exc)
+            return guarded_async
+
+        def guarded(request, response):
+            try:
+                return callback(request, response)
+            except Exception as exc:  # noqa: BLE001 - see the docstring
+                return failed(response, exc)
+        return guarded
 
     # ---- simulation state -----------------------------------------------------------------------------
 
@@ -284,10 +314,10 @@ class SimulationInterfaces:
         R = SpawnEntity.Response
         world = self.node.world
         if request.uri:
-            loaded = _read_uri(request.uri)
-            if isinstance(loaded, tuple):
-                return (*loaded, "")
-            text, source = loaded
+            try:
+                text, source = _read_uri(request.uri)
+            except _Refused as refusal:
+                return refusal.code, str(refusal), ""
         elif request.resource_string:
             text, source = request.resource_string, "resource_string"
         else:
@@ -495,23 +525,30 @@ def _unknown(world, name: str) -> str:
     return ""
 
 
-def _read_uri(uri: str) -> tuple[str, str] | tuple[int, str]:
-    """The YAML text and its source name for a ``uri`` (a path or ``file://`` URI of a .yaml file), or the
-    refusal (code, message)."""
+class _Refused(Exception):
+    def __init__(self, code: int, message: str):
+        super().__init__(message)
+        self.code = code
+
+
+def _read_uri(uri: str) -> tuple[str, str]:
+    """The YAML text and its source name for a ``uri`` (a path or ``file://`` URI of a .yaml file); raises
+    :class:`_Refused` (code, message) otherwise."""
     R = SpawnEntity.Response
     parsed = urlparse(uri)
     if parsed.scheme not in ("", "file"):
-        return R.UNSUPPORTED_FORMAT, f"uri {uri!r}: only local YAML files are spawned (a path or file:// URI; " \
-                                     f"spawn_formats: {', '.join(SPAWN_FORMATS)})"
+        raise _Refused(R.UNSUPPORTED_FORMAT, f"uri {uri!r}: only local YAML files are spawned (a path or file:// "
+                                             f"URI; spawn_formats: {', '.join(SPAWN_FORMATS)})")
     path = Path(unquote(parsed.path) if parsed.scheme == "file" else uri).expanduser()
     if path.suffix.lower() not in (".yaml", ".yml"):
-        return R.UNSUPPORTED_FORMAT, f"uri {uri!r}: not a .yaml file; cgp_sim spawns YAML " \
-                                     f"(spawn_formats: {', '.join(SPAWN_FORMATS)})"
+        raise _Refused(R.UNSUPPORTED_FORMAT, f"uri {uri!r}: not a .yaml file; cgp_sim spawns YAML "
+                                             f"(spawn_formats: {', '.join(SPAWN_FORMATS)})")
     try:
         if path.stat().st_size > MAX_SCENE_BYTES:
-            return R.RESOURCE_PARSE_ERROR, f"uri {uri!r}: larger than {MAX_SCENE_BYTES} bytes"
+            raise _Refused(R.RESOURCE_PARSE_ERROR, f"uri {uri!r}: larger than {MAX_SCENE_BYTES} bytes")
         return path.read_text(encoding="utf-8"), str(path)
     except UnicodeDecodeError as exc:
-        return R.RESOURCE_PARSE_ERROR, f"uri {uri!r}: not UTF-8 text ({exc.reason})"
+        raise _Refused(R.RESOURCE_PARSE_ERROR, f"uri {uri!r}: not UTF-8 text ({exc.reason})") from None
     except OSError as exc:
-        return R.RESOURCE_PARSE_ERROR, f"uri {uri!r}: cannot read {str(path)!r}: {exc.strerror or exc}"
+        raise _Refused(R.RESOURCE_PARSE_ERROR,
+                       f"uri {uri!r}: cannot read {str(path)!r}: {exc.strerror or exc}") from None
