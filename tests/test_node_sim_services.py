@@ -35,6 +35,10 @@ FAILED = Result.RESULT_OPERATION_FAILED
 BOX = "body: {shape: box, size: [0.4, 0.4, 0.4], mass: 2.0, color: [0.2, 0.8, 0.2, 1.0]}"
 
 
+def stamp_ns(header) -> int:
+    return header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+
+
 def clock_ns(msg) -> int:
     return msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
 
@@ -188,8 +192,11 @@ def test_spawn_watch_it_fall_teleport_and_delete(start_node, probe):
     markers = probe.subscribe("/cgp_sim/markers", MarkerArray, raw=True)
     node, sim = start_paused(start_node, probe, "default")
     assert sim.names() == ["ball", "crate", "capsule", "tetromino", "pillar", "fish"]
+    assert sim.step(120).result.result == OK  # the scene's bodies land; the crate rests where it tumbled to
+    crate = sim.state("crate").state.pose.position
+    assert crate.z == pytest.approx(0.25, abs=5e-3)  # on its 0.5 m side
 
-    reply = sim.spawn("box1", BOX, position=(-2.0, 1.0, 6.0))
+    reply = sim.spawn("box1", BOX, position=(crate.x, crate.y, 2.0))
     assert reply.result.result == OK and reply.entity_name == "box1", reply.result
     assert sim.names() == ["ball", "crate", "capsule", "tetromino", "pillar", "box1", "fish"]
     probe.wait_for_publisher("/cgp_sim/bodies/box1/odom")
@@ -201,17 +208,30 @@ def test_spawn_watch_it_fall_teleport_and_delete(start_node, probe):
     t = 6 * DT
     assert state.state.twist.linear.z == pytest.approx(-G * t, abs=1e-9)  # free fall from rest
     assert state.state.acceleration.linear.z == pytest.approx(-G, abs=1e-6)
-    assert state.state.pose.position.z < 6.0
-    # the odometry and the pose array carry it, the markers draw it
-    probe.spin_until(lambda: odom.messages and len(poses.messages[-1].poses) == 6, 10, "box1 in the poses")
-    assert odom.messages[-1].child_frame_id == "box1"
-    assert odom.messages[-1].pose.pose.position.z == pytest.approx(state.state.pose.position.z, abs=1e-12)
-    assert poses.messages[-1].poses[5].position.z == pytest.approx(state.state.pose.position.z, abs=1e-12)
+    assert state.state.pose.position.z < 2.0
+    # the odometry and the pose array of that tick carry it, the markers draw it
+    now = stamp_ns(state.state.header)
+    probe.spin_until(lambda: any(stamp_ns(m.header) == now for m in odom.messages)
+                     and any(stamp_ns(m.header) == now for m in poses.messages), 10, "this tick's odom and poses")
+    tick_odom = next(m for m in odom.messages if stamp_ns(m.header) == now)
+    tick_poses = next(m for m in poses.messages if stamp_ns(m.header) == now)
+    assert tick_odom.child_frame_id == "box1" and len(tick_poses.poses) == 6
+    assert tick_odom.pose.pose.position.z == state.state.pose.position.z
+    assert tick_poses.poses[5].position.z == state.state.pose.position.z
     probe.spin_until(lambda: markers.messages, 10, "markers")
     drawn = deserialize_message(markers.messages[-1], MarkerArray)
     assert any(m.ns == "bodies/box1" and m.type == Marker.CUBE for m in drawn.markers)
 
+    # it lands on the crate: crate top (0.25 + 0.25) + its own half size 0.2
+    assert sim.step(84).result.result == OK
+    landed = sim.state("box1").state
+    assert landed.pose.position.z == pytest.approx(0.7, abs=5e-3)
+    assert [landed.pose.position.x, landed.pose.position.y] == pytest.approx([crate.x, crate.y], abs=0.05)
+    assert np.linalg.norm(vec(landed.twist.linear)) < 0.05
+
     # a wrench command on the spawned body acts on it: Δv = F Δt / m over one tick
+    # (in the air, so no contact takes part: put it there first)
+    assert sim.set_state("box1", (0.0, -8.0, 5.0)).result.result == OK
     pub = probe.publisher("/cgp_sim/bodies/box1/wrench", WrenchStamped)
     probe.wait_for_subscriber(pub)
     push = WrenchStamped()
@@ -243,7 +263,7 @@ def test_spawn_watch_it_fall_teleport_and_delete(start_node, probe):
                                  for raw in markers.messages for m in deserialize_message(raw, MarkerArray).markers),
                      10, "a DELETE marker for box1")
     assert sim.step(1).result.result == OK
-    probe.spin_until(lambda: len(poses.messages[-1].poses) == 5, 10, "5 bodies in the poses")
+    probe.spin_until(lambda: poses.messages and len(poses.messages[-1].poses) == 5, 10, "5 bodies in the poses")
     assert sim.names() == ["ball", "crate", "capsule", "tetromino", "pillar", "fish"]
 
 
