@@ -11,7 +11,9 @@ and each other, and go to sleep during the run), then one flock of 1,000 boids. 
   wall time; and the slowest 1-second window in that span;
 - tick rate over the 5 s after the spawns (105 bodies landing and settling, 1,300 boids);
 - the same with fixed bodies (no dynamics: what the spawning machinery itself costs the tick);
-- request latency (send → reply) of the body spawns, median and max; the flock's.
+- request latency (send → reply) of the body spawns, median and max; the flock's;
+- in process (no DDS peer): the node's tick split into ``World.step`` and publish + record, before and after
+  the spawns, and the spawn handler's own time: where a short rate comes from.
 
 Usage: ``.venv/bin/python benchmarks/bench_spawn.py [--quick]`` (writes ``benchmarks/results/spawn.json``).
 ``CGP_SIM_BENCH_DOMAIN`` as for the other ROS benchmarks.
@@ -161,6 +163,65 @@ def run_variant(fixed: bool, bodies: int, baseline_s: float, after_s: float) -> 
             "flock_message": flock_response.result.error_message, "node_log": str(log_path)}
 
 
+def tick_split(fixed: bool, bodies: int, settle_ticks: int, timed_ticks: int) -> dict:
+    """In process (no DDS peer, no executor): the node's tick split into ``World.step`` and the rest (serialize,
+    publish, record) for the default scene alone and with ``bodies`` more spawned (``fixed`` or movable), each
+    after ``settle_ticks``; and what one spawn request costs the node (handler time, median).  Says whether a
+    short rate comes from spawning, from the physics of more bodies, or from publishing more bodies."""
+    import rclpy
+    from rclpy.parameter import Parameter
+    from simulation_interfaces.srv import SpawnEntity
+
+    from cgp_sim_ros.node import SimNode
+
+    bag_root = Path(tempfile.mkdtemp(prefix="bench_spawn_split_", dir=os.environ.get("BENCH_BAG_DIR")))
+    rclpy.init()
+    node = SimNode(parameter_overrides=[Parameter("start_paused", value=True),
+                                        Parameter("bag", value=str(bag_root / "bag"))])
+    step_times: list[float] = []
+    world_step = node.world.step
+
+    def timed_step():
+        t0 = time.perf_counter()
+        world_step()
+        step_times.append(time.perf_counter() - t0)
+
+    node.world.step = timed_step
+
+    def measure() -> dict:
+        for _ in range(settle_ticks):
+            node.tick()
+        step_times.clear()
+        ticks = []
+        for _ in range(timed_ticks):
+            t0 = time.perf_counter()
+            node.tick()
+            ticks.append(time.perf_counter() - t0)
+        tick_ms, step_ms = 1e3 * np.median(ticks), 1e3 * np.median(step_times)
+        return {"tick_ms": tick_ms, "world_step_ms": step_ms, "publish_record_ms": tick_ms - step_ms,
+                "bodies_asleep": bool(node.world.bodies_asleep)}
+
+    try:
+        alone = measure()
+        handler = []
+        for k in range(bodies):
+            resource = body_yaml(k).replace("}", ", fixed: true}") if fixed else body_yaml(k)
+            request = SpawnEntity.Request(name=f"spawned_{k}", resource_string=resource)
+            p = request.initial_pose.pose.position
+            p.x, p.y, p.z = grid_position(k)
+            t0 = time.perf_counter()
+            node.sim._spawn_entity(request, SpawnEntity.Response())
+            handler.append(time.perf_counter() - t0)
+        more = measure()
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.try_shutdown()
+        shutil.rmtree(bag_root, ignore_errors=True)
+    return {"fixed": fixed, "alone": alone, "with_spawned": more,
+            "spawn_handler_ms_median": 1e3 * float(np.median(handler))}
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="shorter baseline and settling windows")
@@ -168,6 +229,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     out = Results("spawn", options=vars(args))
     baseline_s, after_s = (2.0, 3.0) if args.quick else (4.0, 5.0)
+    settle, timed = (240, 60) if args.quick else (600, 120)
+    splits = [tick_split(fixed, args.bodies, settle, timed) for fixed in (False, True)]
     rows = [run_variant(fixed, args.bodies, baseline_s, after_s) for fixed in (False, True)]
     movable, fixed = rows
     n = args.bodies
@@ -186,7 +249,17 @@ def main(argv=None) -> int:
                movable["latency_ms_median"], "ms", "(reference)", None)
     out.figure("spawn_flock_1000", "spawn_entity of a 1,000-boid flock in one request, request -> reply",
                movable["flock_ms"], "ms", "one request", movable["flock_ok"])
+    for split in splits:
+        kind = "fixed" if split["fixed"] else "movable"
+        out.figure(f"spawn_split_{kind}_step", f"in process: World.step, default scene -> +{n} {kind} bodies",
+                   split["with_spawned"]["world_step_ms"], "ms", f"from {split['alone']['world_step_ms']:.1f}", None)
+        out.figure(f"spawn_split_{kind}_publish", f"in process: publish + record, default scene -> +{n} {kind}",
+                   split["with_spawned"]["publish_record_ms"], "ms",
+                   f"from {split['alone']['publish_record_ms']:.1f}", None)
+        out.figure(f"spawn_split_{kind}_handler", f"in process: one spawn_entity handler ({kind} body), median",
+                   split["spawn_handler_ms_median"], "ms", "(reference)", None)
     out.data["variants"] = rows
+    out.data["tick_split"] = splits
     path = out.write()
     print(format_figures(out.data["figures"]))
     for row in rows:

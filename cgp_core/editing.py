@@ -25,8 +25,8 @@ from .bodies import BodyModel, BodyState, Shape
 from .geometry import box_distance, capsule_distance, sphere_distance
 from .rotation import quat_to_matrix
 
-__all__ = ["EditError", "EntityState", "concatenate_bodies", "select_bodies", "name_filter", "body_distances",
-           "check_pose"]
+__all__ = ["EditError", "EntityState", "WORLD_FRAMES", "concatenate_bodies", "select_bodies", "name_filter",
+           "body_distances", "check_pose", "check_vector"]
 
 
 class EditError(ValueError):
@@ -75,7 +75,7 @@ def _per_body(value, n: int) -> bool:
         (isinstance(value, list) and len(value) == n)
 
 
-def _join(a, b, n_a: int, n_b: int):
+def _join(a, b):
     if isinstance(a, list) or isinstance(b, list):
         return list(a) + list(b)
     return np.concatenate((a, b))
@@ -86,8 +86,7 @@ def concatenate_bodies(model_a: BodyModel, state_a: BodyState, model_b: BodyMode
     """New model and state: the bodies of ``a`` followed by those of ``b``.  Every per-body field (an array
     whose first axis is the body, or a list of one item per body) is joined, so fields added to the
     dataclasses later are carried along."""
-    n_a, n_b = model_a.count, model_b.count
-    model = BodyModel(**{f.name: _join(getattr(model_a, f.name), getattr(model_b, f.name), n_a, n_b)
+    model = BodyModel(**{f.name: _join(getattr(model_a, f.name), getattr(model_b, f.name))
                          for f in fields(BodyModel)})
     rotation_a, rotation_b = state_a.rotation, state_b.rotation
     if (rotation_a is None) != (rotation_b is None):  # an integrator that keeps R: give every body one
@@ -97,7 +96,7 @@ def concatenate_bodies(model_a: BodyModel, state_a: BodyState, model_b: BodyMode
         if f.name == "rotation":
             values[f.name] = None if rotation_a is None else np.concatenate((rotation_a, rotation_b))
         else:
-            values[f.name] = _join(getattr(state_a, f.name), getattr(state_b, f.name), n_a, n_b)
+            values[f.name] = _join(getattr(state_a, f.name), getattr(state_b, f.name))
     return model, BodyState(**values)
 
 

@@ -38,8 +38,8 @@ import numpy as np
 from .bodies import BodyModel, BodyState
 from .boids import Flock, Obstacles
 from .dynamics import Ground, step_bodies
-from .editing import (WORLD_FRAMES, EditError, EntityState, body_distances, check_pose, check_vector,
-                      concatenate_bodies, name_filter, select_bodies)
+from .editing import (EditError, EntityState, body_distances, check_pose, check_vector, concatenate_bodies,
+                      name_filter, select_bodies)
 from .integrators import make_integrator
 from .rotation import quat_rotate, quat_conjugate, quat_to_matrix
 from .scene import MAX_BODIES, ROS_SAFE_NAME, MAX_NAME_LENGTH, Scene, load_scene, spawn_entry

@@ -12,7 +12,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.serialization import deserialize_message
 from tf2_msgs.msg import TFMessage
 
-from sim_client import OK, SimClient
+from sim_client import OK
 from test_node_sim_services import start_paused
 
 # what tf2_ros' TransformListener subscribes with (tf2_ros::DynamicListenerQoS / StaticListenerQoS)
