@@ -425,12 +425,14 @@ class World:
                                (v - self._flock_mean_velocity_start[index]) / self.dt, zero.copy())
         i = self._body_index(name)
         model, state = self.body_model, self.body_state
-        v = state.linear_velocity(model)[i]
-        w = state.angular_velocity(model)[i]
+
+        def velocities(P, L, R):  # v = P / m, ω = R I⁻¹ Rᵀ L of body i alone (a query is O(1), not O(n))
+            return P * model.inv_mass[i], R @ model.inv_inertia_body[i] @ R.T @ L
+
+        R = state.rotation[i] if state.rotation is not None else quat_to_matrix(state.orientation[i][None])[0]
+        v, w = velocities(state.linear_momentum[i], state.angular_momentum[i], R)
         P0, L0, q0 = (a[i] for a in self._body_start)
-        R0 = quat_to_matrix(q0[None])[0]
-        v0 = P0 * model.inv_mass[i]
-        w0 = R0 @ model.inv_inertia_body[i] @ R0.T @ L0
+        v0, w0 = velocities(P0, L0, quat_to_matrix(q0[None])[0])
         return EntityState("body", state.position[i].copy(), state.orientation[i].copy(), v, w,
                            (v - v0) / self.dt, (w - w0) / self.dt)
 

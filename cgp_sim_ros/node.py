@@ -256,7 +256,7 @@ class SimNode(Node):
 
         self.messages = TickMessages(world, itf.WORLD_FRAME)
         self.tf.rebuild()
-        marker_ids = self.messages_marker_ids()
+        marker_ids = self._drawn_marker_ids()
         if self._synced_version is not None:
             stale = [(ns, i) for ns, ids in self._marker_ids.items() for i in sorted(ids - marker_ids.get(ns, set()))]
             if stale and not self._delete_all_markers:
@@ -269,7 +269,7 @@ class SimNode(Node):
         self._synced_names = names
         self._synced_version = world.model_version
 
-    def messages_marker_ids(self) -> dict[str, set[int]]:
+    def _drawn_marker_ids(self) -> dict[str, set[int]]:
         """Marker namespace -> ids the per-tick MarkerArray draws (see :mod:`cgp_sim_ros.messages`)."""
         model = self.world.body_model
         ids = {f"bodies/{name}": ({0, 1, 2} if int(shape) == int(Shape.CAPSULE) else {0})

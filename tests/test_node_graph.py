@@ -22,13 +22,18 @@ def _stamp(msg) -> float:
 
 
 def test_default_scene_is_live_on_the_graph(start_node, probe):
-    node = start_node("--scene", "default")
+    from ros_probe import pause
+
+    # started paused: the probe must see the first second (the ball's fall), however long discovery takes
+    node = start_node("--scene", "default", "--start-paused", "true")
     bodies = probe.subscribe("/cgp_sim/bodies/poses", PoseArray)
     # The big messages are taken raw and decoded afterwards: decoding 9,000 marker points into Python objects
     # per tick would make this observer, not the node, the bottleneck.
     fish = probe.subscribe("/cgp_sim/flocks/fish/poses", PoseArray, raw=True)
     markers = probe.subscribe("/cgp_sim/markers", MarkerArray, raw=True)
-    probe.wait_for_publisher("/cgp_sim/bodies/poses", timeout=30)
+    for topic in ("/cgp_sim/bodies/poses", "/cgp_sim/flocks/fish/poses", "/cgp_sim/markers"):
+        probe.wait_for_publisher(topic, timeout=30)
+    pause(probe, False)
     probe.wait_for_messages("/cgp_sim/markers", 1, timeout=30)
     # about 1.5 s of wall time worth of ticks
     probe.wait_for_messages("/cgp_sim/bodies/poses", 90, timeout=30)
