@@ -394,7 +394,9 @@ class World:
             state.rotation[i] = R
         state.linear_momentum[i] = model.mass[i] * v * (not model.fixed[i])
         state.angular_momentum[i] = (R @ model.inertia_body[i] @ R.T @ w) * (not model.fixed[i])
-        self._remember_tick_start()  # no acceleration from a teleport
+        for start, now in zip(self._body_start, (state.linear_momentum, state.angular_momentum,
+                                                 state.orientation)):
+            start[i] = now[i]  # a teleport is not an acceleration: this body's last-tick Δv starts from here
         # Per-island sleeping (wake(bodies=...)) belongs to the rigid-body engine; until then all bodies wake.
         self.wake()
 
@@ -484,17 +486,22 @@ class World:
         self.flocks = [Flock(p) for p in self._scene_flock_params]
         self.spawned = []
         self.wrenches.clear()
+        self._remember_tick_start()
         self._bodies_changed()
         self.model_version += 1
 
     def _bodies_changed(self, kept: np.ndarray | None = None) -> None:
-        """After the body set changed (``kept``: the old indices that remain, None for a spawn): derived
-        arrays follow, the bodies wake (a body may have appeared on, or vanished from under, sleeping ones)."""
+        """After the body set changed (``kept``: the old indices that remain, None for a spawn: the new bodies
+        are the last ones): derived arrays follow, the bodies wake (a body may have appeared on, or vanished from
+        under, sleeping ones)."""
         self._bounding_radius = self.body_model.bounding_radius()
-        if kept is None:
-            self._remember_tick_start()
-        else:
+        state = self.body_state
+        if kept is not None:
             self._body_start = tuple(a[kept] for a in self._body_start)
+        else:  # a new body starts its last-tick Δv from its spawn state; the others keep theirs
+            known = len(self._body_start[0])
+            self._body_start = tuple(np.concatenate((start, now[known:])) for start, now in zip(
+                self._body_start, (state.linear_momentum, state.angular_momentum, state.orientation)))
         if hasattr(self.solver, "reset"):
             self.solver.reset()
         self.wake()

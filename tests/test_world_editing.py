@@ -66,6 +66,13 @@ def test_a_spawned_body_falls_freely_and_reports_g():
     np.testing.assert_allclose(state.linear_acceleration, [0, 0, -G], atol=1e-9)
     np.testing.assert_allclose(state.angular_velocity, 0.0, atol=1e-15)
     assert state.position[2] == pytest.approx(20 - 0.5 * G * t ** 2, abs=G * t * world.dt)  # within one step
+    # later edits do not erase what the last tick did to the others
+    world.spawn(BOX, name="box2", position=[-10, 10, 20])
+    world.set_body_state("box2", [-10, 10, 21], [0, 0, 0, 1])
+    np.testing.assert_allclose(world.entity_state("box1").linear_acceleration, [0, 0, -G], atol=1e-9)
+    np.testing.assert_array_equal(world.entity_state("box2").linear_acceleration, 0.0)
+    world.delete("ball")
+    np.testing.assert_allclose(world.entity_state("box1").linear_acceleration, [0, 0, -G], atol=1e-9)
 
 
 def test_spawn_errors_are_the_scene_file_errors_with_the_key_path():
