@@ -59,6 +59,7 @@ def test_features_states_and_stepping(start_node, probe):
     events = probe.subscribe("/cgp_sim/events", String)
     node, sim = start_paused(start_node, probe, "zero_g")
     probe.wait_for_publisher("/clock")
+    probe.wait_for_publisher("/cgp_sim/events")
 
     features = sim.call(GetSimulatorFeatures).features
     F = SimulatorFeatures
@@ -115,12 +116,15 @@ def test_features_states_and_stepping(start_node, probe):
     assert sim.simulation_state() == S.STATE_PAUSED
 
     # every call is on ~/events with its result
-    probe.spin_until(lambda: len(events_of(events, "set_simulation_state")) >= 7, 10, "the state calls")
-    calls = events_of(events, "set_simulation_state")
-    assert [(c["state"], c["result"]) for c in calls[-3:]] == [("STOPPED", "OK"), ("STOPPED", "OK"), ("PAUSED", "OK")]
-    assert {"result": "ALREADY_IN_TARGET_STATE", "state": "PAUSED"}.items() <= calls[1].items()  # [0]: warm-up
-    steps = events_of(events, "step_simulation")
-    assert steps[1]["result"] == "OK" and steps[1]["steps"] == 5 and steps[1]["done"] == 5
+    def state_calls():
+        return [(c["state"], c["result"]) for c in events_of(events, "set_simulation_state")]
+
+    probe.spin_until(lambda: state_calls()[-3:] == [("STOPPED", "OK"), ("STOPPED", "OK"), ("PAUSED", "OK")], 10,
+                     "the last state calls on ~/events")
+    assert [("PAUSED", "ALREADY_IN_TARGET_STATE"), ("NO_WORLD", "FEATURE_UNSUPPORTED"), (9, "INCORRECT_TRANSITION"),
+            ("PLAYING", "OK")] == state_calls()[-7:-3]
+    steps = [e for e in events_of(events, "step_simulation") if e["steps"] == 5]
+    assert len(steps) == 1 and steps[0]["result"] == "OK" and steps[0]["done"] == 5
     assert events_of(events, "get_simulator_features")
 
 
