@@ -168,22 +168,21 @@ def name_filter(pattern: str) -> re.Pattern:
 
 def body_distances(model: BodyModel, state: BodyState, point) -> np.ndarray:
     """(n,) signed distance [m] from ``point`` (3,) to every body's surface (negative inside), with the
-    point-vs-shape distances of :mod:`cgp_core.geometry`."""
+    point-vs-shape distances of :mod:`cgp_core.geometry` (one vectorized call per shape kind)."""
     p = np.asarray(point, dtype=float).reshape(1, 3)
     out = np.empty(model.count)
     if model.count == 0:
         return out
+    shape = np.asarray(model.shape)
     R = quat_to_matrix(state.orientation)
-    for i in range(model.count):
-        shape, x = Shape(int(model.shape[i])), state.position[i:i + 1]
-        if shape == Shape.SPHERE:
-            d, _ = sphere_distance(p, x, model.radius[i:i + 1])
-        elif shape == Shape.BOX:
-            d, _ = box_distance(p, x, R[i:i + 1], model.half_extents[i:i + 1])
-        elif shape == Shape.CAPSULE:
-            d, _ = capsule_distance(p, x, R[i:i + 1, :, 2], model.half_extents[i:i + 1, 2], model.radius[i:i + 1])
-        else:
-            centers = x + np.asarray(model.particles[i])[:, :3] @ R[i].T
-            d, _ = sphere_distance(p, centers, np.full(len(centers), model.radius[i]))
-        out[i] = d.min()
+    spheres = np.flatnonzero(shape == Shape.SPHERE)
+    out[spheres] = sphere_distance(p, state.position[spheres], model.radius[spheres])[0][0]
+    boxes = np.flatnonzero(shape == Shape.BOX)
+    out[boxes] = box_distance(p, state.position[boxes], R[boxes], model.half_extents[boxes])[0][0]
+    capsules = np.flatnonzero(shape == Shape.CAPSULE)
+    out[capsules] = capsule_distance(p, state.position[capsules], R[capsules, :, 2],
+                                     model.half_extents[capsules, 2], model.radius[capsules])[0][0]
+    for i in np.flatnonzero(shape == Shape.PARTICLES):  # a particle set: its nearest particle's sphere
+        centers = state.position[i] + np.asarray(model.particles[i])[:, :3] @ R[i].T
+        out[i] = sphere_distance(p, centers, np.full(len(centers), model.radius[i]))[0].min()
     return out

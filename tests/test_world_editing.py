@@ -312,3 +312,26 @@ def test_reset_scopes():
     assert world.spawned == []
     np.testing.assert_allclose(world.entity_state("crate").position, [-2, 1, 3])
     settle(world, 5)
+
+
+def test_body_distances_are_the_closed_forms_for_every_shape():
+    from cgp_core.editing import body_distances
+
+    world = World(parse_scene("""
+world: {gravity: [0, 0, 0], ground: false}
+bodies:
+  - {name: ball, shape: sphere, radius: 1.0, position: [0, 0, 0]}
+  - {name: crate, shape: box, size: [2, 4, 6], position: [10, 0, 0],
+     orientation: [0, 0, 0.7071067811865476, 0.7071067811865476]}
+  - {name: pill, shape: capsule, radius: 0.5, length: 2.0, position: [0, 10, 0]}
+  - {name: trio, shape: particles, radius: 0.25, particles: [[0, 0, 0, 1], [2, 0, 0, 1], [0, 2, 0, 1]],
+     position: [0, 0, 10]}
+"""))
+    point = np.array([0.0, 0.0, 5.0])
+    expected = [4.0,                                     # |p| - r
+                np.hypot(np.hypot(10 - 2, 0), 5 - 3),    # box turned 90° about z: x half size 2 (was y), z half 3
+                np.hypot(10, 5 - 1) - 0.5,               # capsule segment z in [-1, 1] around (0, 10, 0)
+                np.linalg.norm([0, 0, 10 - 5]) - 0.25]   # nearest particle: the one at the origin (0, 0, 10)
+    np.testing.assert_allclose(body_distances(world.body_model, world.body_state, point), expected, atol=1e-12)
+    assert world.entities_in_sphere(point, 4.0) == ["ball"]
+    assert world.entities_in_sphere(point, 3.99) == []
