@@ -7,12 +7,27 @@
 
 SHELL := /bin/bash
 PYTHON ?= python3
+
+# The ROS 2 distribution: Jazzy (the product's target, CI's) in .venv/; `make test ROS_DISTRO=kilted` runs the
+# optional second target in .venv-kilted/.  Only a ROS_DISTRO given on the make command line counts: a sourced
+# ROS install exports ROS_DISTRO too, and that must not switch the wheels this Makefile installs.
+DISTRO := $(if $(filter command line,$(origin ROS_DISTRO)),$(ROS_DISTRO),jazzy)
+ifeq ($(DISTRO),jazzy)
 VENV := $(CURDIR)/.venv
+ROS_REQUIREMENTS := requirements/ros.txt requirements/build.txt
+else ifeq ($(DISTRO),kilted)
+VENV := $(CURDIR)/.venv-kilted
+ROS_REQUIREMENTS := requirements/ros-kilted.txt requirements/build-kilted.txt
+else
+$(error ROS_DISTRO=$(DISTRO) is not supported: use jazzy (default) or kilted)
+endif
 VPY := $(VENV)/bin/python
 STAMPS := $(VENV)/.stamps
-PIP := $(VPY) -m pip install --disable-pip-version-check --quiet
+# Every install is constrained by the lock (tools/lock_requirements.py): a fresh machine installs what CI tested.
+CONSTRAINTS := requirements/constraints-$(DISTRO).txt
+PIP := $(VPY) -m pip install --disable-pip-version-check --quiet -c $(CONSTRAINTS)
 
-# What `make run` passes to the node; override e.g. `make run ARGS="--scene boids_10k"`.
+# What `make run` passes to the node; override e.g. `make run ARGS="--scene pyramid"`.
 BAG_DIR ?= $(CURDIR)/bags/cgp_sim_$(shell date +%Y_%m_%d-%H_%M_%S)
 ARGS ?=
 
@@ -21,11 +36,11 @@ TF2_MSGS_SRC := $(shell find msgs_config/upstream/tf2_msgs -type f) tools/build_
 SIMULATION_INTERFACES_SRC := $(shell find msgs_config/upstream/simulation_interfaces -type f) tools/build_msgs.py
 PROJECT_SRC := setup.py setup.cfg package.xml README.md resource/cgp_sim_ros scripts/sim_node \
 	$(shell find cgp_core cgp_sim_ros msgs_config -type f \( -name '*.py' -o -name '*.yaml' -o -name '*.stl' \
-	-o -name '*.dae' \) -not -path '*/__pycache__/*' -not -path 'msgs_config/cgp_sim_msgs/*' \
+	-o -name '*.dae' -o -name '*.json' \) -not -path '*/__pycache__/*' -not -path 'msgs_config/cgp_sim_msgs/*' \
 	-not -path 'msgs_config/upstream/*')
-REQUIREMENTS := requirements/ros.txt requirements/build.txt requirements/python.txt requirements/dev.txt
+REQUIREMENTS := $(ROS_REQUIREMENTS) requirements/python.txt requirements/dev.txt
 
-.PHONY: setup run test soak bench clean distclean
+.PHONY: setup run test soak bench lock clean distclean
 
 setup: $(STAMPS)/project
 
@@ -35,7 +50,7 @@ $(STAMPS)/venv:
 	@test -x $(VPY) || $(PYTHON) -m venv $(VENV)
 	@mkdir -p $(STAMPS) && touch $@
 
-$(STAMPS)/deps: $(REQUIREMENTS) | $(STAMPS)/venv
+$(STAMPS)/deps: $(REQUIREMENTS) $(CONSTRAINTS) | $(STAMPS)/venv
 	@echo "setup: installing ROS 2 wheels and Python dependencies into .venv (pip)"
 	@$(PIP) $(addprefix -r ,$(REQUIREMENTS)) 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)
 	@touch $@
@@ -63,8 +78,10 @@ $(STAMPS)/project: $(STAMPS)/msgs $(STAMPS)/msgs-tf2_msgs $(STAMPS)/msgs-simulat
 	@rm -rf build cgp_sim_ros.egg-info
 	@touch $@
 
+# The live view is on (the node prints the address to open in the Foxglove app); ARGS="--foxglove false" turns
+# it off, ARGS="--foxglove-port 0" picks a free port.
 run: setup
-	@$(VENV)/bin/cgp-sim --bag "$(BAG_DIR)" $(ARGS)
+	@$(VENV)/bin/cgp-sim --bag "$(BAG_DIR)" --foxglove true $(ARGS)
 
 test: setup
 	@$(VPY) -m pytest tests
@@ -73,6 +90,10 @@ test: setup
 # environment: `CGP_SIM_SOAK_SECONDS=60 make soak` or `make soak CGP_SIM_SOAK_SECONDS=60`.
 soak: setup
 	@$(VPY) -m pytest tests -m soak --run-soak -rA  # -rA: show the figures the soak test prints
+
+# Re-resolve the requirement files (and the benchmark peers) into the lock; commit the result.
+lock: | $(STAMPS)/venv
+	@$(VPY) tools/lock_requirements.py $(DISTRO) $(REQUIREMENTS) requirements/bench.txt
 
 bench: setup
 	@$(PIP) -r requirements/bench.txt 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)
@@ -83,4 +104,4 @@ clean:
 	find . -name __pycache__ -type d -prune -not -path './.venv/*' -exec rm -rf {} +
 
 distclean: clean
-	rm -rf $(VENV)
+	rm -rf $(CURDIR)/.venv $(CURDIR)/.venv-kilted

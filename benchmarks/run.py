@@ -12,7 +12,8 @@ still run.
     .venv/bin/python benchmarks/run.py --only tick cdr # some of them
     .venv/bin/python benchmarks/run.py --no-run        # only aggregate the JSON files already there
     .venv/bin/python benchmarks/run.py --update-readme # and put the tables into benchmarks/README.md
-    .venv/bin/python benchmarks/run.py --extras        # also bench_bag.py and bench_integrators.py
+    .venv/bin/python benchmarks/run.py --extras        # also bench_bag.py, bench_integrators.py,
+                                                       # bench_scenes.py, bench_render.py
 
 Exit status: 0 when every benchmark ran (whether or not every target is met: a SHORT figure is a result,
 not an error), 1 when one failed.
@@ -38,8 +39,9 @@ from common import (RESULTS, format_figures, format_value, load_average, machine
 #: name -> script; the order they run in (the tick first: it is the figure that matters most, and it
 #: runs best on a machine that has not been busy for minutes)
 BENCHMARKS = {"tick": "bench_tick.py", "boids": "bench_boids.py", "cdr": "bench_cdr.py",
-              "contacts": "bench_contacts.py", "spawn": "bench_spawn.py"}
-EXTRAS = {"bag": "bench_bag.py", "integrators": "bench_integrators.py"}
+              "contacts": "bench_contacts.py", "foxglove": "bench_foxglove.py", "spawn": "bench_spawn.py"}
+EXTRAS = {"bag": "bench_bag.py", "integrators": "bench_integrators.py", "scenes": "bench_scenes.py",
+          "render": "bench_render.py"}
 
 #: issue 7's figures, in the issue's order: (id, the benchmark that measures it, the issue's wording)
 ISSUE7 = [

@@ -192,6 +192,17 @@ def builtin_scene_names() -> list[str]:
     return sorted(p.stem for p in builtin_scene_dir().glob("*.yaml"))
 
 
+def scene_description(name_or_path: str | Path) -> str:
+    """The ``description:`` of a scene file or built-in scene (whitespace collapsed; "" when it has none)."""
+    path = resolve_scene(str(name_or_path))
+    try:
+        data = yaml.load(path.read_text(encoding="utf-8"), Loader=_SceneLoader)
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise SceneError(str(path), [f"cannot read the description: {exc}"]) from None
+    text = data.get("description", "") if isinstance(data, dict) else ""
+    return " ".join(str(text).split())
+
+
 def resolve_scene(name_or_path: str) -> Path:
     """A scene file path, or the name of a built-in scene (``default``, ...)."""
     text = str(name_or_path).strip()
@@ -228,10 +239,23 @@ def load_scene(name_or_path: str | Path) -> Scene:
     return parse_scene(text, source)
 
 
+#: A float of YAML 1.2's core schema (section 10.3.2): ``1e3``, ``1.0e3``, ``-2E-4``, ``+1.5``, ``.5``, ``-.5``.
+#: PyYAML resolves plain scalars by YAML 1.1, whose floats need a decimal point and a signed exponent
+#: (``1.0e+3``): ``mass: 1e3`` would otherwise be the text "1e3".
+YAML12_FLOAT = re.compile(r"^[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?$")
+
+
 class _SceneLoader(yaml.SafeLoader):
-    """``yaml.SafeLoader`` (plain data only) that also rejects a key given twice in one mapping: PyYAML keeps
-    the last value silently, so ``{mass: 1, mass: 2}`` would drop a value the author wrote.  Keys merged in
-    with ``<<`` may still be overridden, as YAML's merge semantics say."""
+    """``yaml.SafeLoader`` (plain data only) with two changes:
+
+    - a key given twice in one mapping is an error: PyYAML keeps the last value silently, so
+      ``{mass: 1, mass: 2}`` would drop a value the author wrote.  Keys merged in with ``<<`` may still be
+      overridden, as YAML's merge semantics say.
+    - plain scalars that are YAML 1.2 floats (:data:`YAML12_FLOAT`) are floats, as users write them.  The
+      resolver is added after SafeLoader's own (first match wins), so everything YAML 1.1 already read as a
+      number (``1_000``, ``.inf``, ``.nan``) is read as before; the constructor is SafeLoader's float
+      constructor; quoted scalars stay strings.
+    """
 
     def construct_mapping(self, node, deep=False):
         if isinstance(node, yaml.MappingNode):
@@ -252,9 +276,13 @@ class _SceneLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+# add_implicit_resolver copies the inherited resolver table into _SceneLoader first: SafeLoader is unchanged.
+_SceneLoader.add_implicit_resolver("tag:yaml.org,2002:float", YAML12_FLOAT, list("-+.0123456789"))
+
+
 def parse_yaml(text: str, source: str = "<string>") -> Any:
-    """YAML text as plain data, read as scenes are (safe subset, duplicate keys rejected); ``SceneError`` with
-    the line and column of malformed YAML."""
+    """YAML text as plain data, read as scenes are (safe subset, YAML 1.2 floats, duplicate keys rejected);
+    ``SceneError`` with the line and column of malformed YAML."""
     try:
         return yaml.load(text, Loader=_SceneLoader)  # a SafeLoader: never constructs Python objects
     except yaml.YAMLError as exc:
@@ -378,13 +406,8 @@ class _Validator:
                maximum: float | None = None, default: float = 0.0) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             hint = ""
-            if isinstance(value, str):
-                try:
-                    float(value)
-                    hint = (" (YAML reads a quoted number, or an exponent without a decimal point such as 1e3, "
-                            "as text: write 1.0e3)")
-                except ValueError:
-                    pass
+            if isinstance(value, str) and YAML12_FLOAT.match(value.strip()):
+                hint = " (a number in quotes is text in YAML: write it without the quotes)"
             self.fail(key, f"must be a number, got {_kind(value)} {_show(value)}{hint}")
             return default
         try:

@@ -19,12 +19,15 @@ Times are integer nanoseconds (``stamp_ns``); they are split as ROS does (``sec 
 ``nanosec = ns - sec * 1e9``), so negative times keep ``0 <= nanosec < 1e9``.
 
 Equivalence with rclpy's own serializer is proven in ``tests/test_cdr.py``.
+
+Reading (:func:`read_marker_array`): the MarkerArray decoder of the bag renderer, which runs without rclpy.
 """
 
 from __future__ import annotations
 
 import struct
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -44,6 +47,10 @@ __all__ = [
     "marker",
     "marker_deleteall",
     "marker_array",
+    "CdrError",
+    "MarkerData",
+    "read_marker",
+    "read_marker_array",
 ]
 
 #: Plain CDR, little endian (RTPS representation identifier CDR_LE) + 2 option bytes.
@@ -633,3 +640,127 @@ def marker_array(markers: Sequence[bytes]) -> bytes:
         else:
             pos = _rephase(view[4:], pos, _MARKER_LAYOUT_TO_LAST_F64, out)
     return b"".join(out)
+
+
+# ============================================================================================== Reading
+# The other direction, for readers that have no rclpy (cgp_sim_ros.render reads bags with the mcap library
+# alone): a MarkerArray's CDR bytes to numpy, the points and colours as views into the message (no copy).
+
+
+class CdrError(ValueError):
+    """Bytes that are not the CDR of the expected message."""
+
+
+class _Reader:
+    """Walks a little-endian CDR body; offsets are body offsets (after the encapsulation header)."""
+
+    __slots__ = ("body", "pos")
+
+    def __init__(self, data) -> None:
+        view = memoryview(data)
+        if len(view) < 4:
+            raise CdrError(f"{len(view)} bytes: too short for a CDR encapsulation header")
+        if bytes(view[:2]) != ENCAPSULATION[:2]:
+            raise CdrError(f"encapsulation {bytes(view[:4]).hex(' ')} is not little-endian plain CDR (00 01 ..): "
+                           "only CDR_LE is read")
+        self.body = view[4:]
+        self.pos = 0
+
+    def take(self, size: int, align: int = 1) -> memoryview:
+        self.pos += -self.pos % align
+        end = self.pos + size
+        if end > len(self.body):
+            raise CdrError(f"truncated: {size} bytes wanted at body offset {self.pos}, {len(self.body)} in all")
+        out = self.body[self.pos:end]
+        self.pos = end
+        return out
+
+    def u32(self) -> int:
+        return _U32.unpack(self.take(4, 4))[0]
+
+    def string(self) -> str:
+        length = self.u32()
+        raw = self.take(length)
+        if length == 0 or raw[-1] != 0:
+            raise CdrError(f"string at body offset {self.pos - length} is not NUL-terminated")
+        return bytes(raw[:-1]).decode("utf-8", errors="replace")
+
+    def array(self, dtype: str, columns: int, element_align: int) -> np.ndarray:
+        """A ``sequence<T>`` of fixed-size elements as an (n, columns) array (a view into the message)."""
+        count = self.u32()
+        item = np.dtype(dtype).itemsize * columns
+        if count == 0:
+            return np.zeros((0, columns), dtype=dtype)
+        raw = self.take(count * item, element_align)
+        return np.frombuffer(raw, dtype=dtype).reshape(count, columns)
+
+    def skip_sequence(self, element_size: int, element_align: int) -> None:
+        count = self.u32()
+        if count:
+            self.take(count * element_size, element_align)
+
+
+@dataclass
+class MarkerData:
+    """A decoded ``visualization_msgs/Marker`` (the fields a renderer needs; the texture, uv coordinates and
+    mesh bytes are skipped).  Arrays: ``position`` (3,), ``orientation`` (4,) x y z w, ``scale`` (3,),
+    ``color`` (4,) RGBA, ``points`` (n, 3) float64, ``colors`` (n, 4) float32 (empty, or one per point)."""
+
+    stamp_ns: int
+    frame_id: str
+    ns: str
+    id: int
+    type: int
+    action: int
+    position: np.ndarray
+    orientation: np.ndarray
+    scale: np.ndarray
+    color: np.ndarray
+    lifetime_ns: int
+    frame_locked: bool
+    points: np.ndarray
+    colors: np.ndarray
+    text: str = ""
+    mesh_resource: str = ""
+
+
+def _read_marker(r: _Reader) -> MarkerData:
+    sec, nanosec = _STAMP.unpack(r.take(8, 4))
+    frame_id = r.string()
+    ns = r.string()
+    marker_id, marker_type, action = struct.unpack("<iii", r.take(12, 4))
+    values = _MARKER_BLOCK.unpack(r.take(_MARKER_BLOCK.size, 8))
+    points = r.array("<f8", 3, 8)
+    colors = r.array("<f4", 4, 4)
+    r.string()  # texture_resource
+    r.take(8, 4)  # texture.header.stamp
+    r.string()  # texture.header.frame_id
+    r.string()  # texture.format
+    r.skip_sequence(1, 1)  # texture.data
+    r.skip_sequence(8, 4)  # uv_coordinates (float32 u, v)
+    text = r.string()
+    mesh_resource = r.string()
+    r.string()  # mesh_file.filename
+    r.skip_sequence(1, 1)  # mesh_file.data
+    r.take(1)  # mesh_use_embedded_materials
+    return MarkerData(
+        stamp_ns=sec * _NS_PER_S + nanosec, frame_id=frame_id, ns=ns, id=marker_id, type=marker_type,
+        action=action, position=np.array(values[0:3]), orientation=np.array(values[3:7]),
+        scale=np.array(values[7:10]), color=np.array(values[10:14]),
+        lifetime_ns=values[14] * _NS_PER_S + values[15], frame_locked=bool(values[16]),
+        points=points, colors=colors, text=text, mesh_resource=mesh_resource)
+
+
+def read_marker(data) -> MarkerData:
+    """Decode one serialized ``visualization_msgs/Marker``."""
+    return _read_marker(_Reader(data))
+
+
+def read_marker_array(data) -> list[MarkerData]:
+    """Decode a serialized ``visualization_msgs/MarkerArray`` (as :func:`marker_array` writes it, or any other
+    little-endian CDR writer: rclpy, rosbag2); raises :class:`CdrError` for bytes that are not one."""
+    r = _Reader(data)
+    count = r.u32()
+    if count > len(r.body) // 100:  # a Marker is at least ~150 bytes: a count like this is garbage
+        raise CdrError(f"MarkerArray claims {count} markers in {len(r.body)} bytes")
+    return [_read_marker(r) for _ in range(count)]

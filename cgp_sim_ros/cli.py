@@ -42,7 +42,8 @@ def build_parser() -> argparse.ArgumentParser:
         kind = _bool if isinstance(spec.default, bool) else type(spec.default)
         parser.add_argument(spec.flag, dest=spec.name, type=kind, default=None, metavar=spec.name.upper(),
                             help=f"{spec.description} (default: {spec.default!r})")
-    parser.add_argument("--list-scenes", action="store_true", help="print the built-in scene names and exit")
+    parser.add_argument("--list-scenes", action="store_true",
+                        help="print the built-in scenes with what each shows, and exit")
     return parser
 
 
@@ -50,6 +51,22 @@ def _builtin_scenes() -> list[str]:
     from cgp_core.scene import builtin_scene_names
 
     return builtin_scene_names()
+
+
+def _scene_list(width: int = 100) -> str:
+    """Every built-in scene with its description, for ``--list-scenes``."""
+    import textwrap
+
+    from cgp_core.scene import scene_description
+
+    names = _builtin_scenes()
+    column = max(map(len, names)) + 2
+    blocks = []
+    for name in names:
+        text = scene_description(name) or "(no description)"
+        lines = textwrap.wrap(text, width - column) or [""]
+        blocks.append("\n".join([name.ljust(column) + lines[0]] + [" " * column + line for line in lines[1:]]))
+    return "\n".join(blocks)
 
 
 def _ros_argument_errors() -> tuple[type[Exception], ...]:
@@ -81,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
               "--help)", file=sys.stderr)
         return 2
     if args.list_scenes:
-        print("\n".join(_builtin_scenes()))
+        print(_scene_list())
         return 0
     overrides = [Parameter(spec.name, value=getattr(args, spec.name))
                  for spec in itf.PARAMETERS if spec.flag is not None and getattr(args, spec.name) is not None]

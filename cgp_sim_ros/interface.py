@@ -53,6 +53,10 @@ the fixed bodies, sent again whenever that set or a fixed body's pose changes.
 ``~/step_simulation``           StepSimulation: exactly ``steps`` ticks while paused, replies when done
 ``~/simulate_steps`` (action)   SimulateSteps: the same with feedback per tick and cancel
 ==============================  =====================================================================
+
+With ``foxglove:=true`` all of the above is also served over a Foxglove WebSocket (``foxglove_host``,
+``foxglove_port``): the same topics as channels, the same commands and services (see
+:mod:`cgp_sim_ros.foxglove_server`).
 """
 
 from __future__ import annotations
@@ -122,7 +126,8 @@ class ParameterSpec:
 
 
 PARAMETERS: tuple[ParameterSpec, ...] = (
-    ParameterSpec("scene", "default", "Scene file path, or a built-in scene name (default, boxes, ...).",
+    ParameterSpec("scene", "default", "Scene file path, or a built-in scene name (default, zero_g, pyramid, ...; "
+                  "`cgp-sim --list-scenes` lists them with what each shows).",
                   read_only=True, flag="--scene"),
     ParameterSpec("rate_hz", 60.0, "Ticks per second; the tick dt = 1/rate_hz of simulated time. Settable at "
                   "run time (the new dt applies from the next tick).", minimum=1.0, maximum=10000.0,
@@ -150,5 +155,14 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   flag="--max-torque"),
     ParameterSpec("markers_every", 1, "Publish ~/markers every N ticks (a level-of-detail option for huge "
                   "flocks; 1 = every tick).", minimum=1, maximum=10000, flag="--markers-every"),
+    ParameterSpec("foxglove", False, "Serve a live view to the Foxglove app over WebSocket (Foxglove SDK): "
+                  "every topic as the same CDR bytes, the simulation time, wrench commands and the services "
+                  "(cgp_sim_ros/foxglove_server.py).", read_only=True, flag="--foxglove"),
+    ParameterSpec("foxglove_host", "127.0.0.1", "Address the Foxglove WebSocket server listens on (127.0.0.1: "
+                  "this machine only; 0.0.0.0: every interface, and anyone who reaches it can push the bodies "
+                  "and reset the simulation).", read_only=True, flag="--foxglove-host"),
+    ParameterSpec("foxglove_port", 8765, "TCP port of the Foxglove WebSocket server (8765: the app's default); "
+                  "0 = a free port chosen by the OS, printed at start-up.", read_only=True, minimum=0,
+                  maximum=65535, flag="--foxglove-port"),
 )
 PARAMETER_BY_NAME = {p.name: p for p in PARAMETERS}

@@ -6,6 +6,8 @@ hand the same bytes to the recorder.  No physics here: every equation lives in `
 
 Threading: one single-threaded executor runs the timer, the subscriptions and the services, so they never
 interleave with a step and need no locks.  The bag is written on its own thread (:mod:`cgp_sim_ros.bag`).
+With ``foxglove:=true`` a Foxglove WebSocket server (:mod:`cgp_sim_ros.foxglove_server`) gets the same bytes in
+:meth:`SimNode._out`; what its clients send reaches the node through the same executor (a guard condition).
 The interface (topics, QoS, parameters) is defined and documented in :mod:`cgp_sim_ros.interface`.
 
 Bad input (what a node on a shared graph must expect):
@@ -30,6 +32,7 @@ from __future__ import annotations
 import collections
 import json
 import math
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -39,7 +42,7 @@ import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType, SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.node import Node
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
@@ -51,6 +54,7 @@ from cgp_core.wrenches import MAX_NAME_LENGTH, WrenchError, make_command
 from . import cdr
 from . import interface as itf
 from .messages import TickMessages
+from .progress import BatchProgress, ProgressLine
 from .sim_services import SimulationInterfaces
 from .tf import BodyTransforms
 
@@ -127,6 +131,10 @@ class SimNode(Node):
         self.finished = False
 
         self.recorder = None
+        #: the live view (parameter `foxglove`): a Foxglove WebSocket server fed in _out(), or None
+        self.foxglove = None
+        #: every command input: topic -> (message type, handler of its serialized bytes), for other transports
+        self.command_inputs: dict[str, tuple[type, object]] = {}
         self._make_publishers()
         self._make_subscriptions()
         self._make_services()
@@ -142,6 +150,9 @@ class SimNode(Node):
         # ROS 2's simulation_interfaces services and action (cgp_sim_ros.sim_services)
         self.sim = SimulationInterfaces(self)
 
+        if self.params["foxglove"]:
+            self._start_foxglove()  # after the per-entity endpoints exist: it makes a channel for each
+
         if self.bag_path is not None:
             self._start_recording(self.bag_path)
         self._publish_static_tf()
@@ -150,6 +161,11 @@ class SimNode(Node):
         self._window_start = time.monotonic()
         self._window_ticks = 0
         self._timer = self.create_timer(self._timer_period(), self._on_timer)
+        #: batch runs (realtime:=false) show their progress: one updating line on a terminal, log lines otherwise
+        self._progress = None
+        if not self.params["realtime"]:
+            self._progress = (ProgressLine(sys.stderr, log=lambda text: self.get_logger().info(f"progress: {text}")),
+                              BatchProgress(self.params["duration"]))
         # Reports on their own wall-clock timer, so rejected commands are summarized while paused too.
         self._report_timer = self.create_timer(REPORT_PERIOD_S, self._report)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -212,7 +228,8 @@ class SimNode(Node):
         - ``~/bodies/<body>/odom`` publishers, ``~/bodies/<body>/wrench`` subscriptions (movable bodies),
           ``~/flocks/<flock>/poses`` publishers: created for new entities, destroyed for gone ones, kept for the
           others (subscribers stay matched);
-        - the new topics are added to the recording (new channels mid-recording, counted in metadata.yaml);
+        - the new topics are added to the recording (new channels mid-recording, counted in metadata.yaml) and
+          to the Foxglove live view, if on (new channels; the command inputs follow ``command_inputs``);
         - the per-tick serializers (:class:`TickMessages`, TF) are rebuilt for the new body set;
         - pending wrench commands follow their body (index), those on deleted bodies are dropped;
         - the markers of gone entities are deleted (a MarkerArray of DELETE actions, published at once) and
@@ -235,7 +252,9 @@ class SimNode(Node):
                     publishers[name] = self.create_publisher(msg_type, topic.format(**{key: name}), itf.STATE_QOS)
                     added.append(publishers[name])
         for name in [n for n in self.sub_body_wrench if n not in movable]:
-            self.destroy_subscription(self.sub_body_wrench.pop(name))
+            subscription = self.sub_body_wrench.pop(name)
+            self.command_inputs.pop(subscription.topic_name, None)
+            self.destroy_subscription(subscription)
         for name in names:
             if name in movable and name not in self.sub_body_wrench:
                 self.sub_body_wrench[name] = self._command_subscription(
@@ -246,6 +265,8 @@ class SimNode(Node):
         self.pub_flock_poses = [self._flock_publishers[n] for n in flock_names]
         if self.recorder is not None and added:
             self.recorder.add_endpoints(added)
+        if self.foxglove is not None:
+            self.foxglove.follow_endpoints(added)
 
         # pending commands hold body indices of the model they were validated against
         new_index = {name: i for i, name in enumerate(names)}
@@ -302,6 +323,7 @@ class SimNode(Node):
                 handle(taken[0])
 
         subscription = self.create_subscription(msg_type, topic, take_all, itf.COMMAND_QOS, raw=True)
+        self.command_inputs[subscription.topic_name] = (msg_type, handle)
         return subscription
 
     def _make_services(self) -> None:
@@ -309,6 +331,14 @@ class SimNode(Node):
         self.create_service(SetBool, itf.SERVICE_PAUSE, self._on_pause)
         self.create_service(Trigger, itf.SERVICE_STEP, self._on_step)
         self.create_service(Trigger, itf.SERVICE_CLEAR_WRENCHES, self._on_clear_wrenches)
+
+    def _start_foxglove(self) -> None:
+        from .foxglove_server import FoxgloveServer, FoxgloveServerError
+
+        try:
+            self.foxglove = FoxgloveServer(self, host=self.params["foxglove_host"], port=self.params["foxglove_port"])
+        except FoxgloveServerError as exc:
+            raise ConfigError(f"foxglove: {exc}") from None
 
     def _start_recording(self, directory: Path) -> None:
         from .bag import BagExistsError
@@ -354,9 +384,13 @@ class SimNode(Node):
         self._tick_wall_times.append(time.perf_counter() - start)
         self._window_ticks += 1
         self._periodic_reports()
+        if self._progress is not None and self._progress[0].due():
+            self._show_progress()
         duration = self.params["duration"]
         if duration > 0.0 and self.world.time_ns >= round(duration * 1e9) and not self.finished:
             self.finished = True
+            if self._progress is not None:
+                self._show_progress(final=True)
             self.get_logger().info(f"duration {duration:g} s of simulated time reached after {self.world.ticks} "
                                    "ticks; shutting down")
 
@@ -376,11 +410,22 @@ class SimNode(Node):
             self._out(self.pub_markers, m.markers(t, delete_all_first=self._delete_all_markers), t)
             self._delete_all_markers = False
 
+    def _show_progress(self, final: bool = False) -> None:
+        line, status = self._progress
+        text = status.status(self.world.time, self.world.ticks,
+                             self.recorder.size_bytes() if self.recorder is not None else None, final=final)
+        if final:
+            line.finish(text)
+        else:
+            line.update(text)
+
     def _out(self, publisher, data: bytes, stamp_ns: int) -> None:
-        """Publish serialized bytes and record the very same bytes."""
+        """Publish serialized bytes and record (and show in Foxglove) the very same bytes."""
         publisher.publish(data)
         if self.recorder is not None:
             self.recorder.write(publisher.topic_name, data, stamp_ns)
+        if self.foxglove is not None:
+            self.foxglove.publish(publisher, data, stamp_ns)
 
     def _periodic_reports(self) -> None:
         now = time.monotonic()
@@ -504,16 +549,14 @@ class SimNode(Node):
     def _record_received(self, topic: str, data: bytes) -> None:
         if self.recorder is not None:
             self.recorder.write(topic, data, self.world.time_ns)
+        if self.foxglove is not None:
+            self.foxglove.received(topic, data, self.world.time_ns)
 
     def _event(self, payload: dict) -> None:
         """Publish (and so record) one line on ~/events: the audit trail of what was done to the world."""
         payload = {"time": round(self.world.time, 9), **payload}
         msg = String(data=json.dumps(payload, separators=(",", ":")))
-        self.pub_events.publish(msg)
-        if self.recorder is not None:
-            from rclpy.serialization import serialize_message
-
-            self.recorder.write(self.pub_events.topic_name, serialize_message(msg), self.world.time_ns)
+        self._out(self.pub_events, serialize_message(msg), self.world.time_ns)
 
     # ---- services ----------------------------------------------------------------------------------------
 
@@ -525,14 +568,14 @@ class SimNode(Node):
         self._publish_static_tf()
         self._event({"event": "service", "name": "reset"})
         response.success = True
-        response.message = f"reset to the initial state of {self.world.scene.source} at t = {self.world.time:.6f} s"
+        response.message = f"reset to the initial state of {self.world.scene.source} at t = {self.world.time:.9f} s"
         return response
 
     def _on_pause(self, request, response):
         self.sim.set_paused(bool(request.data))
         self._event({"event": "service", "name": "pause", "data": self.paused})
         response.success = True
-        response.message = f"{'paused' if self.paused else 'running'} at t = {self.world.time:.6f} s"
+        response.message = f"{'paused' if self.paused else 'running'} at t = {self.world.time:.9f} s"
         return response
 
     def _on_step(self, request, response):
@@ -552,12 +595,12 @@ class SimNode(Node):
         return response
 
     def _on_clear_wrenches(self, request, response):
-        count = self.world.wrenches.active + len(self._pending)
+        active, pending = self.world.wrenches.active, len(self._pending)
         self.world.clear_wrenches()
         self._pending.clear()
-        self._event({"event": "service", "name": "clear_wrenches", "cleared": count})
+        self._event({"event": "service", "name": "clear_wrenches", "cleared": active + pending})
         response.success = True
-        response.message = f"cleared {count} wrench(es)"
+        response.message = f"cleared {active} active wrench(es) and {pending} pending command(s)"
         return response
 
     # ---- parameters at run time --------------------------------------------------------------------------
@@ -585,7 +628,12 @@ class SimNode(Node):
     # ---- shutdown ----------------------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Finish the recording (summary, metadata.yaml); safe to call twice."""
+        """Stop the Foxglove server, finish the recording (summary, metadata.yaml) and the progress line; safe to
+        call twice."""
+        if self.foxglove is not None:
+            self.foxglove.close()
+        if self._progress is not None:
+            self._progress[0].finish()
         if self.recorder is not None:
             self.recorder.close()
 

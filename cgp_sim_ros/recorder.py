@@ -55,6 +55,16 @@ class Recorder:
             self._error_reported = True
             self.node.get_logger().error(f"recording failed: {self.writer.error}")
 
+    def size_bytes(self) -> int:
+        """Bytes of the bag's files on disk so far."""
+        total = 0
+        for path in self.writer.files:
+            try:
+                total += path.stat().st_size
+            except OSError:
+                pass
+        return total
+
     def close(self) -> None:
         self.writer.close()
         self.report_errors()

@@ -41,6 +41,7 @@ __all__ = [
     "share_directory",
     "message_definition",
     "message_dependencies",
+    "service_definitions",
     "type_hash",
     "qos_profile_dict",
     "offered_qos_profiles_yaml",
@@ -117,24 +118,51 @@ def message_dependencies(text: str, package: str) -> list[str]:
     return sorted(found)
 
 
-@functools.lru_cache(maxsize=None)
-def message_definition(type_name: str) -> str:
-    """The ``ros2msg`` concatenated definition of ``type_name`` (rosbag2's schema data)."""
+def _with_dependencies(text: str, package: str, what: str) -> str:
+    """``text`` (a ``.msg`` text of ``package``) followed by its dependencies, rosbag2's way (module docstring)."""
     emitted: set[str] = set()
 
-    def append(name: str, depth: int) -> str:
+    def append(text: str, package: str, depth: int) -> str:
         if depth <= 0:
-            raise RecursionError(f"reached the maximum depth resolving the definition of {type_name}")
-        text = _msg_text(name)
+            raise RecursionError(f"reached the maximum depth resolving the definition of {what}")
         parts = [text]
-        for dependency in message_dependencies(text, normalize_type_name(name)[0]):
+        for dependency in message_dependencies(text, package):
             if dependency not in emitted:
                 emitted.add(dependency)
                 parts.append(f"\n{SEPARATOR}\nMSG: {dependency}\n")
-                parts.append(append(dependency, depth - 1))
+                parts.append(append(_msg_text(dependency), normalize_type_name(dependency)[0], depth - 1))
         return "".join(parts)
 
-    return append(type_name, _MAX_DEPTH)
+    return append(text, package, _MAX_DEPTH)
+
+
+@functools.lru_cache(maxsize=None)
+def message_definition(type_name: str) -> str:
+    """The ``ros2msg`` concatenated definition of ``type_name`` (rosbag2's schema data)."""
+    return _with_dependencies(_msg_text(type_name), normalize_type_name(type_name)[0], type_name)
+
+
+_SRV_SEPARATOR = re.compile(r"^---[ \t]*(?:\r?\n|$)", re.MULTILINE)
+
+
+@functools.lru_cache(maxsize=None)
+def service_definitions(type_name: str) -> tuple[str, str]:
+    """The ``ros2msg`` concatenated definitions of a service's request and response (``pkg/srv/Type``).
+
+    The ``.srv`` file is split at its ``---`` line and each part gets its dependencies appended as in
+    :func:`message_definition` — what foxglove_bridge advertises as the ``pkg/srv/Type_Request`` and
+    ``_Response`` schemas (rosbag2 records no services, so there is no rosbag2 form to follow)."""
+    package, kind, name = normalize_type_name(type_name)
+    if kind != "srv":
+        raise ValueError(f"{type_name!r} is not a service type (expected 'pkg/srv/Type')")
+    with open(_interface_file(type_name, ".srv"), encoding="utf-8", newline="") as f:
+        text = f.read()
+    parts = _SRV_SEPARATOR.split(text, maxsplit=1)
+    if len(parts) != 2:
+        raise ValueError(f"{type_name}: its .srv file has no '---' line between request and response")
+    request, response = parts
+    return (_with_dependencies(request, package, f"{type_name}_Request"),
+            _with_dependencies(response, package, f"{type_name}_Response"))
 
 
 @functools.lru_cache(maxsize=None)

@@ -29,6 +29,7 @@ class Probe:
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
         self.received: dict[str, Received] = {}
+        self.subscriptions: dict = {}
         self._clients: dict = {}
 
     def close(self) -> None:
@@ -54,9 +55,20 @@ class Probe:
             box.messages.append(msg)
             box.times.append(time.monotonic())
 
-        self.node.create_subscription(msg_type, topic, callback, qos, raw=raw)
+        self.subscriptions[topic] = self.node.create_subscription(msg_type, topic, callback, qos, raw=raw)
         self.received[topic] = box
         return box
+
+    def wait_until_matched(self, *topics: str, timeout: float = 30.0) -> None:
+        """Wait until this probe's subscriptions to ``topics`` are *matched* with a publisher: DDS will deliver
+        every sample published from now on (reliable QoS).  Seeing the publisher in the graph
+        (:meth:`wait_for_publisher`) is not enough: graph discovery and reader-writer matching are separate
+        protocols and either can come first.  Start the node paused, wait for this, then unpause, and the probe
+        sees the run from its first tick, however long discovery took."""
+        for topic in topics:
+            subscription = self.subscriptions[topic]
+            self.spin_until(lambda: subscription.get_publisher_count() > 0, timeout,
+                            f"the subscription to {topic} to match a publisher")
 
     def wait_for_publisher(self, topic: str, timeout: float = 20.0) -> None:
         self.spin_until(lambda: self.node.count_publishers(topic) > 0, timeout, f"a publisher on {topic}")
@@ -70,6 +82,20 @@ class Probe:
     def publisher(self, topic: str, msg_type, qos: QoSProfile = RELIABLE_DEEP):
         pub = self.node.create_publisher(msg_type, topic, qos)
         return pub
+
+    def publish_acked(self, publisher, msg, timeout: float = 20.0) -> None:
+        """Publish ``msg`` and wait until every matched reader has acknowledged it, i.e. it sits in the node's
+        reader history.  A service request sent after this is handled after the message: rclpy's executor
+        takes the ready subscriptions of a wait before its ready services.  (Without it, a command published
+        just before a ``~/step`` may reach the node only after the step: a race, not a bug.)"""
+        from rclpy.duration import Duration
+
+        publisher.publish(msg)
+        end = time.monotonic() + timeout
+        while not publisher.wait_for_all_acked(Duration(seconds=0.05)):
+            if time.monotonic() > end:
+                raise AssertionError(f"the message on {publisher.topic_name} was not acknowledged in {timeout} s")
+            self.executor.spin_once(timeout_sec=0.0)
 
     def wait_for_subscriber(self, publisher, timeout: float = 20.0) -> None:
         self.spin_until(lambda: publisher.get_subscription_count() > 0, timeout,

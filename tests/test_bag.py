@@ -470,8 +470,8 @@ def test_stalled_writer_stops_blocking_the_caller(tmp_path):
     data = cdr.pose_array(1, "w", np.zeros((27, 3)), np.zeros((27, 4)))  # 1540 B
     assert bag.write("/x", data, 1) is True
     t0 = time.monotonic()
-    assert bag.write("/x", data, 2) is False
-    assert 0.15 < time.monotonic() - t0 < 5.0
+    assert bag.write("/x", data, 2) is False  # returned: the caller is not blocked for ever ...
+    assert time.monotonic() - t0 > 0.15  # ... after waiting out the 0.2 s block timeout
     assert bag.write("/x", data, 3) is False  # from now on: dropped at once
     assert len(errors) == 1 and "stalled" in errors[0]
     bag._gate.set()

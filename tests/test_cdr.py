@@ -398,6 +398,57 @@ def test_marker_array_rejects_non_cdr_le_elements():
         cdr.marker_array([b"\x00\x00\x00\x00" + bytes(100)])
 
 
+# ------------------------------------------------------------------------------- reading MarkerArrays
+def _assert_decoded(decoded, msg):
+    """A cdr.MarkerData equals the rclpy Marker field by field."""
+    stamp = msg.header.stamp
+    assert decoded.stamp_ns == stamp.sec * 1_000_000_000 + stamp.nanosec
+    assert (decoded.frame_id, decoded.ns, decoded.id, decoded.type, decoded.action) == (
+        msg.header.frame_id, msg.ns, msg.id, msg.type, msg.action)
+    p, q = msg.pose.position, msg.pose.orientation
+    assert decoded.position.tolist() == [p.x, p.y, p.z]
+    assert decoded.orientation.tolist() == [q.x, q.y, q.z, q.w]
+    assert decoded.scale.tolist() == [msg.scale.x, msg.scale.y, msg.scale.z]
+    f32 = np.float32  # colours are float32 on the wire; the rclpy message holds what it was given
+    assert decoded.color.tolist() == [f32(msg.color.r), f32(msg.color.g), f32(msg.color.b), f32(msg.color.a)]
+    assert decoded.lifetime_ns == msg.lifetime.sec * 1_000_000_000 + msg.lifetime.nanosec
+    assert decoded.frame_locked == msg.frame_locked
+    assert decoded.points.tolist() == [[pt.x, pt.y, pt.z] for pt in msg.points]
+    assert decoded.colors.tolist() == [[f32(c.r), f32(c.g), f32(c.b), f32(c.a)] for c in msg.colors]
+    assert (decoded.text, decoded.mesh_resource) == (msg.text, msg.mesh_resource)
+
+
+@pytest.mark.parametrize("count", (0, 1, 2, 9, len(MARKER_CASES)))
+@pytest.mark.parametrize("source", ("cdr", "rclpy"))
+def test_read_marker_array_decodes_what_rclpy_serialized(count, source):
+    """The renderer's decoder (no rclpy) reads every field of every marker kind, at both alignment phases,
+    from our bytes and from rclpy's."""
+    rng = np.random.default_rng(100 + count)
+    picks = rng.permutation(len(MARKER_CASES))[:count] if count == len(MARKER_CASES) else \
+        rng.choice(len(MARKER_CASES), size=count)
+    kws = [dict(MARKER_CASES[i], frame_id=str(rng.choice(["", "w", "wor", "world"])),
+                stamp_ns=STAMPS[i % len(STAMPS)]) for i in picks]
+    slow = MarkerArray(markers=[slow_marker(**kw) for kw in kws])
+    data = cdr.marker_array([cdr.marker(**kw) for kw in kws]) if source == "cdr" else serialize_message(slow)
+    decoded = cdr.read_marker_array(data)
+    assert len(decoded) == count
+    for got, msg in zip(decoded, slow.markers):
+        _assert_decoded(got, msg)
+
+
+@pytest.mark.parametrize("bad, match", [
+    (b"\x00\x00\x00\x00" + bytes(8), "not little-endian plain CDR"),
+    (b"\x00\x01", "too short"),
+    (cdr.ENCAPSULATION + struct.pack("<I", 1_000_000) + bytes(200), "claims 1000000 markers"),
+])
+def test_read_marker_array_rejects_what_is_not_one(bad, match):
+    with pytest.raises(cdr.CdrError, match=match):
+        cdr.read_marker_array(bad)
+    whole = cdr.marker_array([cdr.marker(marker_type=cdr.SPHERE_LIST, points=np.ones((10, 3)))])
+    with pytest.raises(cdr.CdrError, match="truncated"):
+        cdr.read_marker_array(whole[:-40])
+
+
 # ---------------------------------------------------------------------------------------- TFMessage
 def slow_tf_message(stamp_ns, frame_id, children, translations, rotations):
     from geometry_msgs.msg import TransformStamped

@@ -7,12 +7,15 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from geometry_msgs.msg import PoseArray
 from rclpy.serialization import deserialize_message
 from visualization_msgs.msg import Marker, MarkerArray
+from ros_probe import pause
 
 VENV = Path(sys.prefix)
 
@@ -22,21 +25,20 @@ def _stamp(msg) -> float:
 
 
 def test_default_scene_is_live_on_the_graph(start_node, probe):
-    from ros_probe import pause
-
-    # started paused: the probe must see the first second (the ball's fall), however long discovery takes
+    # Started paused and resumed only once every subscription of the probe is matched: the probe then sees
+    # the run from its first tick, however long discovery takes (0.1 s or 3 s).
     node = start_node("--scene", "default", "--start-paused", "true")
     bodies = probe.subscribe("/cgp_sim/bodies/poses", PoseArray)
     # The big messages are taken raw and decoded afterwards: decoding 9,000 marker points into Python objects
     # per tick would make this observer, not the node, the bottleneck.
     fish = probe.subscribe("/cgp_sim/flocks/fish/poses", PoseArray, raw=True)
     markers = probe.subscribe("/cgp_sim/markers", MarkerArray, raw=True)
-    for topic in ("/cgp_sim/bodies/poses", "/cgp_sim/flocks/fish/poses", "/cgp_sim/markers"):
-        probe.wait_for_publisher(topic, timeout=30)
+    probe.wait_until_matched("/cgp_sim/bodies/poses", "/cgp_sim/flocks/fish/poses", "/cgp_sim/markers")
+    resumed = time.monotonic()  # before the request: the node cannot start ticking earlier than this
     pause(probe, False)
+    # 2 s of simulated time: the ball's fall (0.87 s) and its landing
+    probe.wait_for_messages("/cgp_sim/bodies/poses", 120, timeout=60)
     probe.wait_for_messages("/cgp_sim/markers", 1, timeout=30)
-    # about 1.5 s of wall time worth of ticks
-    probe.wait_for_messages("/cgp_sim/bodies/poses", 90, timeout=30)
     assert node.alive(), node.log()
 
     types = probe.topic_types()
@@ -48,22 +50,22 @@ def test_default_scene_is_live_on_the_graph(start_node, probe):
     assert all(m.header.frame_id == "world" for m in msgs)
     assert all(len(m.poses) == 5 for m in msgs)  # the default scene's bodies, in scene order
 
-    # The configured rate: simulated stamps advance by exactly dt = 1/60 s per message (none skipped when
-    # the subscriber keeps up), and the wall-clock arrival rate is about 60 Hz (a loose bound: this is a
-    # correctness check that the node is paced, not a benchmark).
+    # The configured rate: simulated stamps advance by exactly dt = 1/60 s per message, from the first tick.
     stamps = np.array([_stamp(m) for m in msgs])
-    steps = np.diff(stamps)
-    assert np.allclose(np.median(steps), 1 / 60, atol=1e-6)
-    wall = np.array(bodies.times)
-    rate = (len(wall) - 1) / (wall[-1] - wall[0])
-    assert 30.0 < rate < 90.0, f"received at {rate:.1f} Hz, configured 60 Hz"
+    assert stamps[0] == pytest.approx(1 / 60, abs=1e-9)
+    assert np.allclose(np.median(np.diff(stamps)), 1 / 60, atol=1e-6)
+    # Paced to the wall clock (realtime, the default): simulated time never runs ahead of the wall time since
+    # the resume (a one-sided bound: a busy machine only makes the node slower, never faster; unpaced, these
+    # 2 s of simulated time take a few hundredths of a second).  How close to 60 Hz it keeps is a benchmark
+    # (benchmarks/README.md), never a pass/fail figure.
+    assert stamps[-1] <= bodies.times[-1] - resumed + 0.5, (stamps[-1], bodies.times[-1] - resumed)
 
     # Bodies fall as the physics says: the ball (body 0, dropped from z = 4 m at rest) follows
     # z = 4 − g t²/2 until it reaches the ground at t = sqrt(2 (4 − 0.3) / g) ≈ 0.87 s.
     ball = np.array([[m.poses[0].position.z for m in msgs]]).ravel()
     t = stamps
     free = t < 0.8
-    assert free.sum() >= 5, "the probe joined too late to see the ball fall"
+    assert free.sum() >= 40
     expected = 4.0 - 0.5 * 9.81 * t[free] ** 2
     assert np.allclose(ball[free], expected, atol=0.03), np.c_[t[free], ball[free], expected]
     # ... and then lands and stays above the ground

@@ -8,6 +8,7 @@ eval / exec / pickle anywhere in the package sources.
 from __future__ import annotations
 
 import ast
+import math
 import os
 import sys
 from pathlib import Path
@@ -16,6 +17,7 @@ import pytest
 import yaml
 from geometry_msgs.msg import PoseArray
 
+from cgp_core import scene
 from cgp_core.scene import MAX_SCENE_BYTES, SceneError, builtin_scene_names, load_scene, parse_scene
 
 REPO = Path(__file__).resolve().parents[1]
@@ -47,8 +49,9 @@ BAD_SCENES = {
     # wrong types
     "radius a string": ("bodies: [{name: a, shape: sphere, radius: big, mass: 1}]", "bodies[0] (a).radius",
                         "must be a number, got a string 'big'"),
-    "exponent without a dot": ("bodies: [{name: a, shape: sphere, radius: 1, density: 1e3}]",
-                               "bodies[0] (a).density", "write 1.0e3"),
+    "quoted number": ("bodies: [{name: a, shape: sphere, radius: 1, density: '1e3'}]",
+                      "bodies[0] (a).density", "got a string '1e3' (a number in quotes is text in YAML: write it "
+                      "without the quotes)"),
     "mass a list": ("bodies: [{name: a, shape: sphere, radius: 1, mass: [1]}]", "bodies[0] (a).mass",
                     "must be a number, got a list"),
     "fixed a string": ("bodies: [{name: a, shape: sphere, radius: 1, mass: 1, fixed: 'yes'}]",
@@ -171,6 +174,66 @@ def test_huge_scenes_give_short_errors():
     error = scene_error(f"bodies: [{{name: p, shape: particles, particles: {bad_rows}}}]")
     assert len(error.problems) == 2000 and str(error).count("\n") == 50
     assert str(error).endswith("... and 1950 more problems")
+
+
+# ---- numbers as users write them (YAML 1.2 floats) -------------------------------------------------------
+
+
+@pytest.mark.parametrize("text, value", [
+    ("1e3", 1000.0), ("1.0e3", 1000.0), ("1E3", 1000.0), ("2.5e-1", 0.25), ("+1.5", 1.5), (".5", 0.5),
+    ("-.5", -0.5), ("1.", 1.0), ("1e+3", 1000.0),
+    # YAML 1.1 forms read as before
+    ("1.0e+3", 1000.0), ("1_000.5", 1000.5), ("7", 7),
+])
+def test_yaml_12_floats_are_numbers(text, value):
+    """PyYAML resolves by YAML 1.1, where `1e3` and `1.0e3` are text; the scene loader reads YAML 1.2's floats
+    as numbers: they reach the body's mass (and its inertia) as the number written."""
+    spec = parse_scene(f"bodies: [{{name: a, shape: sphere, radius: 0.5, mass: 2, "
+                       f"linear_velocity: [{text}, 0, 0]}}]").bodies[0]
+    assert spec.linear_velocity[0] == value
+    data = yaml.load(f"v: {text}", Loader=scene._SceneLoader)["v"]
+    assert type(data) is type(value) and data == value
+
+
+def test_masses_and_vectors_written_with_exponents():
+    """The issue's cases: `mass: 1e3`, `mass: 1.0e3` and `-2E-4` are the numbers they say (the mass reaches
+    the inertia: a solid sphere's 2/5 m r²)."""
+    bodies = parse_scene("bodies: [{name: a, shape: sphere, radius: 0.5, mass: 1e3},\n"
+                         "         {name: b, shape: sphere, radius: 0.5, mass: 1.0e3}]\n"
+                         "world: {gravity: [0, -2E-4, -9.81e0]}").bodies
+    for body in bodies:
+        assert body.mass == 1000.0 and body.inertia_body[0, 0] == pytest.approx(0.4 * 1000.0 * 0.25)
+    assert list(parse_scene("world: {gravity: [0, -2E-4, -9.81e0]}").world.gravity) == [0.0, -2e-4, -9.81]
+
+
+@pytest.mark.parametrize("text", ["'1e3'", '"1.0e3"', "1e", "e3", "1.2.3", "1e3.5", "0x1p3", "1e3e3", "inf",
+                                  "nan", "1 e3", "1_e3"])
+def test_what_yaml_12_does_not_call_a_float_stays_text(text):
+    """Quoted scalars and anything outside YAML 1.2's float grammar stay strings (and a number key rejects
+    them, naming what was written)."""
+    data = yaml.load(f"v: {text}", Loader=scene._SceneLoader)["v"]
+    assert isinstance(data, str)
+    message = str(scene_error(f"bodies: [{{name: a, shape: sphere, radius: 0.5, mass: {text}}}]"))
+    assert "bodies[0] (a).mass: must be a number, got a string" in message
+    quoted = text[0] in "'\""
+    assert ("a number in quotes is text in YAML" in message) == quoted, message
+
+
+@pytest.mark.parametrize("text", [".inf", "-.inf", "+.inf", ".Inf", ".INF", ".nan", ".NaN", ".NAN"])
+def test_yaml_infinities_and_nans_are_still_read_as_floats_and_refused(text):
+    data = yaml.load(f"v: {text}", Loader=scene._SceneLoader)["v"]
+    assert isinstance(data, float) and not math.isfinite(data)
+    assert "bodies[0] (a).mass: must be finite" in str(
+        scene_error(f"bodies: [{{name: a, shape: sphere, radius: 0.5, mass: {text}}}]"))
+
+
+def test_the_yaml_12_floats_do_not_change_pyyaml_itself():
+    """The resolver is the scene loader's own: yaml.SafeLoader (used by other code in the process) is as
+    before, and the scene loader still rejects duplicate keys and Python tags."""
+    assert yaml.safe_load("v: 1e3")["v"] == "1e3"
+    assert "duplicate key 'mass'" in str(scene_error("bodies: [{name: a, shape: sphere, radius: 1, mass: 1e3, "
+                                                     "mass: 2e3}]"))
+    assert "could not determine a constructor" in str(scene_error("mass: !!python/object/apply:os.getcwd []"))
 
 
 def test_scene_files_that_cannot_be_read(tmp_path):

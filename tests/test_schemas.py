@@ -269,3 +269,52 @@ def test_dump_yaml_round_trips(value):
     if isinstance(value, dict) and "nested" in value:
         value = {"nested": {**value["nested"], "empty_map": None}}  # yaml-cpp writes an empty map as ~
     assert loaded == value
+
+
+# ---------------------------------------------------------------------------------------------- services
+SERVICES = ("std_srvs/srv/Trigger", "std_srvs/srv/SetBool", "rcl_interfaces/srv/SetParameters")
+
+
+@pytest.mark.parametrize("srv", SERVICES)
+def test_service_definitions_are_the_srv_halves_with_their_dependencies(srv):
+    """What the Foxglove server advertises for a service: each half of the .srv file, then the types it uses in
+    rosbag2's order — rebuilt here from the service's installed type description (its Request / Response
+    fields' nested types), and parsed by rosbags to the fields rclpy's generated classes have."""
+    import importlib
+
+    request, response = schemas.service_definitions(srv)
+    package, _, name = srv.split("/")
+    srv_file = (SHARE / package / "srv" / f"{name}.srv").read_text()
+    sep = "\n" + "=" * 80 + "\n"
+    request_root, response_root = request.split(sep)[0], response.split(sep)[0]
+    assert request_root + "---\n" + response_root == srv_file
+
+    description = json.loads((SHARE / package / "srv" / f"{name}.json").read_text())["type_description_msg"]
+    by_name = {d["type_name"]: d for d in description["referenced_type_descriptions"]}
+    srv_class = getattr(importlib.import_module(f"{package}.srv"), name)
+    def msg_text(short: str) -> str:
+        package, name = short.split("/")
+        return (SHARE / package / "msg" / f"{name}.msg").read_bytes().decode("utf-8")
+
+    for part, text, root in (("Request", request, request_root), ("Response", response, response_root)):
+        fields = by_name[f"{srv}_{part}"]["fields"]
+        nested = sorted({_short(f["type"]["nested_type_name"]) for f in fields if f["type"]["nested_type_name"]})
+        seen: set[str] = set()
+
+        def walk(deps) -> str:
+            out = ""
+            for dep in deps:  # sorted, depth first, each type once
+                if dep not in seen:
+                    seen.add(dep)
+                    out += sep + "MSG: " + dep + "\n" + msg_text(dep) + walk(DEPENDENCIES[dep])
+            return out
+
+        assert text == root + walk(nested), part
+        msg_name = f"{package}/msg/{name}_{part}"  # rosbags parses messages
+        parsed = get_types_from_msg(text, msg_name)[msg_name]
+        assert [f[0] for f in parsed[1]] == list(getattr(srv_class, part).get_fields_and_field_types()), part
+
+
+def test_service_definitions_refuse_a_message_type():
+    with pytest.raises(ValueError, match="not a service type"):
+        schemas.service_definitions("std_msgs/msg/String")

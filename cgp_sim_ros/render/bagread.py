@@ -1,0 +1,132 @@
+"""The marker stream of a bag, read with the ``mcap`` library alone (no rclpy, no rosbag2).
+
+A bag is a rosbag2 directory (``metadata.yaml`` + ``<name>_0.mcap``, ``<name>_1.mcap``, ... as the node writes
+it) or one ``.mcap`` file.  The files of a directory are read in the order ``metadata.yaml`` lists them (or,
+without it, by their split index), each in log-time order; a file without summary (a recording killed by
+SIGKILL) is read sequentially by mcap's fallback reader.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+from mcap.reader import make_reader
+
+MARKER_ARRAY_SCHEMA = "visualization_msgs/msg/MarkerArray"
+#: the topic the node publishes its markers on (``~/markers`` of a node named cgp_sim)
+DEFAULT_MARKER_TOPIC = "/cgp_sim/markers"
+_SPLIT_INDEX = re.compile(r"_(\d+)\.mcap$")
+
+
+class BagError(ValueError):
+    """A bag that cannot be rendered (missing, not MCAP, no markers); the message says which and why."""
+
+
+@dataclass
+class MarkerStream:
+    """The marker topic of a bag: where, and its time span (log time, integer ns)."""
+
+    files: list[Path]
+    topic: str
+    message_count: int
+    start_ns: int  # log time of the bag's first message (any topic)
+    end_ns: int  # log time of its last message
+
+    def messages(self, start_ns: int | None = None, end_ns: int | None = None) -> Iterator[tuple[int, bytes]]:
+        """``(log_time_ns, CDR bytes)`` of the marker messages logged in [start_ns, end_ns] (default: all), in
+        log-time order (mcap seeks to the chunks that overlap the span)."""
+        for path in self.files:
+            with open(path, "rb") as stream:
+                reader = make_reader(stream)
+                for _schema, _channel, message in reader.iter_messages(
+                        topics=[self.topic], start_time=start_ns, end_time=None if end_ns is None else end_ns + 1,
+                        log_time_order=True):
+                    yield message.log_time, message.data
+
+
+def bag_files(bag: str | Path) -> list[Path]:
+    """The ``.mcap`` files of a bag directory (in recording order), or ``[bag]`` for a single file."""
+    path = Path(bag).expanduser()
+    if path.is_file():
+        return [path]
+    if not path.is_dir():
+        raise BagError(f"{bag}: no such bag (expected a rosbag2 directory or an .mcap file)")
+    metadata = path / "metadata.yaml"
+    if metadata.is_file():
+        try:
+            info = yaml.safe_load(metadata.read_text())["rosbag2_bagfile_information"]
+            listed = [path / name for name in info.get("relative_file_paths", [])]
+        except (yaml.YAMLError, KeyError, TypeError, OSError) as exc:
+            raise BagError(f"{metadata}: not a rosbag2 metadata file ({exc})") from None
+        if info.get("storage_identifier", "mcap") != "mcap":
+            raise BagError(f"{bag}: storage {info.get('storage_identifier')!r}; only MCAP bags can be rendered")
+        files = [p for p in listed if p.is_file()]
+        if files:
+            return files
+    files = sorted(path.glob("*.mcap"), key=lambda p: (int(m.group(1)) if (m := _SPLIT_INDEX.search(p.name))
+                                                       else -1, p.name))
+    if not files:
+        raise BagError(f"{bag}: no .mcap file in this directory")
+    return files
+
+
+def open_marker_stream(bag: str | Path, topic: str | None = None) -> MarkerStream:
+    """Find the MarkerArray topic of a bag (``topic``, or the only MarkerArray topic, preferring
+    :data:`DEFAULT_MARKER_TOPIC`) and the bag's time span (from the files' summaries; a file without one is
+    scanned)."""
+    files = bag_files(bag)
+    candidates: dict[str, int] = {}
+    start = end = None
+    for path in files:
+        try:
+            with open(path, "rb") as stream:
+                summary = make_reader(stream).get_summary()
+                if summary is None or summary.statistics is None:  # a killed recording: scan it
+                    counts, span = _scan(path)
+                else:
+                    stats = summary.statistics
+                    counts = {}
+                    for channel_id, channel in summary.channels.items():
+                        schema = summary.schemas.get(channel.schema_id)
+                        if schema is not None and schema.name == MARKER_ARRAY_SCHEMA:
+                            counts[channel.topic] = stats.channel_message_counts.get(channel_id, 0)
+                    span = (stats.message_start_time, stats.message_end_time) if stats.message_count else None
+        except Exception as exc:  # mcap raises its own exception types (and struct / EOF errors) on bad files
+            raise BagError(f"{path}: not a readable MCAP file ({type(exc).__name__}: {exc})") from None
+        for name, count in counts.items():
+            candidates[name] = candidates.get(name, 0) + count
+        if span is not None:
+            start = span[0] if start is None else min(start, span[0])
+            end = span[1] if end is None else max(end, span[1])
+    if topic is None:
+        with_messages = {t: c for t, c in candidates.items() if c}
+        if DEFAULT_MARKER_TOPIC in with_messages:
+            topic = DEFAULT_MARKER_TOPIC
+        elif len(with_messages) == 1:
+            topic = next(iter(with_messages))
+        elif not with_messages:
+            raise BagError(f"{bag}: no {MARKER_ARRAY_SCHEMA} messages in this bag (nothing to draw)")
+        else:
+            raise BagError(f"{bag}: several MarkerArray topics ({', '.join(sorted(with_messages))}); choose one "
+                           "with --topic")
+    elif not candidates.get(topic):
+        raise BagError(f"{bag}: no {MARKER_ARRAY_SCHEMA} messages on {topic} (MarkerArray topics: "
+                       f"{', '.join(sorted(candidates)) or 'none'})")
+    return MarkerStream(files, topic, candidates[topic], start, end)
+
+
+def _scan(path: Path) -> tuple[dict[str, int], tuple[int, int] | None]:
+    """Marker topic counts and time span of a file without summary (sequential read)."""
+    counts: dict[str, int] = {}
+    start = end = None
+    with open(path, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            start = message.log_time if start is None else min(start, message.log_time)
+            end = message.log_time if end is None else max(end, message.log_time)
+            if schema is not None and schema.name == MARKER_ARRAY_SCHEMA:
+                counts[channel.topic] = counts.get(channel.topic, 0) + 1
+    return counts, (None if start is None else (start, end))

@@ -1,0 +1,224 @@
+"""From markers to what the rasterizer draws: triangles and spheres in the world frame.
+
+:class:`MarkerSet` keeps the markers a viewer would show at a given time (RViz's rules: a marker is keyed by
+``(ns, id)``; ADD/MODIFY replace it, DELETE removes it, DELETEALL removes every marker — or those of its
+``ns`` when given, as ``visualization_msgs/Marker`` documents).  Every marker is taken to be in one fixed
+frame (the node publishes everything in ``world``); ``lifetime`` is not applied (the node's markers never
+expire).
+
+:func:`primitives` turns the set into :class:`Primitives`:
+
+- SPHERE, SPHERE_LIST → spheres (drawn as exact shaded spheres by the rasterizer, not tessellated);
+- CUBE, CUBE_LIST → 12 triangles per box; a face larger than :data:`TILE` m is cut into a checkerboard of
+  TILE-sized tiles (the ground: it shows scale and motion, and near-plane clipping then loses one tile, not
+  the whole face);
+- CYLINDER → :data:`CYLINDER_SEGMENTS` side quads and two caps (the node's capsules are a CYLINDER and two
+  SPHEREs);
+- TRIANGLE_LIST → its triangles (the fish), coloured per triangle, per vertex (the first vertex's) or by the
+  marker colour.
+
+Other types (arrows, lines, points, text, meshes) are not drawn; :attr:`Primitives.skipped` names them.
+A marker with alpha 0 is invisible; other alphas are drawn opaque.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cgp_core.rotation import quat_to_matrix
+
+from .. import cdr
+
+#: the namespace of the node's ground marker: drawn (as a checkerboard), but not framed by the default camera
+BACKDROP_NS = "ground"
+#: edge [m] of the checkerboard tiles large box faces are cut into
+TILE = 2.0
+#: how much lighter / darker the two tile colours are (the ground's checkerboard)
+CHECKER_CONTRAST = 0.06
+CYLINDER_SEGMENTS = 24
+TYPE_NAMES = {0: "ARROW", 1: "CUBE", 2: "SPHERE", 3: "CYLINDER", 4: "LINE_STRIP", 5: "LINE_LIST", 6: "CUBE_LIST",
+              7: "SPHERE_LIST", 8: "POINTS", 9: "TEXT_VIEW_FACING", 10: "MESH_RESOURCE", 11: "TRIANGLE_LIST",
+              12: "ARROW_STRIP"}
+
+
+class MarkerSet:
+    """The markers on display, keyed by ``(ns, id)`` in the order they were first added."""
+
+    def __init__(self) -> None:
+        self.markers: dict[tuple[str, int], cdr.MarkerData] = {}
+
+    def apply(self, markers: list[cdr.MarkerData]) -> None:
+        for m in markers:
+            if m.action == cdr.DELETEALL:
+                if m.ns:
+                    for key in [k for k in self.markers if k[0] == m.ns]:
+                        del self.markers[key]
+                else:
+                    self.markers.clear()
+            elif m.action == cdr.DELETE:
+                self.markers.pop((m.ns, m.id), None)
+            else:  # ADD / MODIFY
+                self.markers[(m.ns, m.id)] = m
+
+    def __len__(self) -> int:
+        return len(self.markers)
+
+
+@dataclass
+class Primitives:
+    """World-frame geometry of one frame.
+
+    triangles: (T, 3, 3) vertices; triangle_colors: (T, 3) RGB in [0, 1].
+    sphere_centers: (S, 3); sphere_radii: (S,); sphere_colors: (S, 3).
+    closed: (T,) bool, triangles of closed surfaces wound counter-clockwise seen from outside (boxes,
+        cylinders), which the rasterizer may cull when they face away from the camera.
+    skipped: names of marker types present but not drawn.
+    """
+
+    triangles: np.ndarray
+    triangle_colors: np.ndarray
+    sphere_centers: np.ndarray
+    sphere_radii: np.ndarray
+    sphere_colors: np.ndarray
+    closed: np.ndarray
+    skipped: set[str] = field(default_factory=set)
+
+def _rgb(color: np.ndarray, n: int) -> np.ndarray:
+    return np.broadcast_to(np.asarray(color, dtype=np.float64)[:3], (n, 3))
+
+
+def _box_triangles(half: np.ndarray, tile: float) -> tuple[np.ndarray, np.ndarray]:
+    """Triangles of an axis-aligned box of half extents ``half`` about the origin, wound counter-clockwise
+    seen from outside, and a per-triangle checker sign (+1 / -1; 0 where the face is one tile).  Faces are cut
+    into tiles when larger than ``tile``."""
+    tris, signs = [], []
+    for axis in range(3):
+        u, v = (axis + 1) % 3, (axis + 2) % 3
+        nu = max(1, int(np.ceil(2 * half[u] / tile))) if 2 * half[u] > tile else 1
+        nv = max(1, int(np.ceil(2 * half[v] / tile))) if 2 * half[v] > tile else 1
+        gu = np.linspace(-half[u], half[u], nu + 1)
+        gv = np.linspace(-half[v], half[v], nv + 1)
+        iu, iv = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
+        iu, iv = iu.ravel(), iv.ravel()
+        checker = np.where((iu + iv) % 2 == 0, 1.0, -1.0) if nu * nv > 1 else np.zeros(len(iu))
+        for side in (-1.0, 1.0):
+            corners = np.zeros((len(iu), 4, 3))
+            corners[:, :, axis] = side * half[axis]
+            corners[:, 0, u], corners[:, 0, v] = gu[iu], gv[iv]
+            corners[:, 1, u], corners[:, 1, v] = gu[iu + 1], gv[iv]
+            corners[:, 2, u], corners[:, 2, v] = gu[iu + 1], gv[iv + 1]
+            corners[:, 3, u], corners[:, 3, v] = gu[iu], gv[iv + 1]
+            # (u, v, axis) is right-handed: 0-1-2 is counter-clockwise seen from +axis; reversed on the - side
+            order = ([0, 1, 2], [0, 2, 3]) if side > 0 else ([0, 2, 1], [0, 3, 2])
+            tris.append(corners[:, order[0]])
+            tris.append(corners[:, order[1]])
+            signs += [checker, checker]
+    return np.concatenate(tris), np.concatenate(signs)
+
+
+def _cylinder_triangles(rx: float, ry: float, half_h: float, segments: int) -> np.ndarray:
+    angle = np.linspace(0.0, 2 * np.pi, segments + 1)
+    ring = np.stack([rx * np.cos(angle), ry * np.sin(angle)], axis=1)  # (segments + 1, 2)
+    a, b = ring[:-1], ring[1:]
+    lo = lambda p: np.column_stack([p, np.full(len(p), -half_h)])  # noqa: E731
+    hi = lambda p: np.column_stack([p, np.full(len(p), half_h)])  # noqa: E731
+    side1 = np.stack([lo(a), lo(b), hi(b)], axis=1)
+    side2 = np.stack([lo(a), hi(b), hi(a)], axis=1)
+    zeros = np.zeros((segments, 2))
+    top = np.stack([hi(zeros), hi(a), hi(b)], axis=1)
+    bottom = np.stack([lo(zeros), lo(b), lo(a)], axis=1)
+    return np.concatenate([side1, side2, top, bottom])
+
+
+def _to_world(m: cdr.MarkerData, local: np.ndarray) -> np.ndarray:
+    """Marker-frame points (..., 3) to the world: p + R(q) local."""
+    q = m.orientation
+    R = quat_to_matrix(q / np.linalg.norm(q)) if np.any(q) else np.eye(3)
+    return local @ R.T + m.position
+
+
+#: point lists longer than this are framed by the box of their FRAMING_QUANTILE .. 1 - FRAMING_QUANTILE
+#: quantiles (so that one boid far from its flock does not shrink everything else)
+FRAMING_MANY_POINTS = 50
+FRAMING_QUANTILE = 0.02
+
+
+def extent_points(markers: MarkerSet | list[cdr.MarkerData]) -> np.ndarray:
+    """(n, 3) world points whose bounding box the default camera fits: the corners of each marker's box —
+    for long point lists (flocks) the box of the central 96 % of the points; markers of the backdrop
+    namespace (the ground) and invisible ones left out."""
+    items = markers.markers.values() if isinstance(markers, MarkerSet) else markers
+    out = [np.zeros((0, 3))]
+    for m in items:
+        if m.ns == BACKDROP_NS or m.action != cdr.ADD or (m.color[3] <= 0.0 and not len(m.colors)):
+            continue
+        half = 0.5 * np.abs(np.asarray(m.scale, dtype=float))
+        if m.type in (cdr.SPHERE, cdr.CUBE, cdr.CYLINDER):
+            local = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * half
+            out.append(_to_world(m, local))
+        elif len(m.points) and m.type in (cdr.SPHERE_LIST, cdr.CUBE_LIST, cdr.TRIANGLE_LIST, cdr.POINTS):
+            world = _to_world(m, m.points)
+            if len(world) > FRAMING_MANY_POINTS:
+                lo, hi = np.quantile(world, [FRAMING_QUANTILE, 1 - FRAMING_QUANTILE], axis=0)
+            else:
+                lo, hi = world.min(axis=0), world.max(axis=0)
+            pad = half if m.type != cdr.TRIANGLE_LIST else 0.0
+            out.append(np.array([lo - pad, hi + pad]))
+    return np.concatenate(out)
+
+
+def primitives(markers: MarkerSet | list[cdr.MarkerData], tile: float = TILE) -> Primitives:
+    """The triangles and spheres of the markers on display (see the module docstring)."""
+    items = markers.markers.values() if isinstance(markers, MarkerSet) else markers
+    tris, tri_colors, centers, radii, sphere_colors, closed = [], [], [], [], [], []
+    skipped: set[str] = set()
+    for m in items:
+        if m.color[3] <= 0.0 and not len(m.colors):
+            continue
+        kind = m.type
+        if kind == cdr.SPHERE:
+            centers.append(m.position[None, :])
+            radii.append(np.array([0.5 * float(np.mean(m.scale))]))
+            sphere_colors.append(_rgb(m.color, 1))
+        elif kind == cdr.SPHERE_LIST:
+            n = len(m.points)
+            centers.append(_to_world(m, m.points))
+            radii.append(np.full(n, 0.5 * float(np.mean(m.scale))))
+            sphere_colors.append(m.colors[:, :3].astype(np.float64) if len(m.colors) == n else _rgb(m.color, n))
+        elif kind in (cdr.CUBE, cdr.CUBE_LIST):
+            local, checker = _box_triangles(0.5 * np.asarray(m.scale, dtype=float), tile)
+            if kind == cdr.CUBE:
+                tris.append(_to_world(m, local))
+                shade = 1.0 + CHECKER_CONTRAST * checker[:, None] * (m.ns == BACKDROP_NS)
+                tri_colors.append(np.clip(_rgb(m.color, len(local)) * shade, 0.0, 1.0))
+            else:
+                n = len(m.points)
+                boxes = _to_world(m, m.points[:, None, None, :] + local[None])  # (n, T, 3, 3)
+                tris.append(boxes.reshape(-1, 3, 3))
+                per_box = m.colors[:, :3].astype(np.float64) if len(m.colors) == n else _rgb(m.color, n)
+                tri_colors.append(np.repeat(per_box, len(local), axis=0))
+        elif kind == cdr.CYLINDER:
+            local = _cylinder_triangles(0.5 * m.scale[0], 0.5 * m.scale[1], 0.5 * m.scale[2], CYLINDER_SEGMENTS)
+            tris.append(_to_world(m, local))
+            tri_colors.append(_rgb(m.color, len(local)))
+        elif kind == cdr.TRIANGLE_LIST:
+            n = len(m.points) // 3
+            tris.append(_to_world(m, m.points[: 3 * n]).reshape(n, 3, 3))
+            if len(m.colors) == 3 * n:
+                tri_colors.append(m.colors[::3, :3].astype(np.float64))
+            elif len(m.colors) == n:
+                tri_colors.append(m.colors[:, :3].astype(np.float64))
+            else:
+                tri_colors.append(_rgb(m.color, n))
+        else:
+            skipped.add(TYPE_NAMES.get(kind, str(kind)))
+        drawn = sum(len(t) for t in tris) - sum(len(c) for c in closed)
+        if drawn:
+            closed.append(np.full(drawn, kind in (cdr.CUBE, cdr.CUBE_LIST, cdr.CYLINDER)))
+    cat = lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape)  # noqa: E731
+    return Primitives(
+        triangles=cat(tris, (0, 3, 3)), triangle_colors=cat(tri_colors, (0, 3)),
+        sphere_centers=cat(centers, (0, 3)), sphere_radii=cat(radii, (0,)), sphere_colors=cat(sphere_colors, (0, 3)),
+        closed=cat(closed, (0,)).astype(bool), skipped=skipped)
