@@ -155,7 +155,6 @@ class SimNode(Node):
 
         if self.bag_path is not None:
             self._start_recording(self.bag_path)
-        self._publish_static_tf()
 
         self._tick_wall_times: collections.deque = collections.deque(maxlen=512)
         self._window_start = time.monotonic()
@@ -299,6 +298,10 @@ class SimNode(Node):
         return ids
 
     def _publish_static_tf(self) -> None:
+        """``/tf_static`` again if the fixed bodies changed.  Not before the first tick: a node publishes nothing
+        before it (a paused node is silent; a bag starts with the first tick, at its time)."""
+        if self.world.ticks == 0:
+            return
         data = self.tf.static_if_changed(self.world.time_ns)
         if data is not None:
             self._out(self.pub_tf_static, data, self.world.time_ns)
@@ -406,6 +409,8 @@ class SimNode(Node):
         tf = self.tf.dynamic(t)
         if tf is not None:
             self._out(self.pub_tf, tf, t)
+        if self.world.ticks == 1:
+            self._publish_static_tf()  # the first: whatever changed before it is in it
         if self._delete_all_markers or self.world.ticks % self.params["markers_every"] == 0:
             self._out(self.pub_markers, m.markers(t, delete_all_first=self._delete_all_markers), t)
             self._delete_all_markers = False

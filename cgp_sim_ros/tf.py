@@ -5,8 +5,8 @@
   :class:`cgp_sim_ros.cdr.TFMessageSerializer`).  The transform is the body frame: origin at the centre of
   mass, the body's axes — the pose ``~/bodies/<body>/odom`` carries, whose ``child_frame_id`` is the same name.
 - ``/tf_static`` (:data:`~cgp_sim_ros.interface.TF_STATIC_QOS`, transient local): the *fixed* bodies, all in
-  one message, as tf2_ros' static broadcaster sends them; sent at start-up and again whenever that set or a
-  fixed body's pose changes (spawn, delete, reset, teleport), so a late subscriber gets the current set.
+  one message, as tf2_ros' static broadcaster sends them; sent with the first tick and again whenever that set
+  or a fixed body's pose changes (spawn, delete, reset, teleport), so a late subscriber gets the current set.
   A deleted fixed body's frame stays in the buffers of listeners that already had it (static transforms
   never expire in tf2); listeners that join later do not get it.
 
