@@ -138,7 +138,7 @@ def run_variant(fixed: bool, bodies: int, baseline_s: float, after_s: float) -> 
         worst_window = slowest_window(t_first, t_last)
 
         request = SpawnEntity.Request(name="school", resource_string=(
-            "flock: {count: 1000, spawn: {extent: [10, 10, 4]}, model: fish}"))
+            "flock: {count: 1000, spawn: {extent: [10, 10, 4]}, model: sphere}"))
         request.initial_pose.pose.position.z = 10.0
         flock_latency, flock_response = call(request)
         a0 = time.monotonic()
