@@ -1,7 +1,9 @@
 # cgp_sim — the two commands are `make run` and `make test`; both run `make setup` first.
 #
 # Set-up is incremental: every slow step leaves a stamp in .venv/.stamps and reruns only when its inputs
-# change (requirements files -> pip; msgs_config/cgp_sim_msgs -> cmake; project sources -> pip install .).
+# change (requirements files -> pip; msgs_config/cgp_sim_msgs, msgs_config/upstream/<pkg> -> cmake, one stamp per
+# interface package; project sources -> pip install .).  The upstream copies (tf2_msgs, simulation_interfaces)
+# are built only where no installed package of that name exists (tools/build_msgs.py says which it uses).
 
 SHELL := /bin/bash
 PYTHON ?= python3
@@ -30,9 +32,12 @@ BAG_DIR ?= $(CURDIR)/bags/cgp_sim_$(shell date +%Y_%m_%d-%H_%M_%S)
 ARGS ?=
 
 MSGS_SRC := $(shell find msgs_config/cgp_sim_msgs -type f -not -path '*/__pycache__/*') tools/build_msgs.py
+TF2_MSGS_SRC := $(shell find msgs_config/upstream/tf2_msgs -type f) tools/build_msgs.py
+SIMULATION_INTERFACES_SRC := $(shell find msgs_config/upstream/simulation_interfaces -type f) tools/build_msgs.py
 PROJECT_SRC := setup.py setup.cfg package.xml README.md resource/cgp_sim_ros scripts/sim_node \
 	$(shell find cgp_core cgp_sim_ros msgs_config -type f \( -name '*.py' -o -name '*.yaml' -o -name '*.stl' \
-	-o -name '*.dae' -o -name '*.json' \) -not -path '*/__pycache__/*' -not -path 'msgs_config/cgp_sim_msgs/*')
+	-o -name '*.dae' -o -name '*.json' \) -not -path '*/__pycache__/*' -not -path 'msgs_config/cgp_sim_msgs/*' \
+	-not -path 'msgs_config/upstream/*')
 REQUIREMENTS := $(ROS_REQUIREMENTS) requirements/python.txt requirements/dev.txt
 
 .PHONY: setup run test soak bench lock clean distclean
@@ -52,10 +57,22 @@ $(STAMPS)/deps: $(REQUIREMENTS) $(CONSTRAINTS) | $(STAMPS)/venv
 
 $(STAMPS)/msgs: $(STAMPS)/deps $(MSGS_SRC)
 	@echo "setup: building the cgp_sim_msgs interface package (cmake + ninja)"
-	@$(VPY) tools/build_msgs.py
+	@$(VPY) tools/build_msgs.py cgp_sim_msgs
 	@touch $@
 
-$(STAMPS)/project: $(STAMPS)/msgs $(PROJECT_SRC)
+# ROS 2 Jazzy's tf2_msgs and simulation_interfaces have no wheel: our byte-identical copies are built unless the
+# environment has them (~25 s and ~2 min the first time).
+$(STAMPS)/msgs-tf2_msgs: $(STAMPS)/deps $(TF2_MSGS_SRC)
+	@echo "setup: tf2_msgs (built from msgs_config/upstream unless installed)"
+	@$(VPY) tools/build_msgs.py tf2_msgs
+	@touch $@
+
+$(STAMPS)/msgs-simulation_interfaces: $(STAMPS)/deps $(SIMULATION_INTERFACES_SRC)
+	@echo "setup: simulation_interfaces (built from msgs_config/upstream unless installed)"
+	@$(VPY) tools/build_msgs.py simulation_interfaces
+	@touch $@
+
+$(STAMPS)/project: $(STAMPS)/msgs $(STAMPS)/msgs-tf2_msgs $(STAMPS)/msgs-simulation_interfaces $(PROJECT_SRC)
 	@echo "setup: installing cgp_sim (cgp_core, cgp_sim_ros, msgs_config) into .venv"
 	@$(PIP) --no-deps --no-build-isolation . 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)
 	@rm -rf build cgp_sim_ros.egg-info

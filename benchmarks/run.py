@@ -39,7 +39,7 @@ from common import (RESULTS, format_figures, format_value, load_average, machine
 #: name -> script; the order they run in (the tick first: it is the figure that matters most, and it
 #: runs best on a machine that has not been busy for minutes)
 BENCHMARKS = {"tick": "bench_tick.py", "rigid": "bench_rigid.py", "boids": "bench_boids.py", "cdr": "bench_cdr.py",
-              "contacts": "bench_contacts.py", "foxglove": "bench_foxglove.py"}
+              "contacts": "bench_contacts.py", "foxglove": "bench_foxglove.py", "spawn": "bench_spawn.py"}
 EXTRAS = {"bag": "bench_bag.py", "integrators": "bench_integrators.py", "scenes": "bench_scenes.py",
           "render": "bench_render.py"}
 

@@ -280,15 +280,20 @@ class _SceneLoader(yaml.SafeLoader):
 _SceneLoader.add_implicit_resolver("tag:yaml.org,2002:float", YAML12_FLOAT, list("-+.0123456789"))
 
 
-def parse_scene(text: str, source: str = "<string>") -> Scene:
+def parse_yaml(text: str, source: str = "<string>") -> Any:
+    """YAML text as plain data, read as scenes are (safe subset, YAML 1.2 floats, duplicate keys rejected);
+    ``SceneError`` with the line and column of malformed YAML."""
     try:
-        data = yaml.load(text, Loader=_SceneLoader)  # a SafeLoader: never constructs Python objects
+        return yaml.load(text, Loader=_SceneLoader)  # a SafeLoader: never constructs Python objects
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc)
         raise SceneError(source, [f"malformed YAML: {where}{problem}"]) from None
-    return scene_from_dict(data, source)
+
+
+def parse_scene(text: str, source: str = "<string>") -> Scene:
+    return scene_from_dict(parse_yaml(text, source), source)
 
 
 def scene_from_dict(data: Any, source: str = "<dict>") -> Scene:
@@ -304,6 +309,49 @@ def scene_from_dict(data: Any, source: str = "<dict>") -> Scene:
     flocks = _parse_flocks(v, data.get("flocks", []), reserved={b.name for b in bodies})
     v.raise_if_any()
     return Scene(source=source, world=world, bodies=bodies, flocks=flocks)
+
+
+#: what a spawned entity may be: one scene-file entry of ``bodies`` or ``flocks``
+SPAWN_KINDS = ("body", "flock")
+
+
+def spawn_entry(data: Any, source: str, *, name: str, taken: set[str] = frozenset(),
+                position=(0.0, 0.0, 0.0), orientation=(0.0, 0.0, 0.0, 1.0)):
+    """Validate an entity to spawn into a running world: ``{body: <entry>}`` or ``{flock: <entry>}``, where the
+    entry is what a scene file's ``bodies`` / ``flocks`` list holds, without ``name`` (``name`` here) and, for a
+    body, without ``position`` / ``orientation`` (``position`` (3,), ``orientation`` (4,) xyzw here: the pose of
+    the body origin, as a scene gives it); for a flock ``position`` is the spawn centre (``spawn.center``).
+
+    Returns ``("body", BodySpec)`` or ``("flock", FlockParams)``.  Raises :class:`SceneError` with the same
+    texts as a scene file, key paths starting at ``body`` / ``flock`` (``body (box1).size[1]: must be > 0``)."""
+    v = _Validator(source)
+    if not isinstance(data, dict) or len(data) != 1 or next(iter(data)) not in SPAWN_KINDS:
+        keys = f"keys {', '.join(map(_show, data))}" if isinstance(data, dict) and data else _kind(data)
+        raise SceneError(source, [f"must be a mapping with exactly one key, body or flock (a scene file's "
+                                  f"bodies / flocks entry), got {keys}"])
+    kind, raw = next(iter(data.items()))
+    if not isinstance(raw, dict):
+        raise SceneError(source, [f"{kind}: must be a mapping (a scene file's {kind} entry), got {_kind(raw)}"])
+    given_by_request = {"name": "the request's name"}
+    if kind == "body":
+        given_by_request.update(position="the request's initial_pose", orientation="the request's initial_pose")
+    for key, where in given_by_request.items():
+        if key in raw:
+            v.fail(f"{kind}.{key}", f"given by {where}; leave it out")
+    spawn = raw.get("spawn")
+    if kind == "flock" and isinstance(spawn, dict) and "center" in spawn:
+        v.fail(f"{kind}.spawn.center", "given by the request's initial_pose (the spawn centre); leave it out")
+    v.raise_if_any()
+    entry = dict(raw, name=name)
+    if kind == "body":
+        entry.update(position=[float(x) for x in position], orientation=[float(x) for x in orientation])
+        spec = _parse_body(v, entry, kind, set(taken))
+    else:
+        if spawn is None or isinstance(spawn, dict):
+            entry["spawn"] = {**(spawn or {}), "center": [float(x) for x in position]}
+        spec = _parse_flock(v, entry, kind, set(taken))
+    v.raise_if_any()
+    return kind, spec
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -24,6 +24,11 @@ Usage (no ROS needed)::
         world.step()
     print(world.time, world.body_state.position)
 
+Editing it while it runs (what the node's ``simulation_interfaces`` services call): :meth:`World.spawn` a body or
+a flock from a scene-format entry, :meth:`World.delete` one, :meth:`World.set_body_state` (teleport) /
+:meth:`World.move_flock`, :meth:`World.entity_state` / :meth:`World.entity_names` to ask; :meth:`World.reset`
+with a scope.  The model is replaced by a new object on every spawn / delete (see :mod:`cgp_core.editing`).
+
 Changing the bodies between ticks (spawn, delete, teleport) — the contract the rigid-body pipeline keeps:
 
 - ``body_model`` is static while stepping, and may be **replaced by a new object** between ticks (bodies
@@ -47,9 +52,11 @@ import numpy as np
 from .bodies import BodyModel, BodyState
 from .boids import Flock, Obstacles
 from .dynamics import Ground, step_bodies
+from .editing import (EditError, EntityState, body_distances, check_pose, check_vector, concatenate_bodies,
+                      name_filter, select_bodies)
 from .integrators import make_integrator
-from .rotation import quat_rotate, quat_conjugate
-from .scene import Scene, load_scene
+from .rotation import quat_rotate, quat_conjugate, quat_to_matrix
+from .scene import MAX_BODIES, ROS_SAFE_NAME, MAX_NAME_LENGTH, Scene, load_scene, spawn_entry
 from .sleep import SLEEP_SPEED, SLEEP_TIME, Islands
 from .solver import make_solver
 from .wrenches import WrenchCommand, WrenchSchedule, make_command
@@ -84,6 +91,10 @@ class World:
     body_model:   static :class:`~cgp_core.bodies.BodyModel`;  body_state: dynamic :class:`BodyState`.
     flocks:       list of :class:`~cgp_core.boids.Flock`.
     events:       list of :class:`WorldEvent` not yet collected (see :meth:`take_events`).
+    spawned:      names of the bodies and flocks spawned at run time (not from the scene), in spawn order.
+    model_version: counts the replacements of ``body_model`` / ``flocks`` (spawn, delete, reset of spawned
+                  entities): whoever keeps per-body or per-flock things (publishers, serializers) rebuilds
+                  them when it changes.
     """
 
     def __init__(self, scene: Scene, *, dt: float = 1.0 / 60.0, substeps: int | None = None,
@@ -100,13 +111,17 @@ class World:
         self.solver = make_solver(rolling_resistance=scene.world.rolling_resistance)
         self.body_model, self._initial_body_state = scene.build_bodies()
         self.body_state = self._initial_body_state.copy()
-        self.flocks = [Flock(p if seed is None else p.with_seed(seed + i)) for i, p in enumerate(scene.flocks)]
+        self._scene_flock_params = [p if seed is None else p.with_seed(seed + i) for i, p in enumerate(scene.flocks)]
+        self.flocks = [Flock(p) for p in self._scene_flock_params]
         self.wrenches = WrenchSchedule()
         self.sleep_enabled = bool(scene.world.sleep)
         self._islands: Islands | None = None  # per-island sleep state of body_model (see islands())
         self.time_ns = 0
         self.ticks = 0
         self.events: list[WorldEvent] = []
+        self.spawned: list[str] = []
+        self.model_version = 0
+        self._remember_tick_start()
 
     @classmethod
     def from_scene(cls, scene: str | Scene, **kwargs) -> "World":
@@ -118,6 +133,7 @@ class World:
     def step(self) -> None:
         """Advance one tick (see the module docstring for the stages)."""
         h = self.dt / self.substeps
+        self._remember_tick_start()
         model, state = self.body_model, self.body_state
         islands = self.islands()
         if islands is not None and self.wrenches.active:
@@ -254,15 +270,25 @@ class World:
 
     # ---- commands -------------------------------------------------------------------------------------
 
-    def reset(self) -> None:
-        """Back to the scene's initial state (bodies, flocks; wrenches cleared).  ``time`` keeps running."""
-        self.body_state = self._initial_body_state.copy()
-        for flock in self.flocks:
-            flock.reset()
-        self.wrenches.clear()
+    def reset(self, *, state: bool = True, spawned: bool = True) -> None:
+        """Back to the initial state; ``time`` keeps running (clocks and recordings never go backwards).
+
+        ``spawned``: delete every body and flock spawned at run time.  ``state``: every remaining body and flock
+        back to its initial state (a spawned one to its spawn state) and wrenches cleared.  The default (both)
+        is the scene as loaded."""
+        if state and spawned and self.entity_names() != self._scene_names():
+            self._restore_scene()  # deleted scene entities come back too, as if the world were loaded again
+        elif spawned and self.spawned:
+            self._remove(list(self.spawned))
+        if state:
+            self.body_state = self._initial_body_state.copy()
+            for flock in self.flocks:
+                flock.reset()
+            self.wrenches.clear()
+            self._remember_tick_start()
+            if hasattr(self.solver, "reset"):
+                self.solver.reset()
         self.wake()
-        if hasattr(self.solver, "reset"):
-            self.solver.reset()
 
     def apply_wrench(self, body: str, force=(0.0, 0.0, 0.0), *, point=None, torque=(0.0, 0.0, 0.0),
                      frame: str = "world", duration: float = 0.0, **limits) -> WrenchCommand:
@@ -285,6 +311,239 @@ class World:
 
     def clear_wrenches(self) -> None:
         self.wrenches.clear()
+
+    # ---- editing while it runs: spawn, delete, teleport, query -------------------------------------------
+
+    def entity_names(self, pattern: str = "") -> list[str]:
+        """Bodies (in model order) then flocks; with ``pattern``, those whose name it matches anywhere (a POSIX
+        extended regular expression, see :func:`cgp_core.editing.name_filter`; ``ValueError`` if invalid)."""
+        names = list(self.body_model.names) + [f.params.name for f in self.flocks]
+        if not pattern:
+            return names
+        regex = name_filter(pattern)
+        return [name for name in names if regex.search(name)]
+
+    def entity_kind(self, name: str) -> str | None:
+        """``"body"``, ``"flock"`` or None."""
+        if name in self.body_model.names:
+            return "body"
+        return "flock" if any(f.params.name == name for f in self.flocks) else None
+
+    def entities_in_sphere(self, center, radius: float) -> list[str]:
+        """Entities overlapping the ball of ``radius`` [m] around ``center`` (3,): bodies whose surface is within
+        ``radius`` of it (exact shapes), flocks with a boid inside it (boids as spheres of ``boid_size``)."""
+        center = check_vector(center, "center")
+        d = body_distances(self.body_model, self.body_state, center)
+        names = [name for name, di in zip(self.body_model.names, d) if di <= radius]
+        for flock in self.flocks:
+            gap = np.linalg.norm(flock.positions - center, axis=1) - 0.5 * flock.params.boid_size
+            if gap.size and float(gap.min()) <= radius:
+                names.append(flock.params.name)
+        return names
+
+    def unique_name(self, base: str) -> str:
+        """``base`` if no entity has it, else ``base_2``, ``base_3``, ... (the first free one)."""
+        taken = set(self.entity_names())
+        base = base[:MAX_NAME_LENGTH - 8]
+        if base not in taken:
+            return base
+        k = 2
+        while f"{base}_{k}" in taken:
+            k += 1
+        return f"{base}_{k}"
+
+    def check_new_name(self, name: str) -> None:
+        """:class:`EditError` (``name_invalid`` / ``name_taken``) unless ``name`` can name a new entity."""
+        if not isinstance(name, str) or not ROS_SAFE_NAME.match(name) or len(name) > MAX_NAME_LENGTH:
+            raise EditError("name_invalid", f"name {name!r} is not usable: names are ROS-safe (letters, digits, "
+                            f"_; starting with a letter) and at most {MAX_NAME_LENGTH} characters (they become "
+                            "parts of topic names)")
+        kind = self.entity_kind(name)
+        if kind is not None:
+            raise EditError("name_taken", f"name {name!r} is taken by a {kind}")
+
+    def spawn(self, entry, *, name: str, position=(0.0, 0.0, 0.0), orientation=(0.0, 0.0, 0.0, 1.0),
+              source: str = "<spawn>") -> str:
+        """Add a body or a flock while the world runs; returns its kind (``"body"`` / ``"flock"``).
+
+        ``entry``: ``{"body": {...}}`` or ``{"flock": {...}}``, the entry a scene file's ``bodies`` / ``flocks``
+        list holds (parsed YAML), without ``name`` and, for a body, without ``position`` / ``orientation``: those
+        come from ``name`` and the pose (``position`` (3,), ``orientation`` (4,) xyzw; for a flock ``position``
+        is the spawn centre and the orientation must be the identity).  The entry is validated as a scene is:
+        :class:`~cgp_core.scene.SceneError` with the same texts, key paths from ``body`` / ``flock``.  Other
+        refusals are :class:`~cgp_core.editing.EditError`.  A refused spawn changes nothing.
+
+        A body comes last in the model, at rest unless the entry gives velocities; the bodies are woken (it
+        may land on sleeping ones).  A flock starts from its seeded initial state around the centre."""
+        self.check_new_name(name)
+        position, orientation = check_pose(position, orientation, "initial_pose")
+        kind, spec = spawn_entry(entry, source, name=name, taken=set(self.entity_names()), position=position,
+                                 orientation=orientation)
+        if kind == "flock":
+            if abs(abs(float(orientation[3])) - 1.0) > 1e-9:
+                raise EditError("invalid_pose", "initial_pose.orientation: a flock has no orientation (the boids "
+                                "have their own); give the identity (0, 0, 0, 1)")
+            self.flocks = [*self.flocks, Flock(spec)]
+            self._flock_mean_velocity_start.append(np.mean(self.flocks[-1].velocities, axis=0))
+        else:
+            if self.body_model.count + 1 > MAX_BODIES:
+                raise EditError("not_possible", f"the world has {self.body_model.count} bodies, the most it "
+                                f"holds ({MAX_BODIES})")
+            model, state = Scene(source, self.scene.world, [spec], []).build_bodies()
+            if self.body_state.rotation is not None:  # the integrator keeps R: the new body needs one too
+                state.rotation = state.rotation_matrices()
+            old_model = self.body_model
+            self.body_model, self.body_state = concatenate_bodies(old_model, self.body_state, model, state)
+            _, self._initial_body_state = concatenate_bodies(old_model, self._initial_body_state, model,
+                                                             state.copy())
+            self._bodies_changed()
+        self.spawned.append(name)
+        self.model_version += 1
+        return kind
+
+    def delete(self, name: str) -> str:
+        """Remove a body or a flock (from the scene or spawned); returns its kind.  A body's wrench commands go
+        with it; the other bodies keep their order.  :class:`EditError` ``unknown`` if there is none."""
+        kind = self.kind_of(name)
+        self._remove([name])
+        return kind
+
+    def set_body_state(self, name: str, position, orientation, linear_velocity=(0.0, 0.0, 0.0),
+                       angular_velocity=(0.0, 0.0, 0.0)) -> None:
+        """Teleport a body: COM ``position`` (3,), ``orientation`` (4,) xyzw, and the world-frame twist it then
+        has (the momenta are set from it: P = m v, L = I_world ω).  Wakes its island.  A fixed body takes a pose
+        only (a non-zero twist is refused, as ``simulation_interfaces`` says for static objects)."""
+        i = self._body_index(name)
+        position, orientation = check_pose(position, orientation)
+        v = check_vector(linear_velocity, "twist.linear")
+        w = check_vector(angular_velocity, "twist.angular")
+        model, state = self.body_model, self.body_state
+        if model.fixed[i] and (v.any() or w.any()):
+            raise EditError("not_possible", f"{name} is fixed: it takes a pose, not a twist (got linear "
+                            f"{v.tolist()}, angular {w.tolist()})")
+        R = quat_to_matrix(orientation[None])[0]
+        state.position[i] = position
+        state.orientation[i] = orientation
+        if state.rotation is not None:
+            state.rotation[i] = R
+        state.linear_momentum[i] = model.mass[i] * v * (not model.fixed[i])
+        state.angular_momentum[i] = (R @ model.inertia_body[i] @ R.T @ w) * (not model.fixed[i])
+        for start, now in zip(self._body_start, (state.linear_momentum, state.angular_momentum,
+                                                 state.orientation)):
+            start[i] = now[i]  # a teleport is not an acceleration: this body's last-tick Δv starts from here
+        self.wake([i])  # its island: a sleeping body would ignore the edit for collisions with other sleepers
+
+    def move_flock(self, name: str, position) -> None:
+        """Translate a flock rigidly so that its centroid is at ``position`` (3,): every boid moves by the
+        same offset and keeps its velocity and frame.  A flock with bounds (``soft`` / ``wrap``) must stay
+        inside them (:class:`EditError` ``not_possible`` otherwise)."""
+        flock = self._flock(name)
+        target = check_vector(position, "pose.position")
+        offset = target - flock.positions.mean(axis=0)
+        p = flock.params
+        if p.bounds_mode != "none":
+            low, high = flock.positions.min(axis=0) + offset, flock.positions.max(axis=0) + offset
+            if np.any(low < p.bounds_min) or np.any(high > p.bounds_max):
+                raise EditError("not_possible", f"flock {name} moved there would reach [{low.round(3).tolist()}, "
+                                f"{high.round(3).tolist()}], outside its bounds [{p.bounds_min.tolist()}, "
+                                f"{p.bounds_max.tolist()}]")
+        flock.positions[:] += offset
+
+    def entity_state(self, name: str) -> EntityState:
+        """The state of a body or flock (see :class:`~cgp_core.editing.EntityState`)."""
+        if self.entity_kind(name) == "flock":
+            index = next(k for k, f in enumerate(self.flocks) if f.params.name == name)
+            flock = self.flocks[index]
+            v = flock.velocities.mean(axis=0)
+            zero = np.zeros(3)
+            return EntityState("flock", flock.positions.mean(axis=0), np.array([0.0, 0.0, 0.0, 1.0]), v, zero,
+                               (v - self._flock_mean_velocity_start[index]) / self.dt, zero.copy())
+        i = self._body_index(name)
+        model, state = self.body_model, self.body_state
+
+        def velocities(P, L, R):  # v = P / m, ω = R I⁻¹ Rᵀ L of body i alone (a query is O(1), not O(n))
+            return P * model.inv_mass[i], R @ model.inv_inertia_body[i] @ R.T @ L
+
+        R = state.rotation[i] if state.rotation is not None else quat_to_matrix(state.orientation[i][None])[0]
+        v, w = velocities(state.linear_momentum[i], state.angular_momentum[i], R)
+        P0, L0, q0 = (a[i] for a in self._body_start)
+        v0, w0 = velocities(P0, L0, quat_to_matrix(q0[None])[0])
+        return EntityState("body", state.position[i].copy(), state.orientation[i].copy(), v, w,
+                           (v - v0) / self.dt, (w - w0) / self.dt)
+
+    def kind_of(self, name: str) -> str:
+        """``"body"`` or ``"flock"``; :class:`EditError` ``unknown`` (naming the entities there are) if neither."""
+        kind = self.entity_kind(name)
+        if kind is None:
+            known = self.entity_names()
+            raise EditError("unknown", f"no body or flock named {name!r} (entities: "
+                            f"{', '.join(known[:20]) + (' ...' if len(known) > 20 else '') or 'none'})")
+        return kind
+
+    def _body_index(self, name: str) -> int:
+        if self.kind_of(name) != "body":
+            raise EditError("not_possible", f"{name!r} is a flock, not a body")
+        return self.body_model.names.index(name)
+
+    def _flock(self, name: str) -> Flock:
+        if self.kind_of(name) != "flock":
+            raise EditError("not_possible", f"{name!r} is a body, not a flock")
+        return next(f for f in self.flocks if f.params.name == name)
+
+    def _remove(self, names: list[str]) -> None:
+        """Delete these (existing) bodies and flocks: new model and state without them."""
+        gone = set(names)
+        doomed = [i for i, n in enumerate(self.body_model.names) if n in gone]
+        if doomed:
+            keep = np.setdiff1d(np.arange(self.body_model.count), doomed)
+            new_index = np.full(self.body_model.count, -1, dtype=np.intp)
+            new_index[keep] = np.arange(len(keep))
+            model = self.body_model
+            self.body_model, self.body_state = select_bodies(model, self.body_state, keep)
+            _, self._initial_body_state = select_bodies(model, self._initial_body_state, keep)
+            self.wrenches.renumber_bodies(new_index)
+            self._bodies_changed(keep)
+        kept = [(f, v) for f, v in zip(self.flocks, self._flock_mean_velocity_start) if f.params.name not in gone]
+        self.flocks = [f for f, _ in kept]
+        self._flock_mean_velocity_start = [v for _, v in kept]
+        self.spawned = [n for n in self.spawned if n not in gone]
+        self.model_version += 1
+
+    def _scene_names(self) -> list[str]:
+        return [b.name for b in self.scene.bodies] + [p.name for p in self._scene_flock_params]
+
+    def _restore_scene(self) -> None:
+        """The scene's bodies and flocks, new objects (the states are reset by the caller)."""
+        self.body_model, self._initial_body_state = self.scene.build_bodies()
+        self.body_state = self._initial_body_state.copy()
+        self.flocks = [Flock(p) for p in self._scene_flock_params]
+        self.spawned = []
+        self.wrenches.clear()
+        self._remember_tick_start()
+        self._bodies_changed()
+        self.model_version += 1
+
+    def _bodies_changed(self, kept: np.ndarray | None = None) -> None:
+        """After the body set changed (``kept``: the old indices that remain, None for a spawn: the new bodies
+        are the last ones): derived arrays follow, and the bodies wake (a body may have appeared on, or vanished
+        from under, sleeping ones): the islands are rebuilt for the new model with every body awake."""
+        state = self.body_state
+        if kept is not None:
+            self._body_start = tuple(a[kept] for a in self._body_start)
+        else:  # a new body starts its last-tick Δv from its spawn state; the others keep theirs
+            known = len(self._body_start[0])
+            self._body_start = tuple(np.concatenate((start, now[known:])) for start, now in zip(
+                self._body_start, (state.linear_momentum, state.angular_momentum, state.orientation)))
+        if hasattr(self.solver, "reset"):
+            self.solver.reset()
+        self.wake()
+
+    def _remember_tick_start(self) -> None:
+        """Momenta and orientations at the start of the tick, for the accelerations :meth:`entity_state`
+        reports (Δv / dt over the last tick); the flocks' mean velocities likewise."""
+        state = self.body_state
+        self._body_start = (state.linear_momentum.copy(), state.angular_momentum.copy(), state.orientation.copy())
+        self._flock_mean_velocity_start = [flock.velocities.mean(axis=0) for flock in getattr(self, "flocks", [])]
 
     # ---- views for publishers -------------------------------------------------------------------------
 

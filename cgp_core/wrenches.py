@@ -105,6 +105,18 @@ class WrenchSchedule:
             self._keep_rows(keep)
         return dropped
 
+    def renumber_bodies(self, new_index: np.ndarray) -> int:
+        """After bodies were deleted: ``new_index (n_old,)`` maps each old body index to its new one, −1 for a
+        deleted body.  Rows acting on deleted bodies are dropped (returns how many), the others follow their
+        body."""
+        new_index = np.asarray(new_index, dtype=np.intp)
+        target = new_index[self.body] if self.active else self.body
+        keep = target >= 0
+        dropped = int(keep.size - np.count_nonzero(keep))
+        self.body = target
+        self._keep_rows(keep)
+        return dropped
+
     def _keep_rows(self, keep: np.ndarray) -> None:
         for name in self._ROWS:
             setattr(self, name, getattr(self, name)[keep])

@@ -43,6 +43,7 @@ __all__ = [
     "odometry",
     "OdometryBatchSerializer",
     "odometry_batch",
+    "TFMessageSerializer",
     "marker",
     "marker_deleteall",
     "marker_array",
@@ -369,6 +370,59 @@ def odometry_batch(stamp_ns: int, frame_id: str, child_frame_ids: Sequence[str],
     """One-shot :class:`OdometryBatchSerializer` (keep a serializer per node for the per-tick path)."""
     return OdometryBatchSerializer(frame_id, child_frame_ids).serialize(
         stamp_ns, positions, orientations, linear, angular, pose_covariance, twist_covariance)
+
+
+# ------------------------------------------------------------------------------------------- TFMessage
+class TFMessageSerializer:
+    """``tf2_msgs/TFMessage`` of n ``geometry_msgs/TransformStamped`` (``frame_id`` → ``child_frame_ids[i]``)
+    per tick, all with one stamp.
+
+    The message is laid out once (the frame ids do not change): ``uint32 n``, then per transform the stamp,
+    the two strings and 7 float64 (translation, rotation x y z w) 8-aligned.  It is kept at memory offset 4 of
+    a buffer so that every float64 is 8-aligned in memory too, and a tick writes the stamps and the (n, 7)
+    values with two vectorized assignments.  Not thread-safe.
+    """
+
+    def __init__(self, frame_id: str, child_frame_ids: Sequence[str]) -> None:
+        frame = _encode_string(frame_id, "frame_id")
+        writer = _Writer()
+        writer.raw(_U32.pack(len(child_frame_ids)))
+        stamps, floats = [], []
+        for i, child in enumerate(child_frame_ids):
+            stamps.append(writer.pos)  # TransformStamped starts with header.stamp: 4-aligned after a string
+            writer.raw(bytes(8))
+            writer.string(frame)
+            writer.string(_encode_string(child, f"child_frame_ids[{i}]"))
+            writer.align(8)
+            floats.append(writer.pos)
+            writer.raw(bytes(56))
+        template = writer.getvalue()  # encapsulation + body
+        self.count = len(child_frame_ids)
+        self._size = len(template)
+        self._buffer = np.zeros(4 + self._size + (-(4 + self._size) % 8), dtype=np.uint8)
+        self._buffer[4:4 + self._size] = np.frombuffer(template, dtype=np.uint8)
+        # body offset b is at memory offset 4 (buffer padding) + 4 (encapsulation) + b
+        self._sec_index = (8 + np.asarray(stamps, dtype=np.intp)) // 4
+        self._float_index = ((8 + np.asarray(floats, dtype=np.intp)) // 8)[:, None] + np.arange(7)
+        self._words = self._buffer.view("<u4")
+        self._floats = self._buffer.view("<f8")
+        self._view = memoryview(self._buffer)[4:4 + self._size]
+
+    def serialize(self, stamp_ns: int, translations, rotations) -> bytes:
+        """``translations (n, 3)``, ``rotations (n, 4)`` (x, y, z, w), in the order of ``child_frame_ids``."""
+        n = self.count
+        sec, nanosec = split_stamp(stamp_ns)
+        values = np.empty((n, 7))
+        for block, array, width, what in ((slice(0, 3), translations, 3, "translations"),
+                                          (slice(3, 7), rotations, 4, "rotations")):
+            arr = np.asarray(array)
+            if arr.shape != (n, width):
+                raise ValueError(f"{what} must have shape ({n}, {width}), got {arr.shape}")
+            values[:, block] = arr
+        self._words[self._sec_index] = sec & 0xFFFFFFFF
+        self._words[self._sec_index + 1] = nanosec
+        self._floats[self._float_index] = values
+        return bytes(self._view)
 
 
 # ---------------------------------------------------------------------------------------------- Marker

@@ -178,6 +178,20 @@ class FoxgloveServer:
             f"Foxglove live view on {self.url}: in the Foxglove app, Open connection → Foxglove WebSocket → "
             f"{self.url} (or open {self.server.app_url()}); layout: msgs_config/foxglove/cgp_sim_layout.json")
 
+    def follow_endpoints(self, added) -> None:
+        """After the node's entities changed (spawn, delete, reset: ``SimNode._sync_entities``): a channel for
+        each new publisher's or subscription's topic (a topic seen before keeps its channel), the publishers that
+        are gone no longer mapped, and the command inputs as the node has them now.  The node's thread."""
+        for endpoint in added:
+            topic = endpoint.topic_name
+            if topic not in INFRASTRUCTURE_TOPICS and topic not in self._channels:
+                schema_name = type_name(endpoint.msg_type)
+                schema = Schema(name=schema_name, encoding="ros2msg", data=message_definition(schema_name).encode())
+                self._channels[topic] = Channel(topic, schema=schema, message_encoding="cdr", context=self._context)
+        live = set(self.node.publishers)
+        self._by_publisher = {p: self._channels[p.topic_name] for p in live if p.topic_name in self._channels}
+        self._commands = dict(self.node.command_inputs)  # replaced whole: the SDK's threads read it
+
     # ---- outbound (the node's thread, per message) ------------------------------------------------------
 
     def publish(self, publisher, data: bytes, stamp_ns: int) -> None:

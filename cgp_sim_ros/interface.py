@@ -32,6 +32,28 @@ Subscribed:
 Services (std_srvs): ``~/reset`` (Trigger), ``~/pause`` (SetBool), ``~/step`` (Trigger, one tick while paused),
 ``~/clear_wrenches`` (Trigger).
 
+TF (``tf2_msgs/TFMessage``, absolute names as every tf2 user expects): ``/tf`` every tick with ``world`` →
+``<body>`` for every movable body (``child_frame_id`` = the Odometry's), ``/tf_static`` (transient local) with
+the fixed bodies, sent again whenever that set or a fixed body's pose changes.
+
+``simulation_interfaces`` (ROS 2's simulator standard, Jazzy 1.5.1; implemented in
+:mod:`cgp_sim_ros.sim_services`, every call also a line on ``~/events``):
+
+==============================  =====================================================================
+``~/get_simulator_features``    GetSimulatorFeatures: what is supported, ``spawn_formats: [yaml]``
+``~/spawn_entity``              SpawnEntity: ``{body: <scene entry>}`` / ``{flock: <scene entry>}`` YAML
+``~/delete_entity``             DeleteEntity: a body or a flock
+``~/get_entities``              GetEntities: names (bodies, then flocks), regex / sphere filters
+``~/get_entities_states``       GetEntitiesStates: names and states
+``~/get_entity_state``          GetEntityState: COM pose, world-frame twist, last tick's acceleration
+``~/set_entity_state``          SetEntityState: teleport a body (momenta from the twist) / move a flock
+``~/reset_simulation``          ResetSimulation: scopes STATE, SPAWNED, ALL (time keeps running)
+``~/get_simulation_state``      GetSimulationState: PLAYING / PAUSED / STOPPED / QUITTING
+``~/set_simulation_state``      SetSimulationState
+``~/step_simulation``           StepSimulation: exactly ``steps`` ticks while paused, replies when done
+``~/simulate_steps`` (action)   SimulateSteps: the same with feedback per tick and cancel
+==============================  =====================================================================
+
 With ``foxglove:=true`` all of the above is also served over a Foxglove WebSocket (``foxglove_host``,
 ``foxglove_port``): the same topics as channels, the same commands and services (see
 :mod:`cgp_sim_ros.foxglove_server`).
@@ -64,10 +86,32 @@ TOPIC_MARKERS = "~/markers"
 TOPIC_EVENTS = "~/events"
 TOPIC_CLOCK = "/clock"
 TOPIC_APPLY_WRENCH = "~/apply_wrench"
+# TF, as tf2_ros' broadcasters offer it: /tf reliable, volatile, keep last 100; /tf_static reliable,
+# transient local, keep last 1 (a late subscriber gets the latest set of static transforms).
+TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.VOLATILE)
+TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+TOPIC_TF = "/tf"
+TOPIC_TF_STATIC = "/tf_static"
 SERVICE_RESET = "~/reset"
 SERVICE_PAUSE = "~/pause"
 SERVICE_STEP = "~/step"
 SERVICE_CLEAR_WRENCHES = "~/clear_wrenches"
+# simulation_interfaces (names relative to the node, as Gazebo's ros_gz_sim has them)
+SERVICE_GET_SIMULATOR_FEATURES = "~/get_simulator_features"
+SERVICE_SPAWN_ENTITY = "~/spawn_entity"
+SERVICE_DELETE_ENTITY = "~/delete_entity"
+SERVICE_GET_ENTITIES = "~/get_entities"
+SERVICE_GET_ENTITIES_STATES = "~/get_entities_states"
+SERVICE_GET_ENTITY_STATE = "~/get_entity_state"
+SERVICE_SET_ENTITY_STATE = "~/set_entity_state"
+SERVICE_RESET_SIMULATION = "~/reset_simulation"
+SERVICE_GET_SIMULATION_STATE = "~/get_simulation_state"
+SERVICE_SET_SIMULATION_STATE = "~/set_simulation_state"
+SERVICE_STEP_SIMULATION = "~/step_simulation"
+ACTION_SIMULATE_STEPS = "~/simulate_steps"
 
 
 @dataclass(frozen=True)

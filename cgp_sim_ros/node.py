@@ -34,6 +34,7 @@ import json
 import math
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -45,13 +46,17 @@ from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
+from cgp_core.bodies import Shape
 from cgp_core.scene import SceneError
 from cgp_core.world import World
 from cgp_core.wrenches import MAX_NAME_LENGTH, WrenchError, make_command
 
+from . import cdr
 from . import interface as itf
 from .messages import TickMessages
 from .progress import BatchProgress, ProgressLine
+from .sim_services import SimulationInterfaces
+from .tf import BodyTransforms
 
 #: commands waiting for the next tick; beyond this, the oldest are dropped (and counted, and reported)
 MAX_PENDING_COMMANDS = 2000
@@ -115,6 +120,7 @@ class SimNode(Node):
             raise ConfigError(f"scene: {exc}") from None
 
         self.messages = TickMessages(self.world, itf.WORLD_FRAME)
+        self.tf = BodyTransforms(self.world, itf.WORLD_FRAME)
         self.paused = bool(self.params["start_paused"])
         self._pending: collections.deque = collections.deque()
         self._dropped_commands = 0
@@ -124,18 +130,29 @@ class SimNode(Node):
         #: set when `duration` is reached; the main loop then shuts the node down
         self.finished = False
 
+        self.recorder = None
+        #: the live view (parameter `foxglove`): a Foxglove WebSocket server fed in _out(), or None
+        self.foxglove = None
         #: every command input: topic -> (message type, handler of its serialized bytes), for other transports
         self.command_inputs: dict[str, tuple[type, object]] = {}
         self._make_publishers()
         self._make_subscriptions()
         self._make_services()
+        # Per body / per flock endpoints (odometry, wrench commands, flock poses): made here and again after
+        # every spawn, delete or reset (see _sync_entities).
+        self._odom_publishers: dict = {}
+        self._flock_publishers: dict = {}
+        self.sub_body_wrench: dict = {}
+        self._marker_ids: dict[str, set[int]] = {}
+        self._synced_names: list[str] = []
+        self._synced_version = None
+        self._sync_entities()
+        # ROS 2's simulation_interfaces services and action (cgp_sim_ros.sim_services)
+        self.sim = SimulationInterfaces(self)
 
-        #: the live view (parameter `foxglove`): a Foxglove WebSocket server fed in _out(), or None
-        self.foxglove = None
         if self.params["foxglove"]:
-            self._start_foxglove()
+            self._start_foxglove()  # after the per-entity endpoints exist: it makes a channel for each
 
-        self.recorder = None
         if self.bag_path is not None:
             self._start_recording(self.bag_path)
 
@@ -187,16 +204,12 @@ class SimNode(Node):
         return problems
 
     def _make_publishers(self) -> None:
-        world = self.world
         self.pub_clock = self.create_publisher(self.messages.Clock, itf.TOPIC_CLOCK, itf.CLOCK_QOS)
         self.pub_body_poses = self.create_publisher(self.messages.PoseArray, itf.TOPIC_BODY_POSES, itf.STATE_QOS)
-        self.pub_odom = [self.create_publisher(self.messages.Odometry, itf.TOPIC_BODY_ODOM.format(body=name),
-                                               itf.STATE_QOS) for name in world.body_model.names]
-        self.pub_flock_poses = [self.create_publisher(self.messages.PoseArray,
-                                                      itf.TOPIC_FLOCK_POSES.format(flock=f.params.name),
-                                                      itf.STATE_QOS) for f in world.flocks]
         self.pub_markers = self.create_publisher(self.messages.MarkerArray, itf.TOPIC_MARKERS, itf.STATE_QOS)
         self.pub_events = self.create_publisher(String, itf.TOPIC_EVENTS, itf.COMMAND_QOS)
+        self.pub_tf = self.create_publisher(self.tf.TFMessage, itf.TOPIC_TF, itf.TF_QOS)
+        self.pub_tf_static = self.create_publisher(self.tf.TFMessage, itf.TOPIC_TF_STATIC, itf.TF_STATIC_QOS)
 
     def _make_subscriptions(self) -> None:
         from cgp_sim_msgs.msg import ApplyWrench
@@ -206,13 +219,92 @@ class SimNode(Node):
         self._wrench_stamped_type = WrenchStamped
         self.sub_apply_wrench = self._command_subscription(ApplyWrench, itf.TOPIC_APPLY_WRENCH,
                                                            self._on_apply_wrench)
-        self.sub_body_wrench = {}
-        for name, fixed in zip(self.world.body_model.names, self.world.body_model.fixed):
-            if fixed:
-                continue
-            self.sub_body_wrench[name] = self._command_subscription(
-                WrenchStamped, itf.TOPIC_BODY_WRENCH.format(body=name),
-                lambda data, body=name: self._on_body_wrench(body, data))
+
+    def _sync_entities(self) -> None:
+        """Make everything per body and per flock follow the world's current bodies and flocks (after start-up,
+        a spawn, a delete or a reset; a no-op when ``world.model_version`` did not change):
+
+        - ``~/bodies/<body>/odom`` publishers, ``~/bodies/<body>/wrench`` subscriptions (movable bodies),
+          ``~/flocks/<flock>/poses`` publishers: created for new entities, destroyed for gone ones, kept for the
+          others (subscribers stay matched);
+        - the new topics are added to the recording (new channels mid-recording, counted in metadata.yaml) and
+          to the Foxglove live view, if on (new channels; the command inputs follow ``command_inputs``);
+        - the per-tick serializers (:class:`TickMessages`, TF) are rebuilt for the new body set;
+        - pending wrench commands follow their body (index), those on deleted bodies are dropped;
+        - the markers of gone entities are deleted (a MarkerArray of DELETE actions, published at once) and
+          ``/tf_static`` is sent again if the fixed bodies changed."""
+        world = self.world
+        if world.model_version == self._synced_version:
+            return
+        names = list(world.body_model.names)
+        movable = {n for n, fixed in zip(names, world.body_model.fixed) if not fixed}
+        flock_names = [f.params.name for f in world.flocks]
+        added = []
+        for publishers, wanted, topic, msg_type in (
+                (self._odom_publishers, names, itf.TOPIC_BODY_ODOM, self.messages.Odometry),
+                (self._flock_publishers, flock_names, itf.TOPIC_FLOCK_POSES, self.messages.PoseArray)):
+            for name in [n for n in publishers if n not in wanted]:
+                self.destroy_publisher(publishers.pop(name))
+            for name in wanted:
+                if name not in publishers:
+                    key = "body" if publishers is self._odom_publishers else "flock"
+                    publishers[name] = self.create_publisher(msg_type, topic.format(**{key: name}), itf.STATE_QOS)
+                    added.append(publishers[name])
+        for name in [n for n in self.sub_body_wrench if n not in movable]:
+            subscription = self.sub_body_wrench.pop(name)
+            self.command_inputs.pop(subscription.topic_name, None)
+            self.destroy_subscription(subscription)
+        for name in names:
+            if name in movable and name not in self.sub_body_wrench:
+                self.sub_body_wrench[name] = self._command_subscription(
+                    self._wrench_stamped_type, itf.TOPIC_BODY_WRENCH.format(body=name),
+                    lambda data, body=name: self._on_body_wrench(body, data))
+                added.append(self.sub_body_wrench[name])
+        self.pub_odom = [self._odom_publishers[n] for n in names]
+        self.pub_flock_poses = [self._flock_publishers[n] for n in flock_names]
+        if self.recorder is not None and added:
+            self.recorder.add_endpoints(added)
+        if self.foxglove is not None:
+            self.foxglove.follow_endpoints(added)
+
+        # pending commands hold body indices of the model they were validated against
+        new_index = {name: i for i, name in enumerate(names)}
+        old_names = self._synced_names
+        self._pending = collections.deque(
+            replace(c, body=new_index[old_names[c.body]]) for c in self._pending
+            if c.body < len(old_names) and old_names[c.body] in new_index)
+
+        self.messages = TickMessages(world, itf.WORLD_FRAME)
+        self.tf.rebuild()
+        marker_ids = self._drawn_marker_ids()
+        if self._synced_version is not None:
+            stale = [(ns, i) for ns, ids in self._marker_ids.items() for i in sorted(ids - marker_ids.get(ns, set()))]
+            if stale and not self._delete_all_markers:
+                t = world.time_ns
+                deletes = [cdr.marker(marker_type=cdr.ARROW, action=cdr.DELETE, stamp_ns=t, frame_id=itf.WORLD_FRAME,
+                                      ns=ns, id=i) for ns, i in stale]
+                self._out(self.pub_markers, cdr.marker_array(deletes), t)
+            self._publish_static_tf()
+        self._marker_ids = marker_ids
+        self._synced_names = names
+        self._synced_version = world.model_version
+
+    def _drawn_marker_ids(self) -> dict[str, set[int]]:
+        """Marker namespace -> ids the per-tick MarkerArray draws (see :mod:`cgp_sim_ros.messages`)."""
+        model = self.world.body_model
+        ids = {f"bodies/{name}": ({0, 1, 2} if int(shape) == int(Shape.CAPSULE) else {0})
+               for name, shape in zip(model.names, model.shape)}
+        ids.update({f"flocks/{f.params.name}": {0} for f in self.world.flocks})
+        return ids
+
+    def _publish_static_tf(self) -> None:
+        """``/tf_static`` again if the fixed bodies changed.  Not before the first tick: a node publishes nothing
+        before it (a paused node is silent; a bag starts with the first tick, at its time)."""
+        if self.world.ticks == 0:
+            return
+        data = self.tf.static_if_changed(self.world.time_ns)
+        if data is not None:
+            self._out(self.pub_tf_static, data, self.world.time_ns)
 
     def _command_subscription(self, msg_type, topic: str, handle):
         """A raw command subscription whose callback also takes the messages already waiting behind the first.
@@ -270,7 +362,16 @@ class SimNode(Node):
     # ---- the tick -----------------------------------------------------------------------------------------
 
     def _on_timer(self) -> None:
-        if self.paused or self.finished:
+        if self.finished:
+            return
+        if self.sim.quit_due():
+            self.finished = True
+            return
+        if self.paused:
+            # a stepping request (~/step_simulation, ~/simulate_steps) ticks a paused world at the timer's pace
+            if self.sim.stepping:
+                self.tick()
+                self.sim.stepped()
             return
         self.tick()
 
@@ -305,6 +406,11 @@ class SimNode(Node):
             self._out(pub, data, t)
         for pub, data in zip(self.pub_flock_poses, m.flock_poses(t)):
             self._out(pub, data, t)
+        tf = self.tf.dynamic(t)
+        if tf is not None:
+            self._out(self.pub_tf, tf, t)
+        if self.world.ticks == 1:
+            self._publish_static_tf()  # the first: whatever changed before it is in it
         if self._delete_all_markers or self.world.ticks % self.params["markers_every"] == 0:
             self._out(self.pub_markers, m.markers(t, delete_all_first=self._delete_all_markers), t)
             self._delete_all_markers = False
@@ -463,13 +569,15 @@ class SimNode(Node):
         self.world.reset()
         self._pending.clear()
         self._delete_all_markers = True
+        self._sync_entities()
+        self._publish_static_tf()
         self._event({"event": "service", "name": "reset"})
         response.success = True
         response.message = f"reset to the initial state of {self.world.scene.source} at t = {self.world.time:.9f} s"
         return response
 
     def _on_pause(self, request, response):
-        self.paused = bool(request.data)
+        self.sim.set_paused(bool(request.data))
         self._event({"event": "service", "name": "pause", "data": self.paused})
         response.success = True
         response.message = f"{'paused' if self.paused else 'running'} at t = {self.world.time:.9f} s"
@@ -481,6 +589,11 @@ class SimNode(Node):
             response.success = False
             response.message = "not paused: call ~/pause with data: true first"
             return response
+        if self.sim.stepping:
+            response.success = False
+            response.message = "a stepping request (~/step_simulation or ~/simulate_steps) is running"
+            return response
+        self.sim.stopped = False
         self.tick()
         response.success = True
         response.message = f"stepped to t = {self.world.time:.9f} s (tick {self.world.ticks})"

@@ -30,10 +30,16 @@ class Recorder:
                                 custom_data={"recorder": "cgp_sim", "scene": str(node.world.scene.source)})
         self.started = time.monotonic()
         # Every topic the node itself publishes or subscribes to (not rclpy's own /rosout, /parameter_events).
-        for endpoint in [*node.publishers, *node.subscriptions]:
+        self.add_endpoints([*node.publishers, *node.subscriptions])
+        self.report_errors()
+
+    def add_endpoints(self, endpoints) -> None:
+        """Record these publishers' / subscriptions' topics too (a spawned body's, mid-recording: the bag gets
+        new channels from here on, and metadata.yaml counts them).  Topics already recorded are left as they are
+        (a body deleted and spawned again under its name keeps its channel)."""
+        for endpoint in endpoints:
             if endpoint.topic_name not in INFRASTRUCTURE_TOPICS:
                 self.writer.add_topic(endpoint.topic_name, type_name(endpoint.msg_type), endpoint.qos_profile)
-        self.report_errors()
 
     def write(self, topic: str, data: bytes, stamp_ns: int) -> None:
         self.writer.write(topic, data, stamp_ns, stamp_ns)

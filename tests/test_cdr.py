@@ -447,3 +447,34 @@ def test_read_marker_array_rejects_what_is_not_one(bad, match):
     whole = cdr.marker_array([cdr.marker(marker_type=cdr.SPHERE_LIST, points=np.ones((10, 3)))])
     with pytest.raises(cdr.CdrError, match="truncated"):
         cdr.read_marker_array(whole[:-40])
+
+
+# ---------------------------------------------------------------------------------------- TFMessage
+def slow_tf_message(stamp_ns, frame_id, children, translations, rotations):
+    from geometry_msgs.msg import TransformStamped
+    from tf2_msgs.msg import TFMessage
+
+    msg = TFMessage()
+    for child, p, q in zip(children, translations.tolist(), rotations.tolist()):
+        t = TransformStamped()
+        t.header.stamp = time_msg(stamp_ns)
+        t.header.frame_id = frame_id
+        t.child_frame_id = child
+        t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = p
+        t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z, t.transform.rotation.w = q
+        msg.transforms.append(t)
+    return msg
+
+
+@pytest.mark.parametrize("n", (0, 1, 9))
+def test_tf_message_serializer_equals_rclpy(n):
+    # child names of every length mod 8, so the transforms' paddings differ within one message
+    children = [("body_" + "x" * (i % 9) + ("é" if i % 4 == 3 else ""))[: 3 + i % 11] for i in range(n)]
+    serializer = cdr.TFMessageSerializer("world", children)
+    translations, rotations = random_poses(n, seed=n + 7)
+    for stamp in (17, -5, 1_700_000_000_000_000_001):  # the buffer is reused: later ticks must overwrite
+        out = serializer.serialize(stamp, translations, rotations)
+        assert_equivalent(out, slow_tf_message(stamp, "world", children, translations, rotations))
+        translations = translations + 1.0
+    with pytest.raises(ValueError, match=r"rotations must have shape"):
+        serializer.serialize(0, translations, np.zeros((n + 1, 4)))

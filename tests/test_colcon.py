@@ -38,6 +38,10 @@ def test_colcon_build_of_a_workspace_holding_the_repo(tmp_path):
     assert build.returncode == 0, build.stdout[-3000:] + build.stderr[-3000:]
     for package in ("cgp_sim_msgs", "cgp_sim_ros"):
         assert f"Finished <<< {package}" in build.stdout, build.stdout[-2000:]
+    # our copies of ROS 2's tf2_msgs and simulation_interfaces (msgs_config/upstream, COLCON_IGNORE) are not
+    # built in a workspace: the installed ones (the underlay's; rosdep's on a ROS install) are used, unshadowed
+    for package in ("tf2_msgs", "simulation_interfaces"):
+        assert package not in build.stdout and not (ws / "install" / package).exists(), package
 
     install = ws / "install"
     node = install / "cgp_sim_ros" / "lib" / "cgp_sim_ros" / "sim_node"

@@ -26,7 +26,7 @@ def test_readme_python_examples_run():
 def test_readme_documents_the_whole_interface():
     from cgp_sim_ros import interface as itf
 
-    names = [v for k, v in vars(itf).items() if k.startswith(("TOPIC_", "SERVICE_"))]
+    names = [v for k, v in vars(itf).items() if k.startswith(("TOPIC_", "SERVICE_", "ACTION_"))]
     for name in names:
         shown = name.replace("{body}", "<body>").replace("{flock}", "<flock>")
         assert f"`{shown}`" in README, f"{shown} is not documented in the README"

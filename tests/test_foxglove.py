@@ -28,6 +28,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
+from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
@@ -47,6 +48,8 @@ PUBLISHED = {
     "/cgp_sim/flocks/birds/poses": PoseArray,
     "/cgp_sim/markers": MarkerArray,
     "/cgp_sim/events": String,
+    "/tf": TFMessage,
+    "/tf_static": TFMessage,
 }
 COMMAND_TOPICS = {"/cgp_sim/apply_wrench", "/cgp_sim/bodies/box/wrench", "/cgp_sim/bodies/spinner/wrench"}
 SERVICES = {"/cgp_sim/reset": "std_srvs/srv/Trigger", "/cgp_sim/pause": "std_srvs/srv/SetBool",
@@ -489,3 +492,28 @@ def test_the_layout_shows_what_the_default_scene_serves_and_its_kick_works(start
         assert world_velocity(kicked)[2] == pytest.approx((900.0 / 2.0 - 9.81) * DT, rel=1e-12)
     finally:
         client.close()
+
+
+def test_a_spawned_body_gets_its_channels_in_the_live_view(live, probe):
+    """Issue 13 through the live view: a body spawned over ROS 2's simulation_interfaces is advertised as new
+    channels (its odometry, its wrench command topic), its odometry flows at the tick's time, and a command a
+    Foxglove client publishes on its wrench channel pushes it."""
+    from sim_client import SimClient
+
+    node, client = live("--start-paused", "true")
+    sim = SimClient(probe)
+    reply = sim.spawn("box1", "body: {shape: box, size: [0.4, 0.4, 0.4], mass: 2.0}", position=(0, -5, 2))
+    assert reply.result.result == 1, reply.result
+    odom = client.subscribe("/cgp_sim/bodies/box1/odom")  # waits for the channel's advertisement
+    client.channel("/cgp_sim/bodies/box1/wrench")
+    channel = client.advertise("/cgp_sim/bodies/box1/wrench", "cdr", "geometry_msgs/msg/WrenchStamped")
+    push = WrenchStamped()
+    push.wrench.force.y = 4.0
+    client.publish(channel, serialize_message(push))
+    for _ in range(3):
+        step(client)  # same socket, after the message: the command is taken before the first step
+    client.wait(lambda: len(client.messages[odom]) >= 3, 20, "box1's odometry over the WebSocket")
+    stamp, data = client.received(odom)[-1]
+    msg = deserialize_message(data, Odometry)
+    assert msg.child_frame_id == "box1" and stamp_of(msg) == stamp
+    assert world_velocity(msg)[1] == pytest.approx(4.0 * DT_NS * 1e-9 / 2.0, abs=1e-9)  # one tick of 4 N on 2 kg
