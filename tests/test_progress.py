@@ -51,10 +51,12 @@ def test_batch_run_on_a_terminal_redraws_one_progress_line(tmp_path):
     redraws = out.split("\r\x1b[K")[1:]
     assert len(redraws) >= 2, out[-2000:]
     assert re.match(r"\[-{20}\] t = 0\.02 s of 1 s, -- ticks/s, --x real time, ETA --:--, bag ", redraws[0])
+    # the redraws in between (as many as the run's wall time allows: none if it is quick; their format is
+    # tested with a clock of our own below) show the rate
     shown = [LINE.search(r) for r in redraws[1:-1]]  # the first tick has no rate yet
-    assert shown and all(shown), redraws[:3]
+    assert all(shown), redraws[:3]
     times = [float(m.group(1)) for m in shown]
-    assert times == sorted(times) and times[-1] <= 1.0
+    assert times == sorted(times) and all(t <= 1.0 for t in times)
     # the last one is the summary, then the line is ended before anything else is printed
     final = redraws[-1]
     assert re.match(r"\[#{20}\] t = 1\.00 s of 1 s, \d+ ticks/s, \d+\.\d\dx real time, took \d+:\d\d, bag ", final)
