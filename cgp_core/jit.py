@@ -18,13 +18,23 @@ Settings, and why:
   it) instead of raising ``ZeroDivisionError`` from inside a kernel.
 - no ``fastmath``: it lets LLVM reassociate floating-point sums, which would make compiled and plain-Python
   results differ beyond round-off and break the bit-for-bit determinism a seed promises.
+- ``parallel=True`` kernels (per-boid loops written with :data:`prange`) run on numba's thread pool, one
+  thread per core.  Each iteration writes only its own outputs and no floating-point value is reduced across
+  iterations, so the results do not depend on the number of threads.  With the OpenMP pool, idle workers are
+  told to sleep (``OMP_WAIT_POLICY=PASSIVE``) instead of spinning for a while after every kernel: on a
+  2-core machine the spinning worker took the core the bag writer and the DDS threads need (measured: twice
+  the CPU time per flock step, and a slower tick).  Only the node's tick thread launches parallel kernels
+  (numba's fallback ``workqueue`` pool is not safe to enter from two threads at once).
 """
 
 from __future__ import annotations
 
 import os
 
-import numba
+# Before numba loads its OpenMP thread pool (at the first parallel kernel); a user's own setting wins.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numba  # noqa: E402
 
 #: numba's own switch: with NUMBA_DISABLE_JIT=1 every kernel runs as plain Python
 JIT_DISABLED = os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")

@@ -400,6 +400,13 @@ class BagWriter:
         if self._thread is not None:
             self._queue.put(_Control("topic", topic))
 
+    def set_custom_data(self, custom_data: dict) -> None:
+        """Replace ``custom_data`` (str -> str) for the metadata written from now on (``metadata.yaml`` at the
+        next commit, each file's rosbag2 record when it is finished)."""
+        if not all(isinstance(k, str) and isinstance(v, str) for k, v in custom_data.items()):
+            raise ValueError("custom_data must map str to str")
+        self._custom_data = dict(custom_data)  # a new dict: the writer thread reads whichever is current
+
     def write(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> bool:
         """Queue one serialized message; returns at once.  True if queued, False if dropped (error, full
         queue with ``"drop"``, or closed).  Never raises for I/O problems."""

@@ -41,6 +41,7 @@ __all__ = [
     "OdometryBatchSerializer",
     "odometry_batch",
     "marker",
+    "MarkerPointsSerializer",
     "marker_deleteall",
     "marker_array",
 ]
@@ -454,6 +455,40 @@ def marker(*, marker_type: int, stamp_ns: int = 0, frame_id: str = "", ns: str =
     w.sequence(len(data), 1, data)
     w.raw(b"\x01" if mesh_use_embedded_materials else b"\x00")
     return w.getvalue()
+
+
+class MarkerPointsSerializer:
+    """Fast path for a marker whose only per-tick changes are its stamp and its ``points`` (a fixed number):
+    the flocks' SPHERE_LIST / TRIANGLE_LIST.  The same bytes as :func:`marker` with those arguments.
+
+    The message is laid out once in a buffer; :attr:`points` is an ``(n, 3)`` float64 view of its points, for
+    the caller to write into (the fish kernel writes its vertices there directly), and :meth:`serialize`
+    patches the stamp and returns a *memoryview* of the buffer — no copy; valid until the next call (hand it
+    to :func:`marker_array`, which copies it once into the array).  The buffer starts 4 bytes into an
+    allocation, so the points, 8-aligned in the message body, are 8-aligned in memory too.  Not thread-safe.
+    """
+
+    _SENTINEL = np.float64(-1.2345678901234567e-300)  # marks the points while the layout is found
+
+    def __init__(self, count: int, **fields) -> None:
+        if "points" in fields or "stamp_ns" in fields:
+            raise TypeError("MarkerPointsSerializer sets points and stamp_ns itself")
+        template = marker(points=np.full((count, 3), self._SENTINEL), **fields)
+        block = np.full(3 * count, self._SENTINEL).tobytes()
+        offset = template.find(block) if count else len(template)
+        if count and (offset < 0 or (offset - 4) % 8):
+            raise AssertionError("marker points not found 8-aligned in the template")  # pragma: no cover
+        self.count = count
+        self._storage = np.zeros(len(template) + 4, dtype=np.uint8)
+        self._message = self._storage[4:]
+        self._message[:] = np.frombuffer(template, dtype=np.uint8)
+        #: (count, 3) float64 view of the points inside the message
+        self.points = self._storage[4 + offset:4 + offset + 24 * count].view("<f8").reshape(count, 3)
+        self._view = memoryview(self._message)
+
+    def serialize(self, stamp_ns: int) -> memoryview:
+        self._message[4:12] = np.frombuffer(_pack_stamp(stamp_ns), dtype=np.uint8)
+        return self._view
 
 
 def _default_marker_tail(embedded: bool) -> bytes:

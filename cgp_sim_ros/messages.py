@@ -7,8 +7,13 @@ Markers (``~/markers``, frame ``world``), with stable namespaces and ids:
 - ``bodies/<body>`` / 0: the body's shape — SPHERE, CUBE (box), CYLINDER (capsule shaft; ids 1 and 2 are the
   capsule's end SPHEREs), SPHERE_LIST (particle set, drawn in the body frame);
 - ``flocks/<flock>`` / 0: SPHERE_LIST of all boids (``model: sphere``) or a TRIANGLE_LIST of fish
-  (``model: fish``, :mod:`cgp_sim_ros.shapes`), one marker per flock.
+  (``model: fish``, :mod:`cgp_sim_ros.shapes`; full or low detail as :mod:`cgp_sim_ros.detail` chose), one
+  marker per flock, its points rounded to 1/1024 m (a view: the poses are exact).
 After a reset the first marker of the array is a DELETEALL, then the full set.
+
+The flock markers are the big ones: each is laid out once in its own buffer
+(:class:`cgp_sim_ros.cdr.MarkerPointsSerializer`) and the compiled fish kernel writes the vertices straight
+into it; the marker array copies it once.
 """
 
 from __future__ import annotations
@@ -23,7 +28,8 @@ from cgp_core.bodies import Shape
 from cgp_core.rotation import quat_rotate
 
 from . import cdr
-from .shapes import fish_triangles
+from .detail import DetailPlan
+from .shapes import FISH_DETAILS, fish_triangles, quantized_points
 
 GROUND_SIZE = 60.0  # m, edge of the drawn ground tile
 GROUND_COLOR = (0.55, 0.57, 0.6, 1.0)
@@ -38,13 +44,22 @@ class TickMessages:
     Clock = Clock
     MarkerArray = MarkerArray
 
-    def __init__(self, world, frame_id: str = "world"):
+    def __init__(self, world, frame_id: str = "world", plan: DetailPlan | None = None):
         self.world = world
         self.frame_id = frame_id
         model = world.body_model
         self._body_poses = cdr.PoseArraySerializer(frame_id)
         self._odometry = cdr.OdometryBatchSerializer(frame_id, model.names)
         self._flock_poses = [cdr.PoseArraySerializer(frame_id) for _ in world.flocks]
+        #: the fish drawing per flock name ('full' | 'low'); see :meth:`set_plan`
+        self.fish_detail: dict[str, str] = {}
+        self._flock_markers: dict[int, tuple] = {}  # flock index -> (key, MarkerPointsSerializer)
+        if plan is not None:
+            self.set_plan(plan)
+
+    def set_plan(self, plan: DetailPlan) -> None:
+        """Draw the fish as ``plan`` says (the rest of the plan — rates — is the node's business)."""
+        self.fish_detail = dict(plan.fish_detail)
 
     def clock(self, stamp_ns: int) -> bytes:
         return cdr.clock(stamp_ns)
@@ -105,14 +120,23 @@ class TickMessages:
                                       points=model.particles[i][:, :3], **pose, **common))
         return out
 
-    def _flock_marker(self, index: int, flock, common: dict) -> bytes:
+    def _flock_marker(self, index: int, flock, common: dict) -> memoryview:
         params = flock.params
-        color = FLOCK_COLORS[index % len(FLOCK_COLORS)]
-        ns = f"flocks/{params.name}"
-        if params.model == "fish":
-            return cdr.marker(marker_type=cdr.TRIANGLE_LIST, ns=ns, id=0, color=color, scale=(1.0, 1.0, 1.0),
-                              points=fish_triangles(flock.positions, flock.orientations, params.boid_size),
-                              **common)
-        size = params.boid_size
-        return cdr.marker(marker_type=cdr.SPHERE_LIST, ns=ns, id=0, color=color, scale=(size, size, size),
-                          points=flock.positions, **common)
+        fish = params.model == "fish"
+        detail = self.fish_detail.get(params.name, "full")
+        points = flock.count * (len(FISH_DETAILS[detail]) if fish else 1)
+        key = (points, detail, common["frame_id"])
+        cached = self._flock_markers.get(index)
+        if cached is None or cached[0] != key:
+            size = params.boid_size
+            serializer = cdr.MarkerPointsSerializer(
+                points, marker_type=cdr.TRIANGLE_LIST if fish else cdr.SPHERE_LIST, frame_id=common["frame_id"],
+                ns=f"flocks/{params.name}", id=0, color=FLOCK_COLORS[index % len(FLOCK_COLORS)],
+                scale=(1.0, 1.0, 1.0) if fish else (size, size, size))
+            cached = self._flock_markers[index] = (key, serializer)
+        serializer = cached[1]
+        if fish:
+            fish_triangles(flock.positions, flock.orientations, params.boid_size, detail, out=serializer.points)
+        else:
+            quantized_points(flock.positions, out=serializer.points)
+        return serializer.serialize(common["stamp_ns"])

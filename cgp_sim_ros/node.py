@@ -46,6 +46,7 @@ from cgp_core.scene import SceneError
 from cgp_core.world import World
 from cgp_core.wrenches import MAX_NAME_LENGTH, WrenchError, make_command
 
+from . import detail as lod
 from . import interface as itf
 from .messages import TickMessages
 
@@ -111,6 +112,8 @@ class SimNode(Node):
             raise ConfigError(f"scene: {exc}") from None
 
         self.messages = TickMessages(self.world, itf.WORLD_FRAME)
+        #: what is drawn and recorded at what rate (cgp_sim_ros/detail.py); set by _plan_detail
+        self.detail: lod.DetailPlan | None = None
         self.paused = bool(self.params["start_paused"])
         self._pending: collections.deque = collections.deque()
         self._dropped_commands = 0
@@ -125,8 +128,10 @@ class SimNode(Node):
         self._make_services()
 
         self.recorder = None
+        self._plan_detail()
         if self.bag_path is not None:
             self._start_recording(self.bag_path)
+        self._event(self.detail.event())  # after the recorder: the plan is the bag's first event
 
         self._tick_wall_times: collections.deque = collections.deque(maxlen=512)
         self._window_start = time.monotonic()
@@ -146,6 +151,7 @@ class SimNode(Node):
             + ("" if self.recorder is None else f", recording to {self.recorder.directory}"
                if self.recorder.recording else f", NOT recording (the bag {str(self.bag_path)!r} cannot be "
                "written: see the error above)"))
+        self.get_logger().info("level of detail: " + " ".join(self.detail.lines))
 
     # ---- set-up -----------------------------------------------------------------------------------------
 
@@ -233,9 +239,21 @@ class SimNode(Node):
         try:
             self.recorder = Recorder(self, directory,
                                      max_bytes=self.params["bag_max_size"],
-                                     max_duration_s=self.params["bag_max_duration"])
+                                     max_duration_s=self.params["bag_max_duration"],
+                                     custom_data=self._detail_custom_data())
         except BagExistsError as exc:  # created between the check in __init__ and now
             raise ConfigError(f"bag: {exc}") from None
+
+    def _plan_detail(self) -> None:
+        """(Re)make the level-of-detail plan from the flocks and the parameters (cgp_sim_ros/detail.py)."""
+        self.detail = lod.plan([f.params for f in self.world.flocks], self.params["rate_hz"],
+                               fish_detail=self.params["fish_detail"], markers_every=self.params["markers_every"],
+                               flock_poses_every=self.params["bag_flock_poses_every"])
+        self.messages.set_plan(self.detail)
+
+    def _detail_custom_data(self) -> dict:
+        return self.detail.custom_data({f.params.name: pub.topic_name for f, pub in
+                                        zip(self.world.flocks, self.pub_flock_poses)}, self.pub_markers.topic_name)
 
     def _timer_period(self) -> float:
         # realtime=false: a zero-period timer is always ready, so the executor runs ticks back to back while
@@ -274,16 +292,18 @@ class SimNode(Node):
         self._out(self.pub_body_poses, m.body_poses(t), t)
         for pub, data in zip(self.pub_odom, m.body_odometry(t)):
             self._out(pub, data, t)
+        record_poses = self.world.ticks % self.detail.flock_poses_every == 0  # the data: published every tick
         for pub, data in zip(self.pub_flock_poses, m.flock_poses(t)):
-            self._out(pub, data, t)
-        if self._delete_all_markers or self.world.ticks % self.params["markers_every"] == 0:
+            self._out(pub, data, t, record=record_poses)
+        if self._delete_all_markers or self.world.ticks % self.detail.markers_every == 0:
             self._out(self.pub_markers, m.markers(t, delete_all_first=self._delete_all_markers), t)
             self._delete_all_markers = False
 
-    def _out(self, publisher, data: bytes, stamp_ns: int) -> None:
-        """Publish serialized bytes and record the very same bytes."""
+    def _out(self, publisher, data: bytes, stamp_ns: int, record: bool = True) -> None:
+        """Publish serialized bytes and record the very same bytes (unless the level-of-detail plan records
+        this topic on fewer ticks: ``record`` False)."""
         publisher.publish(data)
-        if self.recorder is not None:
+        if record and self.recorder is not None:
             self.recorder.write(publisher.topic_name, data, stamp_ns)
 
     def _periodic_reports(self) -> None:
@@ -477,7 +497,21 @@ class SimNode(Node):
                 self._timer.cancel()
                 self.destroy_timer(self._timer)
                 self._timer = self.create_timer(self._timer_period(), self._on_timer)
+        if any(param.name in ("rate_hz", "markers_every", "fish_detail") for param in parameters):
+            self._replan_detail()
         return SetParametersResult(successful=True)
+
+    def _replan_detail(self) -> None:
+        """A parameter the level of detail depends on changed: new plan, logged, on ~/events and in the bag."""
+        before = self.detail
+        self._plan_detail()
+        if (before.fish_detail, before.markers_every, before.flock_poses_every) == \
+                (self.detail.fish_detail, self.detail.markers_every, self.detail.flock_poses_every):
+            return
+        self.get_logger().info("level of detail changed: " + " ".join(self.detail.lines))
+        if self.recorder is not None:
+            self.recorder.set_custom_data(self._detail_custom_data())
+        self._event(self.detail.event())
 
     # ---- shutdown ----------------------------------------------------------------------------------------
 
@@ -498,6 +532,8 @@ def _resolve_bag_path(text: str) -> Path:
 
 def _constraints(spec: itf.ParameterSpec) -> str:
     text = type(spec.default).__name__
+    if spec.choices is not None:
+        text += f", one of {', '.join(spec.choices)}"
     if spec.minimum is not None:
         text += f", >= {spec.minimum:g}"
     if spec.maximum is not None:
@@ -523,6 +559,8 @@ def _check_parameter(spec: itf.ParameterSpec, value) -> str | None:
         return f"{spec.name} must be {expected.__name__}, got {type(value).__name__} {_brief(value)}"
     if isinstance(value, float) and not math.isfinite(value):
         return f"{spec.name} must be finite, got {value}"
+    if spec.choices is not None and value not in spec.choices:
+        return f"{spec.name} must be one of {', '.join(spec.choices)}, got {_brief(value)}"
     if spec.minimum is not None and value < spec.minimum:
         return f"{spec.name} must be >= {spec.minimum:g}, got {value}"
     if spec.maximum is not None and value > spec.maximum:

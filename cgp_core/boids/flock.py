@@ -2,7 +2,7 @@
 
 One step of ``dt`` (all boids at once, no per-boid Python loop):
 
-1. **neighbours** — every pair closer than d (``neighbors.py``; in a periodic world with ghost images);
+1. **neighbours** — every boid's neighbours within d (``neighbors.py``; minimum images in a periodic world);
 2. **flocking** — cohesion, separation, alignment summed over each boid's neighbours (``rules.py``) and the
    optional goal: the acceleration the flock *wants*;
 3. **avoidance** — soft walls and the world's bodies (``obstacles.py``): the acceleration the boid *needs*.
@@ -31,7 +31,7 @@ import numpy as np
 from ..jit import njit, prange
 from .frames import initial_dorsal, low_pass_weight, quaternions_rows, unit_headings, update_frames_rows
 from .neighbors import NeighborList, make_search
-from .obstacles import ColumnIndex, ObstacleHits, Obstacles
+from .obstacles import ObstacleHits, Obstacles
 from .params import FlockParams
 from .rules import neighbor_sums, steering
 
@@ -54,12 +54,33 @@ def _scaled_to(x: float, y: float, z: float, limit: float):
     return x, y, z
 
 
+#: bounds modes as the compiled stages take them
+_OPEN, _SOFT, _WRAP = 0, 1, 2
+
+
+@njit
+def _wall_push(x: float, low: float, high: float, margin: float) -> float:
+    """Soft wall along one axis, in units of the wall gain: 0 deeper inside than ``margin``, growing linearly
+    to ``margin`` at the wall (positive = back into the box)."""
+    return max(low + margin - x, 0.0) - max(x - (high - margin), 0.0)
+
+
 @njit(parallel=True)
-def _accelerate_and_move(x, v, heading, wanted, needed, max_acceleration, min_speed, max_speed, dt):
-    """Stage 4 of the step, per boid: prioritized allocation, ``b_v += a dt``, speed clamp, ``b += b_v dt``."""
+def _move(x, v, heading, wanted, avoidance, max_acceleration, min_speed, max_speed, dt, bounds_mode, bounds_min,
+          bounds_max, wall_margin, wall_gain):
+    """Stages 3-5 of the step, per boid (see the module docstring): what the boid needs (soft walls +
+    ``avoidance``) and what the flock wants (``wanted``) by prioritized allocation; ``b_v += a dt``, the speed
+    clamp, ``b += b_v dt``; the box: soft walls put a boid that still reached a wall back on it without its
+    outward velocity, a periodic box wraps it."""
     for i in prange(x.shape[0]):
-        # avoidance first (capped at max_acceleration); the flock's wish gets what is left of it
-        nx, ny, nz = _scaled_to(needed[i, 0], needed[i, 1], needed[i, 2], max_acceleration)
+        # needed: avoidance + soft walls, capped at max_acceleration
+        nx, ny, nz = avoidance[i, 0], avoidance[i, 1], avoidance[i, 2]
+        if bounds_mode == _SOFT and wall_gain > 0.0:
+            nx += wall_gain * _wall_push(x[i, 0], bounds_min[0], bounds_max[0], wall_margin)
+            ny += wall_gain * _wall_push(x[i, 1], bounds_min[1], bounds_max[1], wall_margin)
+            nz += wall_gain * _wall_push(x[i, 2], bounds_min[2], bounds_max[2], wall_margin)
+        nx, ny, nz = _scaled_to(nx, ny, nz, max_acceleration)
+        # the flock's wish gets what is left of max_acceleration
         left = max(max_acceleration - math.sqrt(nx * nx + ny * ny + nz * nz), 0.0)
         wx, wy, wz = _scaled_to(wanted[i, 0], wanted[i, 1], wanted[i, 2], left)
         vx = v[i, 0] + (nx + wx) * dt
@@ -72,9 +93,21 @@ def _accelerate_and_move(x, v, heading, wanted, needed, max_acceleration, min_sp
             speed = min_speed
         scale = min(max(speed, min_speed), max_speed) / speed
         v[i, 0], v[i, 1], v[i, 2] = vx * scale, vy * scale, vz * scale
-        x[i, 0] += v[i, 0] * dt
-        x[i, 1] += v[i, 1] * dt
-        x[i, 2] += v[i, 2] * dt
+        for a in range(3):
+            x[i, a] += v[i, a] * dt
+            if bounds_mode == _SOFT:
+                if x[i, a] < bounds_min[a]:
+                    x[i, a] = bounds_min[a]
+                    v[i, a] = max(v[i, a], 0.0)
+                elif x[i, a] > bounds_max[a]:
+                    x[i, a] = bounds_max[a]
+                    v[i, a] = min(v[i, a], 0.0)
+            elif bounds_mode == _WRAP:
+                size = bounds_max[a] - bounds_min[a]
+                wrapped = (x[i, a] - bounds_min[a]) % size
+                if wrapped >= size:  # rounding can give the size itself for a tiny negative offset: that is 0
+                    wrapped = 0.0
+                x[i, a] = bounds_min[a] + wrapped
 
 
 class Flock:
@@ -108,6 +141,7 @@ class Flock:
         p = params
         #: (3,) box sizes of a periodic box, zeros in open space (what the neighbour search and rules take)
         self.period = (p.bounds_max - p.bounds_min) if p.bounds_mode == "wrap" else np.zeros(3)
+        self._no_avoidance = np.zeros((n, 3))  # what a step without bodies avoids
         self.reset()
 
     # ---- state -----------------------------------------------------------------------------------------
@@ -127,7 +161,6 @@ class Flock:
         self._dorsal[:] = initial_dorsal(self._heading.T).T
         quaternions_rows(self._heading, self._dorsal, self._q)
         self._search.reset()
-        self._obstacle_index: ColumnIndex | None = None
         self.time = 0.0
         self.steps = 0
         self.mean_neighbors = 0.0
@@ -187,25 +220,22 @@ class Flock:
             to_goal = p.goal - x
             wanted += to_goal * (p.goal_weight / np.maximum(_norm(to_goal), 1e-9))[:, None]
 
-        needed = self._wall_acceleration()
+        avoidance = self._no_avoidance
         near: ObstacleHits | None = None
         if use_obstacles:
             # one query serves steering now and the no-entry projection after the move: a boid moves at most
             # max_speed·dt, so any body it can end up inside is within this reach now
             reach = boid_radius + (p.obstacle_margin if p.avoid_bodies else 0.0) + p.max_speed * dt + 1e-6
-            near = obstacles.query(x.T, reach, self._column_index(reach))
+            near = obstacles.query(x.T, reach)
             if p.avoid_bodies and p.obstacle_margin > 0.0:
-                needed += self._avoidance_acceleration(near, boid_radius)
+                avoidance = self._avoidance_acceleration(near, boid_radius)
 
-        _accelerate_and_move(x, v, self._heading, wanted, needed, p.max_acceleration, p.min_speed, p.max_speed,
-                             float(dt))
+        # walls + avoidance, allocation, integration, speed clamp, the box: per boid, compiled
+        margin = max(p.bounds_margin, 1e-9)
+        _move(x, v, self._heading, wanted, avoidance, p.max_acceleration, p.min_speed, p.max_speed, float(dt),
+              {"none": _OPEN, "soft": _SOFT, "wrap": _WRAP}[p.bounds_mode], p.bounds_min, p.bounds_max, margin,
+              p.bounds_strength / margin)
 
-        if p.bounds_mode == "soft":
-            self._clamp_to_box()
-        elif p.bounds_mode == "wrap":
-            x -= p.bounds_min
-            np.mod(x, self.period, out=x)
-            x += p.bounds_min
         if use_obstacles:
             if p.bounds_mode == "wrap":
                 # a boid that wrapped now faces bodies it was not near: check everyone
@@ -234,28 +264,6 @@ class Flock:
         self.mean_neighbors = neighbors.total / p.count
         self.mean_visible_neighbors = float(sums.count.mean())
         return steering(sums, self._v, p.cohesion_weight, p.separation_weight, p.alignment_weight)
-
-    def _column_index(self, cell: float) -> ColumnIndex:
-        """The boids sorted by (x cell, y) for the obstacle queries, refreshed from the previous tick's index
-        (nearly sorted already: timsort is then close to O(N))."""
-        self._obstacle_index = ColumnIndex(self._x.T, cell, self._obstacle_index)
-        return self._obstacle_index
-
-    def _wall_acceleration(self) -> np.ndarray:
-        """Soft walls: per axis, an acceleration back into the box growing linearly from 0 at
-        ``bounds_margin`` inside the wall to ``bounds_strength`` at the wall, (N, 3)."""
-        p = self.params
-        if p.bounds_mode != "soft" or p.bounds_strength == 0.0:
-            return np.zeros((p.count, 3))
-        margin = max(p.bounds_margin, 1e-9)
-        x = self._x
-        below = (p.bounds_min + margin) - x
-        above = x - (p.bounds_max - margin)
-        np.maximum(below, 0.0, out=below)
-        np.maximum(above, 0.0, out=above)
-        below -= above
-        below *= p.bounds_strength / margin
-        return below
 
     def _avoidance_acceleration(self, near: ObstacleHits, boid_radius: float) -> np.ndarray:
         """Steer around bodies, (N, 3): for each (boid, body) closer than ``obstacle_margin`` (surface to
@@ -292,17 +300,6 @@ class Flock:
         for axis in range(3):
             a[:, axis] = np.bincount(boid, weights=push[axis], minlength=p.count)
         return a
-
-    def _clamp_to_box(self) -> None:
-        """Soft-wall mode guarantee: a boid past a wall is put back on it and loses its outward velocity."""
-        p = self.params
-        x, v = self._x, self._v
-        low = x < p.bounds_min
-        high = x > p.bounds_max
-        if np.any(low) or np.any(high):
-            np.clip(x, p.bounds_min, p.bounds_max, out=x)
-            v[low] = np.maximum(v[low], 0.0)
-            v[high] = np.minimum(v[high], 0.0)
 
     def _project_out_of_bodies(self, obstacles: Obstacles, candidates: np.ndarray, boid_radius: float) -> None:
         """No-entry guarantee: a boid closer than ``boid_radius`` to a body (centre inside the inflated body)

@@ -126,18 +126,37 @@ class NeighborList:
 
 @njit
 def _gather(array, order, out):
-    """``out[s] = array[order[s]]`` (rows; numpy's fancy indexing takes several times longer for (N, 3))."""
-    for s in range(order.shape[0]):
-        for c in range(array.shape[1]):
-            out[s, c] = array[order[s], c]
+    """``out[s] = array[order[s]]`` for rows of an (N, k) array (numpy's fancy indexing takes several times
+    longer on (N, 3))."""
+    columns = array.shape[1]
+    if columns == 3:
+        for s in range(order.shape[0]):
+            b = order[s]
+            out[s, 0], out[s, 1], out[s, 2] = array[b, 0], array[b, 1], array[b, 2]
+    else:
+        for s in range(order.shape[0]):
+            for c in range(columns):
+                out[s, c] = array[order[s], c]
 
 
 @njit
 def _scatter(array, order, out):
-    """``out[order[s]] = array[s]``."""
+    """``out[order[s]] = array[s]`` for rows of an (N, k) array."""
     for s in range(order.shape[0]):
         for c in range(array.shape[1]):
             out[order[s], c] = array[s, c]
+
+
+@njit
+def _bounds(positions):
+    """Per-axis minimum and maximum of (N, 3) positions (one pass)."""
+    low = positions[0].copy()
+    high = positions[0].copy()
+    for i in range(1, positions.shape[0]):
+        for a in range(3):
+            low[a] = min(low[a], positions[i, a])
+            high[a] = max(high[a], positions[i, a])
+    return low, high
 
 
 # ---- the shared membership formula -------------------------------------------------------------------------
@@ -427,6 +446,17 @@ def _complete_rows(capacity, forward, count, index):
 
 
 @njit
+def _relative(positions, low, period, relative):
+    """Positions relative to the cloud's lower corner, folded into [0, L) along periodic axes."""
+    for i in range(positions.shape[0]):
+        for a in range(3):
+            r = positions[i, a] - low[a]
+            if period[a] > 0.0:
+                r = r % period[a]
+            relative[i, a] = r
+
+
+@njit
 def _cell_keys(relative, edge, dims, keys):
     """Cell key of every point, x-major then y then z (a point on the far face of the box joins the last
     cell)."""
@@ -500,18 +530,17 @@ class GridSearch:
         if n < 2:
             return _empty(n)
         periodic = period > 0.0
-        low = positions.min(axis=0)
-        relative = positions - low
-        if np.any(periodic):  # positions of a periodic axis are folded into [low, low + L)
-            relative[:, periodic] = np.mod(relative[:, periodic], period[periodic])
+        low, high = _bounds(positions)
+        relative = np.empty_like(positions)
+        _relative(positions, low, period, relative)  # periodic axes folded into [0, L)
         wanted_edge = np.array([radius, radius, radius / self.Z_CELLS_PER_RADIUS])
         dims = np.where(periodic, np.maximum(np.floor(period / wanted_edge), 1.0),
-                        np.floor(relative.max(axis=0) / wanted_edge) + 1.0)
+                        np.floor((high - low) / wanted_edge) + 1.0)
         # a periodic x or y axis of 2 columns would make the columns before and after a boid the same one (a
         # pair found twice): one column then (the axis is shorter than 3 d, a tiny box)
         dims[:2] = np.where(periodic[:2] & (dims[:2] < 3.0), 1.0, dims[:2])
         if np.any(dims > _MAX_CELLS_PER_AXIS):
-            raise ValueError(f"the flock spans {(relative.max(axis=0) / radius).round().tolist()} neighbour radii "
+            raise ValueError(f"the flock spans {((high - low) / radius).round().tolist()} neighbour radii "
                              f"on an axis, more than {_MAX_CELLS_PER_AXIS // self.Z_CELLS_PER_RADIUS}; bound it "
                              "(bounds_mode 'soft' or 'wrap')")
         edge = np.where(periodic, period / dims, wanted_edge)

@@ -94,9 +94,10 @@ def sees(heading: np.ndarray, i: int, dx: float, dy: float, dz: float, r2: float
 
 
 @njit(parallel=True)
-def _neighbor_sums(start, count, index, positions, velocities, headings, period, separation_radius,
+def _neighbor_sums(start, count, index, order, positions, velocities, headings, period, separation_radius,
                    cos_half_fov, out_count, out_offset, out_velocity, out_separation, out_crowded):
-    """The loop over every boid's neighbours (all arrays in the neighbour list's slot order)."""
+    """The loop over every boid's neighbours.  Inputs in the neighbour list's slot order, so that a boid's
+    neighbours are read from nearby memory; each result is written to its boid's row (``order[i]``)."""
     s = separation_radius
     s2 = s * s
     gate2 = (COHESION_GATE * s) ** 2
@@ -130,11 +131,12 @@ def _neighbor_sums(start, count, index, positions, velocities, headings, period,
             vx += w * velocities[j, 0]
             vy += w * velocities[j, 1]
             vz += w * velocities[j, 2]
-        out_count[i] = n
-        out_offset[i, 0], out_offset[i, 1], out_offset[i, 2] = ox, oy, oz
-        out_velocity[i, 0], out_velocity[i, 1], out_velocity[i, 2] = vx, vy, vz
-        out_separation[i, 0], out_separation[i, 1], out_separation[i, 2] = sx, sy, sz
-        out_crowded[i] = crowded
+        b = order[i]
+        out_count[b] = n
+        out_offset[b, 0], out_offset[b, 1], out_offset[b, 2] = ox, oy, oz
+        out_velocity[b, 0], out_velocity[b, 1], out_velocity[b, 2] = vx, vy, vz
+        out_separation[b, 0], out_separation[b, 1], out_separation[b, 2] = sx, sy, sz
+        out_crowded[b] = crowded
 
 
 def neighbor_sums(neighbors: NeighborList, positions: np.ndarray, velocities: np.ndarray, headings: np.ndarray,
@@ -153,13 +155,11 @@ def neighbor_sums(neighbors: NeighborList, positions: np.ndarray, velocities: np
     n = len(positions)
     sums = NeighborSums(count=np.empty(n), offset_sum=np.empty((n, 3)), velocity_sum=np.empty((n, 3)),
                         separation=np.empty((n, 3)), crowded=np.empty(n, dtype=np.bool_))
-    _neighbor_sums(neighbors.start, neighbors.count, neighbors.index, neighbors.sorted(positions),
+    _neighbor_sums(neighbors.start, neighbors.count, neighbors.index, neighbors.order, neighbors.sorted(positions),
                    neighbors.sorted(velocities), neighbors.sorted(headings),
                    np.zeros(3) if period is None else period, float(separation_radius), float(cos_half_fov),
                    sums.count, sums.offset_sum, sums.velocity_sum, sums.separation, sums.crowded)
-    # back from the list's slot order to boid order
-    return NeighborSums(*(neighbors.unsorted(a) for a in (sums.count, sums.offset_sum, sums.velocity_sum,
-                                                           sums.separation, sums.crowded)))
+    return sums
 
 
 def cohesion(sums: NeighborSums, gated: bool = True) -> np.ndarray:
