@@ -28,6 +28,7 @@ Bad input (what a node on a shared graph must expect):
 from __future__ import annotations
 
 import collections
+import gc
 import json
 import math
 import time
@@ -152,6 +153,7 @@ class SimNode(Node):
                if self.recorder.recording else f", NOT recording (the bag {str(self.bag_path)!r} cannot be "
                "written: see the error above)"))
         self.get_logger().info("level of detail: " + " ".join(self.detail.lines))
+        self._freeze_startup_objects()
 
     # ---- set-up -----------------------------------------------------------------------------------------
 
@@ -243,6 +245,16 @@ class SimNode(Node):
                                      custom_data=self._detail_custom_data())
         except BagExistsError as exc:  # created between the check in __init__ and now
             raise ConfigError(f"bag: {exc}") from None
+
+    @staticmethod
+    def _freeze_startup_objects() -> None:
+        """Everything built so far — the imported modules (rclpy, numpy, scipy, numba and its compiled kernels),
+        the scene, the world — lives as long as the node: move it out of the cyclic garbage collector's sight
+        (``gc.freeze``).  Python's full collections, which it runs now and then between ticks, then scan only
+        what the ticks create: about a millisecond instead of the ~200 ms pause measured at 15k fish, which
+        alone would break the tick's 16.7 ms."""
+        gc.collect()
+        gc.freeze()
 
     def _plan_detail(self) -> None:
         """(Re)make the level-of-detail plan from the flocks and the parameters (cgp_sim_ros/detail.py)."""

@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-from cgp_core.jit import njit, prange
+from cgp_core.jit import njit, prange, threads_for
 
 _SNOUT = (0.5, 0.0, 0.0)
 _TOP = (0.1, 0.0, 0.14)
@@ -118,7 +118,8 @@ def fish_triangles(positions: np.ndarray, orientations: np.ndarray, length: floa
     orientations = np.ascontiguousarray(orientations, dtype=np.float64)
     if out is None:
         out = np.empty((len(positions) * len(template), 3))
-    _fish_vertices(positions, orientations, template, float(quantum), out)
+    with threads_for(len(positions)):
+        _fish_vertices(positions, orientations, template, float(quantum), out)
     return out
 
 
@@ -127,5 +128,6 @@ def quantized_points(points: np.ndarray, quantum: float = VERTEX_QUANTUM, out: n
     points = np.ascontiguousarray(points, dtype=np.float64)
     if out is None:
         out = np.empty_like(points)
-    _quantize_rows(points, float(quantum), out)
+    with threads_for(len(points)):
+        _quantize_rows(points, float(quantum), out)
     return out

@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from ..jit import njit, prange
+from ..jit import njit, prange, threads_for
 from .frames import initial_dorsal, low_pass_weight, quaternions_rows, unit_headings, update_frames_rows
 from .neighbors import NeighborList, make_search
 from .obstacles import ObstacleHits, Obstacles
@@ -210,6 +210,10 @@ class Flock:
         """Advance by ``dt`` seconds, avoiding ``obstacles`` (the world's bodies at this tick) if given."""
         if not (isinstance(dt, (int, float, np.floating)) and math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"flock {self.name!r}: dt must be a finite number > 0, got {dt!r}")
+        with threads_for(self.count):  # both cores for big flocks, one for small ones (jit.py)
+            self._step(float(dt), obstacles)
+
+    def _step(self, dt: float, obstacles: Obstacles | None) -> None:
         p = self.params
         x, v = self._x, self._v
         boid_radius = 0.5 * p.boid_size

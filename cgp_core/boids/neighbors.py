@@ -318,7 +318,14 @@ def _first_slot(key, dense, table, sorted_keys):
     by binary search in the sorted keys (sparse clouds)."""
     if dense:
         return table[key]
-    return np.searchsorted(sorted_keys, key, side="left")
+    first, last = 0, sorted_keys.shape[0]  # the first index whose key is >= key (a lower bound)
+    while first < last:
+        middle = (first + last) // 2
+        if sorted_keys[middle] < key:
+            first = middle + 1
+        else:
+            last = middle
+    return first
 
 
 @njit
@@ -434,7 +441,8 @@ def _complete_rows(capacity, forward, count, index):
     """Turn the half-shell rows into full rows: every forward entry s → t also puts s into t's row (after t's
     own forward entries).  Sequential, in slot order: the rows it appends to are nearby ones (t > s, spatially
     close).  Returns False if a row overflowed its room."""
-    count[:] = forward
+    for s in range(forward.shape[0]):
+        count[s] = forward[s]
     for s in range(forward.shape[0]):
         for k in range(capacity * s, capacity * s + forward[s]):
             t = index[k]
@@ -471,7 +479,8 @@ def _cell_keys(relative, edge, dims, keys):
 def _counting_sort(keys, cell_count, table, order):
     """Stable counting sort of the boids by cell key: ``table[c]`` = first sorted slot of cell c (size
     ``cell_count + 1``), ``order`` = boids in cell order (ties in boid order)."""
-    table[:] = 0
+    for c in range(cell_count + 1):
+        table[c] = 0
     for i in range(keys.shape[0]):
         table[keys[i] + 1] += 1
     for c in range(cell_count):
