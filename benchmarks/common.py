@@ -60,7 +60,7 @@ class Results:
     """Collects one benchmark's output and writes it in the common layout.
 
     >>> out = Results("tick", options=vars(args))
-    >>> out.figure("tick_15k_median", "full tick ...", 21.3, "ms", "<= 16.7", 21.3 <= 16.7, issue7=True)
+    >>> out.figure("tick_15k_fish_p99_first", "p99 tick ...", 14.2, "ms", "<= 16.7", 14.2 <= 16.7, issue12=True)
     >>> out.data["rows"] = rows
     >>> out.write()
     """
