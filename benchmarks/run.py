@@ -66,10 +66,9 @@ ISSUE12_TARGETS = {
     "startup_warm_s": ("s", "<= 5"), "startup_cold_s": ("s", "<= 30"),
 }
 
-#: issue 7's figures that still stand (its full-tick figure is superseded by issue 12's), in the issue's order
+#: issue 7's figures that still stand and are not issue 12's too (its full-tick figure is superseded by issue
+#: 12's), in the issue's order
 ISSUE7 = [
-    ("boids_100k", "boids", "boids step at 100,000 boids"),
-    ("boids_scaling_100k_10k", "boids", "boids step cost(100k) / cost(10k)"),
     ("boids_naive_ratio_4k", "boids", "vs a naive O(N²) numpy boids step at 4,000 boids"),
     ("cdr_publish_record_10k", "cdr", "publish + record a 10,000-pose PoseArray vs rclpy Pose objects"),
     ("contacts_1k_resting", "contacts", "1,000 spheres into a 5 x 5 m box: step once resting vs PyBullet"),
@@ -180,6 +179,46 @@ def scaling_markdown(names: list[str]) -> str:
     spheres 100 / 1,000 and the broad phases."""
     out = []
     tick = load("tick") if "tick" in names else None
+    if tick and tick.get("fish"):
+        fish = tick["fish"]
+        out += ["**The 15k-fish tick from the first tick** (`bench_tick.py`: 15,000 fish + 20 bodies, recorded; ms per "
+                "tick; per stage: median / p99 / mean of the slowest 1 % of ticks)", "",
+                "| window | ticks | bodies awake | median | p90 | p99 | max | rigid bodies | flock | serialize | "
+                "publish | record |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+        runs = [("fish", fish)] + ([("sphere", tick["sphere"])] if tick.get("sphere") else [])
+        for model, run in runs:
+            for label, w in run["windows"].items():
+                cells = []
+                for stage in ("world.step: rigid bodies (+ obstacle set)", "world.step: flock",
+                              "serialize (messages.*)", "Publisher.publish", "recorder.write (caller)"):
+                    cells.append(f"{w['split_median_ms'][stage]:.1f} / {w['split_p99_ms'][stage]:.1f} / "
+                                 f"{w['split_of_slowest_1pct_ms'][stage]:.1f}")
+                out.append(f"| {model}, {label} | {w['ticks']:,} | {100 * w['bodies_awake_fraction']:.0f} % | "
+                           f"{w['median']:.1f} | {w['p90']:.1f} | {w['p99']:.1f} | {w['max']:.1f} | "
+                           + " | ".join(cells) + " |")
+        lod = fish["level_of_detail"]
+        out += ["", f"Bag: {fish['bag_MB']:.0f} MB for {fish['sim_seconds']:.0f} s of simulated time = "
+                f"{fish['bag_MB_per_sim_second']:.1f} MB/s (payload {fish['bag_payload_MB_per_sim_second']:.1f} MB/s "
+                f"before lz4); the writer thread used {fish['bag_writer_cpu_ms_per_tick']:.1f} ms CPU per tick, "
+                f"backlog max {fish['bag_backlog_max_MB']:.1f} MB, {fish['bag_dropped_messages']} dropped. Level of "
+                f"detail: {' '.join(lod['lines'])} Garbage collections during the run (gen 0, 1, 2): "
+                f"{fish['gc']['collections']}, the longest {fish['gc']['longest_ms']:.1f} ms.", ""]
+    realtime = load("realtime") if "realtime" in names else None
+    if realtime and realtime.get("runs"):
+        out += ["**The default scene in real time** (`bench_realtime.py`: `cgp-sim --scene default --bag ...`, "
+                "timer-driven, from the first tick; ms)", "",
+                "| run | ticks | achieved | warnings | tick median | tick p99 | tick max | period median | "
+                "period p99 | period max | longest gc |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+        for r in realtime["runs"]:
+            out.append(f"| {r['label']} | {r['ticks']} | {r['achieved_hz']:.2f} Hz | {r['falling_behind_warnings']} | "
+                       f"{r['tick_ms']['median']:.2f} | {r['tick_ms']['p99']:.2f} | {r['tick_ms']['max']:.1f} | "
+                       f"{r['period_ms']['median']:.2f} | {r['period_ms']['p99']:.2f} | {r['period_ms']['max']:.1f} | "
+                       f"{r['gc']['longest_ms']:.1f} |")
+        st = realtime.get("startup", {})
+        if st:
+            out += ["", f"Start-up to the first `/clock` (default scene): cold (no compile cache) "
+                    f"{st['cold']['start_to_first_clock_s']:.1f} s, warm {st['warm']['start_to_first_clock_s']:.1f} s.",
+                    ""]
     if tick and tick.get("scaling"):
         out += ["**Full tick vs flock size** (20 bodies, bag on; median ms; the split is from the instrumented "
                 "ticks, `bench_tick.py`)", "",
