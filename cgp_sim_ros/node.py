@@ -288,6 +288,8 @@ class SimNode(Node):
             (self.get_logger().error if event.level == "error" else self.get_logger().warn)(event.text)
             self._event({"event": "world", "level": event.level, "text": event.text})
         self._publish_state()
+        if self.recorder is not None:
+            self.recorder.end_tick()  # the bag writer works while this thread waits for the next tick
         self._tick_wall_times.append(time.perf_counter() - start)
         self._window_ticks += 1
         self._periodic_reports()

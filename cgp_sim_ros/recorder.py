@@ -45,6 +45,10 @@ class Recorder:
     def write(self, topic: str, data: bytes, stamp_ns: int) -> None:
         self.writer.write(topic, data, stamp_ns, stamp_ns)
 
+    def end_tick(self) -> None:
+        """The tick's messages are all written: the writer thread may take them now (BagWriter.wake)."""
+        self.writer.wake()
+
     def set_custom_data(self, custom_data: dict) -> None:
         """The node's entries of the bag's ``custom_data`` from now on (the level-of-detail plan)."""
         self.writer.set_custom_data({**self._own_data, **custom_data})

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 from geometry_msgs.msg import PoseArray
 from rclpy.serialization import deserialize_message
+from ros_probe import pause
 from visualization_msgs.msg import Marker, MarkerArray
 
 VENV = Path(sys.prefix)
@@ -22,13 +23,16 @@ def _stamp(msg) -> float:
 
 
 def test_default_scene_is_live_on_the_graph(start_node, probe):
-    node = start_node("--scene", "default")
+    # started paused, so that the probe is matched before the first tick (it must see the ball fall)
+    node = start_node("--scene", "default", "--start-paused", "true")
     bodies = probe.subscribe("/cgp_sim/bodies/poses", PoseArray)
     # The big messages are taken raw and decoded afterwards: decoding 9,000 marker points into Python objects
     # per tick would make this observer, not the node, the bottleneck.
     fish = probe.subscribe("/cgp_sim/flocks/fish/poses", PoseArray, raw=True)
     markers = probe.subscribe("/cgp_sim/markers", MarkerArray, raw=True)
-    probe.wait_for_publisher("/cgp_sim/bodies/poses", timeout=30)
+    probe.spin_until(lambda: all(probe.node.count_publishers(t) > 0 for t in (
+        "/cgp_sim/bodies/poses", "/cgp_sim/flocks/fish/poses", "/cgp_sim/markers")), 30, "the node's publishers")
+    pause(probe, False)
     probe.wait_for_messages("/cgp_sim/markers", 1, timeout=30)
     # about 1.5 s of wall time worth of ticks
     probe.wait_for_messages("/cgp_sim/bodies/poses", 90, timeout=30)
