@@ -135,7 +135,8 @@ class SimNode(Node):
         self._event(self.detail.event())  # after the recorder: the plan is the bag's first event
 
         self._tick_wall_times: collections.deque = collections.deque(maxlen=512)
-        self._window_start = time.monotonic()
+        #: the rate check's window: starts at the first tick after start-up or a pause (see _periodic_reports)
+        self._window_start: float | None = None
         self._window_ticks = 0
         self._timer = self.create_timer(self._timer_period(), self._on_timer)
         # Reports on their own wall-clock timer, so rejected commands are summarized while paused too.
@@ -322,6 +323,9 @@ class SimNode(Node):
 
     def _periodic_reports(self) -> None:
         now = time.monotonic()
+        if self._window_start is None:  # the first tick since start-up or a pause: the window opens here
+            self._window_start, self._window_ticks = now, 0
+            return
         elapsed = now - self._window_start
         if elapsed < REPORT_PERIOD_S:
             return
@@ -466,6 +470,7 @@ class SimNode(Node):
 
     def _on_pause(self, request, response):
         self.paused = bool(request.data)
+        self._window_start = None  # time spent paused is not "falling behind"
         self._event({"event": "service", "name": "pause", "data": self.paused})
         response.success = True
         response.message = f"{'paused' if self.paused else 'running'} at t = {self.world.time:.6f} s"
@@ -511,6 +516,7 @@ class SimNode(Node):
                 self._timer.cancel()
                 self.destroy_timer(self._timer)
                 self._timer = self.create_timer(self._timer_period(), self._on_timer)
+                self._window_start = None  # the rate check starts over at the new rate
         if any(param.name in ("rate_hz", "markers_every", "fish_detail") for param in parameters):
             self._replan_detail()
         return SetParametersResult(successful=True)
