@@ -148,8 +148,8 @@ def _scatter(array, order, out):
 
 
 @njit
-def _bounds(positions):
-    """Per-axis minimum and maximum of (N, 3) positions (one pass)."""
+def bounding_box(positions):
+    """Per-axis minimum and maximum ``(low (3,), high (3,))`` of (N >= 1, 3) positions, in one pass."""
     low = positions[0].copy()
     high = positions[0].copy()
     for i in range(1, positions.shape[0]):
@@ -539,7 +539,7 @@ class GridSearch:
         if n < 2:
             return _empty(n)
         periodic = period > 0.0
-        low, high = _bounds(positions)
+        low, high = bounding_box(positions)
         relative = np.empty_like(positions)
         _relative(positions, low, period, relative)  # periodic axes folded into [0, L)
         wanted_edge = np.array([radius, radius, radius / self.Z_CELLS_PER_RADIUS])

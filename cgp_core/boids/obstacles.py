@@ -22,6 +22,7 @@ import numpy as np
 
 from ..bodies import BodyModel, BodyState, Shape
 from ..jit import njit, prange
+from .neighbors import bounding_box
 
 _SPHERE, _BOX, _CAPSULE = 0, 1, 2
 _TINY = 1e-12  # as geometry.py: below this a direction is undefined and a fallback normal is used
@@ -130,40 +131,34 @@ class Obstacles:
 
     def query(self, points: np.ndarray, reach: float) -> ObstacleHits:
         """Every (point, shape) pair with signed distance < ``reach``; ``points (3, N)`` world coordinates.
-        The hits come point by point (ascending), each point's shapes in order (spheres, boxes, capsules), then
-        the ground plane's hits."""
+        The hits come point by point (ascending), each point's shapes in order (spheres, boxes, capsules, then
+        the ground plane)."""
         rows = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T)  # (N, 3): one point per row
         n = len(rows)
-        parts = []
+        if n == 0 or self.shape_count == 0:
+            return ObstacleHits.concatenate([])
         kind, center, rotation, half, radius, bound = self._packed()
-        if n and len(kind):
-            grown = bound + reach
-            low = rows.min(axis=0)
-            extent = rows.max(axis=0) - low
-            cell = max(_CELL_REACHES * reach, float(np.prod(extent + 1e-9) / _MAX_CELLS) ** (1.0 / 3.0), 1e-6)
-            dims = (np.floor(extent / cell) + 1).astype(np.int64)
-            table, shape_ids = _bin_shapes(center, grown, low, cell, dims)
-            counts = np.zeros(n, np.int64)
-            dummy_i, dummy_f, dummy_n = np.zeros(0, np.int64), np.zeros(0), np.zeros((3, 0))
-            _point_hits(False, rows, float(reach), low, cell, dims, table, shape_ids, kind, center, rotation, half,
-                        radius, grown, counts, dummy_i, dummy_f, dummy_n)
-            total = int(counts.sum())
-            if total:
-                start = np.zeros(n, np.int64)
-                np.cumsum(counts[:-1], out=start[1:])
-                hit_point = np.empty(total, np.int64)
-                hit_distance = np.empty(total)
-                hit_normal = np.empty((3, total))
-                _point_hits(True, rows, float(reach), low, cell, dims, table, shape_ids, kind, center, rotation,
-                            half, radius, grown, start, hit_point, hit_distance, hit_normal)
-                parts.append(ObstacleHits(hit_point, hit_distance, hit_normal))
-        if n and self.ground_height is not None:
-            height = rows[:, 2] - self.ground_height
-            near = np.flatnonzero(height < reach)
-            normal = np.zeros((3, len(near)))
-            normal[2] = 1.0
-            parts.append(ObstacleHits(near, height[near], normal))
-        return ObstacleHits.concatenate(parts)
+        grown = bound + reach
+        low, high = bounding_box(rows)
+        extent = high - low
+        cell = max(_CELL_REACHES * reach, float(np.prod(extent + 1e-9) / _MAX_CELLS) ** (1.0 / 3.0), 1e-6)
+        dims = (np.floor(extent / cell) + 1).astype(np.int64)
+        table, shape_ids = _bin_shapes(center, grown, low, cell, dims)
+        ground = self.ground_height is not None
+        ground_height = float(self.ground_height) if ground else 0.0
+        counts = np.empty(n, np.int64)
+        no_hits = (np.zeros(0, np.int64), np.zeros(0), np.zeros((3, 0)))
+        args = (rows, float(reach), low, cell, dims, table, shape_ids, kind, center, rotation, half, radius, grown,
+                ground, ground_height)
+        _point_hits(False, *args, counts, *no_hits)
+        total = int(counts.sum())
+        if total == 0:
+            return ObstacleHits(*no_hits)
+        start = np.zeros(n, np.int64)
+        np.cumsum(counts[:-1], out=start[1:])
+        hits = ObstacleHits(np.empty(total, np.int64), np.empty(total), np.empty((3, total)))
+        _point_hits(True, *args, start, hits.point, hits.distance, hits.normal)
+        return hits
 
     def _packed(self):
         """Every shape in one set of arrays for the compiled query (computed once per Obstacles): kind (K,),
@@ -287,9 +282,9 @@ def _bin_shapes(center, grown, low, cell, dims):
 
 @njit(parallel=True)
 def _point_hits(fill, points, reach, low, cell, dims, table, shape_ids, kind, center, rotation, half, radius,
-                grown, counts_or_start, hit_point, hit_distance, hit_normal):
-    """Per point, the shapes of its cell within ``reach``: counted (``fill`` False) or written from
-    ``counts_or_start[i]`` on (``fill`` True)."""
+                grown, ground, ground_height, counts_or_start, hit_point, hit_distance, hit_normal):
+    """Per point, the shapes of its cell within ``reach`` and the ground plane z = ``ground_height`` (if
+    ``ground``): counted (``fill`` False) or written from ``counts_or_start[i]`` on (``fill`` True)."""
     for i in prange(points.shape[0]):
         px, py, pz = points[i, 0], points[i, 1], points[i, 2]
         cx = min(int((px - low[0]) / cell), dims[0] - 1)
@@ -297,23 +292,31 @@ def _point_hits(fill, points, reach, low, cell, dims, table, shape_ids, kind, ce
         cz = min(int((pz - low[2]) / cell), dims[2] - 1)
         c = (cx * dims[1] + cy) * dims[2] + cz
         found = 0
-        for e in range(table[c], table[c + 1]):
-            k = shape_ids[e]
-            dx, dy, dz = px - center[k, 0], py - center[k, 1], pz - center[k, 2]
-            if dx * dx + dy * dy + dz * dz >= grown[k] * grown[k]:
-                continue  # outside the bounding sphere grown by the reach
-            if kind[k] == _SPHERE:
-                d, nx, ny, nz = sphere_distance_to(px, py, pz, center[k, 0], center[k, 1], center[k, 2], radius[k])
-            elif kind[k] == _BOX:
-                d, nx, ny, nz = box_distance_to(px, py, pz, center[k], rotation[k], half[k])
+        for e in range(table[c], table[c + 1] + 1):
+            if e == table[c + 1]:  # after the cell's shapes: the ground
+                if not ground or pz - ground_height >= reach:
+                    continue
+                d, nx, ny, nz = pz - ground_height, 0.0, 0.0, 1.0
             else:
-                d, nx, ny, nz = capsule_distance_to(px, py, pz, center[k], rotation[k, :, 2], half[k, 2], radius[k])
-            if d < reach:
-                if fill:
-                    slot = counts_or_start[i] + found
-                    hit_point[slot] = i
-                    hit_distance[slot] = d
-                    hit_normal[0, slot], hit_normal[1, slot], hit_normal[2, slot] = nx, ny, nz
-                found += 1
+                k = shape_ids[e]
+                dx, dy, dz = px - center[k, 0], py - center[k, 1], pz - center[k, 2]
+                if dx * dx + dy * dy + dz * dz >= grown[k] * grown[k]:
+                    continue  # outside the bounding sphere grown by the reach
+                if kind[k] == _SPHERE:
+                    d, nx, ny, nz = sphere_distance_to(px, py, pz, center[k, 0], center[k, 1], center[k, 2],
+                                                       radius[k])
+                elif kind[k] == _BOX:
+                    d, nx, ny, nz = box_distance_to(px, py, pz, center[k], rotation[k], half[k])
+                else:
+                    d, nx, ny, nz = capsule_distance_to(px, py, pz, center[k], rotation[k, :, 2], half[k, 2],
+                                                        radius[k])
+                if d >= reach:
+                    continue
+            if fill:
+                slot = counts_or_start[i] + found
+                hit_point[slot] = i
+                hit_distance[slot] = d
+                hit_normal[0, slot], hit_normal[1, slot], hit_normal[2, slot] = nx, ny, nz
+            found += 1
         if not fill:
             counts_or_start[i] = found

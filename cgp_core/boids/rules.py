@@ -52,7 +52,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..jit import njit, prange
+from ..jit import njit, prange, threads_for
 from .neighbors import NeighborList, pair_offset, squared_length
 
 COHESION_GATE = 1.05  # cohesion is suspended while a neighbour is closer than this many separation radii
@@ -162,15 +162,51 @@ def neighbor_sums(neighbors: NeighborList, positions: np.ndarray, velocities: np
     return sums
 
 
+@njit
+def cohesion_of(count: float, offset_sum: np.ndarray, crowded: bool, gated: bool):
+    """v1 of one boid = centroid of the visible neighbours − b = their mean offset; zero with no neighbour
+    and, if ``gated``, for a crowded boid (separation has priority, see the module docstring)."""
+    if count > 0.0 and not (gated and crowded):
+        return offset_sum[0] / count, offset_sum[1] / count, offset_sum[2] / count
+    return 0.0, 0.0, 0.0
+
+
+@njit
+def alignment_of(count: float, velocity_sum: np.ndarray, velocity: np.ndarray):
+    """v3 of one boid = mean velocity of the visible neighbours − b_v; zero with no neighbour."""
+    if count > 0.0:
+        return (velocity_sum[0] / count - velocity[0], velocity_sum[1] / count - velocity[1],
+                velocity_sum[2] / count - velocity[2])
+    return 0.0, 0.0, 0.0
+
+
+@njit(parallel=True)
+def _rule_rows(rule, count, offset_sum, velocity_sum, separation_sum, crowded, velocities, gated, w1, w2, w3, out):
+    """Per boid: v1 (``rule`` 1), v3 (3), or the weighted sum w1 v1 + w2 v2 + w3 v3 (0)."""
+    for i in prange(count.shape[0]):
+        c1, c2, c3 = cohesion_of(count[i], offset_sum[i], crowded[i], gated)
+        a1, a2, a3 = alignment_of(count[i], velocity_sum[i], velocities[i])
+        if rule == 1:
+            out[i, 0], out[i, 1], out[i, 2] = c1, c2, c3
+        elif rule == 3:
+            out[i, 0], out[i, 1], out[i, 2] = a1, a2, a3
+        else:
+            out[i, 0] = (w1 * c1 + w2 * separation_sum[i, 0]) + w3 * a1
+            out[i, 1] = (w1 * c2 + w2 * separation_sum[i, 1]) + w3 * a2
+            out[i, 2] = (w1 * c3 + w2 * separation_sum[i, 2]) + w3 * a3
+
+
+def _rows(rule: int, sums: NeighborSums, velocities: np.ndarray, gated: bool, weights=(0.0, 0.0, 0.0)):
+    out = np.empty_like(sums.offset_sum)
+    with threads_for(len(out)):
+        _rule_rows(rule, sums.count, sums.offset_sum, sums.velocity_sum, sums.separation, sums.crowded,
+                   velocities, gated, *map(float, weights), out)
+    return out
+
+
 def cohesion(sums: NeighborSums, gated: bool = True) -> np.ndarray:
-    """v1 (N, 3) = centroid of the visible neighbours − b = mean offset; zero for a boid with no neighbour and,
-    if ``gated``, for a crowded boid (separation has priority, see the module docstring)."""
-    pulls = sums.count > 0.0
-    if gated:
-        pulls &= ~sums.crowded
-    v1 = np.zeros_like(sums.offset_sum)
-    np.divide(sums.offset_sum, sums.count[:, None], out=v1, where=pulls[:, None])
-    return v1
+    """v1 (N, 3) of every boid (:func:`cohesion_of`)."""
+    return _rows(1, sums, sums.offset_sum, gated)
 
 
 def separation(sums: NeighborSums) -> np.ndarray:
@@ -179,21 +215,14 @@ def separation(sums: NeighborSums) -> np.ndarray:
 
 
 def alignment(sums: NeighborSums, velocities: np.ndarray) -> np.ndarray:
-    """v3 (N, 3) = mean velocity of the visible neighbours − b_v; zero for a boid with no neighbour."""
-    has = sums.count > 0.0
-    v3 = np.zeros_like(velocities)
-    np.divide(sums.velocity_sum, sums.count[:, None], out=v3, where=has[:, None])
-    v3 -= velocities
-    v3 *= has[:, None]
-    return v3
+    """v3 (N, 3) of every boid (:func:`alignment_of`)."""
+    return _rows(3, sums, velocities, False)
 
 
 def steering(sums: NeighborSums, velocities: np.ndarray, cohesion_weight: float, separation_weight: float,
              alignment_weight: float) -> np.ndarray:
-    """The slides' weighted sum a = w1 v1 + w2 v2 + w3 v3, (N, 3) [m/s²] (an acceleration: see dt erratum).
-    The cohesion gate applies only when there is a separation rule to give priority to (w2 > 0)."""
-    a = cohesion(sums, gated=separation_weight > 0.0)
-    a *= cohesion_weight
-    a += separation_weight * separation(sums)
-    a += alignment_weight * alignment(sums, velocities)
-    return a
+    """The slides' weighted sum a = w1 v1 + w2 v2 + w3 v3, (N, 3) [m/s²] (an acceleration: see dt erratum),
+    per boid in one compiled loop.  The cohesion gate applies only when there is a separation rule to give
+    priority to (w2 > 0)."""
+    return _rows(0, sums, velocities, separation_weight > 0.0,
+                 (cohesion_weight, separation_weight, alignment_weight))
