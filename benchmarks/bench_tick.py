@@ -194,7 +194,7 @@ def run_scene(scene: Path, bag_dir: Path, windows: list[tuple[str, int]], name: 
         node.close()  # finishes the bag: summary, metadata.yaml
         node.destroy_node()
     bag_bytes = sum(p.stat().st_size for p in bag_dir.iterdir() if p.is_file())
-    out = {"scene": str(scene.relative_to(ROOT)), "boids": boids, "ticks": total, "sim_seconds": sim_seconds,
+    out = {"scene": str(scene.relative_to(ROOT)) if scene.is_relative_to(ROOT) else scene.name, "boids": boids, "ticks": total, "sim_seconds": sim_seconds,
            "windows": {}, "neighbors_per_boid_at_end": neighbors, "process_cpu_cores": cpu / wall,
            "bag_MB": bag_bytes / 1e6, "bag_MB_per_sim_second": bag_bytes / 1e6 / sim_seconds,
            "bag_payload_MB_per_sim_second": payload / 1e6 / sim_seconds,
