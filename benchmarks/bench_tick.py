@@ -23,6 +23,9 @@ Reported:
 - the split per stage from timing wrappers on the node's own objects (installed on every tick; they cost
   microseconds): ``World.step`` (rigid bodies + obstacle set, flock), serialize (``messages.*``), publish,
   ``recorder.write``; median and p99 per window;
+- the tick thread's own CPU time per tick (median, p99): what a tick costs when it does not wait for a core —
+  on a busy shared machine the wall time is much longer (the numba worker's share of the parallel kernels is
+  not in it);
 - the bag writer thread's CPU time per tick (it runs beside the tick, sharing the cores and the GIL), its
   largest backlog and dropped messages; Python's garbage collections during the run and the longest;
 - the same scene with ``model: sphere`` over its first 20 s, for reference (issue 12 measured 27 ms there).
@@ -170,6 +173,7 @@ def run_scene(scene: Path, bag_dir: Path, windows: list[tuple[str, int]], name: 
     writer_tid = writer._thread.native_id if writer._thread is not None else None
     total = sum(ticks for _, ticks in windows)
     ticks_ms = np.empty(total)
+    cpu_ms = np.empty(total)  # the tick thread's own CPU time (not the numba worker's, nor the bag writer's)
     split_ms = np.empty((total, len(STAGES)))
     awake = np.zeros(total, bool)
     cpu0, wall0, writer_cpu0 = time.process_time(), time.perf_counter(), thread_cpu_s(writer_tid)
@@ -177,10 +181,11 @@ def run_scene(scene: Path, bag_dir: Path, windows: list[tuple[str, int]], name: 
         with GcWatch() as gc_watch:
             for k in range(total):
                 awake[k] = not node.world.bodies_asleep
-                start = time.perf_counter()
+                start, start_cpu = time.perf_counter(), time.thread_time()
                 node.tick()
                 elapsed = time.perf_counter() - start
                 ticks_ms[k] = elapsed * 1e3
+                cpu_ms[k] = (time.thread_time() - start_cpu) * 1e3
                 split_ms[k] = np.array(timer.take(elapsed)) * 1e3
         wall = time.perf_counter() - wall0
         cpu = time.process_time() - cpu0
@@ -208,6 +213,8 @@ def run_scene(scene: Path, bag_dir: Path, windows: list[tuple[str, int]], name: 
         part = slice(first, first + ticks)
         stats = window_stats(ticks_ms[part])
         stats["bodies_awake_fraction"] = float(awake[part].mean())
+        stats["tick_thread_cpu_ms"] = {"median": float(np.median(cpu_ms[part])),
+                                       "p99": float(np.percentile(cpu_ms[part], 99))}
         stats["split_median_ms"] = dict(zip(STAGES, np.median(split_ms[part], axis=0).tolist()))
         stats["split_p99_ms"] = dict(zip(STAGES, np.percentile(split_ms[part], 99, axis=0).tolist()))
         # the slowest ticks' split: what a p99 tick is made of
@@ -325,7 +332,8 @@ def run(quick: bool = False, first_s: float = 20.0, next_s: float = 60.0, sphere
     print()
     for label, stats in fish["windows"].items():
         print(f"  {label}: tick median {stats['median']:.2f} ms, p90 {stats['p90']:.2f}, p99 {stats['p99']:.2f}, max "
-              f"{stats['max']:.2f}; bodies awake {100 * stats['bodies_awake_fraction']:.0f} % of ticks")
+              f"{stats['max']:.2f}; bodies awake {100 * stats['bodies_awake_fraction']:.0f} % of ticks; tick thread "
+              f"CPU median {stats['tick_thread_cpu_ms']['median']:.2f} ms, p99 {stats['tick_thread_cpu_ms']['p99']:.2f}")
         for stage in STAGES:
             print(f"    {stage:44} median {stats['split_median_ms'][stage]:6.2f}  p99 "
                   f"{stats['split_p99_ms'][stage]:6.2f}  slowest 1 %: {stats['split_of_slowest_1pct_ms'][stage]:6.2f}")

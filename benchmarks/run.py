@@ -183,8 +183,8 @@ def scaling_markdown(names: list[str]) -> str:
         fish = tick["fish"]
         out += ["**The 15k-fish tick from the first tick** (`bench_tick.py`: 15,000 fish + 20 bodies, recorded; ms per "
                 "tick; per stage: median / p99 / mean of the slowest 1 % of ticks)", "",
-                "| window | ticks | bodies awake | median | p90 | p99 | max | rigid bodies | flock | serialize | "
-                "publish | record |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+                "| window | ticks | bodies awake | median | p90 | p99 | max | tick-thread CPU median / p99 | rigid bodies | "
+                "flock | serialize | publish | record |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
         runs = [("fish", fish)] + ([("sphere", tick["sphere"])] if tick.get("sphere") else [])
         for model, run in runs:
             for label, w in run["windows"].items():
@@ -193,8 +193,10 @@ def scaling_markdown(names: list[str]) -> str:
                               "serialize (messages.*)", "Publisher.publish", "recorder.write (caller)"):
                     cells.append(f"{w['split_median_ms'][stage]:.1f} / {w['split_p99_ms'][stage]:.1f} / "
                                  f"{w['split_of_slowest_1pct_ms'][stage]:.1f}")
+                cpu = w.get("tick_thread_cpu_ms")
+                cpu_cell = f"{cpu['median']:.1f} / {cpu['p99']:.1f}" if cpu else "–"
                 out.append(f"| {model}, {label} | {w['ticks']:,} | {100 * w['bodies_awake_fraction']:.0f} % | "
-                           f"{w['median']:.1f} | {w['p90']:.1f} | {w['p99']:.1f} | {w['max']:.1f} | "
+                           f"{w['median']:.1f} | {w['p90']:.1f} | {w['p99']:.1f} | {w['max']:.1f} | {cpu_cell} | "
                            + " | ".join(cells) + " |")
         lod = fish["level_of_detail"]
         out += ["", f"Bag: {fish['bag_MB']:.0f} MB for {fish['sim_seconds']:.0f} s of simulated time = "
