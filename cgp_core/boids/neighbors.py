@@ -38,7 +38,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..jit import njit, prange
 
@@ -275,6 +274,8 @@ class KDTreeSearch:
         pass
 
     def neighbors(self, positions: np.ndarray, radius: float, period=None) -> NeighborList:
+        from scipy.spatial import cKDTree  # here, not at import: scipy.spatial takes ~0.3 s to load
+
         period = _check(positions, radius, period)
         n = len(positions)
         if n < 2:
