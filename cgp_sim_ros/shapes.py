@@ -15,9 +15,9 @@ Two levels of detail, both ``boid_size`` long (unit templates below, scaled):
   side, the fin.  At 15,000 fish it is 3.2 MB per marker instead of 10.8 MB.
 
 Vertices are rounded to multiples of :data:`VERTEX_QUANTUM` (1/1024 m, under a millimetre): nothing a viewer
-can show, and it leaves the low bytes of every float64 zero, so the bag's lz4 chunks store markers in ~55 %
-of the space (``benchmarks/bench_bag.py``).  The poses (``~/flocks/<flock>/poses``, the data) are never
-rounded.
+can show, and it leaves the low bytes of every float64 zero, so the bag's lz4 chunks store markers in ~40 % of
+their size (the 15k-fish run of ``benchmarks/bench_tick.py``; unrounded float64 hardly compress).  The poses
+(``~/flocks/<flock>/poses``, the data) are never rounded.
 
 The vertices are computed by a compiled kernel, one fish per iteration of a parallel loop, straight into the
 buffer the marker is serialized from.
