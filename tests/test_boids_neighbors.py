@@ -103,6 +103,22 @@ def test_moving_points_and_a_flock_denser_than_the_rows_have_room_for():
     assert grid._capacity > room
 
 
+def test_a_clump_gets_exactly_sized_rows():
+    """Hundreds of boids within d of each other (a flock spawned in a point) would make every row that long
+    in the uniform layout: past its limit the grid sizes the rows exactly, and finds the same neighbours."""
+    rng = np.random.default_rng(12)
+    points = _points(np.concatenate([np.zeros((300, 3)), rng.uniform(-0.2, 0.2, (200, 3)),
+                                     rng.uniform(-30, 30, (2000, 3))]))
+    grid = GridSearch()
+    got = grid.neighbors(points, 1.0)
+    _check_contract(got, len(points))
+    np.testing.assert_array_equal(got.pairs(), BruteForceSearch().neighbors(points, 1.0).pairs())
+    assert got.count.max() >= 499 and grid._capacity > GridSearch.MAX_UNIFORM_CAPACITY
+    assert len(got.index) < 2 * got.total + len(points), "rows sized exactly, not N x the largest"
+    again = grid.neighbors(points + 0.01, 1.0)  # and it stays exact while the clump lasts
+    np.testing.assert_array_equal(again.pairs(), BruteForceSearch().neighbors(points + 0.01, 1.0).pairs())
+
+
 @pytest.mark.parametrize("box", [[9.0, 7.0, 6.0], [4.5, 30.0, 5.0]])
 def test_periodic_boxes_give_the_minimum_image_neighbourhoods(box):
     """Every backend in a periodic box == brute force with the minimum-image convention (the second box has

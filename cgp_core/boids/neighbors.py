@@ -375,24 +375,39 @@ def _test_run(first, last, x0, y0, z0, sorted_positions, period, periodic, radiu
     return found
 
 
+@njit
+def _count_run(first, last, x0, y0, z0, sorted_positions, period, periodic, radius2, found):
+    """:func:`_test_run` without writing: how many of the slots [first, last) pass."""
+    for t in range(first, last):
+        dx = sorted_positions[t, 0] - x0
+        dy = sorted_positions[t, 1] - y0
+        dz = sorted_positions[t, 2] - z0
+        if periodic:
+            dx = minimum_image(dx, period[0])
+            dy = minimum_image(dy, period[1])
+            dz = minimum_image(dz, period[2])
+        found += squared_length(dx, dy, dz) < radius2
+    return found
+
+
 @njit(parallel=True)
 def _forward_neighbors(relative, sorted_positions, edge, dims, period, dense, table, sorted_keys, radius,
-                       capacity, forward, index):
+                       row_start, row_room, forward, index):
     """Half shell, parallel over slots: each slot's neighbours among the *later* ones (own column: later slots;
-    the four forward columns: all), written as slots to the slot's row ``index[capacity·s :]``; their number to
-    ``forward[s]``.
+    the four forward columns: all), written as slots to the slot's row ``index[row_start[s] :]`` (which has
+    ``row_room[s] + 1`` entries: the last is scratch; ``row_room[s] < 0``: count only, write nothing); their
+    number to ``forward[s]`` (more than ``row_room[s]``: the row overflowed).
 
     Per column, the candidates are the z cells ``[z − d, z + d]`` — one run of the sorted order (two when it
     wraps around a periodic z axis) — and columns farther than d from the point in the xy plane are skipped.
     """
     n = relative.shape[0]
     radius2 = radius * radius
-    room = capacity - 1
     reach = radius * (1.0 + _CANDIDATE_SLACK)  # candidate enumeration only: a little generous
     x_periodic, y_periodic, z_periodic = period[0] > 0.0, period[1] > 0.0, period[2] > 0.0
     periodic = x_periodic or y_periodic or z_periodic
     for s in prange(n):
-        row = capacity * s
+        row, room = row_start[s], row_room[s]
         rx, ry, rz = relative[s, 0], relative[s, 1], relative[s, 2]
         x0, y0, z0 = sorted_positions[s, 0], sorted_positions[s, 1], sorted_positions[s, 2]
         cx = min(int(rx / edge[0]), dims[0] - 1)
@@ -432,24 +447,34 @@ def _forward_neighbors(relative, sorted_positions, edge, dims, period, dense, ta
                 last = _first_slot(column + last_cell + 1, dense, table, sorted_keys)
                 if own:
                     first = max(first, s + 1)
-                found = _test_run(first, last, x0, y0, z0, sorted_positions, period, periodic, radius2, index,
-                                  row, room, found)
+                if room < 0:
+                    found = _count_run(first, last, x0, y0, z0, sorted_positions, period, periodic, radius2, found)
+                else:
+                    found = _test_run(first, last, x0, y0, z0, sorted_positions, period, periodic, radius2, index,
+                                      row, room, found)
         forward[s] = found
 
 
 @njit
-def _complete_rows(capacity, forward, count, index):
-    """Turn the half-shell rows into full rows: every forward entry s → t also puts s into t's row (after t's
-    own forward entries).  Sequential, in slot order: the rows it appends to are nearby ones (t > s, spatially
-    close).  Returns False if a row overflowed its room."""
-    for s in range(forward.shape[0]):
+def _complete_rows(forward_start, forward, forward_index, start, room, count, index):
+    """Full rows from the half-shell ones: slot s's row ``index[start[s] :]`` gets s's forward entries (from
+    ``forward_index[forward_start[s] :]``; nothing to copy when the two are the same place) and every s' < s
+    that has s among its forward entries.  Sequential, in slot order: the rows it appends to are nearby ones
+    (later slots, spatially close).  ``count`` = the full rows' lengths.  Returns False if a row needed more
+    than ``room[s]`` entries (then the rows are incomplete)."""
+    n = forward.shape[0]
+    in_place = forward_index is index
+    for s in range(n):
         count[s] = forward[s]
-    for s in range(forward.shape[0]):
-        for k in range(capacity * s, capacity * s + forward[s]):
-            t = index[k]
-            if count[t] >= capacity:
+        if not in_place:
+            for k in range(forward[s]):
+                index[start[s] + k] = forward_index[forward_start[s] + k]
+    for s in range(n):
+        for k in range(forward_start[s], forward_start[s] + forward[s]):
+            t = forward_index[k]
+            if count[t] >= room[t]:
                 return False
-            index[capacity * t + count[t]] = s
+            index[start[t] + count[t]] = s
             count[t] += 1
     return True
 
@@ -517,19 +542,23 @@ class GridSearch:
     Every row has the same room (``capacity``), so the boids fill their rows in parallel without counting
     first; the room grows (and the search is repeated) when a row overflows, which happens only when a flock
     gets denser than it ever was.  The buffer is kept between calls, so a step allocates nothing large: a
-    returned list is valid until the next call.
+    returned list is valid until the next call.  A clump of hundreds of boids within d of each other (a flock
+    spawned in a point, pressed into a corner) would make every row that long; beyond
+    :data:`MAX_UNIFORM_CAPACITY` the rows are sized exactly instead (a counting pass first).
     """
 
     name = "grid"
     #: z cells per neighbour radius (more: tighter z ranges but more cells; 4 measured best)
     Z_CELLS_PER_RADIUS = 4
-    #: room per row to start with; grown to 1.5 times the largest row on overflow
+    #: room per row to start with; grown by half on overflow, up to MAX_UNIFORM_CAPACITY; beyond, rows are sized
+    #: exactly (two passes: see _exact)
     INITIAL_CAPACITY = 48
+    MAX_UNIFORM_CAPACITY = 256
 
     def __init__(self):
         self._capacity = self.INITIAL_CAPACITY
         self._index = np.zeros(0, np.int32)
-        self._start = np.zeros(0, np.int64)
+        self._uniform: tuple | None = None  # (n, capacity, row starts, rooms) of the uniform layout
 
     def reset(self) -> None:
         pass
@@ -572,20 +601,51 @@ class GridSearch:
         sorted_relative = np.empty_like(relative)
         _gather(positions, order, sorted_positions)
         _gather(relative, order, sorted_relative)
+        grid = (sorted_relative, sorted_positions, edge, dims, period, dense, table, sorted_keys, float(radius))
         forward = np.empty(n, np.int64)
         count = np.empty(n, np.int64)
-        while True:
+        while self._capacity <= self.MAX_UNIFORM_CAPACITY:
+            start, room = self._uniform_layout(n)
+            _forward_neighbors(*grid, start, room - 1, forward, self._index)
+            if forward.max() < self._capacity - 1 and _complete_rows(start, forward, self._index, start, room, count,
+                                                                     self._index):
+                return NeighborList(order, start, count, self._index)
+            self._capacity = int(1.5 * self._capacity) + 8  # a flock denser than ever: more room, once more
+        result = self._exact(grid, order, forward, count)
+        # the next call tries the uniform layout again once the clump has dispersed
+        largest = int(count.max())
+        self._capacity = int(1.5 * largest) + 8 if 1.5 * largest + 8 <= self.MAX_UNIFORM_CAPACITY else \
+            self.MAX_UNIFORM_CAPACITY + 1
+        return result
+
+    def _uniform_layout(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Row starts ``capacity · s`` and rooms (all ``capacity``) for n slots, kept between calls."""
+        if self._uniform is None or self._uniform[:2] != (n, self._capacity):
             if len(self._index) < self._capacity * n:
                 self._index = np.empty(self._capacity * n, np.int32)
-            _forward_neighbors(sorted_relative, sorted_positions, edge, dims, period, dense, table, sorted_keys,
-                               float(radius), self._capacity, forward, self._index)
-            if forward.max() < self._capacity - 1 and _complete_rows(self._capacity, forward, count, self._index):
-                break
-            # a flock denser than ever: more room, and once more
-            self._capacity = int(1.5 * self._capacity) + 8
-        if len(self._start) != n or (n > 1 and self._start[1] != self._capacity):
-            self._start = np.arange(n, dtype=np.int64) * self._capacity
-        return NeighborList(order, self._start, count, self._index)
+            self._uniform = (n, self._capacity, np.arange(n, dtype=np.int64) * self._capacity,
+                             np.full(n, self._capacity, np.int64))
+        return self._uniform[2], self._uniform[3]
+
+    def _exact(self, grid, order, forward, count) -> NeighborList:
+        """Rows sized exactly, for flocks with a dense clump: one row of thousands would make every row that
+        long in the uniform layout (N × the largest row).  Counts first (a pass that writes nothing), then the
+        forward rows at their exact size, then the full rows."""
+        n = len(order)
+        no_index = np.zeros(0, np.int32)
+        _forward_neighbors(*grid, np.zeros(n, np.int64), np.full(n, -1, np.int64), forward, no_index)
+        forward_start = np.zeros(n, np.int64)
+        np.cumsum(forward[:-1] + 1, out=forward_start[1:])  # + 1: each row's scratch entry
+        forward_index = np.empty(int(forward.sum()) + n, np.int32)
+        _forward_neighbors(*grid, forward_start, forward, forward, forward_index)
+        entries = np.repeat(forward_start - (np.cumsum(forward) - forward), forward) + np.arange(int(forward.sum()))
+        full = forward + np.bincount(forward_index[entries], minlength=n)  # + the rows' backward entries
+        start = np.zeros(n, np.int64)
+        np.cumsum(full[:-1], out=start[1:])
+        index = np.empty(int(full.sum()), np.int32)
+        if not _complete_rows(forward_start, forward, forward_index, start, full, count, index):
+            raise AssertionError("exact neighbour rows overflowed")  # pragma: no cover - sized exactly
+        return NeighborList(order, start, count, index)
 
 
 def make_search(name: str):
