@@ -112,12 +112,17 @@ flocks:
 
 
 def _messages(bag_dir):
-    """{topic: {log_time: raw bytes}} of every .mcap in the bag."""
-    out = {}
+    """{topic: {log_time: raw bytes}} of every .mcap in the bag (the node's topics carry one message per tick)
+    and the raw ~/events lines in order (several can share a tick's time)."""
+    out, events = {}, []
     for path in sorted(bag_dir.glob("*.mcap")):
         with open(path, "rb") as f:
-            for _, channel, message in make_reader(f).iter_messages():
-                out.setdefault(channel.topic, {})[message.log_time] = message.data
+            for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
+                if channel.topic == "/cgp_sim/events":
+                    events.append(message.data)
+                else:
+                    out.setdefault(channel.topic, {})[message.log_time] = message.data
+    out["/cgp_sim/events"] = events
     return out
 
 
@@ -155,7 +160,7 @@ def test_the_bag_holds_what_the_plan_says_and_its_markers_draw_every_fish(start_
     assert every == {"/cgp_sim/markers": 5, "/cgp_sim/flocks/school/poses": 2}
     counts = {t["topic_metadata"]["name"]: t["message_count"] for t in info["topics_with_message_count"]}
     assert counts["/cgp_sim/markers"] == 12 and counts["/cgp_sim/flocks/school/poses"] == 30
-    events = [json.loads(deserialize_message(raw, String).data) for raw in messages["/cgp_sim/events"].values()]
+    events = [json.loads(deserialize_message(raw, String).data) for raw in messages["/cgp_sim/events"]]
     plan = next(e for e in events if e["event"] == "level_of_detail")
     assert plan["fish_detail"] == {"school": "low"} and plan["markers_every"] == 5
     assert plan["bag_flock_poses_every"] == 2
@@ -173,3 +178,48 @@ def test_the_bag_holds_what_the_plan_says_and_its_markers_draw_every_fish(start_
         vertices = np.array([[v.x, v.y, v.z] for v in fish.points]).reshape(1000, 9, 3)
         expected = p[:, None, :] + np.einsum("nij,vj->nvi", quat_to_matrix(q), 0.3 * FISH_LOW_TEMPLATE)
         np.testing.assert_allclose(vertices, expected, rtol=0, atol=VERTEX_QUANTUM / 2 + 1e-12)
+
+
+def test_changing_the_detail_at_run_time_shows_in_the_markers_the_log_the_events_and_the_bag(
+        start_node, probe, tmp_path):
+    """fish_detail and markers_every are settable while the node runs: the next ticks draw and publish as the
+    new plan says, and the change is logged, put on ~/events and into the bag's metadata."""
+    from rcl_interfaces.msg import Parameter as ParameterMsg
+    from rcl_interfaces.msg import ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    from ros_probe import step
+    from std_msgs.msg import String
+    from visualization_msgs.msg import MarkerArray
+
+    bag = tmp_path / "bag"
+    node = start_node("--scene", "default", "--bag", str(bag), "--start-paused", "true")
+    probe.wait_for_publisher("/cgp_sim/markers", timeout=30)
+    params = [ParameterMsg(name="fish_detail", value=ParameterValue(type=ParameterType.PARAMETER_STRING,
+                                                                    string_value="low")),
+              ParameterMsg(name="markers_every", value=ParameterValue(type=ParameterType.PARAMETER_INTEGER,
+                                                                      integer_value=3))]
+    results = probe.call(SetParameters, "/cgp_sim/set_parameters", SetParameters.Request(parameters=params)).results
+    assert all(r.successful for r in results), results
+    for _ in range(9):
+        step(probe)
+    assert node.stop() == 0
+    log = node.log_path.read_text(errors="replace")
+    assert "level of detail changed: fish drawn 'low' (fish_detail parameter)" in log, log
+
+    messages = _messages(bag)
+    ticks = sorted(messages["/clock"])
+    assert len(ticks) == 9
+    tick_of = {t: k + 1 for k, t in enumerate(ticks)}
+    assert sorted(tick_of[t] for t in messages["/cgp_sim/markers"]) == [3, 6, 9]
+    for raw in messages["/cgp_sim/markers"].values():
+        (fish,) = [m for m in deserialize_message(raw, MarkerArray).markers if m.ns == "flocks/fish"]
+        assert len(fish.points) == 300 * 9  # low detail
+    events = [json.loads(deserialize_message(raw, String).data) for raw in messages["/cgp_sim/events"]]
+    plans = [e for e in events if e["event"] == "level_of_detail"]
+    # the start-up plan, then one per parameter set (the service sets them one by one)
+    assert plans[0]["fish_detail"] == {"fish": "full"} and plans[0]["markers_every"] == 1
+    assert plans[-1]["fish_detail"] == {"fish": "low"} and plans[-1]["markers_every"] == 3
+    assert len(plans) == 3
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert json.loads(info["custom_data"]["cgp_sim.fish_detail"]) == {"fish": "low"}
+    assert json.loads(info["custom_data"]["cgp_sim.recorded_every_n_ticks"]) == {"/cgp_sim/markers": 3}
