@@ -1,6 +1,6 @@
 """A boid flock: state and one step (Reynolds' rules + what a real flock also needs).
 
-One step of ``dt`` (all boids at once, no per-boid Python loop):
+One step of ``dt`` (all boids at once; the per-boid loops are compiled):
 
 1. **neighbours** — every boid's neighbours within d (``neighbors.py``; minimum images in a periodic world);
 2. **flocking** — cohesion, separation, alignment summed over each boid's neighbours (``rules.py``) and the
@@ -17,9 +17,11 @@ One step of ``dt`` (all boids at once, no per-boid Python loop):
 6. **frames** — heading and banked dorsal axis, then quaternions (``frames.py``).
 
 State is ``(N, 3)`` row-major (``(N, 4)`` for the quaternions): one boid's numbers side by side, which is what
-the compiled per-boid loops (neighbours, rules, integration) read.  What runs where: the neighbour search, the
-neighbour sums and the integration are numba kernels, parallel over the boids (both cores, the GIL released);
-walls, obstacle steering, constraints and frames are numpy over all boids at once.
+the compiled per-boid loops read.  What runs where: the neighbour search, the rules, the obstacle query, stages
+3-5 for every boid (:func:`_move`: walls, allocation, integration, box) and the frames are numba kernels,
+parallel over the boids (both cores, the GIL released; one core for flocks under 2,000 boids, see
+``cgp_core/jit.py``); numpy handles what concerns few boids: the avoidance pushes from the obstacle hits, the
+no-entry projection of the boids that ended up inside a body, the goal.
 """
 
 from __future__ import annotations
