@@ -1,6 +1,6 @@
-"""Level of detail for big flocks: how the node draws fish, how often it publishes markers, and how often it
-records the flocks' poses — one explicit choice, made at start-up (and again when ``rate_hz``, ``fish_detail``
-or ``markers_every`` change), logged, put on ``~/events`` and into the bag's metadata.  Never a silent drop.
+"""Level of detail for big flocks: how the node draws fish, how often it redraws them, and how often it records
+the flocks' poses — one explicit choice, made at start-up (and again when ``rate_hz``, ``fish_detail`` or
+``markers_every`` change), logged, put on ``~/events`` and into the bag's metadata.  Never a silent drop.
 
 Why: the marker is a view, the PoseArray is the data.  A fish is drawn with 30 vertices (24 bytes each); at
 15,000 fish that is 10.8 MB per marker array, 650 MB per second at 60 Hz — more than a viewer can draw or a
@@ -23,7 +23,10 @@ Rules, for the parameters' automatic values (``fish_detail: auto``, ``markers_ev
 1. a fish flock is drawn ``full`` (10 triangles per fish) if all flocks' markers at full detail fit the
    marker budget on every tick; otherwise ``low`` (3 triangles: the full fish's outline seen from above and
    its tail fin, ``shapes.py``);
-2. ``~/markers`` is published (and recorded) every N-th tick, the smallest N that fits the marker budget;
+2. each flock's marker is redrawn every N-th tick, the smallest N that fits the marker budget — in N parts,
+   one part per tick (``messages.py``), so that every tick carries the same bytes: the whole flock every
+   N-th tick was a burst that the bag writer's compression then spent the next tick's second core on (the
+   15k-fish flock step took 14 ms on that tick instead of 8.5);
 3. in the bag, ``~/flocks/<flock>/poses`` is recorded every M-th tick, the smallest M that fits the poses
    budget (all flocks together; every message is still published).
 
@@ -53,7 +56,8 @@ class DetailPlan:
     """What the node draws and records.
 
     fish_detail:        flock name → ``"full"`` | ``"low"`` (fish flocks only).
-    markers_every:      ``~/markers`` on every N-th tick (published and recorded).
+    markers_every:      each flock's marker redrawn every N ticks, in N parts, one per tick (``~/markers`` is
+                        published and recorded on every tick).
     flock_poses_every:  ``~/flocks/<flock>/poses`` recorded in the bag on every M-th tick (published every tick).
     marker_bytes:       payload of one marker array's flock markers [bytes] (at the chosen detail).
     pose_bytes:         payload of one tick's flock PoseArrays [bytes].
@@ -71,15 +75,16 @@ class DetailPlan:
 
     def custom_data(self, flock_topics: dict[str, str], marker_topic: str) -> dict[str, str]:
         """The plan for the bag's ``custom_data`` (str → str): per recorded topic that is not in the bag on
-        every tick, every how many ticks it is, and the fish drawing per flock."""
+        every tick, every how many ticks it is; every how many ticks each flock's marker is redrawn (in that
+        many parts, ids 0 … N−1, one per tick); the fish drawing per flock."""
         decimated = {}
-        if self.markers_every > 1:
-            decimated[marker_topic] = self.markers_every
         if self.flock_poses_every > 1:
             decimated.update({topic: self.flock_poses_every for topic in flock_topics.values()})
         return {
             "cgp_sim.rate_hz": f"{self.rate_hz:g}",
             "cgp_sim.recorded_every_n_ticks": json.dumps(decimated, sort_keys=True),
+            "cgp_sim.flock_markers_redrawn_every_n_ticks": json.dumps(
+                {marker_topic: self.markers_every}, sort_keys=True),
             "cgp_sim.fish_detail": json.dumps(self.fish_detail, sort_keys=True),
             "cgp_sim.level_of_detail": " ".join(self.lines),
         }
@@ -136,17 +141,20 @@ def plan(flocks, rate_hz: float, fish_detail: str = "auto", markers_every: int =
             lines.append(f"fish drawn '{detail}' (fish_detail parameter).")
     payload = marker_bytes(detail)
 
+    def redrawn(every: int) -> str:
+        return ("every tick" if every == 1 else
+                f"every {every} ticks ({rate_hz / every:.3g} Hz), in {every} parts, one per tick")
+
     if markers_every == 0 and not flocks:
         markers_every = 1
-        lines.append("no flocks: ~/markers published and recorded every tick.")
+        lines.append("no flocks: ~/markers every tick.")
     elif markers_every == 0:
         markers_every = _every(payload, rate_hz, MARKER_BYTES_PER_S)
-        lines.append(f"~/markers published and recorded {_per_tick(markers_every, rate_hz)}: "
-                     f"{_megabytes(payload)} of flock markers each, {_megabytes(payload * rate_hz / markers_every)}/s"
+        lines.append(f"flock markers redrawn {redrawn(markers_every)}: {_megabytes(payload)} for the whole flock(s), "
+                     f"{_megabytes(payload * rate_hz / markers_every)}/s"
                      + ("." if markers_every == 1 else f" (marker budget {_megabytes(MARKER_BYTES_PER_S)}/s)."))
     else:
-        lines.append(f"~/markers published and recorded {_per_tick(markers_every, rate_hz)} (markers_every "
-                     "parameter).")
+        lines.append(f"flock markers redrawn {redrawn(markers_every)} (markers_every parameter).")
 
     poses = sum(p.count for p in flocks) * _POSE_BYTES
     if flock_poses_every == 0:

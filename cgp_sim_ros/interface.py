@@ -105,10 +105,10 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "rejected.", minimum=0.0, flag="--max-force"),
     ParameterSpec("max_torque", 1e5, "Largest accepted wrench torque magnitude [N m].", minimum=0.0,
                   flag="--max-torque"),
-    ParameterSpec("markers_every", 0, "Publish (and record) ~/markers every N ticks; 0 = automatic: every tick "
-                  "unless the flock markers would exceed 32 MB/s, then as often as fits (see "
-                  "cgp_sim_ros/detail.py; the choice is logged at start-up).", minimum=0, maximum=10000,
-                  flag="--markers-every"),
+    ParameterSpec("markers_every", 0, "Redraw each flock's marker every N ticks, in N parts published one per "
+                  "tick (~/markers itself goes out every tick); 0 = automatic: every tick unless the flock markers "
+                  "would exceed 32 MB/s, then as often as fits (see cgp_sim_ros/detail.py; the choice is logged "
+                  "at start-up).", minimum=0, maximum=10000, flag="--markers-every"),
     ParameterSpec("fish_detail", "auto", "How model:fish flocks are drawn: full (10 triangles per fish), low (3: "
                   "the outline seen from above and the tail fin) or auto (full unless the markers would exceed "
                   "32 MB/s at the tick rate).", flag="--fish-detail", choices=("auto", "full", "low")),

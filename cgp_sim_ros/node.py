@@ -310,9 +310,10 @@ class SimNode(Node):
         record_poses = self.world.ticks % self.detail.flock_poses_every == 0  # the data: published every tick
         for pub, data in zip(self.pub_flock_poses, m.flock_poses(t)):
             self._out(pub, data, t, record=record_poses)
-        if self._delete_all_markers or self.world.ticks % self.detail.markers_every == 0:
-            self._out(self.pub_markers, m.markers(t, delete_all_first=self._delete_all_markers), t)
-            self._delete_all_markers = False
+        # every tick: ground, bodies and one part of each flock's marker (a flock is redrawn every
+        # markers_every ticks, part by part: cgp_sim_ros/messages.py)
+        self._out(self.pub_markers, m.markers(t, delete_all_first=self._delete_all_markers, tick=self.world.ticks), t)
+        self._delete_all_markers = False
 
     def _out(self, publisher, data: bytes, stamp_ns: int, record: bool = True) -> None:
         """Publish serialized bytes and record the very same bytes (unless the level-of-detail plan records

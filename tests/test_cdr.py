@@ -366,6 +366,26 @@ def test_marker_points_serializer_equals_rclpy_and_marker(count, frame_id):
                                                       slow_marker(points=points, stamp_ns=7, **fields)]))
 
 
+@pytest.mark.parametrize("frame_id", FRAME_IDS)
+def test_marker_pose_serializer_equals_marker(frame_id):
+    """The bodies' fast path: a template patched with stamp and pose, tick after tick, gives marker()'s bytes
+    (every shape the node draws, names of every length: every alignment of the pose)."""
+    rng = np.random.default_rng(len(frame_id))
+    kinds = [dict(marker_type=cdr.SPHERE, scale=(0.6, 0.6, 0.6)), dict(marker_type=cdr.CUBE, scale=(1, 0.5, 2)),
+             dict(marker_type=cdr.CYLINDER, scale=(0.4, 0.4, 1.0)),
+             dict(marker_type=cdr.SPHERE_LIST, scale=(0.3, 0.3, 0.3), points=rng.normal(size=(4, 3)))]
+    for k, kind in enumerate(kinds):
+        for ns in ("", "b", "bodies/crate", "bodies/tetromino_"):
+            fields = dict(kind, frame_id=frame_id, ns=ns, id=k, color=rng.uniform(size=4))
+            serializer = cdr.MarkerPoseSerializer(**fields)
+            for stamp in STAMPS[:3]:
+                position, orientation = rng.normal(size=3), rng.normal(size=4)
+                assert serializer.serialize(stamp, position, orientation) == cdr.marker(
+                    stamp_ns=stamp, position=position, orientation=orientation, **fields)
+    with pytest.raises(ValueError, match="3 \\+ 4 numbers"):
+        serializer.serialize(0, (1.0, 2.0), (0.0, 0.0, 0.0, 1.0))
+
+
 def test_marker_deleteall_is_a_deleteall_marker():
     msg = deserialize_message(cdr.marker_deleteall(5, "world", "flock"), Marker)
     assert (msg.action, msg.ns, msg.header.frame_id) == (Marker.DELETEALL, "flock", "world")

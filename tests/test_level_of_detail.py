@@ -1,8 +1,9 @@
 """Level of detail for big flocks (cgp_sim_ros/detail.py, shapes.py): the plan keeps the marker and bag
 budgets for any flock size and keeps the default scene's full fish on every tick; the low-detail fish is the
 full fish's outline seen from above plus its tail fin, drawn at the boid's pose; and through the node: what the
-plan says is what the bag holds — markers and flock poses at the planned ticks, the plan in metadata.yaml and
-on ~/events — and the recorded markers still draw every fish where the bag says it is."""
+plan says is what the bag holds — each flock's marker in parts, one per tick, flock poses at the planned ticks,
+the plan in metadata.yaml and on ~/events — and the recorded markers still draw every fish where the bag says
+it is."""
 
 from __future__ import annotations
 
@@ -40,8 +41,8 @@ def test_fifteen_thousand_fish_get_low_detail_and_lower_rates_within_the_budgets
     assert plan.marker_bytes * 60 / plan.markers_every <= detail.MARKER_BYTES_PER_S
     assert plan.pose_bytes * 60 / plan.flock_poses_every <= detail.BAG_POSES_BYTES_PER_S
     custom = plan.custom_data({"school": "/cgp_sim/flocks/school/poses"}, "/cgp_sim/markers")
-    assert json.loads(custom["cgp_sim.recorded_every_n_ticks"]) == {"/cgp_sim/markers": 7,
-                                                                     "/cgp_sim/flocks/school/poses": 2}
+    assert json.loads(custom["cgp_sim.recorded_every_n_ticks"]) == {"/cgp_sim/flocks/school/poses": 2}
+    assert json.loads(custom["cgp_sim.flock_markers_redrawn_every_n_ticks"]) == {"/cgp_sim/markers": 7}
     assert json.loads(custom["cgp_sim.fish_detail"]) == {"school": "low"}
     assert "low detail" in custom["cgp_sim.level_of_detail"] and "every 7 ticks" in custom["cgp_sim.level_of_detail"]
 
@@ -127,8 +128,9 @@ def _messages(bag_dir):
 
 
 def test_the_bag_holds_what_the_plan_says_and_its_markers_draw_every_fish(start_node, tmp_path):
-    """1,000 fish at 600 Hz: in full they would be 432 MB/s of markers, so they are drawn low (130 MB/s) on
-    every 5th tick, and their poses (33.6 MB/s) are recorded on every 2nd tick."""
+    """1,000 fish at 600 Hz: in full they would be 432 MB/s of markers, so they are drawn low (130 MB/s) and
+    redrawn every 5th tick — in 5 parts of 200 fish, one per tick — and their poses (33.6 MB/s) are recorded
+    on every 2nd tick."""
     from geometry_msgs.msg import PoseArray
     from std_msgs.msg import String
     from visualization_msgs.msg import Marker, MarkerArray
@@ -148,36 +150,40 @@ def test_the_bag_holds_what_the_plan_says_and_its_markers_draw_every_fish(start_
     assert len(ticks) == 60
     assert sorted(messages["/cgp_sim/bodies/poses"]) == ticks  # the small topics: every tick
     tick_of = {t: k + 1 for k, t in enumerate(ticks)}  # world.ticks after the tick that published at t
-    assert all(tick_of[t] % 5 == 0 for t in messages["/cgp_sim/markers"])
-    assert len(messages["/cgp_sim/markers"]) == 12
+    assert sorted(messages["/cgp_sim/markers"]) == ticks  # one part of the flock on every tick
     assert all(tick_of[t] % 2 == 0 for t in messages["/cgp_sim/flocks/school/poses"])
     assert len(messages["/cgp_sim/flocks/school/poses"]) == 30
     assert all(b - a == dt for a, b in zip(ticks, ticks[1:]))
 
     info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert info["version"] == 9
-    every = json.loads(info["custom_data"]["cgp_sim.recorded_every_n_ticks"])
-    assert every == {"/cgp_sim/markers": 5, "/cgp_sim/flocks/school/poses": 2}
+    custom = info["custom_data"]
+    assert json.loads(custom["cgp_sim.recorded_every_n_ticks"]) == {"/cgp_sim/flocks/school/poses": 2}
+    assert json.loads(custom["cgp_sim.flock_markers_redrawn_every_n_ticks"]) == {"/cgp_sim/markers": 5}
     counts = {t["topic_metadata"]["name"]: t["message_count"] for t in info["topics_with_message_count"]}
-    assert counts["/cgp_sim/markers"] == 12 and counts["/cgp_sim/flocks/school/poses"] == 30
+    assert counts["/cgp_sim/markers"] == 60 and counts["/cgp_sim/flocks/school/poses"] == 30
     events = [json.loads(deserialize_message(raw, String).data) for raw in messages["/cgp_sim/events"]]
     plan = next(e for e in events if e["event"] == "level_of_detail")
     assert plan["fish_detail"] == {"school": "low"} and plan["markers_every"] == 5
     assert plan["bag_flock_poses_every"] == 2
 
-    # the recorded markers draw every fish at the pose recorded for the same tick (ticks 10, 20, ..., 60)
-    both = sorted(set(messages["/cgp_sim/markers"]) & set(messages["/cgp_sim/flocks/school/poses"]))
-    assert len(both) == 6
-    for t in both:
+    # each tick's part draws its 200 fish at the poses recorded for that tick (on the ticks both are recorded:
+    # every part comes round on them, the parts taking turns)
+    parts_seen = set()
+    for t in sorted(messages["/cgp_sim/flocks/school/poses"]):
         array = deserialize_message(messages["/cgp_sim/markers"][t], MarkerArray)
         (fish,) = [m for m in array.markers if m.ns == "flocks/school"]
         assert fish.type == Marker.TRIANGLE_LIST and fish.header.frame_id == "world"
-        poses = deserialize_message(messages["/cgp_sim/flocks/school/poses"][t], PoseArray).poses
+        assert fish.id == tick_of[t] % 5
+        parts_seen.add(fish.id)
+        first, last = 200 * fish.id, 200 * (fish.id + 1)
+        poses = deserialize_message(messages["/cgp_sim/flocks/school/poses"][t], PoseArray).poses[first:last]
         p = np.array([[o.position.x, o.position.y, o.position.z] for o in poses])
         q = np.array([[o.orientation.x, o.orientation.y, o.orientation.z, o.orientation.w] for o in poses])
-        vertices = np.array([[v.x, v.y, v.z] for v in fish.points]).reshape(1000, 9, 3)
+        vertices = np.array([[v.x, v.y, v.z] for v in fish.points]).reshape(200, 9, 3)
         expected = p[:, None, :] + np.einsum("nij,vj->nvi", quat_to_matrix(q), 0.3 * FISH_LOW_TEMPLATE)
         np.testing.assert_allclose(vertices, expected, rtol=0, atol=VERTEX_QUANTUM / 2 + 1e-12)
+    assert parts_seen == {0, 1, 2, 3, 4}, "every fish is drawn"
 
 
 def test_changing_the_detail_at_run_time_shows_in_the_markers_the_log_the_events_and_the_bag(
@@ -210,10 +216,10 @@ def test_changing_the_detail_at_run_time_shows_in_the_markers_the_log_the_events
     ticks = sorted(messages["/clock"])
     assert len(ticks) == 9
     tick_of = {t: k + 1 for k, t in enumerate(ticks)}
-    assert sorted(tick_of[t] for t in messages["/cgp_sim/markers"]) == [3, 6, 9]
-    for raw in messages["/cgp_sim/markers"].values():
+    assert sorted(messages["/cgp_sim/markers"]) == ticks
+    for t, raw in messages["/cgp_sim/markers"].items():
         (fish,) = [m for m in deserialize_message(raw, MarkerArray).markers if m.ns == "flocks/fish"]
-        assert len(fish.points) == 300 * 9  # low detail
+        assert fish.id == tick_of[t] % 3 and len(fish.points) == 100 * 9  # low detail, a third of the flock
     events = [json.loads(deserialize_message(raw, String).data) for raw in messages["/cgp_sim/events"]]
     plans = [e for e in events if e["event"] == "level_of_detail"]
     # the start-up plan, then one per parameter set (the service sets them one by one)
@@ -222,4 +228,28 @@ def test_changing_the_detail_at_run_time_shows_in_the_markers_the_log_the_events
     assert len(plans) == 3
     info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert json.loads(info["custom_data"]["cgp_sim.fish_detail"]) == {"fish": "low"}
-    assert json.loads(info["custom_data"]["cgp_sim.recorded_every_n_ticks"]) == {"/cgp_sim/markers": 3}
+    assert json.loads(info["custom_data"]["cgp_sim.recorded_every_n_ticks"]) == {}
+    assert json.loads(info["custom_data"]["cgp_sim.flock_markers_redrawn_every_n_ticks"]) == {"/cgp_sim/markers": 3}
+
+
+def test_a_reset_redraws_every_part_after_its_deleteall():
+    """Parts take turns tick by tick; after a reset (DELETEALL first) the array carries every part, so that no
+    fish is missing until its part's turn comes."""
+    from visualization_msgs.msg import Marker, MarkerArray
+
+    from cgp_core.scene import parse_scene
+    from cgp_core.world import World
+    from cgp_sim_ros.messages import TickMessages
+
+    world = World(parse_scene(SCENE))
+    messages = TickMessages(world, "world", detail.plan([f.params for f in world.flocks], 60.0, markers_every=4))
+
+    def fish_markers(data):
+        return [m for m in deserialize_message(data, MarkerArray).markers if m.ns == "flocks/school"]
+
+    assert [m.id for m in fish_markers(messages.markers(0, tick=6))] == [2]
+    array = deserialize_message(messages.markers(0, delete_all_first=True, tick=6), MarkerArray).markers
+    assert array[0].action == Marker.DELETEALL
+    parts = fish_markers(messages.markers(0, delete_all_first=True, tick=6))
+    assert [m.id for m in parts] == [0, 1, 2, 3]
+    assert sum(len(m.points) for m in parts) == 1000 * len(FISH_DETAILS[messages.fish_detail["school"]])  # all, once
