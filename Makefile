@@ -76,8 +76,8 @@ $(STAMPS)/project: $(STAMPS)/msgs $(STAMPS)/msgs-tf2_msgs $(STAMPS)/msgs-simulat
 	@echo "setup: installing cgp_sim (cgp_core, cgp_sim_ros, msgs_config) into .venv"
 	@$(PIP) --no-deps --no-build-isolation . 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)
 	@rm -rf build cgp_sim_ros.egg-info
-	@echo "setup: compiling the numba kernels into their cache (cgp_core.warmup; once per install)"
-	@cd / && $(VPY) -m cgp_core.warmup
+	@echo "setup: compiling the simulation kernels (numba, cached: only after an install or an edit)"
+	@cd $(VENV) && $(VPY) -P -m cgp_sim_ros.warmup
 	@touch $@
 
 # The live view is on (the node prints the address to open in the Foxglove app); ARGS="--foxglove false" turns

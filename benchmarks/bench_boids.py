@@ -1,17 +1,19 @@
-"""Boid flock step cost on this machine (issue 4, and the boid figures of issue 7).
+"""Boid flock step cost on this machine (issue 4, and the boid figures of issues 7 and 12).
 
-Figures (targets from issue 7 and the lead's budget split):
+Figures (targets from issues 7 and 12 and the budget split):
+- step at 100k boids <= 80 ms, and cost(100k) / cost(10k) <= 14 (near-linear) — issue 12 keeps them;
 - step at 10k and 15k boids: 15k <= 7 ms (the whole 60 Hz tick at 15k, publishing included, is 16.7 ms);
-- step at 100k boids <= 80 ms, and cost(100k) / cost(10k) <= 14 (near-linear);
 - at 4k boids, >= 100x faster than a naive O(N²) numpy step with the same rules (vectorized over all pairs,
-  written below, checked against the flock on a small case before it is timed).
+  written below, checked against the flock on a small case before it is timed);
+- the parallel kernels' gain: the 15k step on numba's two threads vs one (side by side).
 
 Realistic density: the benchmark flocks are spawned at the density of the *default* flock's steady state
 (300 default boids run for 20 s; the mean number of neighbours within d gives the density), warmed up for
 ``--warmup`` seconds of sim time, then timed.  Every timing reports the neighbours per boid measured while it
 ran, and the backend.  Each row is a whole ``Flock.step`` (neighbours, rules, walls, integration, frames and
-the orientation quaternions), median over the timed steps; ``max`` shows the ticks where the grid rebuilds
-its candidate list.  Grid and KD-tree / naive runs are interleaved round by round (the machine is shared).
+the orientation quaternions), median over the timed steps, on numba's default threads (both cores; flocks of
+fewer than 2,000 boids run on one, see ``cgp_core/jit.py``).  Grid and KD-tree / naive runs are interleaved
+round by round (the machine is shared).
 
 The scaling figure cost(100k) / cost(10k) is measured with the 10k and 100k flocks interleaved round by round.
 Writes a table to stdout and ``benchmarks/results/boids.json`` (layout: ``benchmarks/common.py``).
@@ -29,6 +31,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numba  # noqa: E402
 
 from cgp_core.bodies import BodyModel, BodyState, Shape  # noqa: E402
 from cgp_core.boids import Flock, FlockParams, Obstacles, make_search  # noqa: E402
@@ -52,13 +56,13 @@ def naive_step(flock: Flock, dt: float) -> None:
     handled as a dense N × N matrix: what a vectorized numpy implementation without a spatial structure
     looks like.  O(N²) time and memory."""
     p = flock.params
-    x, v = flock._x.T, flock._v.T  # (N, 3) views of the state
+    x, v = flock._x, flock._v  # (N, 3): the state itself
     offset = x[None, :, :] - x[:, None, :]  # (N, N, 3): x_j − x_i
     dist2 = np.einsum("ijk,ijk->ij", offset, offset)
     within = dist2 < p.radius**2
     np.fill_diagonal(within, False)
     distance = np.sqrt(dist2)
-    heading = flock._heading.T
+    heading = flock._heading
     if p.fov_deg < 360.0:
         visible = within & (np.einsum("ik,ijk->ij", heading, offset) > p.cos_half_fov * distance)
     else:
@@ -74,7 +78,9 @@ def naive_step(flock: Flock, dt: float) -> None:
     separation = -np.einsum("ij,ijk->ik", weight, offset)
     alignment = (visible @ v / safe - v) * has[:, None]
     wanted = p.cohesion_weight * cohesion + p.separation_weight * separation + p.alignment_weight * alignment
-    needed = flock._wall_acceleration().T
+    margin = max(p.bounds_margin, 1e-9)
+    needed = (np.maximum(p.bounds_min + margin - x, 0.0) - np.maximum(x - (p.bounds_max - margin), 0.0)) * (
+        p.bounds_strength / margin) if p.bounds_mode == "soft" else np.zeros_like(x)
     needed_norm = np.linalg.norm(needed, axis=1, keepdims=True)
     needed *= np.minimum(1.0, p.max_acceleration / np.maximum(needed_norm, 1e-300))
     budget = np.maximum(p.max_acceleration - np.linalg.norm(needed, axis=1, keepdims=True), 0.0)
@@ -85,10 +91,14 @@ def naive_step(flock: Flock, dt: float) -> None:
     v *= np.clip(speed, p.min_speed, p.max_speed) / speed
     x += v * dt
     if p.bounds_mode == "soft":
-        flock._clamp_to_box()
-    flock._heading[:], flock._dorsal[:] = update_frames(flock._heading, flock._dorsal, flock._v, dt, p.bank_gain,
-                                                        p.orientation_time_constant)
-    frames_to_quaternions(flock._heading, flock._dorsal, out=flock._q)
+        low, high = x < p.bounds_min, x > p.bounds_max
+        np.clip(x, p.bounds_min, p.bounds_max, out=x)
+        v[low] = np.maximum(v[low], 0.0)
+        v[high] = np.minimum(v[high], 0.0)
+    heading, dorsal = update_frames(flock._heading.T, flock._dorsal.T, v.T, dt, p.bank_gain,
+                                    p.orientation_time_constant)
+    flock._heading[:], flock._dorsal[:] = heading.T, dorsal.T
+    flock._q[:] = frames_to_quaternions(heading, dorsal).T
 
 
 def check_naive_matches(params: FlockParams) -> float:
@@ -153,11 +163,15 @@ class Runner:
     """A flock (or the naive baseline on one) warmed up and timed a few steps at a time, so variants can
     be interleaved."""
 
-    def __init__(self, count: int, density: float, backend: str, warmup_s: float, bodies: int = 0):
+    def __init__(self, count: int, density: float, backend: str, warmup_s: float, bodies: int = 0,
+                 threads: int | None = None):
         self.backend = backend
+        self.threads = threads
         self.flock = make_flock(count, density, "grid")
         self.obstacles = random_bodies(bodies, self.flock) if bodies else None
         self.label = backend if not bodies else f"{backend}+{bodies} bodies"
+        if threads is not None:
+            self.label += f", {threads} thread{'s' if threads > 1 else ''}"
         for _ in range(int(warmup_s / DT)):
             self.flock.step(DT, self.obstacles)  # the warm-up uses the grid (same seed: same start for every backend)
         if backend not in ("grid", "naive"):
@@ -165,12 +179,20 @@ class Runner:
         self.times: list[float] = []
         self.neighbors: list[float] = []
         self.steps_run = 0
-        search = self.flock._search
-        self.builds_before = getattr(search, "builds", 0)
 
     def _step(self) -> None:
         if self.backend == "naive":
             naive_step(self.flock, DT)
+        elif self.threads is not None:
+            # the flock picks its threads per step (jit.threads_for); pin them for this comparison
+            import cgp_core.boids.flock as flock_module
+
+            original = flock_module.threads_for
+            flock_module.threads_for = lambda items: _fixed_threads(self.threads)
+            try:
+                self.flock.step(DT, self.obstacles)
+            finally:
+                flock_module.threads_for = original
         else:
             self.flock.step(DT, self.obstacles)
 
@@ -190,14 +212,26 @@ class Runner:
 
     def row(self) -> dict:
         t = np.array(self.times) * 1e3
-        search = self.flock._search
         row = {"boids": self.flock.count, "backend": self.label, "ms_median": float(np.median(t)),
-               "ms_mean": float(np.mean(t)), "ms_max": float(np.max(t)), "steps": len(t)}
+               "ms_mean": float(np.mean(t)), "ms_max": float(np.max(t)), "ms_p99": float(np.percentile(t, 99)),
+               "steps": len(t)}
         if self.neighbors:
             row["neighbors_per_boid"] = float(np.mean(self.neighbors))
-        if hasattr(search, "builds") and self.backend == "grid":
-            row["rebuilds_per_step"] = (search.builds - self.builds_before) / self.steps_run
         return row
+
+
+class _fixed_threads:
+    """Context manager: numba's threads pinned (the benchmark's one-thread vs two-thread comparison)."""
+
+    def __init__(self, count: int):
+        self.count = count
+
+    def __enter__(self):
+        self.previous = numba.get_num_threads()
+        numba.set_num_threads(self.count)
+
+    def __exit__(self, *exc):
+        numba.set_num_threads(self.previous)
 
 
 def interleaved(runners: list[Runner], rounds: int, steps: int | list[int]) -> None:
@@ -207,9 +241,10 @@ def interleaved(runners: list[Runner], rounds: int, steps: int | list[int]) -> N
             runner.run(n)
 
 
-def breakdown(flock: Flock, repeats: int = 15) -> dict:
+def breakdown(flock: Flock, obstacles: Obstacles | None = None, repeats: int = 15) -> dict:
     """Where a step's time goes (medians of the stages called one by one on the current state)."""
     from cgp_core.boids import rules
+    from cgp_core.boids.frames import low_pass_weight, quaternions_rows, update_frames_rows
 
     def median_ms(fn):
         fn()
@@ -220,27 +255,18 @@ def breakdown(flock: Flock, repeats: int = 15) -> dict:
             t.append(time.perf_counter() - s)
         return float(np.median(t) * 1e3)
 
-    search = flock._search
-    points, _ = flock._work_points()
-    out = {"neighbor search: cell search (rebuild tick)": median_ms(lambda: search.pairs(points, flock.params.radius,
-                                                                                            reuse=False))}
-    search.pairs(points, flock.params.radius)
-    out["neighbor search: candidate re-test (other ticks)"] = median_ms(lambda: search.pairs(points,
-                                                                                             flock.params.radius))
-    pairs = search.pairs(points, flock.params.radius)
-    slot = pairs.order
-    positions = np.take(points, slot, axis=1)
-    velocities = np.take(flock._v, slot, axis=1).astype(np.float32)
-    headings = np.zeros((len(slot), 4), np.float32)
-    headings[:, :3] = np.take(flock._heading, slot, axis=1).T
     p = flock.params
-    out["rules: field of view"] = median_ms(lambda: rules.visibility(pairs, headings, p.cos_half_fov))
-    out["rules: neighbour sums (incl. field of view, separation)"] = median_ms(
-        lambda: rules.neighbor_sums(pairs, positions, velocities, headings, p.separation_radius, p.cos_half_fov))
-    out["frames + quaternions"] = median_ms(lambda: (update_frames(flock._heading, flock._dorsal, flock._v, DT,
-                                                                   p.bank_gain, p.orientation_time_constant),
-                                                     frames_to_quaternions(flock._heading, flock._dorsal)))
-    out["whole step"] = median_ms(lambda: flock.step(DT))
+    out = {"neighbour search (grid, half shell)": median_ms(flock.neighbors)}
+    neighbors = flock.neighbors()
+    out["neighbour sums (Reynolds' rules)"] = median_ms(lambda: rules.neighbor_sums(
+        neighbors, flock._x, flock._v, flock._heading, p.separation_radius, p.cos_half_fov, flock.period))
+    if obstacles is not None:
+        out["obstacle query"] = median_ms(lambda: obstacles.query(flock._x.T, 2.5))
+    heading, dorsal, q = flock._heading.copy(), flock._dorsal.copy(), flock._q.copy()
+    out["frames + quaternions"] = median_ms(lambda: (
+        update_frames_rows(heading, dorsal, flock._v, DT, p.bank_gain, low_pass_weight(DT, p.orientation_time_constant)),
+        quaternions_rows(heading, dorsal, q)))
+    out["whole step"] = median_ms(lambda: flock.step(DT, obstacles))
     return out
 
 
@@ -264,10 +290,12 @@ def main(argv=None) -> int:
     rows = []
 
     def measure(specs, rounds_, steps_):
-        """``specs``: (count, backend, bodies) runners interleaved round by round (so ratios between them are
-        measured under the same machine load)."""
-        print(", ".join(f"{c} {b}{f'+{n} bodies' if n else ''}" for c, b, n in specs) + " ...", flush=True)
-        runners = [Runner(c, density, b, args.warmup, n) for c, b, n in specs]
+        """``specs``: (count, backend, bodies[, threads]) runners interleaved round by round (so ratios between
+        them are measured under the same machine load)."""
+        print(", ".join(f"{spec[0]} {spec[1]}{f'+{spec[2]} bodies' if spec[2] else ''}"
+                        + (f" on {spec[3]} thread(s)" if len(spec) > 3 else "") for spec in specs) + " ...",
+              flush=True)
+        runners = [Runner(spec[0], density, spec[1], args.warmup, spec[2], *spec[3:]) for spec in specs]
         interleaved(runners, rounds_, steps_)
         for r in runners:
             rows.append(r.row())
@@ -276,6 +304,8 @@ def main(argv=None) -> int:
     measure([(1_000, "grid", 0), (1_000, "kdtree", 0), (1_000, "brute", 0)], rounds, steps)
     naive_runners = measure([(4_000, "grid", 0), (4_000, "naive", 0)], rounds, [steps, 1])
     runners_15k = measure([(15_000, "grid", 0), (15_000, "kdtree", 0), (15_000, "grid", 20)], rounds, steps)
+    threads = numba.config.NUMBA_NUM_THREADS
+    runners_threads = measure([(15_000, "grid", 0, 1), (15_000, "grid", 0, threads)], rounds, steps)
     # 10k and 100k interleaved: their ratio is the scaling figure
     big = [(10_000, "grid", 0), (100_000, "grid", 0)] + ([] if args.quick else [(10_000, "kdtree", 0),
                                                                                 (100_000, "kdtree", 0)])
@@ -290,9 +320,10 @@ def main(argv=None) -> int:
     t10k, t100k, t15k = (find(n, "grid")["ms_median"] for n in (10_000, 100_000, 15_000))
     t15k_bodies = find(15_000, "grid+20 bodies")["ms_median"]
     out.figure("boids_100k", "boid step at 100k boids (grid, median)", t100k, "ms", f"<= {TARGET_100K_MS:g}",
-               t100k <= TARGET_100K_MS, issue7=True, neighbors_per_boid=find(100_000, "grid")["neighbors_per_boid"])
+               t100k <= TARGET_100K_MS, issue7=True, issue12=True,
+               neighbors_per_boid=find(100_000, "grid")["neighbors_per_boid"])
     out.figure("boids_scaling_100k_10k", "boid step cost(100k) / cost(10k)", t100k / t10k, "x",
-               f"<= {TARGET_SCALING:g}", t100k / t10k <= TARGET_SCALING, issue7=True)
+               f"<= {TARGET_SCALING:g}", t100k / t10k <= TARGET_SCALING, issue7=True, issue12=True)
     out.figure("boids_naive_ratio_4k", "naive O(N²) numpy step / our step, 4k boids", naive_ratio, "x",
                f">= {TARGET_NAIVE_RATIO:g}", naive_ratio >= TARGET_NAIVE_RATIO, issue7=True)
     out.figure("boids_15k", "boid step at 15k boids (grid, median; budget split)", t15k, "ms",
@@ -300,17 +331,22 @@ def main(argv=None) -> int:
     out.figure("boids_15k_bodies", "boid step at 15k boids + 20 fixed bodies (median)", t15k_bodies, "ms",
                f"<= {TARGET_15K_MS:g}", t15k_bodies <= TARGET_15K_MS)
     out.figure("boids_10k", "boid step at 10k boids (grid, median)", t10k, "ms", "(reference)", None)
+    one, both = (float(np.median(r.times) * 1e3) for r in runners_threads)
+    out.figure("boids_15k_threads", f"boid step at 15k: 1 thread / {threads} threads (parallel kernels' gain)",
+               one / both, "x", "(reference)", None, one_thread_ms=one, all_threads_ms=both)
     figures = out.data["figures"]
 
     print()
-    print(f"{'boids':>7}  {'backend':16} {'ms/step':>9} {'mean':>8} {'max':>8} {'nbrs/boid':>10} {'rebuilds/step':>14}")
+    print(f"{'boids':>7}  {'backend':24} {'ms/step':>9} {'mean':>8} {'p99':>8} {'max':>8} {'nbrs/boid':>10}")
     for r in sorted(rows, key=lambda r: (r["boids"], r["backend"])):
-        print(f"{r['boids']:>7}  {r['backend']:16} {r['ms_median']:9.2f} {r['ms_mean']:8.2f} {r['ms_max']:8.2f} "
-              f"{r.get('neighbors_per_boid', float('nan')):10.1f} {r.get('rebuilds_per_step', float('nan')):14.2f}")
+        print(f"{r['boids']:>7}  {r['backend']:24} {r['ms_median']:9.2f} {r['ms_mean']:8.2f} {r['ms_p99']:8.2f} "
+              f"{r['ms_max']:8.2f} {r.get('neighbors_per_boid', float('nan')):10.1f}")
     print()
     print(format_figures(figures))
 
-    parts = {"15k": breakdown(runners_15k[0].flock), "100k": breakdown(runners_big[1].flock, repeats=5)}
+    parts = {"15k": breakdown(runners_15k[0].flock), "15k + 20 bodies": breakdown(runners_15k[2].flock,
+                                                                                  runners_15k[2].obstacles),
+             "100k": breakdown(runners_big[1].flock, repeats=5)}
     print()
     for size, stages in parts.items():
         print(f"breakdown at {size} (ms, medians of the stages run one by one):")

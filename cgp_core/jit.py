@@ -18,13 +18,24 @@ Settings, and why:
   it) instead of raising ``ZeroDivisionError`` from inside a kernel.
 - no ``fastmath``: it lets LLVM reassociate floating-point sums, which would make compiled and plain-Python
   results differ beyond round-off and break the bit-for-bit determinism a seed promises.
+- ``parallel=True`` kernels (per-boid loops written with :data:`prange`) run on numba's thread pool, one
+  thread per core.  Each iteration writes only its own outputs and no floating-point value is reduced across
+  iterations, so the results do not depend on the number of threads.  With the OpenMP pool, idle workers are
+  told to sleep (``OMP_WAIT_POLICY=PASSIVE``) instead of spinning for a while after every kernel: on a
+  2-core machine the spinning worker took the core the bag writer and the DDS threads need (measured: twice
+  the CPU time per flock step, and a slower tick).  Only the node's tick thread launches parallel kernels
+  (numba's fallback ``workqueue`` pool is not safe to enter from two threads at once).
 """
 
 from __future__ import annotations
 
 import os
+from contextlib import contextmanager
 
-import numba
+# Before numba loads its OpenMP thread pool (at the first parallel kernel); a user's own setting wins.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numba  # noqa: E402
 
 #: numba's own switch: with NUMBA_DISABLE_JIT=1 every kernel runs as plain Python
 JIT_DISABLED = os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")
@@ -43,4 +54,22 @@ def njit(*args, **options):
 #: ``numba.prange`` (a plain ``range`` when the JIT is disabled); only meaningful inside ``njit(parallel=True)``
 prange = numba.prange
 
-__all__ = ["JIT_DISABLED", "njit", "prange"]
+#: a parallel kernel over fewer items than this runs on one thread: waking the pool's other workers for each
+#: kernel costs more than they save (measured: a 300-boid flock step takes 0.2 ms on one thread, 0.3-0.6 ms
+#: and a long tail on two, on this project's 2-core machines)
+PARALLEL_MIN_ITEMS = 2000
+
+
+@contextmanager
+def threads_for(items: int):
+    """Run the parallel kernels called inside on all of numba's threads, or on one for fewer than
+    :data:`PARALLEL_MIN_ITEMS` items (per calling thread; the previous setting is restored)."""
+    previous = numba.get_num_threads()
+    numba.set_num_threads(1 if items < PARALLEL_MIN_ITEMS else numba.config.NUMBA_NUM_THREADS)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(previous)
+
+
+__all__ = ["JIT_DISABLED", "PARALLEL_MIN_ITEMS", "njit", "prange", "threads_for"]

@@ -1,8 +1,9 @@
-"""Compile the numba kernels once, into their cache: ``python -m cgp_core.warmup``.
+"""Compile cgp_core's numba kernels once, into their cache: ``python -m cgp_core.warmup`` (the core alone).
 
-``make setup`` runs this after installing the project, so the node's first start (and every test) finds the
-compiled kernels in the cache next to the installed sources (``__pycache__/*.nbi|*.nbc``) and starts in about
-a second instead of compiling for tens of seconds.  It steps the default scene (bodies and flock) with the
+``make setup`` runs it (through ``cgp_sim_ros.warmup``, which adds the node's marker kernels) after installing
+the project, so the node's first start (and every test) finds the compiled kernels in the cache next to the
+installed sources (``__pycache__/*.nbi|*.nbc``) and starts in about a second instead of compiling for tens of
+seconds.  It steps the default scene (bodies and flock) with the
 bodies placed so that every contact kernel runs within a few ticks.  Safe to run any time: a warm cache makes it
 a no-op of a second or two.
 """
@@ -12,9 +13,8 @@ from __future__ import annotations
 import time
 
 
-def warm_up(ticks: int = 24) -> float:
-    """Step the default scene ``ticks`` times with every contact kernel in use; returns the seconds it took."""
-    started = time.perf_counter()
+def warm_up(ticks: int = 24) -> "World":
+    """Step the default scene ``ticks`` times with every contact kernel in use; returns the world."""
     from .world import World
 
     world = World.from_scene("default")
@@ -27,8 +27,10 @@ def warm_up(ticks: int = 24) -> float:
             state.position[names.index(name)] = xyz
     for _ in range(ticks):
         world.step()
-    return time.perf_counter() - started
+    return world
 
 
 if __name__ == "__main__":
-    print(f"cgp_core.warmup: compiled kernels ready in {warm_up():.1f} s")
+    started = time.perf_counter()
+    warm_up()
+    print(f"cgp_core.warmup: compiled kernels ready in {time.perf_counter() - started:.1f} s")

@@ -307,6 +307,7 @@ class BagWriter:
         self._error_lock = threading.Lock()
         self._gate = threading.Event()  # test seam: cleared = a disk that does not keep up
         self._gate.set()
+        self._wake = threading.Event()  # see wake()
 
         # Files and the topics they carry (owned by the writer thread once it runs).
         self._recorded_topics: list[_Topic] = []
@@ -400,6 +401,13 @@ class BagWriter:
         if self._thread is not None:
             self._queue.put(_Control("topic", topic))
 
+    def set_custom_data(self, custom_data: dict) -> None:
+        """Replace ``custom_data`` (str -> str) for the metadata written from now on (``metadata.yaml`` at the
+        next commit, each file's rosbag2 record when it is finished)."""
+        if not all(isinstance(k, str) and isinstance(v, str) for k, v in custom_data.items()):
+            raise ValueError("custom_data must map str to str")
+        self._custom_data = dict(custom_data)  # a new dict: the writer thread reads whichever is current
+
     def write(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> bool:
         """Queue one serialized message; returns at once.  True if queued, False if dropped (error, full
         queue with ``"drop"``, or closed).  Never raises for I/O problems."""
@@ -421,6 +429,13 @@ class BagWriter:
         self._queue.put((state, data, int(log_time_ns),
                          int(log_time_ns if publish_time_ns is None else publish_time_ns)))
         return True
+
+    def wake(self) -> None:
+        """Have the writer thread take what is queued now, instead of at its next poll (<= 5 ms later).  A
+        real-time caller calls it once per tick, after the tick's writes: the writer then does its Python work
+        (chunking; lz4 itself releases the GIL) while the caller sleeps until its next tick, instead of in the
+        middle of that tick, where the caller would wait for the GIL."""
+        self._wake.set()
 
     def flush(self, timeout: float | None = None) -> bool:
         """Finish the current chunk and commit everything written so far; True when done in time."""
@@ -638,7 +653,8 @@ class BagWriter:
     def _run(self) -> None:
         # The thread polls the queue instead of blocking on it: a blocked reader would be woken by the
         # caller's first put of each tick, which costs that write() ~35 µs (futex wake-up and GIL hand-over,
-        # measured); polling every _POLL_S keeps every write() at ~1 µs and delays the bag by a few ms.
+        # measured); polling every _POLL_S keeps every write() at ~1 µs and delays the bag by a few ms.  A caller
+        # that knows when its burst of writes is over says so with wake() (once per tick).
         get = self._queue.get_nowait
         while True:
             try:
@@ -647,7 +663,8 @@ class BagWriter:
                 if self._chunk_opened_at is not None and not self._failed \
                         and time.monotonic() - self._chunk_opened_at >= self._chunk_interval:
                     self._guard(self._close_chunk, "writing a chunk to")
-                time.sleep(_POLL_S)
+                self._wake.wait(_POLL_S)
+                self._wake.clear()
                 continue
             self._gate.wait()
             try:

@@ -123,6 +123,7 @@ class ParameterSpec:
     minimum: float | None = None
     maximum: float | None = None
     flag: str | None = None  # the `cgp-sim` command-line flag, if any
+    choices: tuple | None = None  # the values a string parameter may take
 
 
 PARAMETERS: tuple[ParameterSpec, ...] = (
@@ -153,8 +154,17 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "rejected.", minimum=0.0, flag="--max-force"),
     ParameterSpec("max_torque", 1e5, "Largest accepted wrench torque magnitude [N m].", minimum=0.0,
                   flag="--max-torque"),
-    ParameterSpec("markers_every", 1, "Publish ~/markers every N ticks (a level-of-detail option for huge "
-                  "flocks; 1 = every tick).", minimum=1, maximum=10000, flag="--markers-every"),
+    ParameterSpec("markers_every", 0, "Redraw each flock's marker every N ticks, in N parts published one per "
+                  "tick (~/markers itself goes out every tick); 0 = automatic: every tick unless the flock markers "
+                  "would exceed 32 MB/s, then as often as fits (see cgp_sim_ros/detail.py; the choice is logged "
+                  "at start-up).", minimum=0, maximum=10000, flag="--markers-every"),
+    ParameterSpec("fish_detail", "auto", "How model:fish flocks are drawn: full (10 triangles per fish), low (3: "
+                  "the outline seen from above and the tail fin) or auto (full unless the markers would exceed "
+                  "32 MB/s at the tick rate).", flag="--fish-detail", choices=("auto", "full", "low")),
+    ParameterSpec("bag_flock_poses_every", 0, "Record ~/flocks/<flock>/poses in the bag every N ticks (they are "
+                  "published every tick); 0 = automatic: every tick unless the flocks' poses would exceed 32 MB/s, "
+                  "then as often as fits. Written into the bag's metadata (custom_data).", read_only=True,
+                  minimum=0, maximum=10000, flag="--bag-flock-poses-every"),
     ParameterSpec("foxglove", False, "Serve a live view to the Foxglove app over WebSocket (Foxglove SDK): "
                   "every topic as the same CDR bytes, the simulation time, wrench commands and the services "
                   "(cgp_sim_ros/foxglove_server.py).", read_only=True, flag="--foxglove"),

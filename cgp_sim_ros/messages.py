@@ -6,9 +6,18 @@ Markers (``~/markers``, frame ``world``), with stable namespaces and ids:
 - ``ground`` / 0: a thin grey CUBE under z = 0 (only when the scene has a ground plane);
 - ``bodies/<body>`` / 0: the body's shape — SPHERE, CUBE (box), CYLINDER (capsule shaft; ids 1 and 2 are the
   capsule's end SPHEREs), SPHERE_LIST (particle set, drawn in the body frame);
-- ``flocks/<flock>`` / 0: SPHERE_LIST of all boids (``model: sphere``) or a TRIANGLE_LIST of fish
-  (``model: fish``, :mod:`cgp_sim_ros.shapes`), one marker per flock.
-After a reset the first marker of the array is a DELETEALL, then the full set.
+- ``flocks/<flock>`` / 0 … K−1: SPHERE_LIST of boids (``model: sphere``) or TRIANGLE_LIST of fish (``model:
+  fish``, :mod:`cgp_sim_ros.shapes`; full or low detail as :mod:`cgp_sim_ros.detail` chose), points rounded to
+  1/1024 m (a view: the poses are exact).  A flock redrawn every K ticks (``markers_every``) is split into K
+  parts, part k = boids [k·N/K, (k+1)·N/K) with id k, and each array carries the part of its tick (tick mod
+  K): every boid is redrawn every K ticks, with the same bytes on every tick (the whole flock every K-th tick
+  was a burst the bag writer's compression then spent the next tick's second core on).  K = 1: one marker,
+  id 0, every tick.
+After a reset the first marker of the array is a DELETEALL, then the full set (every part).
+
+The flock markers are the big ones: each part is laid out once in its own buffer
+(:class:`cgp_sim_ros.cdr.MarkerPointsSerializer`) and the compiled fish kernel writes the vertices straight
+into it; the marker array copies it once.
 """
 
 from __future__ import annotations
@@ -23,7 +32,8 @@ from cgp_core.bodies import Shape
 from cgp_core.rotation import quat_rotate
 
 from . import cdr
-from .shapes import fish_triangles
+from .detail import DetailPlan
+from .shapes import FISH_DETAILS, fish_triangles, quantized_points
 
 GROUND_SIZE = 60.0  # m, edge of the drawn ground tile
 GROUND_COLOR = (0.55, 0.57, 0.6, 1.0)
@@ -38,13 +48,31 @@ class TickMessages:
     Clock = Clock
     MarkerArray = MarkerArray
 
-    def __init__(self, world, frame_id: str = "world"):
+    def __init__(self, world, frame_id: str = "world", plan: DetailPlan | None = None):
         self.world = world
         self.frame_id = frame_id
         model = world.body_model
         self._body_poses = cdr.PoseArraySerializer(frame_id)
         self._odometry = cdr.OdometryBatchSerializer(frame_id, model.names)
         self._flock_poses = [cdr.PoseArraySerializer(frame_id) for _ in world.flocks]
+        #: the fish drawing per flock name ('full' | 'low') and the parts K each flock's marker is split into
+        #: (see :meth:`set_plan`)
+        self.fish_detail: dict[str, str] = {}
+        self.parts = 1
+        self._flock_markers: dict[tuple, tuple] = {}  # (flock index, part) -> (key, MarkerPointsSerializer)
+        self._body_templates: dict[tuple, cdr.MarkerPoseSerializer] = {}  # (body, part, frame) -> template
+        if plan is not None:
+            self.set_plan(plan)
+
+    def set_plan(self, plan: DetailPlan) -> None:
+        """Draw the fish as ``plan`` says, in ``plan.markers_every`` parts per flock."""
+        self.fish_detail = dict(plan.fish_detail)
+        self.parts = max(1, int(plan.markers_every))
+
+    def part_range(self, flock, part: int) -> tuple[int, int]:
+        """Boids [first, last) of ``part`` of ``flock``'s marker (its parts have at least one boid each)."""
+        parts = min(self.parts, flock.count)
+        return part * flock.count // parts, (part + 1) * flock.count // parts
 
     def clock(self, stamp_ns: int) -> bytes:
         return cdr.clock(stamp_ns)
@@ -64,7 +92,9 @@ class TickMessages:
         return [ser.serialize(stamp_ns, flock.positions, flock.orientations)
                 for ser, flock in zip(self._flock_poses, self.world.flocks)]
 
-    def markers(self, stamp_ns: int, delete_all_first: bool = False) -> bytes:
+    def markers(self, stamp_ns: int, delete_all_first: bool = False, tick: int = 0) -> bytes:
+        """The marker array of ``tick`` (world ticks): ground, bodies, and part ``tick mod K`` of every flock —
+        every part after a reset (``delete_all_first``)."""
         out = []
         if delete_all_first:
             out.append(cdr.marker_deleteall(stamp_ns, self.frame_id))
@@ -74,45 +104,71 @@ class TickMessages:
                                   scale=(GROUND_SIZE, GROUND_SIZE, 0.05), color=GROUND_COLOR, **common))
         out.extend(self._body_markers(common))
         for index, flock in enumerate(self.world.flocks):
-            out.append(self._flock_marker(index, flock, common))
+            parts = min(self.parts, flock.count)
+            for part in (range(parts) if delete_all_first else (tick % parts,)):
+                out.append(self._flock_marker(index, flock, part, common))
         return cdr.marker_array(out)
 
     def _body_markers(self, common: dict) -> list[bytes]:
+        """Every body's marker(s) at its current pose (from templates laid out on first use: only the stamp and
+        the pose change from tick to tick)."""
         model, state = self.world.body_model, self.world.body_state
+        capsules = np.flatnonzero(model.shape == Shape.CAPSULE)
+        # capsules' end caps: the body position ± the half-length along the body z axis (all capsules at once)
+        half_axes = quat_rotate(state.orientation[capsules], model.half_extents[capsules, 2:3] * [[0.0, 0.0, 1.0]])
+        caps = {int(i): (state.position[i] + a, state.position[i] - a) for i, a in zip(capsules, half_axes)}
+        positions, orientations = state.position.tolist(), state.orientation.tolist()
+        stamp, frame_id = common["stamp_ns"], common["frame_id"]
         out = []
-        for i, name in enumerate(model.names):
-            ns = f"bodies/{name}"
-            pose = {"position": state.position[i], "orientation": state.orientation[i],
-                    "color": model.color[i]}
-            shape = Shape(int(model.shape[i]))
-            r = model.radius[i]
-            if shape == Shape.SPHERE:
-                out.append(cdr.marker(marker_type=cdr.SPHERE, ns=ns, id=0, scale=(2 * r, 2 * r, 2 * r),
-                                      **pose, **common))
-            elif shape == Shape.BOX:
-                out.append(cdr.marker(marker_type=cdr.CUBE, ns=ns, id=0, scale=2 * model.half_extents[i],
-                                      **pose, **common))
-            elif shape == Shape.CAPSULE:
-                half_length = model.half_extents[i, 2]
-                out.append(cdr.marker(marker_type=cdr.CYLINDER, ns=ns, id=0, scale=(2 * r, 2 * r, 2 * half_length),
-                                      **pose, **common))
-                axis = quat_rotate(state.orientation[i], np.array([0.0, 0.0, half_length]))
-                for cap_id, sign in ((1, 1.0), (2, -1.0)):
-                    out.append(cdr.marker(marker_type=cdr.SPHERE, ns=ns, id=cap_id, scale=(2 * r, 2 * r, 2 * r),
-                                          **{**pose, "position": state.position[i] + sign * axis}, **common))
-            else:  # particles, in the body frame
-                out.append(cdr.marker(marker_type=cdr.SPHERE_LIST, ns=ns, id=0, scale=(2 * r, 2 * r, 2 * r),
-                                      points=model.particles[i][:, :3], **pose, **common))
+        for i in range(model.count):
+            out.append(self._body_marker(i, 0, frame_id).serialize(stamp, positions[i], orientations[i]))
+            if i in caps:
+                for part, position in ((1, caps[i][0]), (2, caps[i][1])):
+                    out.append(self._body_marker(i, part, frame_id).serialize(stamp, position.tolist(),
+                                                                              orientations[i]))
         return out
 
-    def _flock_marker(self, index: int, flock, common: dict) -> bytes:
+    def _body_marker(self, i: int, part: int, frame_id: str) -> cdr.MarkerPoseSerializer:
+        """Body i's marker ``part`` (0: the shape; 1, 2: a capsule's end caps), laid out once."""
+        key = (i, part, frame_id)
+        serializer = self._body_templates.get(key)
+        if serializer is None:
+            model = self.world.body_model
+            ns = f"bodies/{model.names[i]}"
+            shape = Shape(int(model.shape[i]))
+            r = model.radius[i]
+            fields = {"ns": ns, "id": part, "color": model.color[i], "frame_id": frame_id}
+            if shape == Shape.SPHERE or part > 0:  # a sphere, or a capsule's end cap
+                fields.update(marker_type=cdr.SPHERE, scale=(2 * r, 2 * r, 2 * r))
+            elif shape == Shape.BOX:
+                fields.update(marker_type=cdr.CUBE, scale=2 * model.half_extents[i])
+            elif shape == Shape.CAPSULE:
+                fields.update(marker_type=cdr.CYLINDER, scale=(2 * r, 2 * r, 2 * model.half_extents[i, 2]))
+            else:  # particles, in the body frame
+                fields.update(marker_type=cdr.SPHERE_LIST, scale=(2 * r, 2 * r, 2 * r),
+                              points=model.particles[i][:, :3])
+            serializer = self._body_templates[key] = cdr.MarkerPoseSerializer(**fields)
+        return serializer
+
+    def _flock_marker(self, index: int, flock, part: int, common: dict) -> memoryview:
         params = flock.params
-        color = FLOCK_COLORS[index % len(FLOCK_COLORS)]
-        ns = f"flocks/{params.name}"
-        if params.model == "fish":
-            return cdr.marker(marker_type=cdr.TRIANGLE_LIST, ns=ns, id=0, color=color, scale=(1.0, 1.0, 1.0),
-                              points=fish_triangles(flock.positions, flock.orientations, params.boid_size),
-                              **common)
-        size = params.boid_size
-        return cdr.marker(marker_type=cdr.SPHERE_LIST, ns=ns, id=0, color=color, scale=(size, size, size),
-                          points=flock.positions, **common)
+        fish = params.model == "fish"
+        detail = self.fish_detail.get(params.name, "full")
+        first, last = self.part_range(flock, part)
+        points = (last - first) * (len(FISH_DETAILS[detail]) if fish else 1)
+        key = (points, detail, common["frame_id"])
+        cached = self._flock_markers.get((index, part))
+        if cached is None or cached[0] != key:
+            size = params.boid_size
+            serializer = cdr.MarkerPointsSerializer(
+                points, marker_type=cdr.TRIANGLE_LIST if fish else cdr.SPHERE_LIST, frame_id=common["frame_id"],
+                ns=f"flocks/{params.name}", id=part, color=FLOCK_COLORS[index % len(FLOCK_COLORS)],
+                scale=(1.0, 1.0, 1.0) if fish else (size, size, size))
+            cached = self._flock_markers[(index, part)] = (key, serializer)
+        serializer = cached[1]
+        if fish:
+            fish_triangles(flock.positions[first:last], flock.orientations[first:last], params.boid_size, detail,
+                           out=serializer.points)
+        else:
+            quantized_points(flock.positions[first:last], out=serializer.points)
+        return serializer.serialize(common["stamp_ns"])

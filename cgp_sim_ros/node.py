@@ -30,6 +30,7 @@ Bad input (what a node on a shared graph must expect):
 from __future__ import annotations
 
 import collections
+import gc
 import json
 import math
 import sys
@@ -52,6 +53,7 @@ from cgp_core.world import World
 from cgp_core.wrenches import MAX_NAME_LENGTH, WrenchError, make_command
 
 from . import cdr
+from . import detail as lod
 from . import interface as itf
 from .messages import TickMessages
 from .progress import BatchProgress, ProgressLine
@@ -121,6 +123,8 @@ class SimNode(Node):
 
         self.messages = TickMessages(self.world, itf.WORLD_FRAME)
         self.tf = BodyTransforms(self.world, itf.WORLD_FRAME)
+        #: what is drawn and recorded at what rate (cgp_sim_ros/detail.py); set by _plan_detail
+        self.detail: lod.DetailPlan | None = None
         self.paused = bool(self.params["start_paused"])
         self._pending: collections.deque = collections.deque()
         self._dropped_commands = 0
@@ -153,11 +157,14 @@ class SimNode(Node):
         if self.params["foxglove"]:
             self._start_foxglove()  # after the per-entity endpoints exist: it makes a channel for each
 
+        self._plan_detail()
         if self.bag_path is not None:
             self._start_recording(self.bag_path)
+        self._event(self.detail.event())  # after the recorder: the plan is the bag's first event
 
         self._tick_wall_times: collections.deque = collections.deque(maxlen=512)
-        self._window_start = time.monotonic()
+        #: the rate check's window: starts at the first tick after start-up or a pause (see _periodic_reports)
+        self._window_start: float | None = None
         self._window_ticks = 0
         self._timer = self.create_timer(self._timer_period(), self._on_timer)
         #: batch runs (realtime:=false) show their progress: one updating line on a terminal, log lines otherwise
@@ -179,6 +186,8 @@ class SimNode(Node):
             + ("" if self.recorder is None else f", recording to {self.recorder.directory}"
                if self.recorder.recording else f", NOT recording (the bag {str(self.bag_path)!r} cannot be "
                "written: see the error above)"))
+        self.get_logger().info("level of detail: " + " ".join(self.detail.lines))
+        self._freeze_startup_objects()
 
     # ---- set-up -----------------------------------------------------------------------------------------
 
@@ -275,6 +284,8 @@ class SimNode(Node):
             if c.body < len(old_names) and old_names[c.body] in new_index)
 
         self.messages = TickMessages(world, itf.WORLD_FRAME)
+        if self.detail is not None:  # after start-up: a flock spawned or deleted may change the plan (logged if so)
+            self._replan_detail()
         self.tf.rebuild()
         marker_ids = self._drawn_marker_ids()
         if self._synced_version is not None:
@@ -350,9 +361,31 @@ class SimNode(Node):
         try:
             self.recorder = Recorder(self, directory,
                                      max_bytes=self.params["bag_max_size"],
-                                     max_duration_s=self.params["bag_max_duration"])
+                                     max_duration_s=self.params["bag_max_duration"],
+                                     custom_data=self._detail_custom_data())
         except BagExistsError as exc:  # created between the check in __init__ and now
             raise ConfigError(f"bag: {exc}") from None
+
+    @staticmethod
+    def _freeze_startup_objects() -> None:
+        """Everything built so far — the imported modules (rclpy, numpy, scipy, numba and its compiled kernels),
+        the scene, the world — lives as long as the node: move it out of the cyclic garbage collector's sight
+        (``gc.freeze``).  Python's full collections, which it runs now and then between ticks, then scan only
+        what the ticks create: about a millisecond instead of the ~200 ms pause measured at 15k fish, which
+        alone would break the tick's 16.7 ms."""
+        gc.collect()
+        gc.freeze()
+
+    def _plan_detail(self) -> None:
+        """(Re)make the level-of-detail plan from the flocks and the parameters (cgp_sim_ros/detail.py)."""
+        self.detail = lod.plan([f.params for f in self.world.flocks], self.params["rate_hz"],
+                               fish_detail=self.params["fish_detail"], markers_every=self.params["markers_every"],
+                               flock_poses_every=self.params["bag_flock_poses_every"])
+        self.messages.set_plan(self.detail)
+
+    def _detail_custom_data(self) -> dict:
+        return self.detail.custom_data({f.params.name: pub.topic_name for f, pub in
+                                        zip(self.world.flocks, self.pub_flock_poses)}, self.pub_markers.topic_name)
 
     def _timer_period(self) -> float:
         # realtime=false: a zero-period timer is always ready, so the executor runs ticks back to back while
@@ -384,6 +417,8 @@ class SimNode(Node):
             (self.get_logger().error if event.level == "error" else self.get_logger().warn)(event.text)
             self._event({"event": "world", "level": event.level, "text": event.text})
         self._publish_state()
+        if self.recorder is not None:
+            self.recorder.end_tick()  # the bag writer works while this thread waits for the next tick
         self._tick_wall_times.append(time.perf_counter() - start)
         self._window_ticks += 1
         self._periodic_reports()
@@ -404,16 +439,19 @@ class SimNode(Node):
         self._out(self.pub_body_poses, m.body_poses(t), t)
         for pub, data in zip(self.pub_odom, m.body_odometry(t)):
             self._out(pub, data, t)
+        record_poses = self.world.ticks % self.detail.flock_poses_every == 0  # the data: published every tick
         for pub, data in zip(self.pub_flock_poses, m.flock_poses(t)):
-            self._out(pub, data, t)
+            self._out(pub, data, t, record=record_poses)
         tf = self.tf.dynamic(t)
         if tf is not None:
             self._out(self.pub_tf, tf, t)
         if self.world.ticks == 1:
             self._publish_static_tf()  # the first: whatever changed before it is in it
-        if self._delete_all_markers or self.world.ticks % self.params["markers_every"] == 0:
-            self._out(self.pub_markers, m.markers(t, delete_all_first=self._delete_all_markers), t)
-            self._delete_all_markers = False
+        # every tick: ground, bodies and one part of each flock's marker (a flock is redrawn every
+        # markers_every ticks, part by part: cgp_sim_ros/messages.py)
+        self._out(self.pub_markers, m.markers(t, delete_all_first=self._delete_all_markers, tick=self.world.ticks),
+                  t)
+        self._delete_all_markers = False
 
     def _show_progress(self, final: bool = False) -> None:
         line, status = self._progress
@@ -424,16 +462,20 @@ class SimNode(Node):
         else:
             line.update(text)
 
-    def _out(self, publisher, data: bytes, stamp_ns: int) -> None:
-        """Publish serialized bytes and record (and show in Foxglove) the very same bytes."""
+    def _out(self, publisher, data: bytes, stamp_ns: int, record: bool = True) -> None:
+        """Publish serialized bytes, and record (unless the level-of-detail plan records this topic on fewer
+        ticks: ``record`` False) and show in Foxglove the very same bytes."""
         publisher.publish(data)
-        if self.recorder is not None:
+        if record and self.recorder is not None:
             self.recorder.write(publisher.topic_name, data, stamp_ns)
         if self.foxglove is not None:
             self.foxglove.publish(publisher, data, stamp_ns)
 
     def _periodic_reports(self) -> None:
         now = time.monotonic()
+        if self._window_start is None:  # the first tick since start-up or a pause: the window opens here
+            self._window_start, self._window_ticks = now, 0
+            return
         elapsed = now - self._window_start
         if elapsed < REPORT_PERIOD_S:
             return
@@ -578,6 +620,7 @@ class SimNode(Node):
 
     def _on_pause(self, request, response):
         self.sim.set_paused(bool(request.data))
+        self._window_start = None  # time spent paused is not "falling behind"
         self._event({"event": "service", "name": "pause", "data": self.paused})
         response.success = True
         response.message = f"{'paused' if self.paused else 'running'} at t = {self.world.time:.9f} s"
@@ -628,7 +671,22 @@ class SimNode(Node):
                 self._timer.cancel()
                 self.destroy_timer(self._timer)
                 self._timer = self.create_timer(self._timer_period(), self._on_timer)
+                self._window_start = None  # the rate check starts over at the new rate
+        if any(param.name in ("rate_hz", "markers_every", "fish_detail") for param in parameters):
+            self._replan_detail()
         return SetParametersResult(successful=True)
+
+    def _replan_detail(self) -> None:
+        """A parameter the level of detail depends on changed: new plan, logged, on ~/events and in the bag."""
+        before = self.detail
+        self._plan_detail()
+        if (before.fish_detail, before.markers_every, before.flock_poses_every) == \
+                (self.detail.fish_detail, self.detail.markers_every, self.detail.flock_poses_every):
+            return
+        self.get_logger().info("level of detail changed: " + " ".join(self.detail.lines))
+        if self.recorder is not None:
+            self.recorder.set_custom_data(self._detail_custom_data())
+        self._event(self.detail.event())
 
     # ---- shutdown ----------------------------------------------------------------------------------------
 
@@ -654,6 +712,8 @@ def _resolve_bag_path(text: str) -> Path:
 
 def _constraints(spec: itf.ParameterSpec) -> str:
     text = type(spec.default).__name__
+    if spec.choices is not None:
+        text += f", one of {', '.join(spec.choices)}"
     if spec.minimum is not None:
         text += f", >= {spec.minimum:g}"
     if spec.maximum is not None:
@@ -679,6 +739,8 @@ def _check_parameter(spec: itf.ParameterSpec, value) -> str | None:
         return f"{spec.name} must be {expected.__name__}, got {type(value).__name__} {_brief(value)}"
     if isinstance(value, float) and not math.isfinite(value):
         return f"{spec.name} must be finite, got {value}"
+    if spec.choices is not None and value not in spec.choices:
+        return f"{spec.name} must be one of {', '.join(spec.choices)}, got {_brief(value)}"
     if spec.minimum is not None and value < spec.minimum:
         return f"{spec.name} must be >= {spec.minimum:g}, got {value}"
     if spec.maximum is not None and value > spec.maximum:

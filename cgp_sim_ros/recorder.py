@@ -1,6 +1,11 @@
 """The node's recording: every topic it publishes and every command it receives, into a rosbag2-style MCAP
 bag (:class:`cgp_sim_ros.bag.BagWriter`: its own thread, chunked, lz4, crash-safe).
 
+What is recorded at what rate: every message of every topic, except what the level-of-detail plan
+(:mod:`cgp_sim_ros.detail`) records less often — the node decides per tick and calls :meth:`Recorder.write`
+only for what goes into the bag; the plan is in the bag's ``custom_data`` (``cgp_sim.recorded_every_n_ticks``,
+topic → N) and on ``~/events``.
+
 Timestamps: log time = publish time = the simulation time of the tick (ns).  That is what ``/clock`` carries
 in the same bag, so ``ros2 bag play --clock`` / Foxglove replays line up with ``use_sim_time`` consumers, and
 the simulation time never goes backwards (a reset keeps the clock running), so readers see ordered times.
@@ -22,12 +27,14 @@ def type_name(msg_class) -> str:
 
 
 class Recorder:
-    def __init__(self, node, directory: Path, *, max_bytes: int = 0, max_duration_s: float = 0.0):
+    def __init__(self, node, directory: Path, *, max_bytes: int = 0, max_duration_s: float = 0.0,
+                 custom_data: dict | None = None):
         self.node = node
         self.directory = directory.resolve()
         self._error_reported = False
+        self._own_data = {"recorder": "cgp_sim", "scene": str(node.world.scene.source)}
         self.writer = BagWriter(self.directory, max_bytes=max_bytes, max_duration_s=max_duration_s,
-                                custom_data={"recorder": "cgp_sim", "scene": str(node.world.scene.source)})
+                                custom_data={**self._own_data, **(custom_data or {})})
         self.started = time.monotonic()
         # Every topic the node itself publishes or subscribes to (not rclpy's own /rosout, /parameter_events).
         self.add_endpoints([*node.publishers, *node.subscriptions])
@@ -43,6 +50,14 @@ class Recorder:
 
     def write(self, topic: str, data: bytes, stamp_ns: int) -> None:
         self.writer.write(topic, data, stamp_ns, stamp_ns)
+
+    def end_tick(self) -> None:
+        """The tick's messages are all written: the writer thread may take them now (BagWriter.wake)."""
+        self.writer.wake()
+
+    def set_custom_data(self, custom_data: dict) -> None:
+        """The node's entries of the bag's ``custom_data`` from now on (the level-of-detail plan)."""
+        self.writer.set_custom_data({**self._own_data, **custom_data})
 
     @property
     def recording(self) -> bool:

@@ -200,6 +200,29 @@ def test_obstacles_from_bodies_covers_every_shape():
     assert set(np.unique(hits.point)) == set(np.flatnonzero(near < 0.7))
 
 
+def test_compiled_point_shape_distances_are_geometry_pys():
+    """The obstacle query's per-pair closest-point formulas (compiled, one point and one shape) give what
+    geometry.py's points × shapes functions give: distances and normals, inside and outside, on the axes."""
+    from cgp_core.boids.obstacles import box_distance_to, capsule_distance_to, sphere_distance_to
+
+    rng = np.random.default_rng(5)
+    points = np.concatenate([rng.uniform(-3, 3, (600, 3)), np.zeros((1, 3))])  # the last one: at the centres
+    centers = np.zeros((4, 3))
+    centers[1:] = rng.normal(size=(3, 3))
+    R = quat_to_matrix(np.array([quat_from_euler(*angles) for angles in rng.uniform(-3, 3, (4, 3))]))
+    half = rng.uniform(0.2, 1.5, (4, 3))
+    radii = rng.uniform(0.2, 1.0, 4)
+    for fast, (distance, normal) in (
+            (lambda p, k: sphere_distance_to(*p, *centers[k], radii[k]), sphere_distance(points, centers, radii)),
+            (lambda p, k: box_distance_to(*p, centers[k], R[k], half[k]), box_distance(points, centers, R, half)),
+            (lambda p, k: capsule_distance_to(*p, centers[k], R[k][:, 2], half[k, 2], radii[k]),
+             capsule_distance(points, centers, R[:, :, 2], half[:, 2], radii))):
+        got = np.array([[fast(p, k) for k in range(4)] for p in points])  # (m, k, 4)
+        np.testing.assert_allclose(got[..., 0], distance, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(got[..., 1:], normal, rtol=0, atol=1e-12)
+    assert (box_distance(points, centers, R, half)[0] < 0).any(), "some points must be inside a box"
+
+
 # ---- parameters -------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("bad, message", [

@@ -1,6 +1,6 @@
-"""Neighbour search: the grid and the KD-tree find exactly the pairs the brute-force reference finds, on
-random and awkward point sets, across reused candidate lists, in periodic boxes; and a flock steps the same
-whatever the backend."""
+"""Neighbour search: the grid and the KD-tree find exactly the neighbours the brute-force reference finds, on
+random and awkward point sets, in periodic boxes, while the points move and the flock gets denser than the
+grid's rows have room for; and a flock steps the same whatever the backend."""
 
 from __future__ import annotations
 
@@ -8,36 +8,40 @@ import numpy as np
 import pytest
 
 from cgp_core.boids import BruteForceSearch, Flock, FlockParams, GridSearch, KDTreeSearch, make_search
-from cgp_core.boids.neighbors import pair_offsets, periodic_images
+
+BACKENDS = (GridSearch, KDTreeSearch, BruteForceSearch)
 
 
 def _points(array) -> np.ndarray:
-    """(3, W) float32 work coordinates from an (N, 3) array."""
-    return np.ascontiguousarray(np.asarray(array, dtype=np.float32).T)
+    """(N, 3) float64 positions."""
+    return np.ascontiguousarray(np.asarray(array, dtype=np.float64).reshape(-1, 3))
 
 
-def _reference_pairs(points: np.ndarray, radius: float) -> np.ndarray:
-    """All pairs (a < b) with float32 r² < radius², by a plain double loop over numpy rows (independent of
-    the backends' code, same arithmetic as the shared formula)."""
-    xyz = points.T
+def _reference_pairs(points: np.ndarray, radius: float, period=None) -> np.ndarray:
+    """All pairs (a < b) with r² = (dx² + dy²) + dz² < radius² (minimum image in a periodic box), by a plain
+    loop over numpy rows — independent of the backends' code, same arithmetic as the shared formula."""
     found = []
-    r2max = np.float32(radius * radius)
-    for a in range(len(xyz)):
-        d = xyz[a + 1:] - xyz[a]
-        r2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
-        for b in np.flatnonzero(r2 < r2max):
+    for a in range(len(points)):
+        d = points[a + 1:] - points[a]
+        if period is not None:
+            period = np.asarray(period, dtype=float)
+            d -= period * np.floor(d / period + 0.5)
+        r2 = (d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2]
+        for b in np.flatnonzero(r2 < radius * radius):
             found.append((a, a + 1 + b))
     return np.array(found, dtype=np.int64).reshape(-1, 2)
 
 
-def _check_contract(pairs, points, radius):
-    """i < j, i sorted, rows = shared formula, all within the radius."""
-    assert np.all(pairs.i < pairs.j)
-    assert np.all(np.diff(pairs.i) >= 0)
-    ordered = points[:, pairs.order]
-    np.testing.assert_array_equal(pairs.rows, pair_offsets(ordered, pairs.i, pairs.j))
-    assert np.all(pairs.dist2 < np.float32(radius * radius))
-    assert sorted(pairs.order.tolist()) == list(range(points.shape[1]))
+def _check_contract(neighbors, n):
+    """Slots are a permutation of the boids; no boid is its own neighbour; every pair is in both rows."""
+    assert sorted(neighbors.order.tolist()) == list(range(n))
+    rows = {}
+    for slot in range(n):
+        row = neighbors.index[neighbors.start[slot]:neighbors.start[slot] + neighbors.count[slot]]
+        assert slot not in row.tolist(), "a boid is its own neighbour"
+        assert len(set(row.tolist())) == len(row), "a neighbour listed twice"
+        rows[slot] = set(row.tolist())
+    assert all(slot in rows[other] for slot in rows for other in rows[slot]), "rows are not symmetric"
 
 
 CLOUDS = {
@@ -55,89 +59,88 @@ CLOUDS = {
 
 @pytest.mark.parametrize("cloud", sorted(CLOUDS))
 @pytest.mark.parametrize("radius", [1.0, 2.5])
-def test_grid_kdtree_brute_find_the_same_pairs(cloud, radius):
+def test_grid_kdtree_brute_find_the_same_neighbours(cloud, radius):
     rng = np.random.default_rng(sorted(CLOUDS).index(cloud))  # stable across runs (str hash is not)
     points = _points(CLOUDS[cloud](rng))
     expected = _reference_pairs(points, radius)
-    for search in (GridSearch(), KDTreeSearch(), BruteForceSearch(block=97)):
-        pairs = search.pairs(points, radius)
-        _check_contract(pairs, points, radius)
-        np.testing.assert_array_equal(pairs.point_pairs(), expected, err_msg=f"{search.name} on {cloud}")
+    for search in (GridSearch(), KDTreeSearch(), BruteForceSearch()):
+        neighbors = search.neighbors(points, radius)
+        _check_contract(neighbors, len(points))
+        np.testing.assert_array_equal(neighbors.pairs(), expected, err_msg=f"{search.name} on {cloud}")
+        assert neighbors.total == 2 * len(expected)
 
 
 def test_far_apart_cloud_uses_the_sparse_cell_lookup_and_still_agrees():
     """A cloud spread over 10 km with d = 1 has ~10¹² cells: the grid must switch to binary search."""
     rng = np.random.default_rng(3)
     points = _points(np.concatenate([rng.uniform(-5000, 5000, (300, 3)), rng.uniform(0, 3, (200, 3))]))
-    grid = GridSearch()
-    pairs = grid.pairs(points, 1.0)
-    np.testing.assert_array_equal(pairs.point_pairs(), _reference_pairs(points, 1.0))
-    assert pairs.count > 0
+    neighbors = GridSearch().neighbors(points, 1.0)
+    np.testing.assert_array_equal(neighbors.pairs(), _reference_pairs(points, 1.0))
+    assert neighbors.total > 0
 
 
-def test_reused_candidate_lists_stay_exact_while_points_move():
-    """The grid re-tests its cached candidates between rebuilds; after every move (small jitter, a common
-    drift of the whole cloud, occasional big jumps) its pairs must equal a fresh brute-force search, and the
-    cache must actually be used (fewer builds than calls)."""
+def test_moving_points_and_a_flock_denser_than_the_rows_have_room_for():
+    """One grid searched again and again (its buffers are kept between calls) while the points jitter, drift
+    as a whole, jump, and finally collapse into a clump far denser than the rows' initial room: every call
+    must equal a fresh brute-force search, and the rows must have grown."""
     rng = np.random.default_rng(7)
     xyz = rng.uniform(0.0, 10.0, (600, 3))
     velocity = rng.normal(0.0, 1.0, (600, 3))
-    grid = GridSearch(skin_fraction=0.2)
+    grid = GridSearch()
     brute = BruteForceSearch()
-    calls = 0
-    for step in range(60):
+    room = grid._capacity
+    for step in range(40):
         xyz += 0.01 * velocity + np.array([0.3, -0.1, 0.05])  # jitter + a large common drift
         if step % 17 == 16:
             xyz[rng.integers(0, 600, 5)] += rng.normal(0.0, 3.0, (5, 3))  # a few jump far
+        if step >= 30:
+            xyz = xyz.mean(axis=0) + 0.5 * (xyz - xyz.mean(axis=0))  # the cloud collapses
         points = _points(xyz)
-        got = grid.pairs(points, 1.5)
-        calls += 1
-        _check_contract(got, points, 1.5)
-        np.testing.assert_array_equal(got.point_pairs(), brute.pairs(points, 1.5).point_pairs(),
-                                      err_msg=f"step {step}")
-    assert grid.builds < calls / 3, f"candidate list rebuilt {grid.builds} times in {calls} calls"
-    assert grid.builds > 3, "the jumps must have forced rebuilds"
+        got = grid.neighbors(points, 1.5)
+        _check_contract(got, len(points))
+        np.testing.assert_array_equal(got.pairs(), brute.neighbors(points, 1.5).pairs(), err_msg=f"step {step}")
+    assert got.count.max() > room, "the clump must have needed more room than the rows had"
+    assert grid._capacity > room
 
 
-def test_reuse_false_forgets_the_candidate_list():
-    rng = np.random.default_rng(8)
+def test_a_clump_gets_exactly_sized_rows():
+    """Hundreds of boids within d of each other (a flock spawned in a point) would make every row that long
+    in the uniform layout: past its limit the grid sizes the rows exactly, and finds the same neighbours."""
+    rng = np.random.default_rng(12)
+    points = _points(np.concatenate([np.zeros((300, 3)), rng.uniform(-0.2, 0.2, (200, 3)),
+                                     rng.uniform(-30, 30, (2000, 3))]))
     grid = GridSearch()
-    a = _points(rng.uniform(0, 8, (300, 3)))
-    b = _points(rng.uniform(0, 8, (300, 3)))  # different points, same count
-    grid.pairs(a, 1.5)
-    got = grid.pairs(b, 1.5, reuse=False)
-    np.testing.assert_array_equal(got.point_pairs(), _reference_pairs(b, 1.5))
+    got = grid.neighbors(points, 1.0)
+    _check_contract(got, len(points))
+    np.testing.assert_array_equal(got.pairs(), BruteForceSearch().neighbors(points, 1.0).pairs())
+    assert got.count.max() >= 499 and grid._capacity > GridSearch.MAX_UNIFORM_CAPACITY
+    assert len(got.index) < 2 * got.total + len(points), "rows sized exactly, not N x the largest"
+    again = grid.neighbors(points + 0.01, 1.0)  # and it stays exact while the clump lasts
+    np.testing.assert_array_equal(again.pairs(), BruteForceSearch().neighbors(points + 0.01, 1.0).pairs())
 
 
-def test_periodic_images_give_the_minimum_image_neighbourhoods():
-    """Ghost images + open-space search == brute force with the minimum-image convention (pairs within 1e-5
-    of the radius are left out of the comparison: ghost coordinates are rounded to float32 separately)."""
+@pytest.mark.parametrize("box", [[9.0, 7.0, 6.0], [4.5, 30.0, 5.0]])
+def test_periodic_boxes_give_the_minimum_image_neighbourhoods(box):
+    """Every backend in a periodic box == brute force with the minimum-image convention (the second box has
+    sides of 2-3 radii: one or two columns of cells along them)."""
     rng = np.random.default_rng(11)
-    box = np.array([9.0, 7.0, 6.0])
+    box = np.array(box)
     radius = 2.0
     xyz = rng.uniform(0.0, 1.0, (500, 3)) * box
     xyz[:20] = box * rng.choice([0.001, 0.999], (20, 3))  # corners and edges
-    points, source = periodic_images(_points(xyz), box, radius)
-    n = len(xyz)
-    found = GridSearch().pairs(points, radius)
-    a = source[found.order[found.i]]
-    b = source[found.order[found.j]]
-    real_end = (found.order[found.i] < n) | (found.order[found.j] < n)
-    got = {(min(p, q), max(p, q)) for p, q, keep in zip(a, b, real_end) if keep}
-
-    d = xyz[:, None, :] - xyz[None, :, :]
-    d -= box * np.round(d / box)
-    dist = np.sqrt((d * d).sum(axis=-1))
-    upper = np.triu(np.ones((n, n), bool), k=1)
-    expected = {tuple(p) for p in np.argwhere((dist < radius) & upper)}
-    ambiguous = {tuple(p) for p in np.argwhere((np.abs(dist - radius) < 1e-5) & upper)}
-    assert got - ambiguous == expected - ambiguous
+    points = _points(xyz)
+    expected = _reference_pairs(points, radius, box)
+    for search in (GridSearch(), KDTreeSearch(), BruteForceSearch()):
+        neighbors = search.neighbors(points, radius, box)
+        _check_contract(neighbors, len(points))
+        np.testing.assert_array_equal(neighbors.pairs(), expected, err_msg=search.name)
     assert any(abs(xyz[p, 0] - xyz[q, 0]) > box[0] / 2 for p, q in expected), "no pair wraps: weak test"
 
 
 @pytest.mark.parametrize("bounds_mode", ["soft", "wrap"])
 def test_flock_steps_the_same_with_every_backend(bounds_mode):
-    """Same seed, same rules: the three backends give the same trajectories (to float32 summation order)."""
+    """Same seed, same rules, the same neighbour sets: the three backends give the same trajectories (up to
+    the round-off of the order the rules sum in)."""
     common = dict(count=250, seed=5, bounds_mode=bounds_mode, spawn_center=[0, 0, 5], spawn_extent=[8, 8, 4],
                   bounds_min=[-6, -6, 0.5], bounds_max=[6, 6, 10])
     flocks = {name: Flock(FlockParams(neighbor_search=name, **common)) for name in ("grid", "kdtree", "brute")}
@@ -146,27 +149,29 @@ def test_flock_steps_the_same_with_every_backend(bounds_mode):
             flock.step(1.0 / 60.0)
     reference = flocks["brute"]
     for name in ("grid", "kdtree"):
-        np.testing.assert_allclose(flocks[name].positions, reference.positions, rtol=0, atol=1e-4, err_msg=name)
-        np.testing.assert_allclose(flocks[name].velocities, reference.velocities, rtol=0, atol=1e-3, err_msg=name)
+        np.testing.assert_allclose(flocks[name].positions, reference.positions, rtol=0, atol=1e-9, err_msg=name)
+        np.testing.assert_allclose(flocks[name].velocities, reference.velocities, rtol=0, atol=1e-8, err_msg=name)
     assert reference.mean_neighbors > 3.0, "the flock must actually interact"
 
 
 def test_bad_input_is_rejected_with_a_clear_error():
     grid = GridSearch()
     with pytest.raises(ValueError, match="shape"):
-        grid.pairs(np.zeros((5, 3), np.float32), 1.0)
-    with pytest.raises(ValueError, match="float32"):
-        grid.pairs(np.zeros((3, 5)), 1.0)
+        grid.neighbors(np.zeros((3, 5)), 1.0)
+    with pytest.raises(ValueError, match="float64"):
+        grid.neighbors(np.zeros((5, 3), np.float32), 1.0)
     with pytest.raises(ValueError, match="radius"):
-        grid.pairs(np.zeros((3, 5), np.float32), 0.0)
+        grid.neighbors(np.zeros((5, 3)), 0.0)
+    with pytest.raises(ValueError, match="2 \\* radius"):
+        grid.neighbors(np.zeros((5, 3)), 1.0, period=[10.0, 1.5, 10.0])
     with pytest.raises(ValueError, match="neighbor_search"):
         make_search("octree")
 
 
 def test_tiny_inputs():
     for search in (GridSearch(), KDTreeSearch(), BruteForceSearch()):
-        assert search.pairs(np.zeros((3, 0), np.float32), 1.0).count == 0
-        assert search.pairs(np.zeros((3, 1), np.float32), 1.0).count == 0
-        two = search.pairs(_points([[0, 0, 0], [0.5, 0, 0]]), 1.0)
-        assert two.point_pairs().tolist() == [[0, 1]]
-        np.testing.assert_allclose(np.abs(two.offset[:, 0]), [0.5, 0, 0])
+        assert search.neighbors(np.zeros((0, 3)), 1.0).total == 0
+        assert search.neighbors(np.zeros((1, 3)), 1.0).total == 0
+        two = search.neighbors(_points([[0, 0, 0], [0.5, 0, 0]]), 1.0)
+        assert two.pairs().tolist() == [[0, 1]]
+        assert two.of(0).tolist() == [1] and two.of(1).tolist() == [0]

@@ -16,14 +16,14 @@ DT = 1.0 / 60.0
 
 
 def _sums(positions, velocities, radius, separation_radius, fov_deg=360.0):
-    """NeighborSums of a hand-made configuration (brute-force pairs, identity slot order)."""
-    positions = np.asarray(positions, dtype=np.float32).T.copy()
-    velocities = np.asarray(velocities, dtype=np.float32).T.copy()
-    headings = np.zeros((positions.shape[1], 4), dtype=np.float32)
-    headings[:, :3] = (velocities / np.linalg.norm(velocities, axis=0)).T
-    pairs = BruteForceSearch().pairs(positions, radius)
+    """NeighborSums of a hand-made configuration (brute-force neighbour lists)."""
+    positions = np.asarray(positions, dtype=float)
+    velocities = np.asarray(velocities, dtype=float)
+    headings = velocities / np.linalg.norm(velocities, axis=1, keepdims=True)
+    neighbors = BruteForceSearch().neighbors(positions, radius)
     cos_half = math.cos(math.radians(fov_deg / 2)) if fov_deg < 360 else -1.0
-    return neighbor_sums(pairs, positions, velocities, headings, separation_radius, cos_half), positions, velocities
+    return (neighbor_sums(neighbors, positions, velocities, headings, separation_radius, cos_half), positions,
+            velocities)
 
 
 def test_hand_made_configuration_gives_the_slide_vectors():
@@ -32,21 +32,21 @@ def test_hand_made_configuration_gives_the_slide_vectors():
     velocities = [[1, 0, 0], [0, 2, 0], [1, 1, 0], [1, 0, 1], [3, 3, 3]]
     sums, x, v = _sums(positions, velocities, radius=1.5, separation_radius=0.5)
     # cohesion v1 = centroid of neighbours − b (boid 0 is crowded by boid 3, so the gated rule gives 0)
-    v1 = cohesion(sums, x, gated=False)
-    np.testing.assert_allclose(v1[:, 0], np.mean([[1.0, 0, 0], [0, 1.0, 0], [0.3, -0.1, 0]], axis=0), atol=1e-6)
-    assert np.all(cohesion(sums, x, gated=True)[:, 0] == 0.0)
+    v1 = cohesion(sums, gated=False)
+    np.testing.assert_allclose(v1[0], np.mean([[1.0, 0, 0], [0, 1.0, 0], [0.3, -0.1, 0]], axis=0), atol=1e-12)
+    assert np.all(cohesion(sums, gated=True)[0] == 0.0)
     # alignment v3 = mean neighbour velocity − b_v
     v3 = alignment(sums, v)
-    np.testing.assert_allclose(v3[:, 0], np.mean([[0, 2, 0], [1, 1, 0], [1, 0, 1]], axis=0) - [1, 0, 0], atol=1e-6)
+    np.testing.assert_allclose(v3[0], np.mean([[0, 2, 0], [1, 1, 0], [1, 0, 1]], axis=0) - [1, 0, 0], atol=1e-12)
     # separation pushes 0 away from 3 (slide erratum: the slide's sign would pull it closer):
     # (b − x_3) (s − r) / r with r = |b − x_3|
     offset = np.array([-0.3, 0.1, 0.0])
     r = np.linalg.norm(offset)
-    np.testing.assert_allclose(sums.separation[:, 0], offset * (0.5 - r) / r, atol=1e-6)
-    np.testing.assert_allclose(sums.separation[:, 3], -offset * (0.5 - r) / r, atol=1e-6)
+    np.testing.assert_allclose(sums.separation[0], offset * (0.5 - r) / r, atol=1e-12)
+    np.testing.assert_allclose(sums.separation[3], -offset * (0.5 - r) / r, atol=1e-12)
     # a boid with no neighbour gets nothing
     assert sums.count[4] == 0
-    np.testing.assert_array_equal(steering(sums, x, v, 1.0, 1.0, 1.0)[:, 4], 0.0)
+    np.testing.assert_array_equal(steering(sums, v, 1.0, 1.0, 1.0)[4], 0.0)
 
 
 def test_field_of_view_hides_the_boid_behind():
@@ -55,7 +55,7 @@ def test_field_of_view_hides_the_boid_behind():
     velocities = [[1, 0, 0], [1, 0, 0], [1, 0, 0]]
     seen, _, _ = _sums(positions, velocities, radius=2.0, separation_radius=0.1, fov_deg=270.0)
     assert seen.count[0] == 1  # sees 2 only
-    np.testing.assert_allclose(seen.position_sum[:, 0], [0, 1.0, 0], atol=1e-6)
+    np.testing.assert_allclose(seen.offset_sum[0], [0, 1.0, 0], atol=1e-12)
     assert seen.count[1] == 2  # boid 1 sees both ahead of it
     everything, _, _ = _sums(positions, velocities, radius=2.0, separation_radius=0.1, fov_deg=360.0)
     assert everything.count[0] == 2

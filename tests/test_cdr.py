@@ -343,6 +343,49 @@ def test_marker_equals_rclpy(case, frame_id):
     assert_equivalent(cdr.marker(**kw), slow_marker(**kw))
 
 
+@pytest.mark.parametrize("count", SIZES)
+@pytest.mark.parametrize("frame_id", FRAME_IDS)
+def test_marker_points_serializer_equals_rclpy_and_marker(count, frame_id):
+    """The flocks' fast path: laid out once, points written in place, stamp patched — the same bytes as
+    cdr.marker, equivalent to rclpy's serialization, tick after tick, and usable inside a MarkerArray."""
+    rng = np.random.default_rng(count)
+    for marker_type, ns in ((cdr.TRIANGLE_LIST, "flocks/school"), (cdr.SPHERE_LIST, "f")):
+        n = 3 * count if marker_type == cdr.TRIANGLE_LIST else count
+        fields = dict(marker_type=marker_type, frame_id=frame_id, ns=ns, id=0, color=(0.95, 0.6, 0.15, 1.0),
+                      scale=(0.3, 0.3, 0.3))
+        serializer = cdr.MarkerPointsSerializer(n, **fields)
+        assert serializer.points.flags.aligned and serializer.points.shape == (n, 3)
+        for stamp in STAMPS[:3]:
+            points = rng.normal(size=(n, 3))
+            serializer.points[:] = points
+            data = bytes(serializer.serialize(stamp))
+            assert data == cdr.marker(points=points, stamp_ns=stamp, **fields)
+            assert_equivalent(data, slow_marker(points=points, stamp_ns=stamp, **fields))
+        array = cdr.marker_array([cdr.marker(marker_type=cdr.CUBE, ns="ground"), serializer.serialize(7)])
+        assert_equivalent(array, MarkerArray(markers=[slow_marker(marker_type=cdr.CUBE, ns="ground"),
+                                                      slow_marker(points=points, stamp_ns=7, **fields)]))
+
+
+@pytest.mark.parametrize("frame_id", FRAME_IDS)
+def test_marker_pose_serializer_equals_marker(frame_id):
+    """The bodies' fast path: a template patched with stamp and pose, tick after tick, gives marker()'s bytes
+    (every shape the node draws, names of every length: every alignment of the pose)."""
+    rng = np.random.default_rng(len(frame_id))
+    kinds = [dict(marker_type=cdr.SPHERE, scale=(0.6, 0.6, 0.6)), dict(marker_type=cdr.CUBE, scale=(1, 0.5, 2)),
+             dict(marker_type=cdr.CYLINDER, scale=(0.4, 0.4, 1.0)),
+             dict(marker_type=cdr.SPHERE_LIST, scale=(0.3, 0.3, 0.3), points=rng.normal(size=(4, 3)))]
+    for k, kind in enumerate(kinds):
+        for ns in ("", "b", "bodies/crate", "bodies/tetromino_"):
+            fields = dict(kind, frame_id=frame_id, ns=ns, id=k, color=rng.uniform(size=4))
+            serializer = cdr.MarkerPoseSerializer(**fields)
+            for stamp in STAMPS[:3]:
+                position, orientation = rng.normal(size=3), rng.normal(size=4)
+                assert serializer.serialize(stamp, position, orientation) == cdr.marker(
+                    stamp_ns=stamp, position=position, orientation=orientation, **fields)
+    with pytest.raises(ValueError, match="3 \\+ 4 numbers"):
+        serializer.serialize(0, (1.0, 2.0), (0.0, 0.0, 0.0, 1.0))
+
+
 def test_marker_deleteall_is_a_deleteall_marker():
     msg = deserialize_message(cdr.marker_deleteall(5, "world", "flock"), Marker)
     assert (msg.action, msg.ns, msg.header.frame_id) == (Marker.DELETEALL, "flock", "world")

@@ -97,7 +97,9 @@ def test_bag_of_a_run_is_what_a_live_subscriber_saw(start_node, probe, tmp_path)
     (t_cmd, cmd), = messages["/cgp_sim/apply_wrench"]
     assert cmd.body == "box" and cmd.wrench.force.x == 3.0
     events = [json.loads(m.data) for _, m in messages["/cgp_sim/events"]]
-    assert {"event": "service", "name": "pause", "data": False}.items() <= events[0].items()
+    assert events[0]["event"] == "level_of_detail"  # the node's first event: what it draws and records how often
+    services = [e for e in events if e["event"] == "service"]
+    assert {"event": "service", "name": "pause", "data": False}.items() <= services[0].items()
 
     # mcap_ros2 decodes every message too, and the file is finished (summary with statistics)
     (mcap_file,) = sorted(bag.glob("*.mcap"))

@@ -515,7 +515,8 @@ def test_invalid_runtime_parameters_are_refused_with_the_reason_and_change_nothi
         (("max_force", double(NAN)), "max_force must be finite"),
         (("max_torque", double(INF)), "max_torque must be finite"),
         (("rate_hz", double(20000)), "rate_hz must be <= 10000"),
-        (("markers_every", integer(0)), "markers_every must be >= 1"),
+        (("markers_every", integer(-1)), "markers_every must be >= 0"),
+        (("fish_detail", string("medium")), "fish_detail must be one of auto, full, low, got 'medium'"),
         (("duration", double(-1.0)), "duration must be >= 0"),
         (("rate_hz", string("fast")), "rate_hz must be float"),
         (("realtime", string("yes")), "realtime must be bool, got str 'yes'"),
@@ -529,7 +530,7 @@ def test_invalid_runtime_parameters_are_refused_with_the_reason_and_change_nothi
     assert not batch.successful and "max_torque must be >= 0" in batch.reason
     values = get_parameters(probe, "rate_hz", "max_force", "max_torque", "markers_every", "duration", "realtime")
     assert [values[0].double_value, values[1].double_value, values[2].double_value, values[3].integer_value,
-            values[4].double_value, values[5].bool_value] == [60.0, 1e5, 1e5, 1, 0.0, True]
+            values[4].double_value, values[5].bool_value] == [60.0, 1e5, 1e5, 0, 0.0, True]
     # the node kept its dt and keeps ticking
     probe.wait_for_messages("/clock", 20)
     assert_clock_advances_by_dt(clock.messages, min_count=20)

@@ -1,8 +1,8 @@
 """A boid flock: state and one step (Reynolds' rules + what a real flock also needs).
 
-One step of ``dt`` (all boids at once, no per-boid Python loop):
+One step of ``dt`` (all boids at once; the per-boid loops are compiled):
 
-1. **neighbours** — every pair closer than d (``neighbors.py``; in a periodic world with ghost images);
+1. **neighbours** — every boid's neighbours within d (``neighbors.py``; minimum images in a periodic world);
 2. **flocking** — cohesion, separation, alignment summed over each boid's neighbours (``rules.py``) and the
    optional goal: the acceleration the flock *wants*;
 3. **avoidance** — soft walls and the world's bodies (``obstacles.py``): the acceleration the boid *needs*.
@@ -16,9 +16,12 @@ One step of ``dt`` (all boids at once, no per-boid Python loop):
    velocity (so boids never enter a body, even when avoidance was not enough);
 6. **frames** — heading and banked dorsal axis, then quaternions (``frames.py``).
 
-State is stored component-major, ``(3, N)`` rows per axis, because numpy is much faster on long contiguous
-rows than on many short ``(N, 3)`` rows; the public ``positions`` / ``velocities`` / ``orientations`` are
-``(N, 3)`` / ``(N, 4)`` *views* of that storage (writable; ``np.ascontiguousarray`` gives a row-major copy).
+State is ``(N, 3)`` row-major (``(N, 4)`` for the quaternions): one boid's numbers side by side, which is what
+the compiled per-boid loops read.  What runs where: the neighbour search, the rules, the obstacle query, stages
+3-5 for every boid (:func:`_move`: walls, allocation, integration, box) and the frames are numba kernels,
+parallel over the boids (both cores, the GIL released; one core for flocks under 2,000 boids, see
+``cgp_core/jit.py``); numpy handles what concerns few boids: the avoidance pushes from the obstacle hits, the
+no-entry projection of the boids that ended up inside a body, the goal.
 """
 
 from __future__ import annotations
@@ -27,9 +30,10 @@ import math
 
 import numpy as np
 
-from .frames import frames_to_quaternions, initial_dorsal, unit_headings, update_frames
-from .neighbors import NeighborPairs, make_search, periodic_images
-from .obstacles import ColumnIndex, ObstacleHits, Obstacles
+from ..jit import njit, prange, threads_for
+from .frames import initial_dorsal, low_pass_weight, quaternions_rows, unit_headings, update_frames_rows
+from .neighbors import NeighborList, make_search
+from .obstacles import ObstacleHits, Obstacles
 from .params import FlockParams
 from .rules import neighbor_sums, steering
 
@@ -38,21 +42,80 @@ _SURFACE_CLEARANCE = 1e-9  # projected boids land this far outside the inflated 
 
 
 def _norm(a: np.ndarray) -> np.ndarray:
-    return np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    """Row norms of an (N, 3) array."""
+    return np.sqrt(a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2])
 
 
-def _limit_norm(a: np.ndarray, limit: np.ndarray | float) -> None:
-    """Scale the columns of ``a (3, N)`` in place so that ``|a| <= limit``."""
-    length = _norm(a)
-    over = length > limit
-    if np.any(over):
-        a[:, over] *= (np.broadcast_to(limit, length.shape)[over] / length[over])
+@njit
+def _scaled_to(x: float, y: float, z: float, limit: float):
+    """(x, y, z) shortened to length ``limit`` if it is longer."""
+    length = math.sqrt(x * x + y * y + z * z)
+    if length > limit:
+        scale = limit / length
+        return x * scale, y * scale, z * scale
+    return x, y, z
+
+
+#: bounds modes as the compiled stages take them
+_OPEN, _SOFT, _WRAP = 0, 1, 2
+
+
+@njit
+def _wall_push(x: float, low: float, high: float, margin: float) -> float:
+    """Soft wall along one axis, in units of the wall gain: 0 deeper inside than ``margin``, growing linearly
+    to ``margin`` at the wall (positive = back into the box)."""
+    return max(low + margin - x, 0.0) - max(x - (high - margin), 0.0)
+
+
+@njit(parallel=True)
+def _move(x, v, heading, wanted, avoidance, max_acceleration, min_speed, max_speed, dt, bounds_mode, bounds_min,
+          bounds_max, wall_margin, wall_gain):
+    """Stages 3-5 of the step, per boid (see the module docstring): what the boid needs (soft walls +
+    ``avoidance``) and what the flock wants (``wanted``) by prioritized allocation; ``b_v += a dt``, the speed
+    clamp, ``b += b_v dt``; the box: soft walls put a boid that still reached a wall back on it without its
+    outward velocity, a periodic box wraps it."""
+    for i in prange(x.shape[0]):
+        # needed: avoidance + soft walls, capped at max_acceleration
+        nx, ny, nz = avoidance[i, 0], avoidance[i, 1], avoidance[i, 2]
+        if bounds_mode == _SOFT and wall_gain > 0.0:
+            nx += wall_gain * _wall_push(x[i, 0], bounds_min[0], bounds_max[0], wall_margin)
+            ny += wall_gain * _wall_push(x[i, 1], bounds_min[1], bounds_max[1], wall_margin)
+            nz += wall_gain * _wall_push(x[i, 2], bounds_min[2], bounds_max[2], wall_margin)
+        nx, ny, nz = _scaled_to(nx, ny, nz, max_acceleration)
+        # the flock's wish gets what is left of max_acceleration
+        left = max(max_acceleration - math.sqrt(nx * nx + ny * ny + nz * nz), 0.0)
+        wx, wy, wz = _scaled_to(wanted[i, 0], wanted[i, 1], wanted[i, 2], left)
+        vx = v[i, 0] + (nx + wx) * dt
+        vy = v[i, 1] + (ny + wy) * dt
+        vz = v[i, 2] + (nz + wz) * dt
+        # min_speed <= |b_v| <= max_speed; a boid whose velocity vanished keeps its last heading
+        speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+        if speed < 1e-9:
+            vx, vy, vz = heading[i, 0] * min_speed, heading[i, 1] * min_speed, heading[i, 2] * min_speed
+            speed = min_speed
+        scale = min(max(speed, min_speed), max_speed) / speed
+        v[i, 0], v[i, 1], v[i, 2] = vx * scale, vy * scale, vz * scale
+        for a in range(3):
+            x[i, a] += v[i, a] * dt
+            if bounds_mode == _SOFT:
+                if x[i, a] < bounds_min[a]:
+                    x[i, a] = bounds_min[a]
+                    v[i, a] = max(v[i, a], 0.0)
+                elif x[i, a] > bounds_max[a]:
+                    x[i, a] = bounds_max[a]
+                    v[i, a] = min(v[i, a], 0.0)
+            elif bounds_mode == _WRAP:
+                size = bounds_max[a] - bounds_min[a]
+                wrapped = (x[i, a] - bounds_min[a]) % size
+                if wrapped >= size:  # rounding can give the size itself for a tiny negative offset: that is 0
+                    wrapped = 0.0
+                x[i, a] = bounds_min[a] + wrapped
 
 
 class Flock:
     """N boids of one :class:`FlockParams`.
 
-    Attributes (public views, shapes):
+    Attributes (public, shapes):
         positions:    (N, 3) float64 — b, world frame [m].
         velocities:   (N, 3) float64 — b_v [m/s].
         orientations: (N, 4) float64 — unit quaternions (x, y, z, w) of the boid frames: x along the
@@ -63,6 +126,7 @@ class Flock:
         steps:        int — steps since the last reset.
         mean_neighbors: float — after a step: mean number of neighbours within d per boid (whatever the
                       field of view); ``mean_visible_neighbors``: those inside the field of view.
+    The arrays are the flock's state itself (writable; a step updates them in place).
     """
 
     def __init__(self, params: FlockParams):
@@ -71,11 +135,15 @@ class Flock:
         self.params = params
         self._search = make_search(params.neighbor_search)
         n = params.count
-        self._x = np.empty((3, n))
-        self._v = np.empty((3, n))
-        self._heading = np.empty((3, n))
-        self._dorsal = np.empty((3, n))
-        self._q = np.empty((4, n))
+        self._x = np.empty((n, 3))
+        self._v = np.empty((n, 3))
+        self._heading = np.empty((n, 3))
+        self._dorsal = np.empty((n, 3))
+        self._q = np.empty((n, 4))
+        p = params
+        #: (3,) box sizes of a periodic box, zeros in open space (what the neighbour search and rules take)
+        self.period = (p.bounds_max - p.bounds_min) if p.bounds_mode == "wrap" else np.zeros(3)
+        self._no_avoidance = np.zeros((n, 3))  # what a step without bodies avoids
         self.reset()
 
     # ---- state -----------------------------------------------------------------------------------------
@@ -86,15 +154,15 @@ class Flock:
         p = self.params
         n = p.count
         rng = np.random.default_rng(p.seed)
-        self._x[:] = p.spawn_center[:, None] + (rng.random((3, n)) - 0.5) * p.spawn_extent[:, None]
+        # drawn component-major (as this flock always has: the seeds keep their flocks)
+        self._x[:] = (p.spawn_center[:, None] + (rng.random((3, n)) - 0.5) * p.spawn_extent[:, None]).T
         direction = rng.normal(size=(3, n))
-        direction /= np.maximum(_norm(direction), 1e-12)
-        self._v[:] = direction * rng.uniform(p.min_speed, p.max_speed, n)
-        self._heading[:] = unit_headings(self._v)
-        self._dorsal[:] = initial_dorsal(self._heading)
-        frames_to_quaternions(self._heading, self._dorsal, out=self._q)
+        direction /= np.maximum(np.sqrt((direction * direction).sum(axis=0)), 1e-12)
+        self._v[:] = (direction * rng.uniform(p.min_speed, p.max_speed, n)).T
+        self._heading[:] = unit_headings(self._v.T).T
+        self._dorsal[:] = initial_dorsal(self._heading.T).T
+        quaternions_rows(self._heading, self._dorsal, self._q)
         self._search.reset()
-        self._obstacle_index: ColumnIndex | None = None
         self.time = 0.0
         self.steps = 0
         self.mean_neighbors = 0.0
@@ -110,27 +178,33 @@ class Flock:
 
     @property
     def positions(self) -> np.ndarray:
-        return self._x.T
+        return self._x
 
     @property
     def velocities(self) -> np.ndarray:
-        return self._v.T
+        return self._v
 
     @property
     def orientations(self) -> np.ndarray:
-        return self._q.T
+        return self._q
 
     @property
     def headings(self) -> np.ndarray:
-        return self._heading.T
+        return self._heading
 
     @property
     def dorsals(self) -> np.ndarray:
-        return self._dorsal.T
+        return self._dorsal
 
     def polarization(self) -> float:
         """Vicsek order parameter |Σ v̂_i| / N in [0, 1] (1: all boids fly the same way)."""
-        return float(_norm(self._heading.sum(axis=1)[:, None])[0] / self.count)
+        total = self._heading.sum(axis=0)
+        return float(math.sqrt(float(total @ total)) / self.count)
+
+    def neighbors(self) -> NeighborList:
+        """Every boid's neighbours within d at the current positions (the flock's search backend; valid until
+        the next call)."""
+        return self._search.neighbors(self._x, self.params.radius, self.period)
 
     # ---- step ------------------------------------------------------------------------------------------
 
@@ -138,43 +212,36 @@ class Flock:
         """Advance by ``dt`` seconds, avoiding ``obstacles`` (the world's bodies at this tick) if given."""
         if not (isinstance(dt, (int, float, np.floating)) and math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"flock {self.name!r}: dt must be a finite number > 0, got {dt!r}")
+        with threads_for(self.count):  # both cores for big flocks, one for small ones (jit.py)
+            self._step(float(dt), obstacles)
+
+    def _step(self, dt: float, obstacles: Obstacles | None) -> None:
         p = self.params
         x, v = self._x, self._v
         boid_radius = 0.5 * p.boid_size
         use_obstacles = obstacles is not None and obstacles.shape_count > 0
 
-        wanted = self._flocking_acceleration()
+        wanted = self.flocking_acceleration()
         if p.goal is not None and p.goal_weight > 0.0:
-            to_goal = p.goal[:, None] - x
-            wanted += to_goal * (p.goal_weight / np.maximum(_norm(to_goal), 1e-9))
+            to_goal = p.goal - x
+            wanted += to_goal * (p.goal_weight / np.maximum(_norm(to_goal), 1e-9))[:, None]
 
-        needed = self._wall_acceleration()
+        avoidance = self._no_avoidance
         near: ObstacleHits | None = None
         if use_obstacles:
             # one query serves steering now and the no-entry projection after the move: a boid moves at most
             # max_speed·dt, so any body it can end up inside is within this reach now
             reach = boid_radius + (p.obstacle_margin if p.avoid_bodies else 0.0) + p.max_speed * dt + 1e-6
-            near = obstacles.query(x, reach, self._column_index(reach))
+            near = obstacles.query(x.T, reach)
             if p.avoid_bodies and p.obstacle_margin > 0.0:
-                needed += self._avoidance_acceleration(near, boid_radius)
+                avoidance = self._avoidance_acceleration(near, boid_radius)
 
-        # prioritized allocation: avoidance first, the flock gets what is left of max_acceleration
-        _limit_norm(needed, p.max_acceleration)
-        _limit_norm(wanted, np.maximum(p.max_acceleration - _norm(needed), 0.0))
-        acceleration = needed
-        acceleration += wanted
+        # walls + avoidance, allocation, integration, speed clamp, the box: per boid, compiled
+        margin = max(p.bounds_margin, 1e-9)
+        _move(x, v, self._heading, wanted, avoidance, p.max_acceleration, p.min_speed, p.max_speed, float(dt),
+              {"none": _OPEN, "soft": _SOFT, "wrap": _WRAP}[p.bounds_mode], p.bounds_min, p.bounds_max, margin,
+              p.bounds_strength / margin)
 
-        v += acceleration * dt
-        self._limit_speed()
-        x += v * dt
-
-        if p.bounds_mode == "soft":
-            self._clamp_to_box()
-        elif p.bounds_mode == "wrap":
-            size = p.bounds_max - p.bounds_min
-            x -= p.bounds_min[:, None]
-            np.mod(x, size[:, None], out=x)
-            x += p.bounds_min[:, None]
         if use_obstacles:
             if p.bounds_mode == "wrap":
                 # a boid that wrapped now faces bodies it was not near: check everyone
@@ -186,100 +253,32 @@ class Flock:
             if len(candidates):
                 self._project_out_of_bodies(obstacles, candidates, boid_radius)
 
-        self._heading[:], self._dorsal[:] = update_frames(self._heading, self._dorsal, v, dt, p.bank_gain,
-                                                          p.orientation_time_constant)
-        frames_to_quaternions(self._heading, self._dorsal, out=self._q)
+        update_frames_rows(self._heading, self._dorsal, v, float(dt), p.bank_gain,
+                           low_pass_weight(dt, p.orientation_time_constant))
+        quaternions_rows(self._heading, self._dorsal, self._q)
         self.time += dt
         self.steps += 1
 
     # ---- stages ----------------------------------------------------------------------------------------
 
-    def _column_index(self, cell: float) -> ColumnIndex:
-        """The boids sorted by (x cell, y) for the obstacle queries, refreshed from the previous tick's index
-        (nearly sorted already: timsort is then close to O(N))."""
-        self._obstacle_index = ColumnIndex(self._x, cell, self._obstacle_index)
-        return self._obstacle_index
-
-    def _work_points(self) -> tuple[np.ndarray, np.ndarray | None]:
-        """float32 work coordinates (3, W) for the neighbour search, and for a periodic box the real boid of
-        each of the W points (ghosts appended after the N boids), else None.
-
-        float32 halves the memory traffic of the pair stages; coordinates are taken relative to the flock's
-        (or the box's) lower corner so their magnitude, hence the rounding, stays that of the flock's size."""
+    def flocking_acceleration(self) -> np.ndarray:
+        """w1 v1 + w2 v2 + w3 v3 for every boid at the current state, (N, 3) (stage 2 without the goal)."""
         p = self.params
-        if p.bounds_mode == "wrap":
-            size = p.bounds_max - p.bounds_min
-            work = (self._x - p.bounds_min[:, None]).astype(np.float32)
-            # float32 rounding can put a coordinate just below L onto L itself
-            np.minimum(work, np.nextafter(size.astype(np.float32), np.float32(0.0))[:, None], out=work)
-            return periodic_images(work, size, p.radius)
-        low = self._x.min(axis=1)
-        return (self._x - low[:, None]).astype(np.float32), None
-
-    def neighbor_pairs(self) -> tuple[NeighborPairs, np.ndarray, np.ndarray]:
-        """The current neighbour pairs, the work points (3, W) they index (via ``pairs.order``) and the boid
-        index of each work point (W,) (ghosts map to the boid they copy)."""
-        points, source = self._work_points()
-        # ghosts come and go as boids cross the faces of a periodic box: never the same points twice
-        pairs = self._search.pairs(points, self.params.radius, reuse=source is None)
-        point_boid = np.arange(points.shape[1]) if source is None else source
-        return pairs, points, point_boid
-
-    def _flocking_acceleration(self) -> np.ndarray:
-        """w1 v1 + w2 v2 + w3 v3 for every boid, (3, N) float64."""
-        p = self.params
-        n = p.count
-        pairs, points, point_boid = self.neighbor_pairs()
-        slot_boid = np.take(point_boid, pairs.order)  # boid of each slot
-        positions = np.take(points, pairs.order, axis=1)
-        velocities = np.take(self._v, slot_boid, axis=1).astype(np.float32)
-        headings = np.zeros((len(slot_boid), 4), dtype=np.float32)  # rows [hx, hy, hz, 0]
-        for axis in range(3):
-            headings[:, axis] = np.take(self._heading[axis], slot_boid)
-        sums = neighbor_sums(pairs, positions, velocities, headings, p.separation_radius,
-                             p.cos_half_fov if p.fov_deg < 360.0 else -1.0)
-        per_slot = steering(sums, positions, velocities, p.cohesion_weight, p.separation_weight,
-                            p.alignment_weight)
-        acceleration = np.empty((3, n))
-        if len(point_boid) == n:  # no ghosts: the slots are a permutation of the boids
-            acceleration[:, pairs.order] = per_slot
-            self.mean_neighbors = 2.0 * pairs.count / n
-            self.mean_visible_neighbors = float(sums.count.mean())
-        else:
-            real = pairs.order < n
-            acceleration[:, pairs.order[real]] = per_slot[:, real]
-            ends_real = np.count_nonzero(pairs.order[pairs.i] < n) + np.count_nonzero(pairs.order[pairs.j] < n)
-            self.mean_neighbors = ends_real / n
-            self.mean_visible_neighbors = float(sums.count[real].mean())
-        return acceleration
-
-    def _wall_acceleration(self) -> np.ndarray:
-        """Soft walls: per axis, an acceleration back into the box growing linearly from 0 at
-        ``bounds_margin`` inside the wall to ``bounds_strength`` at the wall, (3, N)."""
-        p = self.params
-        a = np.zeros((3, p.count))
-        if p.bounds_mode != "soft" or p.bounds_strength == 0.0:
-            return a
-        margin = max(p.bounds_margin, 1e-9)
-        x = self._x
-        gain = p.bounds_strength / margin
-        below = (p.bounds_min + margin)[:, None] - x
-        above = x - (p.bounds_max - margin)[:, None]
-        np.maximum(below, 0.0, out=below)
-        np.maximum(above, 0.0, out=above)
-        a += below
-        a -= above
-        a *= gain
-        return a
+        neighbors = self.neighbors()
+        sums = neighbor_sums(neighbors, self._x, self._v, self._heading, p.separation_radius,
+                             p.cos_half_fov if p.fov_deg < 360.0 else -1.0, self.period)
+        self.mean_neighbors = neighbors.total / p.count
+        self.mean_visible_neighbors = float(sums.count.mean())
+        return steering(sums, self._v, p.cohesion_weight, p.separation_weight, p.alignment_weight)
 
     def _avoidance_acceleration(self, near: ObstacleHits, boid_radius: float) -> np.ndarray:
-        """Steer around bodies, (3, N): for each (boid, body) closer than ``obstacle_margin`` (surface to
+        """Steer around bodies, (N, 3): for each (boid, body) closer than ``obstacle_margin`` (surface to
         boid surface), ``max_acceleration · w · (n + approach · t)`` with ``w = ((margin − clearance) /
         margin)²`` (0 at the margin, 1 at contact), n the outward normal, and — for a boid flying into the
         body (``approach = −v̂·n > 0``) — t the unit sideways direction of its velocity along the surface, so it
         turns around the body instead of only braking (a boid aimed at the centre gets a fixed perpendicular)."""
         p = self.params
-        a = np.zeros((3, p.count))
+        a = np.zeros((p.count, 3))
         clearance = near.distance - boid_radius
         active = clearance < p.obstacle_margin
         if not np.any(active):
@@ -287,11 +286,11 @@ class Flock:
         boid = near.point[active]
         normal = near.normal[:, active]
         weight = np.clip((p.obstacle_margin - clearance[active]) / p.obstacle_margin, 0.0, 1.0) ** 2
-        heading = self._heading[:, boid]
+        heading = self._heading[boid].T
         along = np.einsum("ij,ij->j", heading, normal)
         approach = np.maximum(-along, 0.0)
         sideways = heading - along * normal
-        length = _norm(sideways)
+        length = np.sqrt((sideways * sideways).sum(axis=0))
         head_on = length < 1e-6
         if np.any(head_on):
             # any perpendicular of n will do; pick one deterministically (n × world z, or n × world x)
@@ -301,49 +300,26 @@ class Flock:
             helper[2, ~use_x] = 1.0
             helper[0, use_x] = 1.0
             sideways[:, head_on] = np.cross(n_h.T, helper.T).T
-            length[head_on] = _norm(sideways[:, head_on])
+            length[head_on] = np.sqrt((sideways[:, head_on] ** 2).sum(axis=0))
         sideways /= length
         push = (normal + approach * sideways) * (p.max_acceleration * weight)
         for axis in range(3):
-            a[axis] = np.bincount(boid, weights=push[axis], minlength=p.count)
+            a[:, axis] = np.bincount(boid, weights=push[axis], minlength=p.count)
         return a
-
-    def _limit_speed(self, fallback: np.ndarray | None = None) -> None:
-        """Clamp |b_v| to [min_speed, max_speed]; a boid whose velocity vanished keeps its last heading."""
-        p = self.params
-        v = self._v
-        speed = _norm(v)
-        stopped = speed < 1e-9
-        if np.any(stopped):
-            v[:, stopped] = self._heading[:, stopped] * p.min_speed
-            speed[stopped] = p.min_speed
-        scale = np.clip(speed, p.min_speed, p.max_speed) / speed
-        v *= scale
-
-    def _clamp_to_box(self) -> None:
-        """Soft-wall mode guarantee: a boid past a wall is put back on it and loses its outward velocity."""
-        p = self.params
-        x, v = self._x, self._v
-        low = x < p.bounds_min[:, None]
-        high = x > p.bounds_max[:, None]
-        if np.any(low) or np.any(high):
-            np.clip(x, p.bounds_min[:, None], p.bounds_max[:, None], out=x)
-            v[low] = np.maximum(v[low], 0.0)
-            v[high] = np.minimum(v[high], 0.0)
 
     def _project_out_of_bodies(self, obstacles: Obstacles, candidates: np.ndarray, boid_radius: float) -> None:
         """No-entry guarantee: a boid closer than ``boid_radius`` to a body (centre inside the inflated body)
         is moved along the outward normal to the inflated surface, and its inward velocity is removed."""
         x, v = self._x, self._v
         for _ in range(_PROJECTION_PASSES):
-            hits = obstacles.query(x[:, candidates], boid_radius)
+            hits = obstacles.query(x[candidates].T, boid_radius)
             if hits.count == 0:
                 return
             boid = candidates[hits.point]
             depth = boid_radius - hits.distance + _SURFACE_CLEARANCE
             normal = hits.normal
-            inward = np.minimum(np.einsum("ij,ij->j", v[:, boid], normal), 0.0)
+            inward = np.minimum(np.einsum("ij,ij->j", v[boid].T, normal), 0.0)
             for axis in range(3):
-                np.add.at(x[axis], boid, depth * normal[axis])
-                np.add.at(v[axis], boid, -inward * normal[axis])
+                np.add.at(x[:, axis], boid, depth * normal[axis])
+                np.add.at(v[:, axis], boid, -inward * normal[axis])
             candidates = np.unique(boid)

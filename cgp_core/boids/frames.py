@@ -18,7 +18,10 @@ a frame that is defined everywhere and continuous:
 The discrete curvature: ``κN ≈ (T_new − T_old)_⊥ / (|v| dt)`` (the change of the unit tangent per arc length,
 its component perpendicular to T_new), so the centripetal acceleration is ``|v| (T_new − T_old)_⊥ / dt``.
 
-Arrays are component-major ``(3, N)`` float64 (rows x, y, z), quaternions ``(4, N)`` (x, y, z, w).
+The per-boid formulas are compiled (numba, :func:`update_frames_rows` / :func:`quaternions_rows`: one boid per
+iteration of a parallel loop, on ``(N, 3)`` rows as the flock stores them).  The functions without ``_rows``
+take component-major ``(3, N)`` arrays (rows x, y, z; quaternions ``(4, N)`` as x, y, z, w) and call the same
+kernels: they are the API the tests and the initial state use.
 """
 
 from __future__ import annotations
@@ -26,6 +29,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from ..jit import njit, prange
 
 GRAVITY = 9.81  # m/s², the g in the banking target
 _TINY = 1e-12
@@ -84,6 +89,71 @@ def parallel_transport(vectors: np.ndarray, old: np.ndarray, new: np.ndarray) ->
     return np.where(safe, out, vectors)
 
 
+@njit
+def _frame(h_old, d_old, velocity, dt, bank_gain, blend, heading, dorsal):
+    """One boid's frame after a step: ``heading`` and ``dorsal`` (3,) written from the old frame and the new
+    velocity (see :func:`update_frames`)."""
+    vx, vy, vz = velocity[0], velocity[1], velocity[2]
+    speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+    scale = 1.0 / max(speed, _TINY)
+    hx, hy, hz = vx * scale, vy * scale, vz * scale
+    if speed < 1e-9:
+        hx, hy, hz = h_old[0], h_old[1], h_old[2]
+    # the lecture's dT/ds = κN, discretely (T_new − T_old)⊥ / (|v| dt); times |v|² the centripetal acceleration
+    tx, ty, tz = hx - h_old[0], hy - h_old[1], hz - h_old[2]
+    along = tx * hx + ty * hy + tz * hz
+    factor = (bank_gain / dt) * speed
+    tx, ty, tz = (tx - along * hx) * factor, (ty - along * hy) * factor, (tz - along * hz) * factor
+    tz += GRAVITY  # apparent up = −gravity + bank_gain · centripetal acceleration
+    length = math.sqrt(tx * tx + ty * ty + tz * tz)
+    if length > _TINY:
+        tx, ty, tz = tx / length, ty / length, tz / length
+    else:
+        tx, ty, tz = d_old[0], d_old[1], d_old[2]
+    # low-pass towards the target, then perpendicular to the new heading
+    dx = d_old[0] * (1.0 - blend) + blend * tx
+    dy = d_old[1] * (1.0 - blend) + blend * ty
+    dz = d_old[2] * (1.0 - blend) + blend * tz
+    along = dx * hx + dy * hy + dz * hz
+    dx, dy, dz = dx - along * hx, dy - along * hy, dz - along * hz
+    length = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if length < 1e-6:
+        # a turn of ~90° in one tick: carry the old dorsal axis exactly (parallel transport), then project
+        dx, dy, dz = _transported(d_old[0], d_old[1], d_old[2], h_old[0], h_old[1], h_old[2], hx, hy, hz)
+        along = dx * hx + dy * hy + dz * hz
+        dx, dy, dz = dx - along * hx, dy - along * hy, dz - along * hz
+        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+    length = max(length, _TINY)
+    heading[0], heading[1], heading[2] = hx, hy, hz
+    dorsal[0], dorsal[1], dorsal[2] = dx / length, dy / length, dz / length
+
+
+@njit
+def _transported(vx, vy, vz, ox, oy, oz, nx, ny, nz):
+    """(vx, vy, vz) rotated by the minimal rotation taking unit ``o`` to unit ``n`` (Rodrigues, see
+    :func:`parallel_transport`); unchanged for an exact reversal."""
+    kx, ky, kz = oy * nz - oz * ny, oz * nx - ox * nz, ox * ny - oy * nx
+    c = ox * nx + oy * ny + oz * nz
+    if c <= -1.0 + 1e-9:
+        return vx, vy, vz
+    kv = (kx * vx + ky * vy + kz * vz) / (1.0 + c)
+    return (c * vx + (ky * vz - kz * vy) + kx * kv, c * vy + (kz * vx - kx * vz) + ky * kv,
+            c * vz + (kx * vy - ky * vx) + kz * kv)
+
+
+@njit(parallel=True)
+def update_frames_rows(headings, dorsals, velocities, dt, bank_gain, blend):
+    """:func:`update_frames` in place on ``(N, 3)`` rows, one boid per iteration (``blend`` = the low-pass
+    weight of one step, ``1 − exp(−dt / τ)``)."""
+    for i in prange(headings.shape[0]):
+        _frame(headings[i], dorsals[i], velocities[i], dt, bank_gain, blend, headings[i], dorsals[i])
+
+
+def low_pass_weight(dt: float, time_constant: float) -> float:
+    """Weight of the new target in one step of the dorsal axis' first-order low-pass: 1 − exp(−dt / τ)."""
+    return 1.0 if time_constant <= 0.0 else -math.expm1(-dt / time_constant)
+
+
 def update_frames(heading_old: np.ndarray, dorsal_old: np.ndarray, velocities: np.ndarray, dt: float,
                   bank_gain: float, time_constant: float) -> tuple[np.ndarray, np.ndarray]:
     """Advance the frames by one step of ``dt`` to the new ``velocities (3, N)``.
@@ -92,83 +162,70 @@ def update_frames(heading_old: np.ndarray, dorsal_old: np.ndarray, velocities: n
     The old dorsal axis is carried to the new heading by projecting it perpendicular to it (first-order
     parallel transport, exact enough for the few degrees a boid turns per tick); only if that projection
     degenerates (a turn of ~90° in one tick) is the exact transport used."""
-    speed = np.sqrt(_dot(velocities, velocities))
-    heading = velocities / np.maximum(speed, _TINY)
-    still = speed < 1e-9
-    if np.any(still):
-        heading[:, still] = heading_old[:, still]
-    # the lecture's dT/ds = κN, discretely (T_new − T_old)⊥ / (|v| dt); times |v|² the centripetal acceleration
-    target = heading - heading_old
-    target -= _dot(target, heading) * heading
-    target *= (bank_gain / dt) * speed
-    target[2] += GRAVITY  # apparent up = −gravity + bank_gain · centripetal acceleration
-    target_length = np.sqrt(_dot(target, target))
-    has_target = target_length > _TINY
-    target /= np.where(has_target, target_length, 1.0)
-    if not np.all(has_target):
-        target[:, ~has_target] = dorsal_old[:, ~has_target]
-    blend = 1.0 if time_constant <= 0.0 else -math.expm1(-dt / time_constant)
-    # low-pass towards the target, then make it perpendicular to the new heading
-    dorsal = dorsal_old * (1.0 - blend)
-    dorsal += blend * target
-    dorsal, length = _project_unit(dorsal, heading)
-    degenerate = length < 1e-6
-    if np.any(degenerate):
-        carried = parallel_transport(dorsal_old[:, degenerate], heading_old[:, degenerate], heading[:, degenerate])
-        dorsal[:, degenerate] = _project_unit(carried, heading[:, degenerate])[0]
-    return heading, dorsal
+    heading = np.ascontiguousarray(np.asarray(heading_old, dtype=float).T)
+    dorsal = np.ascontiguousarray(np.asarray(dorsal_old, dtype=float).T)
+    update_frames_rows(heading, dorsal, np.ascontiguousarray(np.asarray(velocities, dtype=float).T), float(dt),
+                       float(bank_gain), low_pass_weight(dt, time_constant))
+    return heading.T, dorsal.T
+
+
+@njit
+def _quaternion(x_axis, z_axis, q):
+    """The unit quaternion (x, y, z, w), w >= 0, of R = [x y z], y = z × x (see :func:`frames_to_quaternions`)."""
+    m00, m10, m20 = x_axis[0], x_axis[1], x_axis[2]  # R[row, column]: column 0 is the x axis
+    m02, m12, m22 = z_axis[0], z_axis[1], z_axis[2]
+    m01, m11, m21 = m12 * m20 - m22 * m10, m22 * m00 - m02 * m20, m02 * m10 - m12 * m00  # y = z × x
+    w = 0.5 * math.sqrt(max(1.0 + m00 + m11 + m22, 0.0))
+    x = 0.5 * math.sqrt(max(1.0 + m00 - m11 - m22, 0.0))
+    y = 0.5 * math.sqrt(max(1.0 - m00 + m11 - m22, 0.0))
+    z = 0.5 * math.sqrt(max(1.0 - m00 - m11 + m22, 0.0))
+    if w >= 1e-3:
+        # signs relative to w (w >= 0) from the antisymmetric part
+        x = math.copysign(x, m21 - m12)
+        y = math.copysign(y, m02 - m20)
+        z = math.copysign(z, m10 - m01)
+    else:
+        # w ~ 0: a half turn about (x, y, z); signs of the two smaller components relative to the largest from
+        # the symmetric part, then the largest's sign (w > 0) from the antisymmetric part
+        xy, xz, yz = m01 + m10, m02 + m20, m12 + m21
+        if x >= y and x >= z:
+            y = math.copysign(y, xy) if xy != 0.0 else y
+            z = math.copysign(z, xz) if xz != 0.0 else z
+            if (m21 - m12) < 0.0:
+                x, y, z = -x, -y, -z
+        elif y >= z:
+            x = math.copysign(x, xy) if xy != 0.0 else x
+            z = math.copysign(z, yz) if yz != 0.0 else z
+            if (m02 - m20) < 0.0:
+                x, y, z = -x, -y, -z
+        else:
+            x = math.copysign(x, xz) if xz != 0.0 else x
+            y = math.copysign(y, yz) if yz != 0.0 else y
+            if (m10 - m01) < 0.0:
+                x, y, z = -x, -y, -z
+    q[0], q[1], q[2], q[3] = x, y, z, w
+
+
+@njit(parallel=True)
+def quaternions_rows(headings, dorsals, out):
+    """:func:`frames_to_quaternions` on ``(N, 3)`` rows into ``out (N, 4)``, one boid per iteration."""
+    for i in prange(headings.shape[0]):
+        _quaternion(headings[i], dorsals[i], out[i])
 
 
 def frames_to_quaternions(heading: np.ndarray, dorsal: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """Quaternions (4, N) (x, y, z, w), ``w >= 0``, of the rotations R = [x y z] with x = heading, z = dorsal,
     y = z × x (both unit and orthogonal).
 
-    Branch-free: each component's magnitude from the diagonal (``4w² = 1 + m00 + m11 + m22``, ``4x² = 1 + m00
-    − m11 − m22``, …) and the signs of x, y, z relative to w from the antisymmetric part (``4wx = m21 − m12``,
-    …).  Where w is ~0 (turns by ~180°) those signs are undetermined and are taken from the symmetric part
-    instead (``4xy = m01 + m10``, ``4xz = m02 + m20``).  Accurate to ~1e-8 (square roots of differences),
-    plenty for poses; ``rotation.matrix_to_quat`` (Shepperd) is the reference in the tests.  Several times
-    cheaper than a branching Shepperd on component rows, which matters at 10⁵ boids per tick."""
-    x_axis = heading
-    z_axis = dorsal
-    y_axis = _cross(z_axis, x_axis)
-    m00, m10, m20 = x_axis  # R[row, column]: column 0 is the x axis
-    m01, m11, m21 = y_axis
-    m02, m12, m22 = z_axis
-    n = heading.shape[1]
-    q = np.empty((4, n)) if out is None else out
-    q[3] = 1.0 + m00 + m11 + m22
-    q[0] = 1.0 + m00 - m11 - m22
-    q[1] = 1.0 - m00 + m11 - m22
-    q[2] = 1.0 - m00 - m11 + m22
-    np.maximum(q, 0.0, out=q)
-    np.sqrt(q, out=q)
-    q *= 0.5
-    # signs relative to w (w >= 0)
-    np.copysign(q[0], m21 - m12, out=q[0])
-    np.copysign(q[1], m02 - m20, out=q[1])
-    np.copysign(q[2], m10 - m01, out=q[2])
-    small_w = q[3] < 1e-3
-    if np.any(small_w):
-        # w ~ 0: the rotation is a half turn about (x, y, z); fix y and z relative to the largest of them
-        qs = q[:, small_w]
-        xy = (m01 + m10)[small_w]
-        xz = (m02 + m20)[small_w]
-        yz = (m12 + m21)[small_w]
-        ax, ay, az = np.abs(qs[0]), np.abs(qs[1]), np.abs(qs[2])
-        x_big = (ax >= ay) & (ax >= az)
-        y_big = ~x_big & (ay >= az)
-        z_big = ~x_big & ~y_big
-        sx = np.where(x_big, 1.0, np.where(y_big, np.sign(xy), np.sign(xz)))
-        sy = np.where(y_big, 1.0, np.where(x_big, np.sign(xy), np.sign(yz)))
-        sz = np.where(z_big, 1.0, np.where(x_big, np.sign(xz), np.sign(yz)))
-        qs[0] = ax * np.where(sx == 0.0, 1.0, sx)
-        qs[1] = ay * np.where(sy == 0.0, 1.0, sy)
-        qs[2] = az * np.where(sz == 0.0, 1.0, sz)
-        # with w > 0 the sign of the largest component follows from the antisymmetric part
-        big = np.where(x_big, qs[0], np.where(y_big, qs[1], qs[2]))
-        anti = np.where(x_big, (m21 - m12)[small_w], np.where(y_big, (m02 - m20)[small_w], (m10 - m01)[small_w]))
-        flip = (anti * big) < 0.0
-        qs[:3, flip] *= -1.0
-        q[:, small_w] = qs
-    return q
+    Each component's magnitude from the diagonal (``4w² = 1 + m00 + m11 + m22``, ``4x² = 1 + m00 − m11 − m22``,
+    …) and the signs of x, y, z relative to w from the antisymmetric part (``4wx = m21 − m12``, …).  Where w is
+    ~0 (turns by ~180°) those signs are undetermined and are taken from the symmetric part instead
+    (``4xy = m01 + m10``, ``4xz = m02 + m20``).  Accurate to ~1e-8 (square roots of differences), plenty for
+    poses; ``rotation.matrix_to_quat`` (Shepperd) is the reference in the tests."""
+    rows = np.empty((heading.shape[1], 4))
+    quaternions_rows(np.ascontiguousarray(np.asarray(heading, dtype=float).T),
+                     np.ascontiguousarray(np.asarray(dorsal, dtype=float).T), rows)
+    if out is None:
+        return rows.T
+    out[...] = rows.T
+    return out

@@ -2,33 +2,33 @@
 
 Boids steer around obstacles (``flock.py``: an acceleration away from the surface and sideways, starting
 ``obstacle_margin`` away from it) and never enter them: after moving, a boid inside a body inflated by half
-its size is put back on the surface and loses its inward velocity.  Distances come from ``geometry.py``
-(Ericson's closest-point formulas); this module only finds which (boid, shape) pairs are close enough to
-matter, so the cost is proportional to the boids near bodies, not boids × bodies:
+its size is put back on the surface and loses its inward velocity.
 
-- shapes whose bounding box (grown by the query reach) misses the flock's bounding box are dropped at once;
-- each remaining shape tests its bounding sphere only against the boids of a few contiguous runs of a
-  :class:`ColumnIndex` (boids sorted by x cell, then y), all shapes in one vectorized pass;
-- many spheres (particle sets) go through a KD-tree of their centres instead;
-- boxes and capsules then test the box (slab per axis) / the capsule (cylinder and end caps) grown by the
-  reach, per pair: a long beam's or pillar's bounding sphere holds thousands of boids, its grown box a few;
-- exact distances: one ``geometry.py`` call per shape type for the few candidates.
+:meth:`Obstacles.query` finds every (boid, shape) pair closer than a reach, with the signed distance and the
+outward normal — Ericson's closest-point formulas (*Real-Time Collision Detection*, ch. 5), the same as
+``geometry.py`` evaluates for points × shapes, here for one point and one shape at a time inside a compiled
+loop over the boids (a test checks the two agree).  The cost is proportional to the boids near bodies, not
+boids × bodies: the shapes are binned into a coarse grid of cells over the boids (each shape into the cells its
+bounding sphere, grown by the reach, overlaps), and each boid looks only at the shapes of its own cell —
+usually none.  Two passes over the boids, in parallel: count each boid's hits, then write them.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..bodies import BodyModel, BodyState, Shape
-from ..geometry import box_distance, capsule_distance
+from ..jit import njit, prange
+from .neighbors import bounding_box
 
-# above this many spheres, candidate (boid, sphere) pairs come from a KD-tree of the sphere centres
-_SPHERES_FOR_TREE = 64
-_TREE_NEIGHBORS = 8
 _SPHERE, _BOX, _CAPSULE = 0, 1, 2
+_TINY = 1e-12  # as geometry.py: below this a direction is undefined and a fallback normal is used
+#: the coarse grid of the query: cells at least this many reaches wide, and at most this many cells
+_CELL_REACHES = 2.0
+_MAX_CELLS = 1 << 16
 
 
 @dataclass
@@ -57,44 +57,6 @@ class ObstacleHits:
         return ObstacleHits(np.concatenate([p.point for p in parts]),
                             np.concatenate([p.distance for p in parts]),
                             np.concatenate([p.normal for p in parts], axis=1))
-
-
-class ColumnIndex:
-    """Points sorted by (x cell, y): a shape's candidate points are then a few contiguous runs (one per x cell
-    its grown bounding sphere overlaps, cut to its y range by binary search), not the whole cloud.
-
-    Attributes (shapes):
-        cell:   x cell size [m].
-        order:  (N,) intp — points sorted by key.
-        keys:   (N,) float64 — sorted keys ``x_cell · span + (y − y_low)``.
-    Build it once per tick from the previous tick's index (nearly sorted: timsort is then close to O(N)).
-    """
-
-    def __init__(self, points: np.ndarray, cell: float, previous: "ColumnIndex | None" = None):
-        self.cell = cell
-        self.y_low = float(points[1].min())
-        self.x_low = float(points[0].min())
-        self.span = float(points[1].max()) - self.y_low + 1.0
-        keys = np.floor((points[0] - self.x_low) / cell) * self.span + (points[1] - self.y_low)
-        count = points.shape[1]
-        start = previous.order if previous is not None and len(previous.order) == count else np.arange(count)
-        self.order = np.take(start, np.argsort(np.take(keys, start), kind="stable"))
-        self.keys = np.take(keys, self.order)
-
-    def ranges(self, centers: np.ndarray, grown: np.ndarray):
-        """For k spheres (``centers (k, 3)``, radii ``grown (k,)``): the (sphere, first, last) sorted-index
-        ranges that hold every point with |x − cx| <= r and |y − cy| <= r."""
-        first_cell = np.floor((centers[:, 0] - grown - self.x_low) / self.cell)
-        last_cell = np.floor((centers[:, 0] + grown - self.x_low) / self.cell)
-        cells = (last_cell - first_cell + 1).astype(np.int64)
-        sphere = np.repeat(np.arange(len(centers)), cells)
-        cell = np.repeat(first_cell, cells) + (np.arange(int(cells.sum())) - np.repeat(np.cumsum(cells) - cells, cells))
-        base = cell * self.span
-        y_low = np.maximum(centers[sphere, 1] - grown[sphere] - self.y_low, 0.0)
-        y_high = np.minimum(centers[sphere, 1] + grown[sphere] - self.y_low, self.span)
-        first = np.searchsorted(self.keys, base + y_low, side="left")
-        last = np.searchsorted(self.keys, base + y_high, side="right")
-        return sphere, first, np.maximum(last, first)
 
 
 @dataclass
@@ -167,160 +129,194 @@ class Obstacles:
 
     # ---- queries ---------------------------------------------------------------------------------------
 
-    def query(self, points: np.ndarray, reach: float, index: ColumnIndex | None = None) -> ObstacleHits:
+    def query(self, points: np.ndarray, reach: float) -> ObstacleHits:
         """Every (point, shape) pair with signed distance < ``reach``; ``points (3, N)`` world coordinates.
-
-        ``index`` optionally is a :class:`ColumnIndex` of these points (a flock keeps one from tick to tick);
-        without it the query builds one."""
-        if points.shape[1] == 0:
+        The hits come point by point (ascending), each point's shapes in order (spheres, boxes, capsules, then
+        the ground plane)."""
+        rows = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T)  # (N, 3): one point per row
+        n = len(rows)
+        if n == 0 or self.shape_count == 0:
             return ObstacleHits.concatenate([])
-        low = points.min(axis=1)
-        high = points.max(axis=1)
-        parts = []
-        many_spheres = len(self.sphere_radii) > _SPHERES_FOR_TREE
-        if many_spheres:
-            parts.append(self._query_many_spheres(points, reach, low, high))
-        # bounding spheres of all (other) shapes, culled and matched against the boids in one pass
-        centers, bounds, kind, which = self._bounding_spheres(include_spheres=not many_spheres)
-        keep = self._overlapping(centers, bounds, reach, low, high)
-        if len(keep):
-            if index is None:
-                index = ColumnIndex(points, max(reach, 1e-3))
-            shape, point = self._candidates(points, index, centers[keep], bounds[keep], reach)
-            shape = keep[shape]
-            for k, exact in ((_SPHERE, self._sphere_pairs), (_BOX, self._box_exact), (_CAPSULE, self._capsule_exact)):
-                mine = np.flatnonzero(kind[shape] == k)
-                if len(mine):
-                    mine_point, mine_shape = point[mine], which[shape[mine]]
-                    if k == _BOX:
-                        mine_point, mine_shape = self._box_prefilter(points, mine_point, mine_shape, reach)
-                    elif k == _CAPSULE:
-                        mine_point, mine_shape = self._capsule_prefilter(points, mine_point, mine_shape, reach)
-                    if len(mine_point):
-                        parts.append(self._within(exact(points, mine_point, mine_shape), reach))
-        if self.ground_height is not None:
-            height = points[2] - self.ground_height
-            near = np.flatnonzero(height < reach)
-            normal = np.zeros((3, len(near)))
-            normal[2] = 1.0
-            parts.append(ObstacleHits(near, height[near], normal))
-        return ObstacleHits.concatenate(parts)
-
-    def _bounding_spheres(self, include_spheres: bool):
-        """Centres (K, 3), radii (K,), shape kind (K,) and index within its kind (K,) of every shape's
-        bounding sphere (computed once per Obstacles)."""
-        key = ("bounds", include_spheres)
-        if key not in self._cache:
-            parts = [(self.box_centers, np.linalg.norm(self.box_half_extents, axis=1), _BOX),
-                     (self.capsule_centers, self.capsule_half_lengths + self.capsule_radii, _CAPSULE)]
-            if include_spheres:
-                parts.insert(0, (self.sphere_centers, self.sphere_radii, _SPHERE))
-            self._cache[key] = (np.concatenate([c for c, _, _ in parts]).reshape(-1, 3),
-                                np.concatenate([r for _, r, _ in parts]),
-                                np.concatenate([np.full(len(r), k) for _, r, k in parts]),
-                                np.concatenate([np.arange(len(r)) for _, r, _ in parts]))
-        return self._cache[key]
-
-    @staticmethod
-    def _overlapping(centers: np.ndarray, bounds: np.ndarray, reach: float, low, high) -> np.ndarray:
-        """Shapes whose bounding sphere grown by ``reach`` can touch the points' bounding box."""
-        grown = bounds + reach
-        return np.flatnonzero(np.all((centers + grown[:, None] >= low) & (centers - grown[:, None] <= high),
-                                     axis=1))
-
-    @staticmethod
-    def _candidates(points, index: ColumnIndex, centers, bounds, reach):
-        """(shape, point) index pairs with |p − c| < bound + reach: each shape looks only at the points of
-        the index's runs around it, all shapes in one vectorized pass."""
-        grown = bounds + reach
-        shape, first, last = index.ranges(centers, grown)
-        counts = last - first
+        kind, center, rotation, half, radius, bound = self._packed()
+        grown = bound + reach
+        low, high = bounding_box(rows)
+        extent = high - low
+        cell = max(_CELL_REACHES * reach, float(np.prod(extent + 1e-9) / _MAX_CELLS) ** (1.0 / 3.0), 1e-6)
+        dims = (np.floor(extent / cell) + 1).astype(np.int64)
+        table, shape_ids = _bin_shapes(center, grown, low, cell, dims)
+        ground = self.ground_height is not None
+        ground_height = float(self.ground_height) if ground else 0.0
+        counts = np.empty(n, np.int64)
+        no_hits = (np.zeros(0, np.int64), np.zeros(0), np.zeros((3, 0)))
+        args = (rows, float(reach), low, cell, dims, table, shape_ids, kind, center, rotation, half, radius, grown,
+                ground, ground_height)
+        _point_hits(False, *args, counts, *no_hits)
         total = int(counts.sum())
         if total == 0:
-            return np.zeros(0, np.intp), np.zeros(0, np.intp)
-        shape = np.repeat(shape, counts)
-        ends = np.cumsum(counts)
-        point = index.order[np.arange(total) - np.repeat(ends - counts - first, counts)]
-        d2 = (points[0, point] - centers[shape, 0]) ** 2
-        d2 += (points[1, point] - centers[shape, 1]) ** 2
-        d2 += (points[2, point] - centers[shape, 2]) ** 2
-        keep = d2 < grown[shape] ** 2
-        return shape[keep], point[keep]
+            return ObstacleHits(*no_hits)
+        start = np.zeros(n, np.int64)
+        np.cumsum(counts[:-1], out=start[1:])
+        hits = ObstacleHits(np.empty(total, np.int64), np.empty(total), np.empty((3, total)))
+        _point_hits(True, *args, start, hits.point, hits.distance, hits.normal)
+        return hits
 
-    def _query_many_spheres(self, points, reach, low, high) -> ObstacleHits:
-        """Particle sets with many spheres: each boid near them asks a KD-tree of the centres for its
-        nearest few (enough for non-overlapping particles)."""
-        keep = self._overlapping(self.sphere_centers, self.sphere_radii, reach, low, high)
-        if len(keep) == 0:
-            return ObstacleHits.concatenate([])
-        centers = self.sphere_centers[keep]
-        grown = self.sphere_radii[keep].max() + reach
-        inside = np.flatnonzero(np.all((points >= (centers.min(axis=0) - grown)[:, None])
-                                       & (points <= (centers.max(axis=0) + grown)[:, None]), axis=0))
-        k = min(_TREE_NEIGHBORS, len(keep))
-        _, nearest = cKDTree(centers).query(points[:, inside].T, k=k, distance_upper_bound=grown)
-        nearest = nearest.reshape(len(inside), k)
-        rows, cols = np.nonzero(nearest < len(keep))
-        return self._within(self._sphere_pairs(points, inside[rows], keep[nearest[rows, cols]]), reach)
+    def _packed(self):
+        """Every shape in one set of arrays for the compiled query (computed once per Obstacles): kind (K,),
+        center (K, 3), rotation (K, 3, 3) (boxes: columns = axes; capsules: column 2 = the axis), half
+        (K, 3) (boxes: half extents; capsules: (0, 0, half length)), radius (K,) (spheres, capsules), bound
+        (K,) — the shape's bounding-sphere radius."""
+        if "packed" not in self._cache:
+            ks, kb, kc = len(self.sphere_radii), len(self.box_centers), len(self.capsule_centers)
+            k = ks + kb + kc
+            kind = np.concatenate([np.full(ks, _SPHERE), np.full(kb, _BOX), np.full(kc, _CAPSULE)]).astype(np.int64)
+            center = np.concatenate([self.sphere_centers, self.box_centers, self.capsule_centers]).reshape(k, 3)
+            rotation = np.tile(np.eye(3), (k, 1, 1))
+            rotation[ks:ks + kb] = self.box_rotations
+            rotation[ks + kb:, :, 2] = self.capsule_axes
+            half = np.zeros((k, 3))
+            half[ks:ks + kb] = self.box_half_extents
+            half[ks + kb:, 2] = self.capsule_half_lengths
+            radius = np.concatenate([self.sphere_radii, np.zeros(kb), self.capsule_radii])
+            bound = np.concatenate([self.sphere_radii, np.linalg.norm(self.box_half_extents, axis=1),
+                                    self.capsule_half_lengths + self.capsule_radii])
+            self._cache["packed"] = (kind, np.ascontiguousarray(center), rotation, half, radius, bound)
+        return self._cache["packed"]
 
-    def _sphere_pairs(self, points, point, sphere) -> ObstacleHits:
-        """Point-vs-sphere for (point, sphere) pairs: the diagonal of ``geometry.sphere_distance`` (which is
-        points × spheres), with the same fallback normal (+z) for a point at the centre."""
-        offset = points[:, point] - self.sphere_centers[sphere].T
-        length = np.sqrt(offset[0] * offset[0] + offset[1] * offset[1] + offset[2] * offset[2])
-        at_centre = length < 1e-12
-        normal = offset / np.where(at_centre, 1.0, length)
-        normal[2, at_centre] = 1.0
-        return ObstacleHits(point, length - self.sphere_radii[sphere], normal)
 
-    # Prefilters: necessary conditions for ``distance < reach``, so they drop only pairs the exact test would
-    # drop too (then the hits, and their order, are the same as without them).  Padded by a relative 1e-9 so
-    # that rounding differences with ``geometry.py``'s formulas can never drop a pair.
+# ---- the compiled query: closest points (Ericson ch. 5), one point and one shape --------------------------
 
-    def _box_prefilter(self, points, point, box, reach):
-        """(point, box) pairs with the point inside the box grown by ``reach`` on every side: the distance to
-        a box is at least its largest per-axis slab distance ``|local_a| − h_a``."""
-        offset = points[:, point] - self.box_centers[box].T  # (3, m) world offsets
-        rotation = self.box_rotations[box]  # (m, 3, 3), columns = box axes
-        half = self.box_half_extents[box]  # (m, 3)
-        keep = np.ones(len(point), dtype=bool)
-        for axis in range(3):
-            local = (rotation[:, 0, axis] * offset[0] + rotation[:, 1, axis] * offset[1]
-                     + rotation[:, 2, axis] * offset[2])  # component along the box axis
-            keep &= np.abs(local) < (half[:, axis] + reach) * (1.0 + 1e-9) + 1e-9
-        return point[keep], box[keep]
+@njit
+def sphere_distance_to(px, py, pz, cx, cy, cz, r):
+    """Signed distance from a point to a sphere and the outward normal (+z for the centre itself)."""
+    dx, dy, dz = px - cx, py - cy, pz - cz
+    length = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if length < _TINY:
+        return length - r, 0.0, 0.0, 1.0
+    return length - r, dx / length, dy / length, dz / length
 
-    def _capsule_prefilter(self, points, point, capsule, reach):
-        """(point, capsule) pairs with the point inside the capsule's cylinder-with-caps grown by ``reach``:
-        the distance to a capsule is at least the distance to its axis line minus the radius, and at least the
-        distance along the axis beyond the segment's end minus the radius."""
-        offset = points[:, point] - self.capsule_centers[capsule].T  # (3, m)
-        axis = self.capsule_axes[capsule].T  # (3, m) unit
-        along = offset[0] * axis[0] + offset[1] * axis[1] + offset[2] * axis[2]
-        grown = (self.capsule_radii[capsule] + reach) * (1.0 + 1e-9) + 1e-9
-        radial2 = offset[0] * offset[0] + offset[1] * offset[1] + offset[2] * offset[2] - along * along
-        keep = (np.abs(along) < self.capsule_half_lengths[capsule] + grown) & (radial2 < grown * grown)
-        return point[keep], capsule[keep]
 
-    def _box_exact(self, points, point, box) -> ObstacleHits:
-        """Point-vs-box for (point, box) pairs: one ``geometry.box_distance`` call on the distinct points ×
-        distinct boxes involved (few near a flock), then the pairs' entries."""
-        unique_points, row = np.unique(point, return_inverse=True)
-        boxes, column = np.unique(box, return_inverse=True)
-        distance, normal = box_distance(points[:, unique_points].T, self.box_centers[boxes],
-                                        self.box_rotations[boxes], self.box_half_extents[boxes])
-        return ObstacleHits(point, distance[row, column], normal[row, column].T)
+@njit
+def box_distance_to(px, py, pz, center, rotation, half):
+    """Signed distance from a point to an oriented box (``rotation`` columns = its axes) and the outward normal:
+    outside, from the closest point of the box to the point; inside, the axis of the nearest face."""
+    dx, dy, dz = px - center[0], py - center[1], pz - center[2]
+    l0 = rotation[0, 0] * dx + rotation[1, 0] * dy + rotation[2, 0] * dz  # Rᵀ d: the point in box axes
+    l1 = rotation[0, 1] * dx + rotation[1, 1] * dy + rotation[2, 1] * dz
+    l2 = rotation[0, 2] * dx + rotation[1, 2] * dy + rotation[2, 2] * dz
+    q0, q1, q2 = abs(l0) - half[0], abs(l1) - half[1], abs(l2) - half[2]  # distances outside each slab
+    o0, o1, o2 = max(q0, 0.0), max(q1, 0.0), max(q2, 0.0)
+    s0 = 1.0 if l0 >= 0.0 else -1.0
+    s1 = 1.0 if l1 >= 0.0 else -1.0
+    s2 = 1.0 if l2 >= 0.0 else -1.0
+    out_len = math.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
+    if out_len > 0.0:
+        n0, n1, n2 = s0 * o0 / out_len, s1 * o1 / out_len, s2 * o2 / out_len
+        distance = out_len
+    elif q0 >= q1 and q0 >= q2:
+        n0, n1, n2, distance = s0, 0.0, 0.0, q0
+    elif q1 >= q2:
+        n0, n1, n2, distance = 0.0, s1, 0.0, q1
+    else:
+        n0, n1, n2, distance = 0.0, 0.0, s2, q2
+    return (distance, rotation[0, 0] * n0 + rotation[0, 1] * n1 + rotation[0, 2] * n2,
+            rotation[1, 0] * n0 + rotation[1, 1] * n1 + rotation[1, 2] * n2,
+            rotation[2, 0] * n0 + rotation[2, 1] * n1 + rotation[2, 2] * n2)
 
-    def _capsule_exact(self, points, point, capsule) -> ObstacleHits:
-        """Point-vs-capsule for (point, capsule) pairs, like :meth:`_box_exact`."""
-        unique_points, row = np.unique(point, return_inverse=True)
-        capsules, column = np.unique(capsule, return_inverse=True)
-        distance, normal = capsule_distance(points[:, unique_points].T, self.capsule_centers[capsules],
-                                            self.capsule_axes[capsules], self.capsule_half_lengths[capsules],
-                                            self.capsule_radii[capsules])
-        return ObstacleHits(point, distance[row, column], normal[row, column].T)
 
-    @staticmethod
-    def _within(hits: ObstacleHits, reach: float) -> ObstacleHits:
-        keep = hits.distance < reach
-        return ObstacleHits(hits.point[keep], hits.distance[keep], hits.normal[:, keep])
+@njit
+def capsule_distance_to(px, py, pz, center, axis, half_length, r):
+    """Signed distance from a point to a capsule (segment ``center ± half_length · axis`` swept by ``r``) and
+    the outward normal (on the axis itself: a fixed perpendicular of it)."""
+    ax, ay, az = center[0] - axis[0] * half_length, center[1] - axis[1] * half_length, center[2] - axis[2] * half_length
+    bx, by, bz = center[0] + axis[0] * half_length, center[1] + axis[1] * half_length, center[2] + axis[2] * half_length
+    abx, aby, abz = bx - ax, by - ay, bz - az
+    denom = abx * abx + aby * aby + abz * abz
+    t = ((px - ax) * abx + (py - ay) * aby + (pz - az) * abz) / (denom if denom > _TINY else 1.0)
+    t = min(max(t, 0.0), 1.0)
+    dx, dy, dz = px - (ax + t * abx), py - (ay + t * aby), pz - (az + t * abz)
+    length = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if length < _TINY:  # on the axis: axis × x̂ (or × ŷ for an axis along x)
+        hx, hy, hz = (1.0, 0.0, 0.0) if abs(axis[0]) < 0.9 else (0.0, 1.0, 0.0)
+        dx, dy, dz = axis[1] * hz - axis[2] * hy, axis[2] * hx - axis[0] * hz, axis[0] * hy - axis[1] * hx
+        norm = math.sqrt(dx * dx + dy * dy + dz * dz)
+        return length - r, dx / norm, dy / norm, dz / norm
+    return length - r, dx / length, dy / length, dz / length
+
+
+@njit
+def _bin_shapes(center, grown, low, cell, dims):
+    """CSR lists of the shapes per cell: shape k goes into every cell its bounding sphere (radius
+    ``grown[k]``) overlaps; ``(table (cells + 1,), shape_ids)``, shapes in ascending order within a cell."""
+    cells = dims[0] * dims[1] * dims[2]
+    table = np.zeros(cells + 1, np.int64)
+    lo = np.empty(3, np.int64)
+    hi = np.empty(3, np.int64)
+    for sweep in range(2):  # count, then fill
+        if sweep == 1:
+            for c in range(cells):
+                table[c + 1] += table[c]
+            shape_ids = np.empty(table[cells], np.int64)
+            cursor = table[:-1].copy()
+        else:
+            shape_ids = np.empty(0, np.int64)
+            cursor = table[:-1]
+        for k in range(center.shape[0]):
+            empty = False
+            for a in range(3):
+                lo[a] = max(int(math.floor((center[k, a] - grown[k] - low[a]) / cell)), 0)
+                hi[a] = min(int(math.floor((center[k, a] + grown[k] - low[a]) / cell)), dims[a] - 1)
+                empty |= hi[a] < lo[a]
+            if empty:
+                continue
+            for x in range(lo[0], hi[0] + 1):
+                for y in range(lo[1], hi[1] + 1):
+                    for z in range(lo[2], hi[2] + 1):
+                        c = (x * dims[1] + y) * dims[2] + z
+                        if sweep == 0:
+                            table[c + 1] += 1
+                        else:
+                            shape_ids[cursor[c]] = k
+                            cursor[c] += 1
+    return table, shape_ids
+
+
+@njit(parallel=True)
+def _point_hits(fill, points, reach, low, cell, dims, table, shape_ids, kind, center, rotation, half, radius,
+                grown, ground, ground_height, counts_or_start, hit_point, hit_distance, hit_normal):
+    """Per point, the shapes of its cell within ``reach`` and the ground plane z = ``ground_height`` (if
+    ``ground``): counted (``fill`` False) or written from ``counts_or_start[i]`` on (``fill`` True)."""
+    for i in prange(points.shape[0]):
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        cx = min(int((px - low[0]) / cell), dims[0] - 1)
+        cy = min(int((py - low[1]) / cell), dims[1] - 1)
+        cz = min(int((pz - low[2]) / cell), dims[2] - 1)
+        c = (cx * dims[1] + cy) * dims[2] + cz
+        found = 0
+        for e in range(table[c], table[c + 1] + 1):
+            if e == table[c + 1]:  # after the cell's shapes: the ground
+                if not ground or pz - ground_height >= reach:
+                    continue
+                d, nx, ny, nz = pz - ground_height, 0.0, 0.0, 1.0
+            else:
+                k = shape_ids[e]
+                dx, dy, dz = px - center[k, 0], py - center[k, 1], pz - center[k, 2]
+                if dx * dx + dy * dy + dz * dz >= grown[k] * grown[k]:
+                    continue  # outside the bounding sphere grown by the reach
+                if kind[k] == _SPHERE:
+                    d, nx, ny, nz = sphere_distance_to(px, py, pz, center[k, 0], center[k, 1], center[k, 2],
+                                                       radius[k])
+                elif kind[k] == _BOX:
+                    d, nx, ny, nz = box_distance_to(px, py, pz, center[k], rotation[k], half[k])
+                else:
+                    d, nx, ny, nz = capsule_distance_to(px, py, pz, center[k], rotation[k, :, 2], half[k, 2],
+                                                        radius[k])
+                if d >= reach:
+                    continue
+            if fill:
+                slot = counts_or_start[i] + found
+                hit_point[slot] = i
+                hit_distance[slot] = d
+                hit_normal[0, slot], hit_normal[1, slot], hit_normal[2, slot] = nx, ny, nz
+            found += 1
+        if not fill:
+            counts_or_start[i] = found
