@@ -32,6 +32,7 @@ import numpy as np
 
 from .bodies import BodyModel, BodyState
 from .boids import Flock, Obstacles
+from .boids.predators import Predators
 from .dynamics import Ground, step_bodies
 from .integrators import make_integrator
 from .rotation import quat_rotate, quat_conjugate
@@ -95,6 +96,8 @@ class World:
         self.wrenches = WrenchSchedule()
         self.sleep_enabled = bool(scene.world.sleep)
         self._bounding_radius = self.body_model.bounding_radius()
+        #: bodies marked ``predator: true`` (issue 14): every flock flees them
+        self.predator_index = np.array([i for i, b in enumerate(scene.bodies) if b.predator], dtype=np.intp)
         #: True while the bodies sleep (stage 1 skipped); ``rest_time``: how long [s] all have been resting
         self.bodies_asleep = False
         self.rest_time = 0.0
@@ -129,8 +132,10 @@ class World:
         if self.flocks:
             obstacles = Obstacles.from_bodies(model, state, ground=self.ground is not None) \
                 if model.count or self.ground is not None else None
+            predators = Predators.from_bodies(model, state, self.predator_index, self._bounding_radius) \
+                if len(self.predator_index) else None
             for flock in self.flocks:
-                flock.step(self.dt, obstacles)
+                flock.step(self.dt, obstacles, predators)
             self._contain_flock_blowups()
         self.wrenches.end_tick()
         self.ticks += 1

@@ -27,11 +27,14 @@ import math
 
 import numpy as np
 
+from . import couzin as couzin_rules  # issue 14: the zonal rule set
 from .frames import frames_to_quaternions, initial_dorsal, unit_headings, update_frames
 from .neighbors import NeighborPairs, make_search, periodic_images
 from .obstacles import ColumnIndex, ObstacleHits, Obstacles
 from .params import FlockParams
+from .predators import Predators, flee_acceleration
 from .rules import neighbor_sums, steering
+from .topological import topological_pairs
 
 _PROJECTION_PASSES = 4  # a boid pushed out of one body into an overlapping one gets a few more passes
 _SURFACE_CLEARANCE = 1e-9  # projected boids land this far outside the inflated surface (no re-entry by rounding)
@@ -94,6 +97,8 @@ class Flock:
         self._dorsal[:] = initial_dorsal(self._heading)
         frames_to_quaternions(self._heading, self._dorsal, out=self._q)
         self._search.reset()
+        # issue 14: the Couzin model's noise, its own stream (the initial state above is the same for both rules)
+        self._noise = np.random.default_rng((p.seed, couzin_rules.NOISE_STREAM))
         self._obstacle_index: ColumnIndex | None = None
         self.time = 0.0
         self.steps = 0
@@ -134,8 +139,9 @@ class Flock:
 
     # ---- step ------------------------------------------------------------------------------------------
 
-    def step(self, dt: float, obstacles: Obstacles | None = None) -> None:
-        """Advance by ``dt`` seconds, avoiding ``obstacles`` (the world's bodies at this tick) if given."""
+    def step(self, dt: float, obstacles: Obstacles | None = None, predators: Predators | None = None) -> None:
+        """Advance by ``dt`` seconds, avoiding ``obstacles`` (the world's bodies at this tick) and fleeing
+        ``predators`` (``predators.py``) if given."""
         if not (isinstance(dt, (int, float, np.floating)) and math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"flock {self.name!r}: dt must be a finite number > 0, got {dt!r}")
         p = self.params
@@ -143,8 +149,14 @@ class Flock:
         boid_radius = 0.5 * p.boid_size
         use_obstacles = obstacles is not None and obstacles.shape_count > 0
 
-        wanted = self._flocking_acceleration()
-        if p.goal is not None and p.goal_weight > 0.0:
+        # ---- issue 14 hook: a Couzin flock decides a direction (couzin.py), not a flocking acceleration
+        couzin = p.rules == "couzin"
+        if couzin:
+            desired = self._couzin_directions()
+            wanted = np.zeros((3, p.count))
+        else:
+            wanted = self._flocking_acceleration()
+        if p.goal is not None and p.goal_weight > 0.0 and not couzin:
             to_goal = p.goal[:, None] - x
             wanted += to_goal * (p.goal_weight / np.maximum(_norm(to_goal), 1e-9))
 
@@ -157,15 +169,21 @@ class Flock:
             near = obstacles.query(x, reach, self._column_index(reach))
             if p.avoid_bodies and p.obstacle_margin > 0.0:
                 needed += self._avoidance_acceleration(near, boid_radius)
+        # ---- issue 14 hook: predators are fled like obstacles are avoided (priority over flocking)
+        if predators is not None and predators.count:
+            needed += flee_acceleration(x, predators, p.fright_radius, p.max_acceleration)
 
         # prioritized allocation: avoidance first, the flock gets what is left of max_acceleration
         _limit_norm(needed, p.max_acceleration)
-        _limit_norm(wanted, np.maximum(p.max_acceleration - _norm(needed), 0.0))
-        acceleration = needed
-        acceleration += wanted
-
-        v += acceleration * dt
-        self._limit_speed()
+        if couzin:  # ---- issue 14 hook: turn by at most θ·dt, constant speed s
+            self._heading[:] = couzin_rules.couzin_headings(self, desired, needed, dt)
+            np.multiply(self._heading, p.couzin.speed, out=v)
+        else:
+            _limit_norm(wanted, np.maximum(p.max_acceleration - _norm(needed), 0.0))
+            acceleration = needed
+            acceleration += wanted
+            v += acceleration * dt
+            self._limit_speed()
         x += v * dt
 
         if p.bounds_mode == "soft":
@@ -225,11 +243,32 @@ class Flock:
         point_boid = np.arange(points.shape[1]) if source is None else source
         return pairs, points, point_boid
 
+    # ---- issue 14 hook: topological neighbours and the Couzin rule set sit on the same pairs
+    def interaction_pairs(self) -> tuple[NeighborPairs, np.ndarray, np.ndarray, tuple | None]:
+        """:meth:`neighbor_pairs` plus who counts whom: ``(pairs, points, point_boid, weights)`` with
+        ``weights`` None in metric mode (everyone within the radius counts) or, in topological mode, the
+        ``(forward, backward)`` (P,) float32 weights of ``topological.py`` (the k nearest, at any distance)."""
+        pairs, points, point_boid = self.neighbor_pairs()
+        if self.params.neighbor_mode != "topological":
+            return pairs, points, point_boid, None
+        pairs, forward, backward = topological_pairs(pairs, np.take(points, pairs.order, axis=1),
+                                                     self.params.neighbor_k)
+        return pairs, points, point_boid, (forward, backward)
+
+    def _couzin_directions(self) -> np.ndarray:
+        """The zonal model's desired directions (3, N) (``couzin.py``)."""
+        pairs, _, point_boid, weights = self.interaction_pairs()
+        desired, perceived = couzin_rules.social_directions(pairs, point_boid, self._heading, self.count,
+                                                            self.params, weights)
+        self.mean_neighbors = 2.0 * pairs.count / self.count
+        self.mean_visible_neighbors = float(perceived.mean())
+        return desired
+
     def _flocking_acceleration(self) -> np.ndarray:
         """w1 v1 + w2 v2 + w3 v3 for every boid, (3, N) float64."""
         p = self.params
         n = p.count
-        pairs, points, point_boid = self.neighbor_pairs()
+        pairs, points, point_boid, weights = self.interaction_pairs()
         slot_boid = np.take(point_boid, pairs.order)  # boid of each slot
         positions = np.take(points, pairs.order, axis=1)
         velocities = np.take(self._v, slot_boid, axis=1).astype(np.float32)
@@ -237,7 +276,7 @@ class Flock:
         for axis in range(3):
             headings[:, axis] = np.take(self._heading[axis], slot_boid)
         sums = neighbor_sums(pairs, positions, velocities, headings, p.separation_radius,
-                             p.cos_half_fov if p.fov_deg < 360.0 else -1.0)
+                             p.cos_half_fov if p.fov_deg < 360.0 else -1.0, counts=weights)
         per_slot = steering(sums, positions, velocities, p.cohesion_weight, p.separation_weight,
                             p.alignment_weight)
         acceleration = np.empty((3, n))

@@ -113,7 +113,8 @@ def _row_starts(i: np.ndarray, width: int) -> np.ndarray:
 
 
 def neighbor_sums(pairs: NeighborPairs, positions: np.ndarray, velocities: np.ndarray, headings: np.ndarray,
-                  separation_radius: float, cos_half_fov: float) -> NeighborSums:
+                  separation_radius: float, cos_half_fov: float,
+                  counts: tuple[np.ndarray, np.ndarray] | None = None) -> NeighborSums:
     """Sum what the rules need over every boid's neighbours.
 
     Args:
@@ -123,6 +124,9 @@ def neighbor_sums(pairs: NeighborPairs, positions: np.ndarray, velocities: np.nd
         headings:    (W, 4) float32 rows ``[hx, hy, hz, 0]`` of unit velocity directions, slot order.
         separation_radius: s [m].
         cos_half_fov: cos(fov / 2); <= −1 means no blind angle.
+        counts:      issue 14 hook (topological neighbours, ``topological.py``): ``(forward, backward)`` (P,)
+                     float32 — does i count j, does j count i — multiplied into the field-of-view weights of
+                     cohesion and alignment; None = every neighbour within d counts.  Separation ignores it.
     """
     width = positions.shape[1]
     shape = (width, width)
@@ -134,13 +138,19 @@ def neighbor_sums(pairs: NeighborPairs, positions: np.ndarray, velocities: np.nd
     stacked[:, 3:6] = velocities.T
     stacked[:, 6] = 1.0
     stacked[:, 7] = 0.0
-    if cos_half_fov <= -1.0:
+    if cos_half_fov <= -1.0 and counts is None:
         sees = np.ones(pairs.count, dtype=np.float32)
         matrix = scipy.sparse.csr_array((sees, pairs.j, indptr), shape=shape)
         total = matrix @ stacked
         total += matrix.T @ stacked
     else:
-        i_sees_j, j_sees_i = visibility(pairs, headings, cos_half_fov)
+        if cos_half_fov <= -1.0:
+            i_sees_j, j_sees_i = np.ones(pairs.count, np.float32), np.ones(pairs.count, np.float32)
+        else:
+            i_sees_j, j_sees_i = visibility(pairs, headings, cos_half_fov)
+        if counts is not None:  # issue 14 hook: topological neighbours
+            i_sees_j *= counts[0]
+            j_sees_i *= counts[1]
         forward = scipy.sparse.csr_array((i_sees_j, pairs.j, indptr), shape=shape)
         backward = scipy.sparse.csr_array((j_sees_i, pairs.j, indptr), shape=shape)
         total = forward @ stacked  # row i: Σ_j [i sees j] (x_j, v_j, 1)
