@@ -47,6 +47,7 @@ from cgp_core.world import World
 from cgp_core.wrenches import MAX_NAME_LENGTH, WrenchError, make_command
 
 from . import interface as itf
+from .flock_stats import FlockStatsPublishers
 from .messages import TickMessages
 
 #: commands waiting for the next tick; beyond this, the oldest are dropped (and counted, and reported)
@@ -180,6 +181,7 @@ class SimNode(Node):
                                                       itf.TOPIC_FLOCK_POSES.format(flock=f.params.name),
                                                       itf.STATE_QOS) for f in world.flocks]
         self.pub_markers = self.create_publisher(self.messages.MarkerArray, itf.TOPIC_MARKERS, itf.STATE_QOS)
+        self.flock_stats = FlockStatsPublishers(self, world)  # issue 14: ~/flocks/<flock>/stats
         self.pub_events = self.create_publisher(String, itf.TOPIC_EVENTS, itf.COMMAND_QOS)
 
     def _make_subscriptions(self) -> None:
@@ -276,6 +278,7 @@ class SimNode(Node):
             self._out(pub, data, t)
         for pub, data in zip(self.pub_flock_poses, m.flock_poses(t)):
             self._out(pub, data, t)
+        self.flock_stats.publish(t, self._out)
         if self._delete_all_markers or self.world.ticks % self.params["markers_every"] == 0:
             self._out(self.pub_markers, m.markers(t, delete_all_first=self._delete_all_markers), t)
             self._delete_all_markers = False

@@ -82,13 +82,15 @@ def zone_sums(i, j, rows, headings, repulsion_radius, orientation_radius, attrac
     sums = np.zeros((12, width))
     see_all = cos_half_fov <= -1.0
     for p in range(len(i)):
-        r2 = float(rows[p, 3])
+        # widen the float32 offsets first, the same way compiled and as plain Python (there float32 / float
+        # would stay float32, NEP 50; compiled, float() of a float32 stays float32)
+        r2 = np.float64(rows[p, 3])
         if r2 <= 0.0:
             continue  # coincident: no direction to respond to
         r = math.sqrt(r2)
-        ux = rows[p, 0] / r
-        uy = rows[p, 1] / r
-        uz = rows[p, 2] / r  # r̂_ij, from i to j
+        ux = np.float64(rows[p, 0]) / r
+        uy = np.float64(rows[p, 1]) / r
+        uz = np.float64(rows[p, 2]) / r  # r̂_ij, from i to j
         a = i[p]
         b = j[p]
         # i perceives j: j inside i's field of perception (angle(v̂_i, r̂_ij) <= α/2)
