@@ -2,7 +2,8 @@
 
 The numbers are computed in ``cgp_core`` (:func:`cgp_core.boids.order.flock_order`: polarization, milling,
 centroid, radius of gyration, mean nearest-neighbour distance, speeds); this module only serializes them, once
-per flock per tick, as CDR bytes (:func:`serialize`, proven equal to rclpy's ``serialize_message`` in
+per flock per tick, as CDR bytes (:func:`serialize`, proven equal to rclpy's ``serialize_message``, outside the
+padding bytes rclpy leaves uninitialised, in
 ``tests/test_flock_stats.py``), and the node publishes and records those same bytes.  In Foxglove, a Plot
 panel with ``/cgp_sim/flocks/<flock>/stats.polarization`` (and ``.milling``, ...) shows them live or from a bag.
 """
