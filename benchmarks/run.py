@@ -39,7 +39,7 @@ from common import (RESULTS, format_figures, format_value, load_average, machine
 #: runs best on a machine that has not been busy for minutes)
 BENCHMARKS = {"tick": "bench_tick.py", "boids": "bench_boids.py", "cdr": "bench_cdr.py",
               "contacts": "bench_contacts.py"}
-EXTRAS = {"bag": "bench_bag.py", "integrators": "bench_integrators.py"}
+EXTRAS = {"bag": "bench_bag.py", "integrators": "bench_integrators.py", "flock_stats": "bench_flock_stats.py"}
 
 #: issue 7's figures, in the issue's order: (id, the benchmark that measures it, the issue's wording)
 ISSUE7 = [

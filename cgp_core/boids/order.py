@@ -60,8 +60,12 @@ def milling(positions: np.ndarray, headings: np.ndarray) -> float:
     offset = positions - positions.mean(axis=1, keepdims=True)
     length = np.sqrt(np.einsum("ij,ij->j", offset, offset))
     unit = np.divide(offset, length, out=np.zeros_like(offset), where=length > 0.0)
-    angular = np.cross(unit.T, headings.T)
-    return float(np.linalg.norm(angular.sum(axis=0)) / positions.shape[1])
+    ux, uy, uz = unit
+    hx, hy, hz = headings
+    # Σ r̂ × v̂, one component at a time on the contiguous rows of (3, N) (ufuncs, not np.dot: BLAS threads
+    # contend with the node's own threads)
+    angular = np.array([(uy * hz - uz * hy).sum(), (uz * hx - ux * hz).sum(), (ux * hy - uy * hx).sum()])
+    return float(np.linalg.norm(angular) / positions.shape[1])
 
 
 def classify(p: float, m: float) -> str:
@@ -148,8 +152,8 @@ def nearest_neighbor_distances(positions: np.ndarray) -> np.ndarray:
 def flock_order(positions: np.ndarray, velocities: np.ndarray) -> FlockOrder:
     """Every order parameter of one flock from its ``positions`` and ``velocities``, (N, 3) each (a Flock's
     public views)."""
-    x = np.asarray(positions, dtype=float).T
-    u = np.asarray(velocities, dtype=float).T
+    x = np.ascontiguousarray(np.asarray(positions, dtype=float).T)
+    u = np.ascontiguousarray(np.asarray(velocities, dtype=float).T)
     n = x.shape[1]
     speed = np.sqrt(np.einsum("ij,ij->j", u, u))
     headings = np.divide(u, speed, out=np.zeros_like(u, dtype=float), where=speed > 0.0)
