@@ -206,7 +206,8 @@ def plot(results: dict, path: Path) -> None:
     top.axhline(0.35, color="0.6", lw=0.8, ls=":")
     params = results["parameters"]
     top.set_title(f"Couzin et al. 2002 with cgp_sim: N = {params['count']}, r_r = 1, Δr_a = 14, α = 270°, "
-                  f"θ = 40°/s, s = 3, σ = 0.05, τ = 0.1 s; {params['seeds']} seeds (dots), mean (lines)")
+                  f"θ = 40°/s, s = 3, σ = 0.05, τ = 0.1 s\n{params['seeds']} seeds per point (dots: each run's "
+                  f"time average), lines: mean over seeds", fontsize=10)
     top.set_xlabel("Δr_o (width of the zone of orientation)")
     top.set_ylabel("order parameter (time average)")
     top.set_ylim(-0.02, 1.02)
@@ -228,7 +229,11 @@ def plot(results: dict, path: Path) -> None:
         if column == 0:
             axis.set_ylabel("fraction of seeds")
         if column == 2:
-            axis.legend(fontsize=7, loc="lower left")
+            from matplotlib.patches import Patch
+
+            present = [k for k in PHASES if any(phase(r["p"], r["m"], r["cohesive"]) == k
+                                                for e in ("random", "increasing", "decreasing") for r in results[e])]
+            axis.legend(handles=[Patch(color=COLORS[k], label=k) for k in present], fontsize=7, loc="lower left")
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
 
