@@ -89,8 +89,10 @@ def test_fountain_effect_when_a_predator_is_pushed_through_the_school():
     assert record.along[passing] <= 0.0 < record.along[0], "the predator must pass the school's centroid"
     # no fish ever comes within the predator's radius + margin
     assert min(record.clearance) > MARGIN, min(record.clearance)
-    # the school splits ahead of it: as it passes, the fish beside it are spread all around its path
-    assert record.beside[passing] >= 20 and record.surround[passing] > 0.5, (record.beside[passing],
+    # the school splits ahead of it: as it passes, the fish beside it are spread around its path (surround 0
+    # when all are on one side, as when a school merely dodges; measured 0.55 here: more fish below the path
+    # than above, as the figure shows)
+    assert record.beside[passing] >= 20 and record.surround[passing] > 0.4, (record.beside[passing],
                                                                             record.surround[passing])
     # the attack disturbed the school (it spreads and loses its alignment) ...
     assert min(record.polarization) < 0.85 and max(record.radius_of_gyration) > 1.3 * before.radius_of_gyration

@@ -155,8 +155,8 @@ def plot(record: AttackRecord, path: Path) -> None:
               f"most,\n   {record.radius_of_gyration[-1]:.1f} m at the end", va="top", fontsize=9, family="monospace")
     series = ((record.polarization, "polarization p", (0, 1.05)),
               (record.radius_of_gyration, "radius of gyration [m]", None),
-              (record.clearance, "closest fish to predator surface [m]", None),
-              (record.surround, f"surround: fish spread around the path (|along| < {SLAB:g} m)", (0, 1.05)))
+              (record.clearance, "closest fish to its surface [m]", None),
+              (record.surround, f"surround (fish within {SLAB:g} m along)", (0, 1.05)))
     for column, (values, label, limits) in enumerate(series):
         axis = fig.add_subplot(grid[1, column])
         axis.plot(t, values, color="#1f4e79")
