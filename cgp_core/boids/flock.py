@@ -175,9 +175,8 @@ class Flock:
 
         # prioritized allocation: avoidance first, the flock gets what is left of max_acceleration
         _limit_norm(needed, p.max_acceleration)
-        if couzin:  # ---- issue 14 hook: turn by at most θ·dt, constant speed s
-            self._heading[:] = couzin_rules.couzin_headings(self, desired, needed, dt)
-            np.multiply(self._heading, p.couzin.speed, out=v)
+        if couzin:  # ---- issue 14 hook: turn by at most θ·dt, constant speed s (frames follow v below)
+            np.multiply(couzin_rules.couzin_headings(self, desired, needed, dt), p.couzin.speed, out=v)
         else:
             _limit_norm(wanted, np.maximum(p.max_acceleration - _norm(needed), 0.0))
             acceleration = needed
