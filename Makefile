@@ -81,9 +81,10 @@ bench: setup
 	@$(VPY) benchmarks/run.py
 
 # Issue 14's figures (README): Couzin et al. 2002's phases and hysteresis loop (the sweep: ~20-30 min of CPU,
-# run on 2 processes) and the predator's fountain effect.  FIGURE_ARGS="--seeds 4" for a quicker, coarser sweep;
+# run on 2 processes; with the dt = 1/60 s rate check) and the predator's fountain effect.  FIGURE_ARGS="--seeds 4"
+# for a quicker, coarser sweep;
 # `benchmarks/figures/couzin_sweep.py --plot-only` redraws from benchmarks/results/couzin_sweep.json.
-FIGURE_ARGS ?=
+FIGURE_ARGS ?= --rate-check
 figures: setup
 	@$(PIP) -r requirements/figures.txt 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)
 	@$(VPY) benchmarks/figures/predator_run.py
