@@ -40,7 +40,7 @@ PROJECT_SRC := setup.py setup.cfg package.xml README.md resource/cgp_sim_ros scr
 	-not -path 'msgs_config/upstream/*')
 REQUIREMENTS := $(ROS_REQUIREMENTS) requirements/python.txt requirements/dev.txt
 
-.PHONY: setup run test soak bench lock clean distclean
+.PHONY: setup run test soak bench figures lock clean distclean
 
 setup: $(STAMPS)/project
 
@@ -95,11 +95,21 @@ soak: setup
 
 # Re-resolve the requirement files (and the benchmark peers) into the lock; commit the result.
 lock: | $(STAMPS)/venv
-	@$(VPY) tools/lock_requirements.py $(DISTRO) $(REQUIREMENTS) requirements/bench.txt
+	@$(VPY) tools/lock_requirements.py $(DISTRO) $(REQUIREMENTS) requirements/bench.txt requirements/figures.txt
 
 bench: setup
 	@$(PIP) -r requirements/bench.txt 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)
 	@$(VPY) benchmarks/run.py
+
+# Issue 14's figures (README): Couzin et al. 2002's phases and hysteresis loop (the sweep: ~20-30 min of CPU,
+# run on 2 processes; with the dt = 1/60 s rate check) and the predator's fountain effect.  FIGURE_ARGS="--seeds 4"
+# for a quicker, coarser sweep;
+# `benchmarks/figures/couzin_sweep.py --plot-only` redraws from benchmarks/results/couzin_sweep.json.
+FIGURE_ARGS ?= --rate-check
+figures: setup
+	@$(PIP) -r requirements/figures.txt 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)
+	@$(VPY) benchmarks/figures/predator_run.py
+	@$(VPY) benchmarks/figures/couzin_sweep.py $(FIGURE_ARGS)
 
 clean:
 	rm -rf build *.egg-info .pytest_cache

@@ -67,18 +67,20 @@ from common import RESULTS, Results, format_figures  # noqa: E402
 SCENE = Path(__file__).resolve().parent / "scenes" / "tick_15k_fish.yaml"
 TARGET_MS = 1e3 / 60.0
 TARGET_BAG_MB_PER_S = 60.0
-STAGES = ("world.step: rigid bodies (+ obstacle set)", "world.step: flock", "serialize (messages.*)",
-          "Publisher.publish", "recorder.write (caller)", "other (commands, events, reports)")
+STAGES = ("world.step: rigid bodies (+ obstacle set)", "world.step: flock", "flock stats (order parameters + CDR)",
+          "serialize (other messages.*)", "Publisher.publish", "recorder.write (caller)",
+          "other (commands, events, reports)")
 
 
 class TickTimer:
     """Timing wrappers on one node's objects (instance attributes shadowing the methods): per tick, the time
-    spent in ``world.step``, in the flocks' ``step``, in ``messages.*``, in the node's publish-and-record
-    ``_out`` and in ``recorder.write``."""
+    spent in ``world.step``, in the flocks' ``step``, in ``messages.flock_stats`` (the flocks' order parameters,
+    computed and serialized: issue 14), in the other ``messages.*``, in the node's publish-and-record ``_out``
+    and in ``recorder.write``."""
 
     def __init__(self, node):
         self.node = node
-        self.buckets = dict.fromkeys(("step", "flock", "serialize", "out", "record"), 0.0)
+        self.buckets = dict.fromkeys(("step", "flock", "stats", "serialize", "out", "record"), 0.0)
         self._targets: list = []
 
     def _wrap(self, bound, bucket: str):
@@ -98,6 +100,7 @@ class TickTimer:
         self._targets += [(flock, "step", "flock") for flock in node.world.flocks]
         self._targets += [(node.messages, name, "serialize")
                           for name in ("clock", "body_poses", "body_odometry", "flock_poses", "markers")]
+        self._targets.append((node.messages, "flock_stats", "stats"))
         if node.recorder is not None:
             self._targets.append((node.recorder, "write", "record"))
         for obj, name, bucket in self._targets:
@@ -106,8 +109,8 @@ class TickTimer:
     def take(self, total: float) -> tuple:
         """This tick's split (seconds, in STAGES order); resets the buckets."""
         b = self.buckets
-        split = (b["step"] - b["flock"], b["flock"], b["serialize"], b["out"] - b["record"], b["record"],
-                 total - b["step"] - b["serialize"] - b["out"])
+        split = (b["step"] - b["flock"], b["flock"], b["stats"], b["serialize"], b["out"] - b["record"], b["record"],
+                 total - b["step"] - b["stats"] - b["serialize"] - b["out"])
         for k in b:
             b[k] = 0.0
         return split

@@ -44,7 +44,7 @@ BENCHMARKS = {"tick": "bench_tick.py", "realtime": "bench_realtime.py", "rigid":
               "boids": "bench_boids.py", "cdr": "bench_cdr.py", "contacts": "bench_contacts.py",
               "foxglove": "bench_foxglove.py", "spawn": "bench_spawn.py"}
 EXTRAS = {"bag": "bench_bag.py", "integrators": "bench_integrators.py", "scenes": "bench_scenes.py",
-          "render": "bench_render.py"}
+          "render": "bench_render.py", "flock_stats": "bench_flock_stats.py"}
 
 #: issue 12's figures measured by the scripts above, in the issue's order: (id, benchmark, the issue's wording).
 #: Figures other scripts mark ``issue12`` (the rigid-body ones) follow them in the table.

@@ -58,6 +58,8 @@ class BodyModel:
         particles:        list of (k_i, 4) arrays [x, y, z, m] in body frame (COM origin) for PARTICLES
                           bodies, ``None`` for others.
         color:            (n, 4) — RGBA in [0, 1] for markers.
+        predator:         (n,) bool — the boids of every flock flee it (``boids/predators.py``); all False when
+                          not given.
     """
 
     names: list[str]
@@ -73,6 +75,11 @@ class BodyModel:
     fixed: np.ndarray
     particles: list
     color: np.ndarray
+    predator: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.predator is None:
+            self.predator = np.zeros(len(self.names), dtype=bool)
 
     @property
     def count(self) -> int:

@@ -35,6 +35,7 @@ addition: a key given twice in one mapping is an error, not silently "the last o
         restitution: 0.3
         friction: 0.5
         fixed: false                   # immovable (walls, ramps, obstacles)
+        predator: false                # boids of every flock flee it (cgp_core.boids.predators)
         color: [0.8, 0.3, 0.2, 1.0]    # RGBA for markers
     flocks:
       - name: fish
@@ -48,6 +49,15 @@ addition: a key given twice in one mapping is an error, not silently "the last o
         model: fish                    # sphere | fish
         seed: 1
         # ... and the optional keys of cgp_core.boids.FlockParams (field of view, bounds, goal, ...)
+        neighbors: {mode: metric, k: 7}   # metric | topological (the k nearest, at any distance)
+        fright_radius: 5.0             # flee predators closer than this to their surface [m]
+      - name: school                   # Couzin et al. 2002's zonal model (cgp_core.boids.couzin)
+        count: 100
+        rules: couzin                  # reynolds (default) | couzin
+        couzin: {repulsion_radius: 1.0, orientation_width: 2.0, attraction_width: 14.0,
+                 field_of_view_deg: 270.0, turning_rate_deg: 40.0, speed: 3.0, noise: 0.05}
+        spawn: {center: [0, 0, 20], extent: [10, 10, 10]}
+        bounds: {mode: none}
 """
 
 from __future__ import annotations
@@ -128,6 +138,7 @@ class BodySpec:
     friction: float = 0.5
     fixed: bool = False
     color: np.ndarray = field(default_factory=lambda: np.array([0.7, 0.7, 0.75, 1.0]))
+    predator: bool = False  # boids flee it (issue 14, cgp_core.boids.predators)
 
 
 @dataclass
@@ -162,6 +173,7 @@ class Scene:
             fixed=fixed,
             particles=[b.particles for b in self.bodies],
             color=np.stack([b.color for b in self.bodies]),
+            predator=np.array([b.predator for b in self.bodies], dtype=bool),
         )
         orientation = np.stack([b.orientation for b in self.bodies])
         from .rotation import quat_to_matrix
@@ -510,7 +522,7 @@ def _parse_world(v: _Validator, raw: Any) -> WorldSpec:
 
 _BODY_KEYS = {
     "name", "shape", "radius", "size", "length", "particles", "mass", "density", "position", "orientation",
-    "linear_velocity", "angular_velocity", "restitution", "friction", "fixed", "color",
+    "linear_velocity", "angular_velocity", "restitution", "friction", "fixed", "color", "predator",
 }
 _SHAPE_KEYS = {"sphere": {"radius"}, "box": {"size"}, "capsule": {"radius", "length"},
                "particles": {"particles", "radius"}}
@@ -628,6 +640,7 @@ def _parse_body(v: _Validator, raw: Any, key: str, seen: set[str]) -> BodySpec |
     spec.restitution = v.number(raw.get("restitution", 0.3), f"{key}.restitution", minimum=0.0, maximum=1.0)
     spec.friction = v.number(raw.get("friction", 0.5), f"{key}.friction", minimum=0.0, default=0.5)
     spec.fixed = fixed
+    spec.predator = v.boolean(raw.get("predator", False), f"{key}.predator")
     if "color" in raw:
         spec.color = v.vector(raw["color"], f"{key}.color", 4, minimum=0.0, default=spec.color)
         if np.any(spec.color > 1.0):
@@ -680,9 +693,20 @@ _FLOCK_NUMBERS = {
     "goal_weight": ("goal_weight", False), "obstacle_margin": ("obstacle_margin", False),
     "boid_size": ("boid_size", True), "bank_gain": ("bank_gain", False),
     "orientation_time_constant": ("orientation_time_constant", False),
+    "fright_radius": ("fright_radius", False),
 }
 _FLOCK_KEYS = {"name", "count", "seed", "spawn", "weights", "bounds", "goal", "avoid_bodies", "model",
-               "neighbor_search", *_FLOCK_NUMBERS}
+               "neighbor_search", "rules", "couzin", "neighbors", *_FLOCK_NUMBERS}
+#: issue 14: keys of Reynolds' rules, which a Couzin flock does not use (its zones, speed and field of
+#: perception are in its `couzin` block)
+_REYNOLDS_ONLY_KEYS = ("radius", "separation_radius", "weights", "min_speed", "max_speed", "fov_deg", "goal",
+                       "goal_weight")
+#: YAML key of the `couzin` block -> (minimum, strictly greater) ; all numbers
+_COUZIN_NUMBERS = {
+    "repulsion_radius": (0.0, False), "orientation_width": (0.0, False), "attraction_width": (0.0, False),
+    "field_of_view_deg": (0.0, True), "turning_rate_deg": (0.0, True), "speed": (0.0, True),
+    "noise": (0.0, False),
+}
 
 
 def _parse_flock(v: _Validator, raw: Any, key: str, seen: set[str]):
@@ -742,6 +766,7 @@ def _parse_flock(v: _Validator, raw: Any, key: str, seen: set[str]):
     if "neighbor_search" in raw:
         kwargs["neighbor_search"] = v.choice(raw["neighbor_search"], f"{key}.neighbor_search",
                                              list(NEIGHBOR_SEARCHES), "grid")
+    _parse_flock_rules(v, raw, key, kwargs)
     if len(v.problems) > before:
         return None
     try:  # relations between fields (separation < radius, spawn box inside bounds, ...)
@@ -749,3 +774,41 @@ def _parse_flock(v: _Validator, raw: Any, key: str, seen: set[str]):
     except ValueError as exc:
         v.fail(key, str(exc).split(": ", 1)[-1])
         return None
+
+
+def _parse_flock_rules(v: _Validator, raw: dict, key: str, kwargs: dict) -> None:
+    """Issue 14's flock keys: ``rules`` and its ``couzin`` block, ``neighbors: {mode, k}`` (``fright_radius``
+    is a plain number above)."""
+    from .boids.params import NEIGHBOR_MODES, RULES, CouzinParams
+
+    rules = v.choice(raw["rules"], f"{key}.rules", list(RULES), "reynolds") if "rules" in raw else "reynolds"
+    kwargs["rules"] = rules
+    if rules == "couzin":
+        for reynolds_key in _REYNOLDS_ONLY_KEYS:
+            if reynolds_key in raw:
+                v.fail(f"{key}.{reynolds_key}", "does not apply to rules: couzin (its zones, speed and field of "
+                       "perception are set in the couzin block)")
+        block = v.mapping(raw.get("couzin"), f"{key}.couzin")
+        v.no_unknown_keys(block, set(_COUZIN_NUMBERS), f"{key}.couzin")
+        values = {}
+        for name, (minimum, strict) in _COUZIN_NUMBERS.items():
+            if name in block:
+                values[name] = v.number(block[name], f"{key}.couzin.{name}", minimum=minimum,
+                                        exclusive_min=strict, default=1.0)
+        if "field_of_view_deg" in values and values["field_of_view_deg"] > 360.0:
+            v.fail(f"{key}.couzin.field_of_view_deg", f"must be <= 360, got {values['field_of_view_deg']:g}")
+            values.pop("field_of_view_deg")
+        try:
+            kwargs["couzin"] = CouzinParams(**values)
+        except ValueError as exc:
+            v.fail(f"{key}.couzin", str(exc).removeprefix("couzin: "))
+    elif "couzin" in raw:
+        v.fail(f"{key}.couzin", f"only applies to rules: couzin (this flock's rules: {rules})")
+    neighbors = v.mapping(raw.get("neighbors"), f"{key}.neighbors")
+    v.no_unknown_keys(neighbors, {"mode", "k"}, f"{key}.neighbors")
+    if "mode" in neighbors:
+        kwargs["neighbor_mode"] = v.choice(neighbors["mode"], f"{key}.neighbors.mode", list(NEIGHBOR_MODES),
+                                           "metric")
+    if "k" in neighbors:
+        # kept with mode: metric too (unused there), so switching the mode is a one-word edit
+        kwargs["neighbor_k"] = v.integer(neighbors["k"], f"{key}.neighbors.k", minimum=1, maximum=1000, default=7)

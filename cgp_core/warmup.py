@@ -27,7 +27,27 @@ def warm_up(ticks: int = 24) -> "World":
             state.position[names.index(name)] = xyz
     for _ in range(ticks):
         world.step()
+    for flock in world.flocks:
+        flock.order()  # the order parameters the node publishes every tick
+    _warm_up_flock_rules()
     return world
+
+
+def _warm_up_flock_rules() -> None:
+    """Issue 14's kernels: a Couzin school fleeing a predator (the built-in ``predator`` scene), topological
+    neighbours (with stragglers), the order parameters with and without a neighbour list."""
+    from .boids import Flock, FlockParams
+    from .world import World
+
+    world = World.from_scene("predator")
+    shark = world.body_model.names.index("shark")
+    world.body_state.position[shark] = world.flocks[0].positions.mean(axis=0)
+    for _ in range(3):
+        world.step()
+    world.flocks[0].order()
+    flock = Flock(FlockParams(count=40, neighbor_mode="topological", spawn_extent=[30.0, 30.0, 18.0]))
+    flock.step(1.0 / 60.0)
+    flock.order()
 
 
 if __name__ == "__main__":

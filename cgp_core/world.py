@@ -11,8 +11,8 @@
    slower than :data:`SLEEP_SPEED` for :data:`SLEEP_TIME` falls asleep (momenta zeroed, left out of stage 1)
    until a wrench command on one of its bodies, an awake body touching it, :meth:`World.reset` or
    :meth:`World.wake` wakes it;
-3. flocks: one step of ``dt`` each, avoiding the bodies at their end-of-tick poses (a flock whose state went
-   non-finite is reset, and reported, the same way);
+3. flocks: one step of ``dt`` each, avoiding the bodies at their end-of-tick poses and fleeing those marked
+   ``predator`` (a flock whose state went non-finite is reset, and reported, the same way);
 4. wrench schedule: count the tick off timed wrenches.
 
 Usage (no ROS needed)::
@@ -51,6 +51,7 @@ import numpy as np
 
 from .bodies import BodyModel, BodyState
 from .boids import Flock, Obstacles
+from .boids.predators import Predators
 from .dynamics import Ground, step_bodies
 from .editing import (EditError, EntityState, body_distances, check_pose, check_vector, concatenate_bodies,
                       name_filter, select_bodies)
@@ -152,8 +153,9 @@ class World:
         if self.flocks:
             obstacles = Obstacles.from_bodies(model, state, ground=self.ground is not None) \
                 if model.count or self.ground is not None else None
+            predators = Predators.from_bodies(model, state)  # bodies marked `predator`: every flock flees them
             for flock in self.flocks:
-                flock.step(self.dt, obstacles)
+                flock.step(self.dt, obstacles, predators)
             self._contain_flock_blowups()
         self.wrenches.end_tick()
         self.ticks += 1

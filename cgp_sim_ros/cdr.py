@@ -1,4 +1,5 @@
-"""CDR serialization, built with numpy, of the big and the frequent messages the node publishes.
+"""CDR serialization, built with numpy, of the big and the frequent messages the node publishes (and of our own
+``cgp_sim_msgs/FlockStats``).
 
 Why: building ``geometry_msgs/Pose`` objects one by one and serializing them costs several µs per pose in
 rclpy (a 10k-pose PoseArray: 75-260 ms on this 2-core machine, ``benchmarks/bench_cdr.py``); the same
@@ -44,6 +45,8 @@ __all__ = [
     "OdometryBatchSerializer",
     "odometry_batch",
     "TFMessageSerializer",
+    "FLOCK_STATS_FIELDS",
+    "FlockStatsSerializer",
     "marker",
     "MarkerPointsSerializer",
     "MarkerPoseSerializer",
@@ -424,6 +427,51 @@ class TFMessageSerializer:
         self._words[self._sec_index] = sec & 0xFFFFFFFF
         self._words[self._sec_index + 1] = nanosec
         self._floats[self._float_index] = values
+        return bytes(self._view)
+
+
+# ------------------------------------------------------------------------------------------ FlockStats
+#: ``cgp_sim_msgs/FlockStats`` after its header and ``count``: these float64, in the order of the .msg
+FLOCK_STATS_FIELDS = ("polarization", "milling", "centroid_x", "centroid_y", "centroid_z", "radius_of_gyration",
+                      "mean_nearest_neighbor_distance", "mean_speed", "min_speed", "max_speed")
+
+
+class FlockStatsSerializer:
+    """``cgp_sim_msgs/FlockStats`` (a flock's order parameters, :mod:`cgp_core.boids.order`), one per flock per
+    tick.  Laid out once (the frame id does not change): header, ``uint32 count``, then the 10 float64 of
+    :data:`FLOCK_STATS_FIELDS` 8-aligned; kept at memory offset 4 of its buffer so that the floats are 8-aligned in
+    memory too, and a tick writes the stamp, the count and the (10,) values with three assignments.  Not
+    thread-safe."""
+
+    def __init__(self, frame_id: str) -> None:
+        writer = _Writer()
+        writer.header(0, frame_id)
+        writer.align(4)
+        count = writer.pos
+        writer.raw(bytes(4))
+        writer.align(8)
+        floats = writer.pos
+        writer.raw(bytes(8 * len(FLOCK_STATS_FIELDS)))
+        template = writer.getvalue()
+        self._size = len(template)
+        self._buffer = np.zeros(4 + self._size, dtype=np.uint8)
+        self._buffer[4:] = np.frombuffer(template, dtype=np.uint8)
+        # body offset b is at memory offset 4 (buffer padding) + 4 (encapsulation) + b
+        self._words = self._buffer.view("<u4")
+        self._stamp = slice(2, 4)
+        self._count = (8 + count) // 4
+        first = (8 + floats) // 8
+        self._values = self._buffer.view("<f8")[first:first + len(FLOCK_STATS_FIELDS)]
+        self._view = memoryview(self._buffer)[4:]
+
+    def serialize(self, stamp_ns: int, count: int, values) -> bytes:
+        """``count`` boids and ``values`` (10,): the order parameters in the order of :data:`FLOCK_STATS_FIELDS`."""
+        sec, nanosec = split_stamp(stamp_ns)
+        if not 0 <= int(count) < 2**32:
+            raise ValueError(f"count={count} does not fit in a uint32")
+        self._words[self._stamp] = (sec & 0xFFFFFFFF, nanosec)
+        self._words[self._count] = int(count)
+        self._values[:] = values
         return bytes(self._view)
 
 

@@ -12,6 +12,9 @@ Published (frame ``world`` unless said otherwise; all stamps are simulation time
                                                                  twist in the body frame (nav_msgs convention)
 ``~/flocks/<flock>/poses``      geometry_msgs/PoseArray          every boid's pose; orientation = its fish frame
                                                                  (x along the velocity)
+``~/flocks/<flock>/stats``      cgp_sim_msgs/FlockStats          the flock's order parameters (polarization, milling,
+                                                                 centroid, radius of gyration, mean nearest-
+                                                                 neighbour distance, speeds), every tick
 ``~/markers``                   visualization_msgs/MarkerArray   bodies as their shapes, flocks as spheres or fish;
                                                                  namespaces ``ground``, ``bodies/<body>``,
                                                                  ``flocks/<flock>``; DELETEALL first after a reset
@@ -82,6 +85,7 @@ TOPIC_BODY_POSES = "~/bodies/poses"
 TOPIC_BODY_ODOM = "~/bodies/{body}/odom"
 TOPIC_BODY_WRENCH = "~/bodies/{body}/wrench"
 TOPIC_FLOCK_POSES = "~/flocks/{flock}/poses"
+TOPIC_FLOCK_STATS = "~/flocks/{flock}/stats"  # cgp_sim_msgs/FlockStats (cgp_core/boids/order.py, cdr.FlockStatsSerializer)
 TOPIC_MARKERS = "~/markers"
 TOPIC_EVENTS = "~/events"
 TOPIC_CLOCK = "/clock"

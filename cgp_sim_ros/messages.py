@@ -23,6 +23,7 @@ into it; the marker array copies it once.
 from __future__ import annotations
 
 import numpy as np
+from cgp_sim_msgs.msg import FlockStats
 from geometry_msgs.msg import PoseArray
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
@@ -47,6 +48,7 @@ class TickMessages:
     Odometry = Odometry
     Clock = Clock
     MarkerArray = MarkerArray
+    FlockStats = FlockStats
 
     def __init__(self, world, frame_id: str = "world", plan: DetailPlan | None = None):
         self.world = world
@@ -55,6 +57,7 @@ class TickMessages:
         self._body_poses = cdr.PoseArraySerializer(frame_id)
         self._odometry = cdr.OdometryBatchSerializer(frame_id, model.names)
         self._flock_poses = [cdr.PoseArraySerializer(frame_id) for _ in world.flocks]
+        self._flock_stats = [cdr.FlockStatsSerializer(frame_id) for _ in world.flocks]
         #: the fish drawing per flock name ('full' | 'low') and the parts K each flock's marker is split into
         #: (see :meth:`set_plan`)
         self.fish_detail: dict[str, str] = {}
@@ -91,6 +94,17 @@ class TickMessages:
     def flock_poses(self, stamp_ns: int) -> list[bytes]:
         return [ser.serialize(stamp_ns, flock.positions, flock.orientations)
                 for ser, flock in zip(self._flock_poses, self.world.flocks)]
+
+    def flock_stats(self, stamp_ns: int) -> list[bytes]:
+        """Every flock's order parameters now (``Flock.order``: computed in cgp_core, cheap: the nearest
+        neighbours come from the step's own neighbour lists) as ``cgp_sim_msgs/FlockStats``."""
+        out = []
+        for ser, flock in zip(self._flock_stats, self.world.flocks):
+            o = flock.order()
+            out.append(ser.serialize(stamp_ns, o.count, (o.polarization, o.milling, *o.centroid, o.radius_of_gyration,
+                                                         o.mean_nearest_neighbor_distance, o.mean_speed, o.min_speed,
+                                                         o.max_speed)))
+        return out
 
     def markers(self, stamp_ns: int, delete_all_first: bool = False, tick: int = 0) -> bytes:
         """The marker array of ``tick`` (world ticks): ground, bodies, and part ``tick mod K`` of every flock —

@@ -146,6 +146,7 @@ class SimNode(Node):
         # every spawn, delete or reset (see _sync_entities).
         self._odom_publishers: dict = {}
         self._flock_publishers: dict = {}
+        self._flock_stats_publishers: dict = {}
         self.sub_body_wrench: dict = {}
         self._marker_ids: dict[str, set[int]] = {}
         self._synced_names: list[str] = []
@@ -234,8 +235,8 @@ class SimNode(Node):
         a spawn, a delete or a reset; a no-op when ``world.model_version`` did not change):
 
         - ``~/bodies/<body>/odom`` publishers, ``~/bodies/<body>/wrench`` subscriptions (movable bodies),
-          ``~/flocks/<flock>/poses`` publishers: created for new entities, destroyed for gone ones, kept for the
-          others (subscribers stay matched);
+          ``~/flocks/<flock>/poses`` and ``~/flocks/<flock>/stats`` publishers: created for new entities,
+          destroyed for gone ones, kept for the others (subscribers stay matched);
         - the new topics are added to the recording (new channels mid-recording, counted in metadata.yaml) and
           to the Foxglove live view, if on (new channels; the command inputs follow ``command_inputs``);
         - the per-tick serializers (:class:`TickMessages`, TF) are rebuilt for the new body set;
@@ -251,7 +252,8 @@ class SimNode(Node):
         added = []
         for publishers, wanted, topic, msg_type in (
                 (self._odom_publishers, names, itf.TOPIC_BODY_ODOM, self.messages.Odometry),
-                (self._flock_publishers, flock_names, itf.TOPIC_FLOCK_POSES, self.messages.PoseArray)):
+                (self._flock_publishers, flock_names, itf.TOPIC_FLOCK_POSES, self.messages.PoseArray),
+                (self._flock_stats_publishers, flock_names, itf.TOPIC_FLOCK_STATS, self.messages.FlockStats)):
             for name in [n for n in publishers if n not in wanted]:
                 self.destroy_publisher(publishers.pop(name))
             for name in wanted:
@@ -271,6 +273,7 @@ class SimNode(Node):
                 added.append(self.sub_body_wrench[name])
         self.pub_odom = [self._odom_publishers[n] for n in names]
         self.pub_flock_poses = [self._flock_publishers[n] for n in flock_names]
+        self.pub_flock_stats = [self._flock_stats_publishers[n] for n in flock_names]
         if self.recorder is not None and added:
             self.recorder.add_endpoints(added)
         if self.foxglove is not None:
@@ -442,6 +445,8 @@ class SimNode(Node):
         record_poses = self.world.ticks % self.detail.flock_poses_every == 0  # the data: published every tick
         for pub, data in zip(self.pub_flock_poses, m.flock_poses(t)):
             self._out(pub, data, t, record=record_poses)
+        for pub, data in zip(self.pub_flock_stats, m.flock_stats(t)):  # tiny: recorded on every tick
+            self._out(pub, data, t)
         tf = self.tf.dynamic(t)
         if tf is not None:
             self._out(self.pub_tf, tf, t)

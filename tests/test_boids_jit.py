@@ -1,7 +1,8 @@
 """The compiled boid kernels are the plain-Python functions they are written as: a small flock stepped with the
 numba JIT (this process) and with ``NUMBA_DISABLE_JIT=1`` (a child process, where every kernel runs as
 ordinary Python) ends in the same state, bit for bit — soft walls, a periodic box, a field of view, bodies to
-avoid and the ground."""
+avoid and the ground; and issue 14's kernels: a Couzin school (its noise included) fleeing a moving predator,
+a topological flock with stragglers (the KD-tree path), and every flock's order parameters."""
 
 from __future__ import annotations
 
@@ -20,6 +21,8 @@ SCENARIO = textwrap.dedent("""
     import numpy as np
     from cgp_core.bodies import BodyModel, BodyState, Shape
     from cgp_core.boids import Flock, FlockParams, Obstacles
+    from cgp_core.boids.params import CouzinParams
+    from cgp_core.boids.predators import Predators
     from cgp_core.rotation import quat_from_euler
 
     def run():
@@ -38,12 +41,27 @@ SCENARIO = textwrap.dedent("""
                                  bounds_min=[-5, -5, 0.5], bounds_max=[5, 5, 7], model="fish", goal=[3, 0, 3]))
         wrap = Flock(FlockParams(count=70, seed=4, bounds_mode="wrap", fov_deg=360.0, bounds_min=[0, 0, 0],
                                  bounds_max=[6, 5, 5], spawn_center=[3, 2.5, 2.5], spawn_extent=[6, 5, 5]))
+        shark = Predators(position=np.array([[-1.0, 0.5, 3.0]]), velocity=np.array([[1.5, 0.2, 0.0]]),
+                          radius=np.array([0.6]))
+        school = Flock(FlockParams(count=50, seed=5, rules="couzin", spawn_center=[0, 0, 3], spawn_extent=[5, 5, 3],
+                                   couzin=CouzinParams(orientation_width=1.5, attraction_width=5.0),
+                                   bounds_min=[-5, -5, 0.5], bounds_max=[5, 5, 7], fright_radius=3.0))
+        topo = Flock(FlockParams(count=60, seed=6, neighbor_mode="topological", neighbor_k=6, bounds_mode="none",
+                                 spawn_center=[0, 0, 3], spawn_extent=[9, 9, 5]))
         for _ in range(12):
             soft.step(1.0 / 60.0, obstacles)
             wrap.step(1.0 / 60.0)
-        return {f"{name}_{what}": np.array(getattr(flock, what))
-                for name, flock in (("soft", soft), ("wrap", wrap))
-                for what in ("positions", "velocities", "orientations", "dorsals")}
+            school.step(1.0 / 60.0, obstacles, shark)
+            topo.step(1.0 / 60.0, None, shark)
+        flocks = (("soft", soft), ("wrap", wrap), ("school", school), ("topo", topo))
+        out = {f"{name}_{what}": np.array(getattr(flock, what))
+               for name, flock in flocks for what in ("positions", "velocities", "orientations", "dorsals")}
+        for name, flock in flocks:
+            o = flock.order()
+            out[f"{name}_order"] = np.array([o.polarization, o.milling, *o.centroid, o.radius_of_gyration,
+                                             o.mean_nearest_neighbor_distance, o.mean_speed, o.min_speed,
+                                             o.max_speed])
+        return out
 """)
 
 

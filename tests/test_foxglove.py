@@ -21,6 +21,7 @@ import time
 
 import numpy as np
 import pytest
+from cgp_sim_msgs.msg import FlockStats
 from geometry_msgs.msg import PoseArray, WrenchStamped
 from mcap.reader import make_reader
 from nav_msgs.msg import Odometry
@@ -46,6 +47,7 @@ PUBLISHED = {
     "/cgp_sim/bodies/box/odom": Odometry,
     "/cgp_sim/bodies/spinner/odom": Odometry,
     "/cgp_sim/flocks/birds/poses": PoseArray,
+    "/cgp_sim/flocks/birds/stats": FlockStats,
     "/cgp_sim/markers": MarkerArray,
     "/cgp_sim/events": String,
     "/tf": TFMessage,
@@ -469,11 +471,14 @@ def test_the_layout_shows_what_the_default_scene_serves_and_its_kick_works(start
         (three_d,) = [c for key, c in config.items() if key.startswith("3D!")]
         assert three_d["followTf"] == "world"
         assert set(three_d["topics"]) <= set(channels) and three_d["topics"]["/cgp_sim/markers"]["visible"]
-        (plot,) = [c for key, c in config.items() if key.startswith("Plot!")]
-        for path in plot["paths"]:
+        plots = [c for key, c in config.items() if key.startswith("Plot!")]
+        # the bodies' heights and the school's order parameters (issue 14: ~/flocks/<flock>/stats)
+        assert {path["value"] for plot in plots for path in plot["paths"]} >= {
+            "/cgp_sim/flocks/fish/stats.polarization", "/cgp_sim/flocks/fish/stats.milling"}
+        message_types = {"nav_msgs/msg/Odometry": Odometry, "cgp_sim_msgs/msg/FlockStats": FlockStats}
+        for path in [path for plot in plots for path in plot["paths"]]:
             topic, fields = path["value"].split(".", 1)
-            assert channels[topic]["schemaName"] == "nav_msgs/msg/Odometry", topic
-            value = Odometry()
+            value = message_types[channels[topic]["schemaName"]]()  # a channel the default scene serves
             for field in fields.split("."):
                 value = getattr(value, field)  # the path names real fields
             assert isinstance(value, float)

@@ -1,7 +1,8 @@
 """The built-in scene gallery: every scene starts (through the node and through the World), says what it shows,
 and shows it — the racket flips on time, the stack and the pyramid stand, the ramp separates sticking from
-sliding and rolling, the fish keep out of the obstacles.  Real-time factors are measured in
-benchmarks/bench_scenes.py, not here."""
+sliding and rolling, the fish keep out of the obstacles, Couzin's school mills (the `predator` scene's
+fountain effect: tests/test_predators.py).  Real-time factors are measured in benchmarks/bench_scenes.py, not
+here."""
 
 from __future__ import annotations
 
@@ -19,7 +20,8 @@ from cgp_core.scene import builtin_scene_names, scene_description
 from conftest import cgp_sim_executable
 from test_integrators import EulerTopSolution, crossing_times
 
-GALLERY = ["box_stack", "default", "fish_school", "pyramid", "ramp", "sphere_pile", "tennis_racket", "zero_g"]
+GALLERY = ["box_stack", "couzin_torus", "default", "fish_school", "predator", "pyramid", "ramp", "sphere_pile",
+           "tennis_racket", "zero_g"]
 
 
 def test_the_gallery_is_built_in_and_every_scene_says_what_it_shows():
@@ -144,3 +146,14 @@ def test_fish_school_keeps_out_of_its_obstacles():
             else:  # axis-aligned boxes
                 inside = np.all(np.abs(p - centre) < model.half_extents[i], axis=1)
             assert not inside.any(), f"tick {tick}: {inside.sum()} fish inside {model.names[i]}"
+
+
+def test_couzin_torus_mills_within_its_first_minute():
+    """The scene's description: from a random start the school forms a mill — milling m > 0.65 with
+    polarization p < 0.35 (Tunstrøm et al.'s milling phase) after 40 s at 60 Hz, m already 0.75 at 20 s."""
+    from cgp_core.boids.order import classify
+
+    seen = {}
+    _run("couzin_torus", 40.0, lambda w: seen.update({w.ticks: w.flocks[0].order()}) if w.ticks % 1200 == 0 else None)
+    assert seen[1200].milling > 0.75, seen[1200]
+    assert classify(seen[2400].polarization, seen[2400].milling) == "milling", seen[2400]

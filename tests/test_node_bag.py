@@ -27,6 +27,7 @@ PUBLISHED = {
     "/cgp_sim/bodies/box/odom": "nav_msgs/msg/Odometry",
     "/cgp_sim/bodies/spinner/odom": "nav_msgs/msg/Odometry",
     "/cgp_sim/flocks/birds/poses": "geometry_msgs/msg/PoseArray",
+    "/cgp_sim/flocks/birds/stats": "cgp_sim_msgs/msg/FlockStats",
     "/cgp_sim/markers": "visualization_msgs/msg/MarkerArray",
     "/cgp_sim/events": "std_msgs/msg/String",
     "/tf": "tf2_msgs/msg/TFMessage",
@@ -76,7 +77,7 @@ def test_bag_of_a_run_is_what_a_live_subscriber_saw(start_node, probe, tmp_path)
     assert types == {**PUBLISHED, **RECEIVED}
     # every tick of 2 s at 60 Hz, once per topic
     for topic in ("/clock", "/cgp_sim/bodies/poses", "/cgp_sim/bodies/box/odom", "/cgp_sim/markers",
-                  "/cgp_sim/flocks/birds/poses", "/tf"):
+                  "/cgp_sim/flocks/birds/poses", "/cgp_sim/flocks/birds/stats", "/tf"):
         assert len(messages[topic]) == 120, topic
     clocks = [stamp_ns(m.clock) for _, m in messages["/clock"]]
     assert clocks == [t for t, _ in messages["/clock"]]  # log time = the sim time /clock carries

@@ -2,14 +2,18 @@
 
 One step of ``dt`` (all boids at once; the per-boid loops are compiled):
 
-1. **neighbours** — every boid's neighbours within d (``neighbors.py``; minimum images in a periodic world);
+1. **neighbours** — every boid's neighbours within d (``neighbors.py``; minimum images in a periodic world),
+   or its k nearest (``neighbor_mode: topological``, ``topological.py``: Ballerini et al. 2008);
 2. **flocking** — cohesion, separation, alignment summed over each boid's neighbours (``rules.py``) and the
-   optional goal: the acceleration the flock *wants*;
-3. **avoidance** — soft walls and the world's bodies (``obstacles.py``): the acceleration the boid *needs*.
-   It has priority: the flocking part gets only what is left of ``max_acceleration`` (Reynolds' prioritized
-   acceleration allocation), so a flock cannot push its members into a wall or a body;
+   optional goal: the acceleration the flock *wants*.  A ``rules: couzin`` flock decides a *direction*
+   instead, from its zones of repulsion, orientation and attraction (``couzin.py``: Couzin et al. 2002);
+3. **avoidance** — soft walls, the world's bodies (``obstacles.py``) and the predators among them
+   (``predators.py``): the acceleration the boid *needs*.  It has priority: the flocking part gets only what is
+   left of ``max_acceleration`` (Reynolds' prioritized acceleration allocation), so a flock cannot push its
+   members into a wall or a body; a Couzin flock lets it take over the desired direction in proportion;
 4. **integrate** — semi-implicit Euler: ``b_v += a dt``, speed clamped to [min_speed, max_speed],
-   ``b += b_v dt`` (Slide erratum: the slide's ``b = b + b_v`` has no dt, see ``rules.py``);
+   ``b += b_v dt`` (Slide erratum: the slide's ``b = b + b_v`` has no dt, see ``rules.py``).  A Couzin flock
+   adds its noise, turns by at most θ·dt towards its direction and moves at its constant speed s;
 5. **constraints** — soft walls: a boid that still reaches the box is put back on it and loses its
    outward velocity (so boids never leave the box); wrap: positions are taken modulo the box; bodies: a boid
    inside a body inflated by ``boid_size / 2`` is projected back to its surface and loses its inward
@@ -17,11 +21,16 @@ One step of ``dt`` (all boids at once; the per-boid loops are compiled):
 6. **frames** — heading and banked dorsal axis, then quaternions (``frames.py``).
 
 State is ``(N, 3)`` row-major (``(N, 4)`` for the quaternions): one boid's numbers side by side, which is what
-the compiled per-boid loops read.  What runs where: the neighbour search, the rules, the obstacle query, stages
-3-5 for every boid (:func:`_move`: walls, allocation, integration, box) and the frames are numba kernels,
-parallel over the boids (both cores, the GIL released; one core for flocks under 2,000 boids, see
-``cgp_core/jit.py``); numpy handles what concerns few boids: the avoidance pushes from the obstacle hits, the
-no-entry projection of the boids that ended up inside a body, the goal.
+the compiled per-boid loops read.  What runs where: the neighbour search, the rules, the obstacle query, the
+flight from predators, stages 3-5 for every boid (:func:`_move` for Reynolds' rules, :func:`_turn` for
+Couzin's: walls, allocation or turn, integration, box) and the frames are numba kernels, parallel over the
+boids (both cores, the GIL released; one core for flocks under 2,000 boids, see ``cgp_core/jit.py``); numpy
+handles what concerns few boids: the avoidance pushes from the obstacle hits, the no-entry projection of the
+boids that ended up inside a body, the goal, a Couzin flock's noise (drawn from the flock's own generator,
+seeded by its ``seed``: a Couzin flock is a deterministic function of its seed too).
+
+The order parameters (:meth:`Flock.order`, ``order.py``) reuse the last step's neighbour list for the
+nearest-neighbour distances.
 """
 
 from __future__ import annotations
@@ -31,11 +40,15 @@ import math
 import numpy as np
 
 from ..jit import njit, prange, threads_for
+from . import couzin
 from .frames import initial_dorsal, low_pass_weight, quaternions_rows, unit_headings, update_frames_rows
 from .neighbors import NeighborList, make_search
 from .obstacles import ObstacleHits, Obstacles
+from .order import FlockOrder, flock_order, nearest_neighbor_distances
 from .params import FlockParams
+from .predators import Predators, flee
 from .rules import neighbor_sums, steering
+from .topological import k_nearest
 
 _PROJECTION_PASSES = 4  # a boid pushed out of one body into an overlapping one gets a few more passes
 _SURFACE_CLEARANCE = 1e-9  # projected boids land this far outside the inflated surface (no re-entry by rounding)
@@ -67,21 +80,47 @@ def _wall_push(x: float, low: float, high: float, margin: float) -> float:
     return max(low + margin - x, 0.0) - max(x - (high - margin), 0.0)
 
 
+@njit
+def _needed(x, i, avoidance, max_acceleration, bounds_mode, bounds_min, bounds_max, wall_margin, wall_gain):
+    """What boid i needs: avoidance (bodies, predators) + soft walls, capped at max_acceleration."""
+    nx, ny, nz = avoidance[i, 0], avoidance[i, 1], avoidance[i, 2]
+    if bounds_mode == _SOFT and wall_gain > 0.0:
+        nx += wall_gain * _wall_push(x[i, 0], bounds_min[0], bounds_max[0], wall_margin)
+        ny += wall_gain * _wall_push(x[i, 1], bounds_min[1], bounds_max[1], wall_margin)
+        nz += wall_gain * _wall_push(x[i, 2], bounds_min[2], bounds_max[2], wall_margin)
+    return _scaled_to(nx, ny, nz, max_acceleration)
+
+
+@njit
+def _advance(x, v, i, dt, bounds_mode, bounds_min, bounds_max):
+    """``b += b_v dt`` for boid i, then the box: soft walls put a boid that still reached a wall back on it
+    without its outward velocity, a periodic box wraps it."""
+    for a in range(3):
+        x[i, a] += v[i, a] * dt
+        if bounds_mode == _SOFT:
+            if x[i, a] < bounds_min[a]:
+                x[i, a] = bounds_min[a]
+                v[i, a] = max(v[i, a], 0.0)
+            elif x[i, a] > bounds_max[a]:
+                x[i, a] = bounds_max[a]
+                v[i, a] = min(v[i, a], 0.0)
+        elif bounds_mode == _WRAP:
+            size = bounds_max[a] - bounds_min[a]
+            wrapped = (x[i, a] - bounds_min[a]) % size
+            if wrapped >= size:  # rounding can give the size itself for a tiny negative offset: that is 0
+                wrapped = 0.0
+            x[i, a] = bounds_min[a] + wrapped
+
+
 @njit(parallel=True)
 def _move(x, v, heading, wanted, avoidance, max_acceleration, min_speed, max_speed, dt, bounds_mode, bounds_min,
           bounds_max, wall_margin, wall_gain):
-    """Stages 3-5 of the step, per boid (see the module docstring): what the boid needs (soft walls +
-    ``avoidance``) and what the flock wants (``wanted``) by prioritized allocation; ``b_v += a dt``, the speed
-    clamp, ``b += b_v dt``; the box: soft walls put a boid that still reached a wall back on it without its
-    outward velocity, a periodic box wraps it."""
+    """Stages 3-5 of the step for Reynolds' rules, per boid (see the module docstring): what the boid needs
+    (soft walls + ``avoidance``) and what the flock wants (``wanted``) by prioritized allocation;
+    ``b_v += a dt``, the speed clamp, ``b += b_v dt`` and the box."""
     for i in prange(x.shape[0]):
-        # needed: avoidance + soft walls, capped at max_acceleration
-        nx, ny, nz = avoidance[i, 0], avoidance[i, 1], avoidance[i, 2]
-        if bounds_mode == _SOFT and wall_gain > 0.0:
-            nx += wall_gain * _wall_push(x[i, 0], bounds_min[0], bounds_max[0], wall_margin)
-            ny += wall_gain * _wall_push(x[i, 1], bounds_min[1], bounds_max[1], wall_margin)
-            nz += wall_gain * _wall_push(x[i, 2], bounds_min[2], bounds_max[2], wall_margin)
-        nx, ny, nz = _scaled_to(nx, ny, nz, max_acceleration)
+        nx, ny, nz = _needed(x, i, avoidance, max_acceleration, bounds_mode, bounds_min, bounds_max, wall_margin,
+                             wall_gain)
         # the flock's wish gets what is left of max_acceleration
         left = max(max_acceleration - math.sqrt(nx * nx + ny * ny + nz * nz), 0.0)
         wx, wy, wz = _scaled_to(wanted[i, 0], wanted[i, 1], wanted[i, 2], left)
@@ -95,21 +134,26 @@ def _move(x, v, heading, wanted, avoidance, max_acceleration, min_speed, max_spe
             speed = min_speed
         scale = min(max(speed, min_speed), max_speed) / speed
         v[i, 0], v[i, 1], v[i, 2] = vx * scale, vy * scale, vz * scale
-        for a in range(3):
-            x[i, a] += v[i, a] * dt
-            if bounds_mode == _SOFT:
-                if x[i, a] < bounds_min[a]:
-                    x[i, a] = bounds_min[a]
-                    v[i, a] = max(v[i, a], 0.0)
-                elif x[i, a] > bounds_max[a]:
-                    x[i, a] = bounds_max[a]
-                    v[i, a] = min(v[i, a], 0.0)
-            elif bounds_mode == _WRAP:
-                size = bounds_max[a] - bounds_min[a]
-                wrapped = (x[i, a] - bounds_min[a]) % size
-                if wrapped >= size:  # rounding can give the size itself for a tiny negative offset: that is 0
-                    wrapped = 0.0
-                x[i, a] = bounds_min[a] + wrapped
+        _advance(x, v, i, dt, bounds_mode, bounds_min, bounds_max)
+
+
+@njit(parallel=True)
+def _turn(x, v, heading, desired, avoidance, noise_angle, noise_azimuth, max_acceleration, speed, max_turn, dt,
+          bounds_mode, bounds_min, bounds_max, wall_margin, wall_gain):
+    """Stages 3-5 of the step for Couzin's rules, per boid (``couzin.py``): what the boid needs (soft walls +
+    ``avoidance``) takes over the desired direction in proportion to its strength, the noise rotates it, the
+    heading turns towards it by at most θ·dt (``max_turn``), ``b_v = s v̂``, ``b += b_v dt`` and the box.  The
+    new heading goes into ``v`` only: the frames (``frames.py``) turn ``heading`` after it, seeing the turn."""
+    cos_max, sin_max = math.cos(max_turn), math.sin(max_turn)
+    for i in prange(x.shape[0]):
+        nx, ny, nz = _needed(x, i, avoidance, max_acceleration, bounds_mode, bounds_min, bounds_max, wall_margin,
+                             wall_gain)
+        dx, dy, dz = couzin.blend_avoidance(desired[i, 0], desired[i, 1], desired[i, 2], nx, ny, nz,
+                                            max_acceleration)
+        dx, dy, dz = couzin.with_noise(dx, dy, dz, noise_angle[i], noise_azimuth[i])
+        hx, hy, hz = couzin.turn_towards(heading[i, 0], heading[i, 1], heading[i, 2], dx, dy, dz, cos_max, sin_max)
+        v[i, 0], v[i, 1], v[i, 2] = speed * hx, speed * hy, speed * hz
+        _advance(x, v, i, dt, bounds_mode, bounds_min, bounds_max)
 
 
 class Flock:
@@ -144,6 +188,10 @@ class Flock:
         #: (3,) box sizes of a periodic box, zeros in open space (what the neighbour search and rules take)
         self.period = (p.bounds_max - p.bounds_min) if p.bounds_mode == "wrap" else np.zeros(3)
         self._no_avoidance = np.zeros((n, 3))  # what a step without bodies avoids
+        #: the last metric neighbour list, the positions (N, 3) and the radius it was built with, and how far an
+        #: ordinary step has moved a boid since (max_speed · dt after a step; see :meth:`order`)
+        self._searched: tuple[NeighborList, np.ndarray, float] | None = None
+        self._moved_since_search = 0.0
         self.reset()
 
     # ---- state -----------------------------------------------------------------------------------------
@@ -163,6 +211,9 @@ class Flock:
         self._dorsal[:] = initial_dorsal(self._heading.T).T
         quaternions_rows(self._heading, self._dorsal, self._q)
         self._search.reset()
+        self._searched = None
+        # a Couzin flock's noise: its own stream (the initial state above is the same for both rule sets)
+        self._noise = np.random.default_rng((p.seed, couzin.NOISE_STREAM))
         self.time = 0.0
         self.steps = 0
         self.mean_neighbors = 0.0
@@ -204,27 +255,53 @@ class Flock:
     def neighbors(self) -> NeighborList:
         """Every boid's neighbours within d at the current positions (the flock's search backend; valid until
         the next call)."""
-        return self._search.neighbors(self._x, self.params.radius, self.period)
+        neighbors = self._search.neighbors(self._x, self.params.radius, self.period)
+        self._searched = (neighbors, self._x.copy(), self.params.radius)
+        self._moved_since_search = 0.0
+        return neighbors
+
+    def interaction_neighbors(self) -> NeighborList:
+        """Whom each boid interacts with at the current positions: its neighbours within d (``neighbor_mode``
+        metric) or its ``neighbor_k`` nearest (topological, ``topological.py``), in one layout."""
+        neighbors = self.neighbors()
+        if self.params.neighbor_mode == "topological":
+            return k_nearest(neighbors, self._x, self.params.neighbor_k)
+        return neighbors
+
+    def order(self) -> FlockOrder:
+        """The flock's order parameters now (``order.py``): polarization, milling, centroid, radius of gyration,
+        mean nearest-neighbour distance (from the last step's neighbour lists where they decide it), speeds."""
+        with threads_for(self.count):
+            if self._searched is None:
+                nearest = nearest_neighbor_distances(self._x, self.period)
+            else:
+                nearest = nearest_neighbor_distances(self._x, self.period, *self._searched, self._moved_since_search)
+            return flock_order(self._x, self._v, nearest)
 
     # ---- step ------------------------------------------------------------------------------------------
 
-    def step(self, dt: float, obstacles: Obstacles | None = None) -> None:
-        """Advance by ``dt`` seconds, avoiding ``obstacles`` (the world's bodies at this tick) if given."""
+    def step(self, dt: float, obstacles: Obstacles | None = None, predators: Predators | None = None) -> None:
+        """Advance by ``dt`` seconds, avoiding ``obstacles`` (the world's bodies at this tick) and fleeing
+        ``predators`` (``predators.py``) if given."""
         if not (isinstance(dt, (int, float, np.floating)) and math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"flock {self.name!r}: dt must be a finite number > 0, got {dt!r}")
         with threads_for(self.count):  # both cores for big flocks, one for small ones (jit.py)
-            self._step(float(dt), obstacles)
+            self._step(float(dt), obstacles, predators)
 
-    def _step(self, dt: float, obstacles: Obstacles | None) -> None:
+    def _step(self, dt: float, obstacles: Obstacles | None, predators: Predators | None) -> None:
         p = self.params
         x, v = self._x, self._v
         boid_radius = 0.5 * p.boid_size
         use_obstacles = obstacles is not None and obstacles.shape_count > 0
+        couzin_rules = p.rules == "couzin"
 
-        wanted = self.flocking_acceleration()
-        if p.goal is not None and p.goal_weight > 0.0:
-            to_goal = p.goal - x
-            wanted += to_goal * (p.goal_weight / np.maximum(_norm(to_goal), 1e-9))[:, None]
+        if couzin_rules:  # a direction to turn towards (couzin.py), not an acceleration
+            desired = self.desired_directions()
+        else:
+            wanted = self.flocking_acceleration()
+            if p.goal is not None and p.goal_weight > 0.0:
+                to_goal = p.goal - x
+                wanted += to_goal * (p.goal_weight / np.maximum(_norm(to_goal), 1e-9))[:, None]
 
         avoidance = self._no_avoidance
         near: ObstacleHits | None = None
@@ -235,12 +312,22 @@ class Flock:
             near = obstacles.query(x.T, reach)
             if p.avoid_bodies and p.obstacle_margin > 0.0:
                 avoidance = self._avoidance_acceleration(near, boid_radius)
+        if predators is not None and predators.count and p.fright_radius > 0.0:
+            # fleeing is avoidance: it has priority over the flocking rules
+            avoidance = avoidance.copy() if avoidance is self._no_avoidance else avoidance
+            flee(x, predators, p.fright_radius, p.max_acceleration, avoidance)
 
-        # walls + avoidance, allocation, integration, speed clamp, the box: per boid, compiled
+        # walls + avoidance, allocation or turn, integration, the box: per boid, compiled
         margin = max(p.bounds_margin, 1e-9)
-        _move(x, v, self._heading, wanted, avoidance, p.max_acceleration, p.min_speed, p.max_speed, float(dt),
-              {"none": _OPEN, "soft": _SOFT, "wrap": _WRAP}[p.bounds_mode], p.bounds_min, p.bounds_max, margin,
-              p.bounds_strength / margin)
+        box = ({"none": _OPEN, "soft": _SOFT, "wrap": _WRAP}[p.bounds_mode], p.bounds_min, p.bounds_max, margin,
+               p.bounds_strength / margin)
+        if couzin_rules:
+            angle, azimuth = couzin.noise_angles(self._noise, p.count, p.couzin.noise, dt)
+            _turn(x, v, self._heading, desired, avoidance, angle, azimuth, p.max_acceleration, p.couzin.speed,
+                  math.radians(p.couzin.turning_rate_deg) * dt, float(dt), *box)
+        else:
+            _move(x, v, self._heading, wanted, avoidance, p.max_acceleration, p.min_speed, p.max_speed, float(dt),
+                  *box)
 
         if use_obstacles:
             if p.bounds_mode == "wrap":
@@ -253,6 +340,9 @@ class Flock:
             if len(candidates):
                 self._project_out_of_bodies(obstacles, candidates, boid_radius)
 
+        # how far the step moved a boid that was only integrated (|b_v| <= max_speed); the order parameters reuse
+        # this step's neighbour list with it (order.py)
+        self._moved_since_search = p.max_speed * dt * (1.0 + 1e-9)
         update_frames_rows(self._heading, self._dorsal, v, float(dt), p.bank_gain,
                            low_pass_weight(dt, p.orientation_time_constant))
         quaternions_rows(self._heading, self._dorsal, self._q)
@@ -264,12 +354,21 @@ class Flock:
     def flocking_acceleration(self) -> np.ndarray:
         """w1 v1 + w2 v2 + w3 v3 for every boid at the current state, (N, 3) (stage 2 without the goal)."""
         p = self.params
-        neighbors = self.neighbors()
+        neighbors = self.interaction_neighbors()
         sums = neighbor_sums(neighbors, self._x, self._v, self._heading, p.separation_radius,
                              p.cos_half_fov if p.fov_deg < 360.0 else -1.0, self.period)
         self.mean_neighbors = neighbors.total / p.count
         self.mean_visible_neighbors = float(sums.count.mean())
         return steering(sums, self._v, p.cohesion_weight, p.separation_weight, p.alignment_weight)
+
+    def desired_directions(self) -> np.ndarray:
+        """Couzin's zonal decision for every boid at the current state, (N, 3) unit (``couzin.py``; stage 2 of a
+        ``rules: couzin`` flock)."""
+        neighbors = self.interaction_neighbors()
+        desired, perceived = couzin.desired_directions(neighbors, self._x, self._heading, self.params, self.period)
+        self.mean_neighbors = neighbors.total / self.count
+        self.mean_visible_neighbors = float(perceived.mean())
+        return desired
 
     def _avoidance_acceleration(self, near: ObstacleHits, boid_radius: float) -> np.ndarray:
         """Steer around bodies, (N, 3): for each (boid, body) closer than ``obstacle_margin`` (surface to

@@ -27,6 +27,9 @@ import numpy as np
 BOUNDS_MODES = ("soft", "wrap", "none")
 MODELS = ("sphere", "fish")
 NEIGHBOR_SEARCHES = ("grid", "kdtree", "brute")
+# issue 14: the rule sets (``couzin.py``) and the neighbour modes (``topological.py``)
+RULES = ("reynolds", "couzin")
+NEIGHBOR_MODES = ("metric", "topological")
 
 
 def _vec3(value, what: str) -> np.ndarray:
@@ -39,6 +42,57 @@ def _vec3(value, what: str) -> np.ndarray:
     return array
 
 
+def _finite(value, what: str, *, minimum: float = 0.0, exclusive: bool = False) -> float:
+    ok = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
+    ok = ok and math.isfinite(value) and (value > minimum if exclusive else value >= minimum)
+    if not ok:
+        raise ValueError(f"{what} must be a finite number {'>' if exclusive else '>='} {minimum:g}, got {value!r}")
+    return float(value)
+
+
+@dataclass
+class CouzinParams:
+    """Couzin, Krause, James, Ruxton & Franks 2002 (J. theor. Biol. 218:1-11), the zonal model (``couzin.py``).
+
+    Every field: unit, default (the paper's phase-figure values), meaning.  All rates are per second, so a
+    flock behaves the same at any tick rate (see ``couzin.py`` for how the noise is scaled).
+
+        repulsion_radius:   m, 1.0 — r_r: neighbours closer than this are avoided, with absolute priority.
+        orientation_width:  m, 2.0 — Δr_o: neighbours at r_r <= d < r_r + Δr_o are aligned with.
+        attraction_width:   m, 14.0 — Δr_a: neighbours at r_r + Δr_o <= d <= r_r + Δr_o + Δr_a attract.
+        field_of_view_deg:  degrees, 270 — α, the field of perception: neighbours in the blind cone of
+                            360 − α behind the animal are not perceived (by any zone).  360 = no blind volume.
+        turning_rate_deg:   degrees per second, 40 — θ: the heading turns by at most θ·dt per tick.
+        speed:              m/s, 3.0 — s: every animal always moves at this speed.
+        noise:              rad, 0.05 — σ: standard deviation of the Gaussian angle by which the desired
+                            direction is rotated, per paper time step τ = 0.1 s (``couzin.NOISE_TIME_STEP``).
+    """
+
+    repulsion_radius: float = 1.0
+    orientation_width: float = 2.0
+    attraction_width: float = 14.0
+    field_of_view_deg: float = 270.0
+    turning_rate_deg: float = 40.0
+    speed: float = 3.0
+    noise: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name in ("repulsion_radius", "orientation_width", "attraction_width", "noise"):
+            setattr(self, name, _finite(getattr(self, name), f"couzin.{name}"))
+        for name in ("turning_rate_deg", "speed", "field_of_view_deg"):
+            setattr(self, name, _finite(getattr(self, name), f"couzin.{name}", exclusive=True))
+        if self.field_of_view_deg > 360.0:
+            raise ValueError(f"couzin.field_of_view_deg must be in (0, 360], got {self.field_of_view_deg}")
+        if self.perception_radius <= 0.0:
+            raise ValueError("couzin: repulsion_radius + orientation_width + attraction_width must be > 0 (the "
+                             "animals must perceive something)")
+
+    @property
+    def perception_radius(self) -> float:
+        """r_r + Δr_o + Δr_a: the outer edge of the zone of attraction [m]."""
+        return self.repulsion_radius + self.orientation_width + self.attraction_width
+
+
 @dataclass
 class FlockParams:
     """One flock.  Every field: unit, default, meaning.
@@ -49,8 +103,9 @@ class FlockParams:
         spawn_center:       (3,) m, (0, 0, 10) — centre of the box the boids start in.
         spawn_extent:       (3,) m, (12, 12, 6) — full size of that box (>= 0 each).  Positions are uniform
                             in it, directions uniform on the sphere, speeds uniform in [min_speed, max_speed].
-        seed:               int, 0 — seeds the initial state; the step itself uses no randomness, so a flock
-                            is a deterministic function of (params, dt sequence, obstacles).
+        seed:               int, 0 — seeds the initial state (and a Couzin flock's noise, its own stream); a
+                            Reynolds step uses no randomness: a flock is a deterministic function of (params,
+                            dt sequence, obstacles, predators).
 
     Reynolds' rules (see ``rules.py`` for the formulas)
         radius:             m, 2.0 — neighbourhood radius d: boid j is a neighbour of i if |x_j − x_i| < d
@@ -98,6 +153,23 @@ class FlockParams:
     Implementation
         neighbor_search:    "grid" (default: cell-sorted uniform grid, the fast one) | "kdtree" (scipy
                             cKDTree) | "brute" (O(N²) reference).  All give the same neighbour sets.
+
+    Rule sets, neighbours, predators (issue 14)
+        rules:              "reynolds" (default: the lecture's rules above) | "couzin" (Couzin et al. 2002's
+                            zonal model, ``couzin.py``, parameters in ``couzin``).  For a Couzin flock the
+                            neighbourhood ``radius`` is set to r_r + Δr_o + Δr_a, ``min_speed`` and
+                            ``max_speed`` to its speed s, and the Reynolds-only fields (weights,
+                            separation_radius, fov_deg, goal) are unused (the scene loader rejects them).
+                            ``max_acceleration`` is then the avoidance acceleration (walls, bodies,
+                            predators) at which avoidance takes over the desired direction completely.
+        couzin:             :class:`CouzinParams` (defaults: the paper's values) — used when rules is "couzin".
+        neighbor_mode:      "metric" (default: every boid within the neighbourhood radius) | "topological"
+                            (Ballerini et al. 2008: the ``neighbor_k`` nearest, at any distance;
+                            ``topological.py``).  Not with bounds_mode "wrap".
+        neighbor_k:         int, 7 — the number of nearest neighbours in topological mode (>= 1).
+        fright_radius:      m, 5.0 — a boid closer than this to a predator's surface (a body marked
+                            ``predator: true``) flees it (``predators.py``): the escape is an avoidance
+                            acceleration, so it has priority over cohesion and the other flocking rules.
     """
 
     name: str = "flock"
@@ -128,9 +200,21 @@ class FlockParams:
     bank_gain: float = 1.0
     orientation_time_constant: float = 0.15
     neighbor_search: str = "grid"
+    rules: str = "reynolds"
+    couzin: CouzinParams = field(default_factory=CouzinParams)
+    neighbor_mode: str = "metric"
+    neighbor_k: int = 7
+    fright_radius: float = 5.0
 
     def __post_init__(self) -> None:
         where = f"flock {self.name!r}"
+        # issue 14: a Couzin flock's neighbourhood radius and speeds follow from its zones and speed s
+        if self.rules == "couzin":
+            if not isinstance(self.couzin, CouzinParams):
+                raise ValueError(f"{where}: couzin must be CouzinParams, got {type(self.couzin).__name__}")
+            self.radius = self.couzin.perception_radius
+            self.separation_radius = 0.5 * self.radius  # unused by the zonal model; keeps the check below
+            self.min_speed = self.max_speed = self.couzin.speed
         if not isinstance(self.name, str) or not self.name:
             raise ValueError(f"flock name must be a non-empty string, got {self.name!r}")
         if isinstance(self.count, bool) or not isinstance(self.count, (int, np.integer)) or self.count < 1:
@@ -161,7 +245,7 @@ class FlockParams:
             positive(name)
         for name in ("cohesion_weight", "separation_weight", "alignment_weight", "bounds_margin",
                      "bounds_strength", "goal_weight", "obstacle_margin", "bank_gain",
-                     "orientation_time_constant"):
+                     "orientation_time_constant", "fright_radius"):
             positive(name, allow_zero=True)
         positive("fov_deg")
         if self.fov_deg > 360.0:
@@ -172,9 +256,17 @@ class FlockParams:
         if self.min_speed > self.max_speed:
             raise ValueError(f"{where}: min_speed ({self.min_speed}) must not exceed max_speed ({self.max_speed})")
         for name, allowed in (("bounds_mode", BOUNDS_MODES), ("model", MODELS),
-                              ("neighbor_search", NEIGHBOR_SEARCHES)):
+                              ("neighbor_search", NEIGHBOR_SEARCHES), ("rules", RULES),
+                              ("neighbor_mode", NEIGHBOR_MODES)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{where}: {name} must be one of {', '.join(allowed)}; got {getattr(self, name)!r}")
+        if isinstance(self.neighbor_k, bool) or not isinstance(self.neighbor_k, (int, np.integer)) \
+                or self.neighbor_k < 1:
+            raise ValueError(f"{where}: neighbor_k must be an integer >= 1, got {self.neighbor_k!r}")
+        self.neighbor_k = int(self.neighbor_k)
+        if self.neighbor_mode == "topological" and self.bounds_mode == "wrap":
+            raise ValueError(f"{where}: neighbor_mode 'topological' does not support bounds_mode 'wrap' (the k "
+                             "nearest may lie beyond the periodic images); use soft walls or none")
         for name in ("avoid_bodies",):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{where}: {name} must be true or false, got {getattr(self, name)!r}")
