@@ -69,7 +69,7 @@ def test_spawned_topics_are_recorded_and_counted(start_node, probe, tmp_path):
     assert [c for c in calls if c[0] in ("spawn_entity", "delete_entity", "set_simulation_state")] == [
         ("spawn_entity", "OK"), ("delete_entity", "OK"), ("set_simulation_state", "OK")]
     assert {"entity": "box1", "entity_name": "box1"}.items() <= next(
-        e for e in events if e["name"] == "spawn_entity" and e["result"] == "OK").items()
+        e for e in events if e.get("name") == "spawn_entity" and e.get("result") == "OK").items()
     # the DELETE markers of the deleted body are recorded too
     deleted = [m for _, a in messages["/cgp_sim/markers"] for m in a.markers if m.action == 2]
     assert {m.ns for m in deleted} == {"bodies/box1"}

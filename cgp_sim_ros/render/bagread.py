@@ -33,8 +33,8 @@ class MarkerStream:
     files: list[Path]
     topic: str
     message_count: int
-    start_ns: int  # log time of the bag's first message (any topic)
-    end_ns: int  # log time of its last message
+    start_ns: int  # log time of the first marker message (what "0 s" means for --from / --to)
+    end_ns: int  # log time of the bag's last message
 
     def messages(self, start_ns: int | None = None, end_ns: int | None = None) -> Iterator[tuple[int, bytes]]:
         """``(log_time_ns, CDR bytes)`` of the marker messages logged in [start_ns, end_ns] (default: all), in
@@ -116,7 +116,11 @@ def open_marker_stream(bag: str | Path, topic: str | None = None) -> MarkerStrea
     elif not candidates.get(topic):
         raise BagError(f"{bag}: no {MARKER_ARRAY_SCHEMA} messages on {topic} (MarkerArray topics: "
                        f"{', '.join(sorted(candidates)) or 'none'})")
-    return MarkerStream(files, topic, candidates[topic], start, end)
+    stream = MarkerStream(files, topic, candidates[topic], start, end)
+    # time 0 is the first picture there is: the first marker message (a bag may start with other topics, e.g. a
+    # cgp-sim bag's start-up event on ~/events at t = 0, one tick before the first markers)
+    stream.start_ns = next(stream.messages())[0]
+    return stream
 
 
 def _scan(path: Path) -> tuple[dict[str, int], tuple[int, int] | None]:

@@ -11,8 +11,8 @@ format: ``.mp4`` (H.264 through the ffmpeg that the ``imageio-ffmpeg`` wheel shi
 palette for the whole animation, looping), ``.png`` (one picture at ``--from``; a name with a printf pattern
 such as ``%04d`` writes one numbered picture per frame).
 
-Time: ``--from`` / ``--to`` are seconds from the start of the bag (its first message; for a cgp-sim bag that is
-simulation time).  Frame k shows the markers as they were at ``from + k · speed / fps`` — the latest message at
+Time: ``--from`` / ``--to`` are seconds from the first marker message of the bag (for a cgp-sim bag that is
+the first tick, in simulation time).  Frame k shows the markers as they were at ``from + k · speed / fps`` — the latest message at
 or before that time, as a viewer replaying the bag would show them (so ``markers_every`` > 1 and DELETEALL
 after a ``~/reset`` are rendered as published).
 
@@ -95,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "a GIF or PNG pictures, without ROS and without a display.",
         epilog="--camera syntax: EX,EY,EZ[:TX,TY,TZ] in metres (frame world, z up): the eye, then the point it "
                "looks at (default: the centre of the scene), e.g. --camera 12,-16,9 or --camera 0,-0.1,40:0,0,0 "
-               "(from 40 m above). Times are seconds from the bag's first message.")
+               "(from 40 m above). Times are seconds from the bag's first marker message.")
     parser.add_argument("bag", help="rosbag2 directory or .mcap file")
     parser.add_argument("-o", "--output", required=True,
                         help="output file: .mp4, .gif or .png (one picture; a %%04d pattern writes every frame)")
