@@ -63,7 +63,8 @@ def main(argv=None) -> int:
         x, v = flock.positions, flock.velocities
         neighbors, searched, radius = flock._searched
         order = flock.order()
-        nearest = nearest_neighbor_distances(x, None, neighbors, searched, radius)
+        moved = flock._moved_since_search
+        nearest = nearest_neighbor_distances(x, None, neighbors, searched, radius, moved)
 
         def with_threads(function):
             def timed():
@@ -74,7 +75,7 @@ def main(argv=None) -> int:
         cases = {
             "order_ms": flock.order,
             "nearest_from_list_ms": with_threads(lambda: nearest_neighbor_distances(x, None, neighbors, searched,
-                                                                                   radius)),
+                                                                                   radius, moved)),
             "moments_ms": lambda: _moments(x, v, nearest),
             "from_scratch_ms": with_threads(lambda: flock_order(x, v)),
             "kdtree_ms": lambda: cKDTree(x).query(x, k=2),
@@ -110,14 +111,15 @@ def main(argv=None) -> int:
 
 
 def _searched_again(flock) -> np.ndarray:
-    """(N,) bool: the boids whose nearest neighbour the step's list could not decide."""
+    """(N,) bool: the boids whose nearest neighbour the step's list could not decide (searched again against
+    every boid, inside the same kernel call while that is a small job)."""
     from cgp_core.boids import order as order_module
 
     neighbors, searched, radius = flock._searched
     found = np.empty(flock.count, np.bool_)
     order_module._nearest_in_rows(neighbors.start, neighbors.count, neighbors.index, neighbors.order,
-                                  flock.positions, searched, flock.period, float(radius), np.empty(flock.count),
-                                  found)
+                                  flock.positions, searched, flock.period, float(radius), flock._moved_since_search,
+                                  order_module.MAX_JUMPERS, 0, np.empty(flock.count), found)
     return ~found
 
 

@@ -15,7 +15,7 @@ still run.
     .venv/bin/python benchmarks/run.py --no-run        # only aggregate the JSON files already there
     .venv/bin/python benchmarks/run.py --update-readme # and put the tables into benchmarks/README.md
     .venv/bin/python benchmarks/run.py --extras        # also bench_bag.py, bench_integrators.py,
-                                                       # bench_scenes.py, bench_render.py
+                                                       # bench_scenes.py, bench_render.py, bench_flock_stats.py
 
 Exit status: 0 when every benchmark ran (whether or not every target is met: a SHORT figure is a result,
 not an error), 1 when one failed.
@@ -375,7 +375,8 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true", help="each benchmark's --quick (fewer repetitions)")
     parser.add_argument("--only", nargs="+", choices=[*BENCHMARKS, *EXTRAS], help="run only these")
     parser.add_argument("--skip", nargs="+", choices=[*BENCHMARKS, *EXTRAS], default=[], help="do not run these")
-    parser.add_argument("--extras", action="store_true", help="also run bench_bag.py and bench_integrators.py")
+    parser.add_argument("--extras", action="store_true", help="also run the extras: bench_bag.py, "
+                        "bench_integrators.py, bench_scenes.py, bench_render.py, bench_flock_stats.py")
     parser.add_argument("--no-run", action="store_true", help="run nothing; aggregate the JSON already in results/")
     parser.add_argument("--update-readme", action="store_true",
                         help="replace the results section of benchmarks/README.md with this run's tables")
