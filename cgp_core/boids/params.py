@@ -164,8 +164,8 @@ class FlockParams:
                             predators) at which avoidance takes over the desired direction completely.
         couzin:             :class:`CouzinParams` (defaults: the paper's values) — used when rules is "couzin".
         neighbor_mode:      "metric" (default: every boid within the neighbourhood radius) | "topological"
-                            (Ballerini et al. 2008: the ``neighbor_k`` nearest, at any distance;
-                            ``topological.py``).  Not with bounds_mode "wrap".
+                            (Ballerini et al. 2008: the ``neighbor_k`` nearest, at any distance, for every
+                            rule, separation included; ``topological.py``).  Not with bounds_mode "wrap".
         neighbor_k:         int, 7 — the number of nearest neighbours in topological mode (>= 1).
         fright_radius:      m, 5.0 — a boid closer than this to a predator's surface (a body marked
                             ``predator: true``) flees it (``predators.py``): the escape is an avoidance
