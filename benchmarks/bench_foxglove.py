@@ -154,7 +154,7 @@ def hook_cost_us(node, server, repeats: int) -> tuple[float, int, int]:
     number of messages and their bytes."""
     captured = []
     original = node._out
-    node._out = lambda publisher, data, stamp: captured.append((publisher, data, stamp))
+    node._out = lambda publisher, data, stamp, **_: captured.append((publisher, data, stamp))
     try:
         node.tick()
     finally:

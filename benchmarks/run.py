@@ -187,13 +187,18 @@ def scaling_markdown(names: list[str]) -> str:
         out += ["**The 15k-fish tick from the first tick** (`bench_tick.py`: 15,000 fish + 20 bodies, recorded; ms per "
                 "tick; per stage: median / p99 / mean of the slowest 1 % of ticks)", "",
                 "| window | ticks | bodies awake | median | p90 | p99 | max | tick-thread CPU median / p99 | rigid bodies | "
-                "flock | serialize | publish | record |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+                "flock | flock stats | serialize | publish | record |",
+                "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
         runs = [("fish", fish)] + ([("sphere", tick["sphere"])] if tick.get("sphere") else [])
         for model, run in runs:
             for label, w in run["windows"].items():
                 cells = []
                 for stage in ("world.step: rigid bodies (+ obstacle set)", "world.step: flock",
-                              "serialize (messages.*)", "Publisher.publish", "recorder.write (caller)"):
+                              "flock stats (order parameters + CDR)", "serialize (other messages.*)",
+                              "Publisher.publish", "recorder.write (caller)"):
+                    if stage not in w["split_median_ms"]:  # a result file from before the stage was split out
+                        cells.append("–")
+                        continue
                     cells.append(f"{w['split_median_ms'][stage]:.1f} / {w['split_p99_ms'][stage]:.1f} / "
                                  f"{w['split_of_slowest_1pct_ms'][stage]:.1f}")
                 cpu = w.get("tick_thread_cpu_ms")
@@ -222,7 +227,9 @@ def scaling_markdown(names: list[str]) -> str:
         st = realtime.get("startup", {})
         if st:
             out += ["", f"Start-up to the first `/clock` (default scene): cold (no compile cache) "
-                    f"{st['cold']['start_to_first_clock_s']:.1f} s, warm {st['warm']['start_to_first_clock_s']:.1f} s.",
+                    f"{st['cold']['start_to_first_clock_s']:.1f} s; then `make setup`'s warm-up, which compiles every "
+                    f"kernel once per clone, {st['cold'].get('setup_warmup_s', float('nan')):.1f} s; warm (what `make run` "
+                    f"starts, after `make setup`) {st['warm']['start_to_first_clock_s']:.1f} s.",
                     ""]
     if tick and tick.get("scaling"):
         out += ["**Full tick vs flock size** (20 bodies, bag on; median ms; the split is from the instrumented "

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 import yaml
 from geometry_msgs.msg import PoseArray, WrenchStamped
+from nav_msgs.msg import Odometry
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 from mcap_ros2.reader import read_ros2_messages
@@ -221,6 +222,34 @@ def test_metadata_exists_from_the_start_and_lists_topics(tmp_path):
     bag.write("/clock", cdr.clock(5), 5)
     bag.close()
     assert [g[:2] for g in read_rosbags(tmp_path / "early")[0]] == [("/clock", 5)]
+
+
+def test_topic_added_mid_recording_is_in_metadata_yaml_from_the_next_commit(tmp_path):
+    """A topic added while recording (a spawned body) is listed by metadata.yaml, with its committed message
+    count, while the recording goes on — without a flush or close (the writer no longer rewrites the file per
+    new topic, but at the next chunk commit)."""
+    bag_dir = tmp_path / "mid"
+    bag = BagWriter(bag_dir, chunk_interval_s=0.05)
+    bag.add_topic("/clock", "rosgraph_msgs/msg/Clock")
+    for k in range(3):
+        bag.write("/clock", cdr.clock(k), k)
+    bag.add_topic("/cgp_sim/bodies/box/odom", "nav_msgs/msg/Odometry")
+
+    def listed() -> dict:
+        meta = yaml.safe_load((bag_dir / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        return {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}
+
+    deadline = time.monotonic() + 10.0
+    k = 3
+    while listed().get("/cgp_sim/bodies/box/odom", 0) < 1 and time.monotonic() < deadline:
+        bag.write("/clock", cdr.clock(k), k)
+        bag.write("/cgp_sim/bodies/box/odom", serialize_message(Odometry()), k)
+        k += 1
+        time.sleep(0.02)
+    counts = listed()
+    bag.close()
+    assert counts.get("/cgp_sim/bodies/box/odom", 0) >= 1, counts
+    assert counts["/clock"] >= 4
 
 
 # ---------------------------------------------------------------------------------------------- split
