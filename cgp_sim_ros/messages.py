@@ -72,10 +72,23 @@ class TickMessages:
         self.fish_detail = dict(plan.fish_detail)
         self.parts = max(1, int(plan.markers_every))
 
+    def flock_parts(self, flock) -> int:
+        """How many parts (marker ids 0 .. parts − 1) ``flock``'s marker is split into: at least one boid each."""
+        return min(self.parts, flock.count)
+
     def part_range(self, flock, part: int) -> tuple[int, int]:
-        """Boids [first, last) of ``part`` of ``flock``'s marker (its parts have at least one boid each)."""
-        parts = min(self.parts, flock.count)
+        """Boids [first, last) of ``part`` of ``flock``'s marker."""
+        parts = self.flock_parts(flock)
         return part * flock.count // parts, (part + 1) * flock.count // parts
+
+    def marker_ids(self) -> dict[str, set[int]]:
+        """Marker namespace -> the ids :meth:`markers` draws (over its ticks): a body's shape (0) and a capsule's
+        end caps (1, 2); every part of a flock's marker."""
+        model = self.world.body_model
+        ids = {f"bodies/{name}": ({0, 1, 2} if int(shape) == int(Shape.CAPSULE) else {0})
+               for name, shape in zip(model.names, model.shape)}
+        ids.update({f"flocks/{f.params.name}": set(range(self.flock_parts(f))) for f in self.world.flocks})
+        return ids
 
     def clock(self, stamp_ns: int) -> bytes:
         return cdr.clock(stamp_ns)
@@ -118,7 +131,7 @@ class TickMessages:
                                   scale=(GROUND_SIZE, GROUND_SIZE, 0.05), color=GROUND_COLOR, **common))
         out.extend(self._body_markers(common))
         for index, flock in enumerate(self.world.flocks):
-            parts = min(self.parts, flock.count)
+            parts = self.flock_parts(flock)
             for part in (range(parts) if delete_all_first else (tick % parts,)):
                 out.append(self._flock_marker(index, flock, part, common))
         return cdr.marker_array(out)

@@ -48,7 +48,6 @@ from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
-from cgp_core.bodies import Shape
 from cgp_core.scene import SceneError
 from cgp_core.world import World
 from cgp_core.wrenches import MAX_NAME_LENGTH, WrenchError, make_command
@@ -299,26 +298,23 @@ class SimNode(Node):
         if self.detail is not None:  # after start-up: a flock spawned or deleted may change the plan (logged if so)
             self._replan_detail()
         self.tf.rebuild()
-        marker_ids = self._drawn_marker_ids()
+        self._retire_markers()
         if self._synced_version is not None:
-            stale = [(ns, i) for ns, ids in self._marker_ids.items() for i in sorted(ids - marker_ids.get(ns, set()))]
-            if stale and not self._delete_all_markers:
-                t = world.time_ns
-                deletes = [cdr.marker(marker_type=cdr.ARROW, action=cdr.DELETE, stamp_ns=t, frame_id=itf.WORLD_FRAME,
-                                      ns=ns, id=i) for ns, i in stale]
-                self._out(self.pub_markers, cdr.marker_array(deletes), t)
             self._publish_static_tf()
-        self._marker_ids = marker_ids
         self._synced_names = names
         self._synced_version = world.model_version
 
-    def _drawn_marker_ids(self) -> dict[str, set[int]]:
-        """Marker namespace -> ids the per-tick MarkerArray draws (see :mod:`cgp_sim_ros.messages`)."""
-        model = self.world.body_model
-        ids = {f"bodies/{name}": ({0, 1, 2} if int(shape) == int(Shape.CAPSULE) else {0})
-               for name, shape in zip(model.names, model.shape)}
-        ids.update({f"flocks/{f.params.name}": {0} for f in self.world.flocks})
-        return ids
+    def _retire_markers(self) -> None:
+        """DELETE the markers no longer drawn — a deleted body's or flock's, a flock's parts beyond the ones it is
+        now drawn in — so that no viewer keeps them (a marker without a lifetime never expires)."""
+        drawn = self.messages.marker_ids()
+        stale = [(ns, i) for ns, ids in self._marker_ids.items() for i in sorted(ids - drawn.get(ns, set()))]
+        if stale and not self._delete_all_markers:  # a pending DELETEALL (after a reset) removes them anyway
+            t = self.world.time_ns
+            deletes = [cdr.marker(marker_type=cdr.ARROW, action=cdr.DELETE, stamp_ns=t, frame_id=itf.WORLD_FRAME,
+                                  ns=ns, id=i) for ns, i in stale]
+            self._out(self.pub_markers, cdr.marker_array(deletes), t)
+        self._marker_ids = drawn
 
     def _publish_static_tf(self) -> None:
         """``/tf_static`` again if the fixed bodies changed.  Not before the first tick: a node publishes nothing
@@ -699,6 +695,7 @@ class SimNode(Node):
                 (self.detail.fish_detail, self.detail.markers_every, self.detail.flock_poses_every):
             return
         self.get_logger().info("level of detail changed: " + " ".join(self.detail.lines))
+        self._retire_markers()  # fewer parts: the flock's last ones are no longer drawn
         if self.recorder is not None:
             self.recorder.set_custom_data(self._detail_custom_data())
         self._event(self.detail.event())

@@ -253,3 +253,50 @@ def test_a_reset_redraws_every_part_after_its_deleteall():
     parts = fish_markers(messages.markers(0, delete_all_first=True, tick=6))
     assert [m.id for m in parts] == [0, 1, 2, 3]
     assert sum(len(m.points) for m in parts) == 1000 * len(FISH_DETAILS[messages.fish_detail["school"]])  # all, once
+
+
+def test_markers_no_longer_drawn_are_deleted_fewer_parts_or_a_deleted_flock(start_node, probe, tmp_path):
+    """A flock drawn in K parts has K marker ids.  When it is drawn in fewer parts (markers_every lowered) the
+    ids beyond them, and when it is deleted every id, get a DELETE — a marker without a lifetime never expires,
+    so a viewer would keep the old fish for ever.  Read back from the bag, in the order recorded."""
+    from rcl_interfaces.msg import Parameter as ParameterMsg
+    from rcl_interfaces.msg import ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    from ros_probe import step
+    from simulation_interfaces.msg import Result
+    from simulation_interfaces.srv import DeleteEntity
+    from visualization_msgs.msg import Marker, MarkerArray
+
+    bag = tmp_path / "bag"
+    node = start_node("--scene", "default", "--bag", str(bag), "--start-paused", "true")
+    probe.wait_for_publisher("/cgp_sim/markers", timeout=30)
+
+    def markers_every(k: int) -> None:
+        value = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=k)
+        request = SetParameters.Request(parameters=[ParameterMsg(name="markers_every", value=value)])
+        assert all(r.successful for r in probe.call(SetParameters, "/cgp_sim/set_parameters", request).results)
+
+    markers_every(3)
+    for _ in range(3):
+        step(probe)
+    markers_every(2)
+    for _ in range(2):
+        step(probe)
+    reply = probe.call(DeleteEntity, "/cgp_sim/delete_entity", DeleteEntity.Request(entity="fish"),
+                       idempotent=False)
+    assert reply.result.result == Result.RESULT_OK, reply.result.error_message
+    step(probe)
+    assert node.stop() == 0
+
+    arrays = []
+    for path in sorted(bag.glob("*.mcap")):
+        with open(path, "rb") as f:
+            for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
+                if channel.topic == "/cgp_sim/markers":
+                    arrays.append(deserialize_message(message.data, MarkerArray).markers)
+    fish = [[(m.action, m.id) for m in array if m.ns == "flocks/fish"] for array in arrays]
+    drawn = [ids for ids in fish if ids and all(action == Marker.ADD for action, _ in ids)]
+    deletes = [sorted(i for _, i in ids) for ids in fish if ids and all(a == Marker.DELETE for a, _ in ids)]
+    assert [ids[0][1] for ids in drawn] == [1, 2, 0, 0, 1], fish  # ticks 1-3: id tick % 3; 4-5: tick % 2
+    assert deletes == [[2], [0, 1]], fish  # markers_every 3 -> 2: part 2 gone; the flock deleted: parts 0 and 1
+    assert fish[-1] == [], "the tick after the delete draws no fish"
