@@ -96,16 +96,6 @@ class NeighborList:
             _gather(array, self.order, out)
         return out
 
-    def unsorted(self, array: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """``array`` (N,) or (N, k) in slot order → boid order (into ``out`` if given)."""
-        if out is None:
-            out = np.empty_like(array)
-        if array.ndim == 1:
-            _scatter(array.reshape(-1, 1), self.order, out.reshape(-1, 1))
-        else:
-            _scatter(array, self.order, out)
-        return out
-
     def of(self, boid: int) -> np.ndarray:
         """Boid ``boid``'s neighbours, as boid indices."""
         slot = int(np.flatnonzero(self.order == boid)[0])
@@ -136,14 +126,6 @@ def _gather(array, order, out):
         for s in range(order.shape[0]):
             for c in range(columns):
                 out[s, c] = array[order[s], c]
-
-
-@njit
-def _scatter(array, order, out):
-    """``out[order[s]] = array[s]`` for rows of an (N, k) array."""
-    for s in range(order.shape[0]):
-        for c in range(array.shape[1]):
-            out[order[s], c] = array[s, c]
 
 
 @njit

@@ -35,10 +35,6 @@ class CollisionModel:
         body_reach:    (n,) — farthest distance from a body's COM to its surface: bounds how far any surface
                        point moves when the body turns by an angle θ (≤ reach · θ).
         fixed_body:    (n,) bool — the body never moves (pairs of two fixed bodies are skipped).
-
-    Derived (set on construction, for the per-sub-step loops):
-        movable:       (p,) bool — the owning body moves.
-        by_shape:      tuple of (shape, (p_s,) indices of its primitives), for each shape present.
     """
 
     body: np.ndarray
@@ -49,11 +45,6 @@ class CollisionModel:
     extent: np.ndarray
     body_reach: np.ndarray
     fixed_body: np.ndarray
-
-    def __post_init__(self) -> None:
-        self.movable = ~self.fixed_body[self.body]
-        self.by_shape = tuple((int(shape), np.flatnonzero(self.shape == shape))
-                              for shape in (Shape.SPHERE, Shape.BOX, Shape.CAPSULE) if (self.shape == shape).any())
 
     @property
     def count(self) -> int:

@@ -705,17 +705,12 @@ class SequentialImpulseSolver:
 
     def reset(self) -> None:
         """Forget the warm-start memory (call it when bodies are teleported en masse; World.reset does)."""
-        self._store_warm(np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
+        # the warm-start memory, sorted by key (the kernel keeps it so): none yet
+        self._warm_keys, self._warm_normal = np.zeros(0, np.int64), np.zeros(0)
+        self._warm_friction, self._warm_point = np.zeros((0, 3)), np.zeros((0, 3))
         self._warm_model = None  # the model the warm-start keys refer to (they index its primitives)
         self._warm_count = -1
         self._pending = None  # what recover_penetration needs from the last solve
-
-    def _store_warm(self, key, normal_impulse, friction_impulse, point) -> None:
-        order = np.argsort(key, kind="stable")
-        self._warm_keys = np.ascontiguousarray(key[order])
-        self._warm_normal = np.ascontiguousarray(normal_impulse[order])
-        self._warm_friction = np.ascontiguousarray(friction_impulse[order])
-        self._warm_point = np.ascontiguousarray(point[order])
 
     def solve_velocities(self, model: BodyModel, state: BodyState, contacts: ContactSet, h: float, *,
                          inv_inertia: np.ndarray | None = None, active: np.ndarray | None = None) -> None:
