@@ -19,17 +19,31 @@ Settings, and why:
 - no ``fastmath``: it lets LLVM reassociate floating-point sums, which would make compiled and plain-Python
   results differ beyond round-off and break the bit-for-bit determinism a seed promises.
 - ``parallel=True`` kernels (per-boid loops written with :data:`prange`) run on numba's thread pool, one
-  thread per core.  Each iteration writes only its own outputs and no floating-point value is reduced across
+  thread per core, for :data:`PARALLEL_MIN_ITEMS` items or more; for fewer, a serial twin of the same function
+  runs (:class:`ParallelKernel`): compiling a loop for the pool costs half again as much as compiling it plain
+  (measured: the default scene's flock kernels, 9 s serial and 14 s parallel), and a small flock never needs
+  the pool.  Each iteration writes only its own outputs and no floating-point value is reduced across
   iterations, so the results do not depend on the number of threads.  With the OpenMP pool, idle workers are
   told to sleep (``OMP_WAIT_POLICY=PASSIVE``) instead of spinning for a while after every kernel: on a
   2-core machine the spinning worker took the core the bag writer and the DDS threads need (measured: twice
   the CPU time per flock step, and a slower tick).  Only the node's tick thread launches parallel kernels
   (numba's fallback ``workqueue`` pool is not safe to enter from two threads at once).
+
+Compiling in parallel (:mod:`cgp_core.warmup`): numba compiles one kernel at a time, on one core, about 40 s
+for the default scene's kernels when no cache exists.  :func:`cgp_core.warmup.compile_in_parallel` splits
+that work over several processes, each compiling the kernels of some modules into the shared on-disk cache.
+A worker is told which with ``CGP_SIM_JIT_ONLY`` (module prefixes, comma-separated, e.g.
+``cgp_core.solver,cgp_core.rotation``): there, the other modules' kernels stay plain Python — the
+``NUMBA_DISABLE_JIT`` path, per module — so the worker steps a scene (to give every kernel the argument types
+the real run gives it) without compiling what another worker compiles.
 """
 
 from __future__ import annotations
 
+import functools
 import os
+import threading
+import types
 from contextlib import contextmanager
 
 # Before numba loads its OpenMP thread pool (at the first parallel kernel); a user's own setting wins.
@@ -40,6 +54,10 @@ import numba  # noqa: E402
 #: numba's own switch: with NUMBA_DISABLE_JIT=1 every kernel runs as plain Python
 JIT_DISABLED = os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")
 
+#: set in a compile worker only (see the module docstring): the module prefixes whose kernels this process
+#: compiles; empty (everywhere else): every kernel is compiled
+JIT_ONLY = tuple(prefix for prefix in os.environ.get("CGP_SIM_JIT_ONLY", "").split(",") if prefix)
+
 _DEFAULTS = {"cache": True, "nogil": True, "error_model": "numpy"}
 
 
@@ -47,8 +65,45 @@ def njit(*args, **options):
     """``numba.njit`` with cgp_core's defaults (see the module docstring); use as ``@njit`` or ``@njit(...)``."""
     settings = {**_DEFAULTS, **options}
     if args and callable(args[0]) and len(args) == 1 and not options:
-        return numba.njit(**settings)(args[0])
-    return numba.njit(*args, **settings)
+        return _compiled(args[0], settings)
+    return lambda function: _compiled(function, settings)
+
+
+def _compiled(function, settings):
+    if JIT_DISABLED or (JIT_ONLY and not function.__module__.startswith(JIT_ONLY)):
+        return function  # plain Python: the JIT is off, or this is another compile worker's kernel
+    if settings.get("parallel"):
+        return ParallelKernel(function, settings)
+    return numba.njit(**settings)(function)
+
+
+class ParallelKernel:
+    """A ``parallel=True`` kernel, compiled twice: ``parallel`` for numba's thread pool and ``serial`` (the same
+    function as a plain loop).  A call runs ``serial`` inside :func:`threads_for` with fewer than
+    :data:`PARALLEL_MIN_ITEMS` items, ``parallel`` otherwise; each compiles on its first call.  Both run the
+    same arithmetic per item (no floating-point value is reduced across items), so they give the same results
+    bit for bit.  Call it from Python only (a compiled kernel cannot call it)."""
+
+    def __init__(self, function, settings):
+        self.parallel = numba.njit(**settings)(function)
+        # The twin is a copy of the function under its own name: numba's cache names its files after the
+        # function and does not tell a parallel from a serial compile of the same one apart.
+        twin = types.FunctionType(function.__code__, function.__globals__, function.__name__,
+                                  function.__defaults__, function.__closure__)
+        twin.__qualname__ = f"{function.__qualname__}__serial"
+        twin.__module__, twin.__doc__ = function.__module__, function.__doc__
+        self.serial = numba.njit(**{**settings, "parallel": False})(twin)
+        functools.update_wrapper(self, function)
+
+    def __call__(self, *args):
+        return (self.serial if _calling.serial else self.parallel)(*args)
+
+
+class _Calling(threading.local):
+    serial = False  # set by threads_for, per calling thread
+
+
+_calling = _Calling()
 
 
 #: ``numba.prange`` (a plain ``range`` when the JIT is disabled); only meaningful inside ``njit(parallel=True)``
@@ -61,15 +116,33 @@ PARALLEL_MIN_ITEMS = 2000
 
 
 @contextmanager
-def threads_for(items: int):
-    """Run the parallel kernels called inside on all of numba's threads, or on one for fewer than
-    :data:`PARALLEL_MIN_ITEMS` items (per calling thread; the previous setting is restored)."""
-    previous = numba.get_num_threads()
-    numba.set_num_threads(1 if items < PARALLEL_MIN_ITEMS else numba.config.NUMBA_NUM_THREADS)
+def parallel_from(items: int):
+    """Within: :func:`threads_for` picks the parallel kernels from ``items`` items on instead of from
+    :data:`PARALLEL_MIN_ITEMS` (the warm-up sets 0 to compile the parallel twins with a small flock)."""
+    global PARALLEL_MIN_ITEMS
+    previous, PARALLEL_MIN_ITEMS = PARALLEL_MIN_ITEMS, items
     try:
         yield
     finally:
-        numba.set_num_threads(previous)
+        PARALLEL_MIN_ITEMS = previous
 
 
-__all__ = ["JIT_DISABLED", "PARALLEL_MIN_ITEMS", "njit", "prange", "threads_for"]
+@contextmanager
+def threads_for(items: int):
+    """Run the parallel kernels called inside on all of numba's threads, or as their serial twins for fewer
+    than :data:`PARALLEL_MIN_ITEMS` items (per calling thread; the previous setting is restored)."""
+    serial = items < PARALLEL_MIN_ITEMS
+    previous = _calling.serial, numba.get_num_threads()
+    _calling.serial = serial
+    if not serial:
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    try:
+        yield
+    finally:
+        _calling.serial = previous[0]
+        if not serial:
+            numba.set_num_threads(previous[1])
+
+
+__all__ = ["JIT_DISABLED", "JIT_ONLY", "PARALLEL_MIN_ITEMS", "ParallelKernel", "njit", "parallel_from", "prange",
+           "threads_for"]

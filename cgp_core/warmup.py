@@ -3,21 +3,43 @@
 ``make setup`` runs it (through ``cgp_sim_ros.warmup``, which adds the node's marker kernels) after installing
 the project, so the node's first start (and every test) finds the compiled kernels in the cache next to the
 installed sources (``__pycache__/*.nbi|*.nbc``) and starts in about a second instead of compiling for tens of
-seconds.  It steps the default scene (bodies and flock) with the
-bodies placed so that every contact kernel runs within a few ticks.  Safe to run any time: a warm cache makes it
-a no-op of a second or two.
+seconds.  It steps the default scene (bodies and flock) with the bodies placed so that every contact kernel
+runs within a few ticks.  Safe to run any time: a warm cache makes it a no-op of a second or two.
+
+**In parallel.**  numba compiles one kernel at a time on one core: the default scene's kernels take ~40 s of
+CPU.  :func:`compile_in_parallel` shares that out among worker processes, one per :class:`CompilePart` (the
+rigid-body solver; contact detection with the integrators; the flock), which compile side by side into the
+same on-disk cache; the calling process then loads what they wrote.  Each worker runs the same warm-up scenario
+as the serial path — so every kernel meets exactly the argument types of a real run — with only its own
+modules compiled (``CGP_SIM_JIT_ONLY``, :mod:`cgp_core.jit`); the rest runs there as plain Python, which for a
+few ticks of five bodies and one small flock costs about a second.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import importlib
+import os
+import subprocess
+import sys
 import time
+from dataclasses import dataclass
+from pathlib import Path
 
 
-def warm_up(ticks: int = 24) -> "World":
-    """Step the default scene ``ticks`` times with every contact kernel in use; returns the world."""
+def warm_up(ticks: int = 24, *, complete: bool = True, flocks: bool = True) -> "World":
+    """Step the default scene ``ticks`` times with every contact kernel in use; returns the world.
+
+    ``complete``: also the flock kernels the default scene does not use — issue 14's (Couzin's model,
+    topological neighbours, predators) and the parallel twins that big flocks run (:mod:`cgp_core.jit`).
+    ``flocks=False``: the default scene without its flock (the rigid-body compile workers, for which the flock
+    would only be plain Python to wait for)."""
+    from .jit import parallel_from
+    from .scene import load_scene
     from .world import World
 
-    world = World.from_scene("default")
+    scene = load_scene("default")
+    world = World(scene if flocks else dataclasses.replace(scene, flocks=[]))
     state, names = world.body_state, world.body_model.names
     # ground under a sphere, a box, a capsule and a particle body; box–box against the pillar; box–capsule;
     # sphere against the particle body
@@ -29,7 +51,14 @@ def warm_up(ticks: int = 24) -> "World":
         world.step()
     for flock in world.flocks:
         flock.order()  # the order parameters the node publishes every tick
-    _warm_up_flock_rules()
+    if flocks and complete:
+        _warm_up_flock_rules()
+        with parallel_from(0):  # the same again, on the parallel twins
+            for _ in range(ticks):
+                world.step()
+            for flock in world.flocks:
+                flock.order()
+            _warm_up_flock_rules()
     return world
 
 
@@ -50,7 +79,131 @@ def _warm_up_flock_rules() -> None:
     flock.order()
 
 
-if __name__ == "__main__":
+# ---- compiling in parallel ------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class CompilePart:
+    """The kernels one compile worker compiles.
+
+    Attributes:
+        name:      shown in logs and in the worker's command line.
+        modules:   module prefixes whose kernels the worker compiles (``CGP_SIM_JIT_ONLY``).  A kernel calls
+                   other kernels only if they are compiled too, so a part lists the modules its kernels call.
+        sentinels: ``"module:kernel"`` entry points whose on-disk cache tells whether this part is compiled
+                   (a part's kernels are compiled together, so one entry point per stage of the run suffices).
+    """
+
+    name: str
+    modules: tuple[str, ...]
+    sentinels: tuple[str, ...]
+    steps_flocks: bool = True  #: whether the worker's scenario needs the flocks (False: it leaves them out)
+
+
+#: cgp_core's share-out, balanced on the compile times measured on an idle core (numba 0.68) for the default
+#: scene: the solver ~16 s; contact detection and the integrators ~14 s; the flock ~9 s (``make setup`` also
+#: compiles issue 14's rules and the parallel twins there: ~15 s more)
+PARTS: tuple[CompilePart, ...] = (
+    CompilePart("solver", ("cgp_core.solver", "cgp_core.rotation"),
+                ("cgp_core.solver.sequential_impulse:solve_step",
+                 "cgp_core.solver.sequential_impulse:recover_penetration_kernel"), steps_flocks=False),
+    CompilePart("contacts", ("cgp_core.collision", "cgp_core.integrators", "cgp_core.dynamics", "cgp_core.sleep"),
+                ("cgp_core.collision.detector:narrow_phase", "cgp_core.integrators.implicit_midpoint:_step_kernel",
+                 "cgp_core.dynamics:coming_velocities"), steps_flocks=False),
+    CompilePart("flock", ("cgp_core.boids",),
+                ("cgp_core.boids.rules:_neighbor_sums", "cgp_core.boids.flock:_move")),
+)
+
+
+def is_cached(kernel) -> bool:
+    """Whether numba's on-disk cache holds a compiled version of ``kernel`` for its current source (of a
+    :class:`~cgp_core.jit.ParallelKernel`: of its serial twin, which small flocks such as the default scene's
+    run).  ``True`` for a plain function (the JIT is off: nothing to compile) and when numba's cache cannot be
+    inspected (a numba whose internals differ: the kernels then compile on first use, as without this module)."""
+    from .jit import ParallelKernel
+
+    if isinstance(kernel, ParallelKernel):
+        kernel = kernel.serial
+    try:
+        return bool(kernel._cache._cache_file._load_index())
+    except AttributeError:
+        return True
+
+
+def missing_parts(parts: tuple[CompilePart, ...] = PARTS) -> list[CompilePart]:
+    """The parts whose kernels are not in the cache (none when the JIT is disabled)."""
+    from .jit import JIT_DISABLED
+
+    if JIT_DISABLED:
+        return []
+    missing = []
+    for part in parts:
+        for sentinel in part.sentinels:
+            module, name = sentinel.split(":")
+            if not is_cached(getattr(importlib.import_module(module), name)):
+                missing.append(part)
+                break
+    return missing
+
+
+def compile_in_parallel(parts: list[CompilePart], worker_module: str, *worker_args: str) -> dict[str, str]:
+    """Run one worker process per part, ``python -P -m <worker_module> --part <name> <worker_args>`` with
+    ``CGP_SIM_JIT_ONLY`` set to the part's modules, all at once; wait for them.  The workers import the same
+    packages as this process (its package root first on ``PYTHONPATH``), so they write the cache this process
+    reads.  Returns ``{part name: the worker's output}`` for each worker that failed (the kernels it should
+    have compiled then compile on first use)."""
+    root = str(Path(__file__).resolve().parents[1])  # the directory cgp_core (and cgp_sim_ros) was imported from
+    python_path = os.pathsep.join([root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
+    workers = {}
+    for part in parts:
+        env = dict(os.environ, PYTHONPATH=python_path, CGP_SIM_JIT_ONLY=",".join(part.modules))
+        workers[part.name] = subprocess.Popen(
+            [sys.executable, "-P", "-m", worker_module, "--part", part.name, *worker_args], env=env,
+            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    failed = {}
+    for name, worker in workers.items():
+        output, _ = worker.communicate()
+        if worker.returncode != 0:
+            failed[name] = output
+    return failed
+
+
+def worker_main(part: CompilePart, scenario) -> int:
+    """A compile worker's body: run ``scenario(flocks=part.steps_flocks)`` with the kernels of
+    ``CGP_SIM_JIT_ONLY`` compiled."""
+    from .jit import JIT_ONLY
+
+    if not JIT_ONLY:
+        print(f"compile worker {part.name}: CGP_SIM_JIT_ONLY is not set (workers are started by "
+              "compile_in_parallel)", file=sys.stderr)
+        return 2
+    scenario(flocks=part.steps_flocks)
+    return 0
+
+
+def part_named(parts: tuple[CompilePart, ...], name: str) -> CompilePart:
+    for part in parts:
+        if part.name == name:
+            return part
+    raise SystemExit(f"no compile part {name!r}: one of {', '.join(p.name for p in parts)}")
+
+
+def _main(argv: list[str]) -> int:
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m cgp_core.warmup", description=__doc__.splitlines()[0])
+    parser.add_argument("--part", help="run as the compile worker of this part (set by compile_in_parallel)")
+    args = parser.parse_args(argv)
+    if args.part:
+        return worker_main(part_named(PARTS, args.part), warm_up)
     started = time.perf_counter()
-    warm_up()
+    failed = compile_in_parallel(missing_parts(), "cgp_core.warmup")
+    for name, output in failed.items():
+        print(f"cgp_core.warmup: the {name} compile worker failed; its kernels compile here:\n{output}",
+              file=sys.stderr)
+    warm_up()  # loads what the workers compiled (and compiles anything they did not)
     print(f"cgp_core.warmup: compiled kernels ready in {time.perf_counter() - started:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_main(sys.argv[1:]))

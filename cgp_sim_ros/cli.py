@@ -86,6 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     from rclpy.signals import SignalHandlerOptions
 
     from .node import ConfigError, SimNode
+    from .warmup import compile_missing_kernels
 
     try:
         args = build_parser().parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
@@ -100,6 +101,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.list_scenes:
         print(_scene_list())
         return 0
+    # Right after an install or an edit of the kernels' sources numba has nothing cached: compile the kernels
+    # in parallel processes now (about 25 s on 2 cores), not one by one in the first tick (about 40 s).
+    compile_missing_kernels(lambda text: print(f"cgp-sim: {text}", file=sys.stderr, flush=True))
     overrides = [Parameter(spec.name, value=getattr(args, spec.name))
                  for spec in itf.PARAMETERS if spec.flag is not None and getattr(args, spec.name) is not None]
 

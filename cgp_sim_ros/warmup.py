@@ -3,30 +3,89 @@
 ``make setup`` runs ``python -P -m cgp_sim_ros.warmup`` right after installing the project (``-P``: the
 installed package, whose ``__pycache__`` is where the node will look).  It steps the default scene with its
 bodies placed so that every contact kernel runs (:func:`cgp_core.warmup.warm_up`; the flock kernels and its
-obstacle query too), draws its markers (the fish kernel, the rounding of sphere lists) — in a few seconds when the cache is already there, about half a
-minute on a fresh install.  Without it, the first ``make run`` would compile the same kernels before its first
-tick; nothing else changes.
+obstacle query too) and draws its markers (the fish kernel, the rounding of sphere lists), compiling in
+parallel worker processes (:func:`cgp_core.warmup.compile_in_parallel`): about 25 s on a 2-core machine when
+nothing is cached, a second or two when everything is.
+
+The node does the same at start-up (:func:`compile_missing_kernels`, called by ``cgp-sim`` before it builds
+the node) for the parts it finds uncompiled — a start right after an install or an edit of the kernels'
+sources — so that it does not compile them one after the other, on one core, in its first tick.
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 
+from cgp_core.warmup import PARTS as CORE_PARTS
+from cgp_core.warmup import CompilePart, compile_in_parallel, missing_parts, part_named, worker_main
 
-def main() -> int:
-    started = time.perf_counter()
+#: cgp_core's parts, the flock's with the node's marker kernels (fish triangles, sphere lists) added
+PARTS: tuple[CompilePart, ...] = tuple(
+    CompilePart(p.name, p.modules + ("cgp_sim_ros.shapes",), p.sentinels + ("cgp_sim_ros.shapes:_fish_vertices",))
+    if p.name == "flock" else p for p in CORE_PARTS)
+
+
+def scenario(complete: bool = True, flocks: bool = True) -> None:
+    """What the node runs: the default scene's ticks (:func:`cgp_core.warmup.warm_up`) and its markers;
+    ``complete``: also the kernels the default scene does not use (issue 14's flock rules; the parallel twins
+    for big flocks, markers included); ``flocks=False``: the bodies alone."""
     import numpy as np
 
+    from cgp_core.jit import parallel_from
     from cgp_core.warmup import warm_up
 
     from .shapes import fish_triangles, quantized_points
 
-    world = warm_up()  # the default scene, bodies placed so that every contact kernel runs; the flock's kernels
+    world = warm_up(complete=complete, flocks=flocks)
+    if not flocks:
+        return
     flock = world.flocks[0]
-    for detail in ("full", "low"):
-        fish_triangles(flock.positions, flock.orientations, flock.params.boid_size, detail)
-    quantized_points(np.zeros((1, 3)))
+
+    def draw():
+        for detail in ("full", "low"):
+            fish_triangles(flock.positions, flock.orientations, flock.params.boid_size, detail)
+        quantized_points(np.zeros((1, 3)))
+
+    draw()
+    if complete:
+        with parallel_from(0):
+            draw()
+
+
+def compile_missing_kernels(log) -> None:
+    """Compile, in parallel, the parts of the default scene's kernels that are not cached yet; ``log(text)``
+    says what happens.  The kernels the default scene does not use (issue 14's flock rules, the parallel twins
+    for big flocks) are left to compile on first use: they would lengthen the flock worker's share."""
+    parts = missing_parts(PARTS)
+    if not parts:
+        return
+    started = time.perf_counter()
+    log(f"compiling the simulation kernels ({', '.join(p.name for p in parts)}: no compile cache for them yet, "
+        f"as at the first start after an install or an edit) in {len(parts)} processes …")
+    failed = compile_in_parallel(parts, "cgp_sim_ros.warmup", "--default-scene")
+    for name, output in failed.items():
+        tail = "\n".join(output.strip().splitlines()[-20:])
+        log(f"the {name} compile worker failed (its kernels compile at first use instead):\n{tail}")
+    log(f"kernels compiled in {time.perf_counter() - started:.1f} s")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m cgp_sim_ros.warmup", description=__doc__.splitlines()[0])
+    parser.add_argument("--part", help="run as the compile worker of this part (set by compile_in_parallel)")
+    parser.add_argument("--default-scene", action="store_true",
+                        help="only the kernels the default scene runs (not issue 14's flock rules, not the "
+                             "parallel twins for big flocks)")
+    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    if args.part:
+        return worker_main(part_named(PARTS, args.part),
+                           lambda flocks: scenario(complete=not args.default_scene, flocks=flocks))
+    started = time.perf_counter()
+    failed = compile_in_parallel(missing_parts(PARTS), "cgp_sim_ros.warmup")
+    for name, output in failed.items():
+        print(f"cgp_sim: the {name} compile worker failed; its kernels compile here:\n{output}", file=sys.stderr)
+    scenario()  # loads what the workers compiled (and compiles anything they did not)
     print(f"cgp_sim: simulation kernels compiled and cached ({time.perf_counter() - started:.1f} s)")
     return 0
 

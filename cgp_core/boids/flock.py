@@ -209,7 +209,8 @@ class Flock:
         self._v[:] = (direction * rng.uniform(p.min_speed, p.max_speed, n)).T
         self._heading[:] = unit_headings(self._v.T).T
         self._dorsal[:] = initial_dorsal(self._heading.T).T
-        quaternions_rows(self._heading, self._dorsal, self._q)
+        with threads_for(n):
+            quaternions_rows(self._heading, self._dorsal, self._q)
         self._search.reset()
         self._searched = None
         # a Couzin flock's noise: its own stream (the initial state above is the same for both rule sets)

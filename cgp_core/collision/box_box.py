@@ -317,7 +317,8 @@ def _reduce_to_four(X, Y, hu, hv, valid):
                 if score > best:
                     best, best_s = score, s
         keep[best_s] = True
-    valid[:] = keep
+    for s in range(len(valid)):  # a loop, not valid[:] = keep: numba compiles a slice copy with a shape check
+        valid[s] = keep[s]       # whose error message alone takes ~2 s to compile
 
 
 def box_box(ca, Ra, ha, cb, Rb, hb, margin):

@@ -145,7 +145,7 @@ def match_previous(key, point, old_key, old_point):
 
 # ---- stage "solve contacts" -----------------------------------------------------------------------------
 
-@njit(inline="always")
+@njit
 def _row_velocity(J, c, r, V, a, b):
     """J V for row ``r`` of contact ``c`` (``J (m, 3, 12)``) between body rows a and b of ``V (n + 1, 6)``."""
     return (J[c, r, 0] * V[a, 0] + J[c, r, 1] * V[a, 1] + J[c, r, 2] * V[a, 2] + J[c, r, 3] * V[a, 3]
@@ -153,7 +153,7 @@ def _row_velocity(J, c, r, V, a, b):
             + J[c, r, 8] * V[b, 2] + J[c, r, 9] * V[b, 3] + J[c, r, 10] * V[b, 4] + J[c, r, 11] * V[b, 5])
 
 
-@njit(inline="always")
+@njit
 def _apply(MJ, c, r, delta, V, a, b):
     """V += M⁻¹ Jᵀ Δλ for row ``r`` of contact ``c`` (``MJ (m, 3, 12)``)."""
     for k in range(6):
@@ -273,7 +273,7 @@ def _solve_normal_rows(g, lo, hi, a, b, J, MJ, eff, lam, target, lower, V, A, ca
     return change
 
 
-@njit(inline="always")
+@njit
 def _push_normal_row(c, J, MJ, eff, lam, target, lower, V, a, b):
     """One sequential-impulse update of the normal row of contact ``c`` alone (accumulated λ ≥ ``lower[c]``);
     returns |Δλ| / eff."""
@@ -528,13 +528,18 @@ def solve_step(body_a, body_b, normal, separation, point, key, friction, restitu
     pos = np.zeros((n + 1, 3))
     V = np.zeros((n + 1, 6))  # the velocities being solved for: from momentum + h·force ...
     V_before = np.zeros((n + 1, 6))  # ... and before this sub-step's forces (restitution)
+    # element by element, not pos[i] = position[i]: numba compiles a row copy with a shape check whose error
+    # message alone takes seconds to compile (measured: 3 s of this module's ~20 s)
     for i in range(n):
-        pos[i] = position[i]
+        for k in range(3):
+            pos[i, k] = position[i, k]
         if not movable[i]:
             continue
         dynamic[i] = True
         inv_mass[i] = model_inv_mass[i]
-        inv_inertia[i] = world_inv_inertia[i]
+        for r in range(3):
+            for c in range(3):
+                inv_inertia[i, r, c] = world_inv_inertia[i, r, c]
         for k in range(3):
             V[i, k] = (linear_momentum[i, k] + h * force[i, k]) * inv_mass[i]
             V_before[i, k] = linear_momentum[i, k] * inv_mass[i]

@@ -1,0 +1,111 @@
+"""Compiling the kernels in parallel (cgp_core.warmup, cgp_core.jit): a compile worker compiles only its own
+modules' kernels; a parallel kernel's serial twin is a kernel of its own, with its own cache; and a node that
+starts with no compile cache at all has its kernels compiled by the workers, so that it compiles none itself.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from cgp_core.jit import JIT_DISABLED
+
+pytestmark = pytest.mark.skipif(JIT_DISABLED, reason="the JIT is disabled: nothing is compiled")
+
+WORKER_VIEW = r"""
+from numba.core.registry import CPUDispatcher
+from cgp_core.collision.detector import narrow_phase
+from cgp_core.solver.sequential_impulse import solve_step
+from cgp_core.rotation import quat_to_matrices
+from cgp_core.boids.rules import _neighbor_sums
+from cgp_core.jit import ParallelKernel
+print(" ".join(f"{name}={'compiled' if isinstance(k, (CPUDispatcher, ParallelKernel)) else 'plain'}"
+               for name, k in [("narrow_phase", narrow_phase), ("solve_step", solve_step),
+                               ("quat_to_matrices", quat_to_matrices), ("neighbor_sums", _neighbor_sums)]))
+"""
+
+
+def _kernel_kinds(jit_only: str | None) -> str:
+    env = {k: v for k, v in os.environ.items() if k != "CGP_SIM_JIT_ONLY"}
+    if jit_only is not None:
+        env["CGP_SIM_JIT_ONLY"] = jit_only
+    return subprocess.run([sys.executable, "-c", WORKER_VIEW], env=env, capture_output=True, text=True,
+                          check=True, timeout=60).stdout.strip()
+
+
+def test_a_compile_worker_compiles_only_the_modules_it_is_given():
+    assert _kernel_kinds("cgp_core.solver,cgp_core.rotation") == \
+        "narrow_phase=plain solve_step=compiled quat_to_matrices=compiled neighbor_sums=plain"
+    assert _kernel_kinds("cgp_core.boids") == \
+        "narrow_phase=plain solve_step=plain quat_to_matrices=plain neighbor_sums=compiled"
+    assert _kernel_kinds(None) == \
+        "narrow_phase=compiled solve_step=compiled quat_to_matrices=compiled neighbor_sums=compiled"
+
+
+TWINS = r"""
+import sys
+import numpy as np
+from cgp_core.jit import njit, prange, threads_for
+
+@njit(parallel=True)
+def affine(x, out):
+    for i in prange(len(x)):
+        out[i] = 2.5 * x[i] + 1.0 / (1.0 + x[i] * x[i])
+
+x = np.random.default_rng(7).normal(size=int(sys.argv[1]))
+serial, parallel, picked = np.empty_like(x), np.empty_like(x), np.empty_like(x)
+affine.serial(x, serial)
+affine.parallel(x, parallel)
+with threads_for(len(x)):
+    affine(x, picked)
+np.save(sys.argv[2], np.stack([serial, parallel, picked]))
+print(len(affine.serial.signatures), len(affine.parallel.signatures))
+"""
+
+
+@pytest.mark.parametrize("items", [50, 5000])
+def test_a_parallel_kernel_and_its_serial_twin_agree_and_have_caches_of_their_own(tmp_path, items):
+    """Both twins give the same numbers bit for bit; each writes its own cache files (numba's cache key does
+    not tell a parallel compile from a serial one, so one shared file would hand one twin the other's code)."""
+    from cgp_core.jit import PARALLEL_MIN_ITEMS
+
+    script = tmp_path / "twins.py"
+    script.write_text(TWINS)
+    cache = tmp_path / "cache"
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
+    out = subprocess.run([sys.executable, str(script), str(items), str(tmp_path / "r.npy")], env=env,
+                         capture_output=True, text=True, check=True, timeout=120).stdout.split()
+    serial, parallel, picked = np.load(tmp_path / "r.npy")
+    assert serial.tobytes() == parallel.tobytes() == picked.tobytes()
+    assert out == ["1", "1"]
+    index_files = sorted(p.name.split("-")[0] for p in cache.rglob("*.nbi"))
+    assert index_files == ["twins.affine", "twins.affine__serial"]
+    # which twin threads_for picks: run again with a warm cache and count what each twin loaded
+    probe = TWINS.replace("affine.serial(x, serial)\naffine.parallel(x, parallel)\n", "")
+    script.write_text(probe)
+    loaded = subprocess.run([sys.executable, str(script), str(items), str(tmp_path / "r2.npy")], env=env,
+                            capture_output=True, text=True, check=True, timeout=120).stdout.split()
+    assert loaded == (["1", "0"] if items < PARALLEL_MIN_ITEMS else ["0", "1"])
+    assert np.load(tmp_path / "r2.npy")[2].tobytes() == picked.tobytes()
+
+
+def test_a_node_without_any_compile_cache_has_its_kernels_compiled_in_parallel(start_node, tmp_path):
+    """`cgp-sim` on the default scene with an empty numba cache: it has the compile workers compile the
+    default scene's kernels (solver, contacts, flock), and then finds every kernel it runs in the cache —
+    numba's cache log (NUMBA_DEBUG_CACHE) of the node's own process shows loads and not a single save."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"), NUMBA_DEBUG_CACHE="1")
+    node = start_node("--scene", "default", "--realtime", "false", "--duration", "0.5", "--bag",
+                      str(tmp_path / "bag"), env=env)
+    assert node.wait(timeout=300) == 0, node.log()[-4000:]
+    log = node.log()
+    assert "compiling the simulation kernels (solver, contacts, flock:" in log, log[-4000:]
+    assert "kernels compiled in" in log and "compile worker failed" not in log, log[-4000:]
+    saved = [line for line in log.splitlines() if line.startswith("[cache] data saved")]
+    loaded = [line for line in log.splitlines() if line.startswith("[cache] data loaded")]
+    assert not saved, "the node compiled kernels itself:\n" + "\n".join(saved)
+    assert len(loaded) >= 20, log[-4000:]  # the workers' kernels: the solver's, the contacts', the flock's
+    assert (tmp_path / "bag" / "metadata.yaml").exists()
