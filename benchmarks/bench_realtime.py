@@ -19,10 +19,12 @@ clone).  ``cgp-sim --scene default --bag <new dir>`` is started as its own proce
 in real time the node publishes ``/clock`` = t at t after its first tick, so the first tick happened at
 ``receive time − stamp``; the start-up is that minus the process start.  *Cold*: numba's compile caches of the
 installed project are deleted first (``__pycache__/*.nbi, *.nbc`` under ``cgp_core`` and ``cgp_sim_ros``: an
-install without ``make setup``'s warm-up — the kernels the default scene needs compile before its first tick).
-Then ``make setup``'s warm-up (``python -P -m cgp_sim_ros.warmup``: every kernel, what a fresh clone's
-``make setup``/``make run`` compiles once) is timed; it also puts back the whole cache, so that no kernel the
-cold node did not reach compiles in the middle of the real-time runs.  *Warm*: the same command again — what
+install without ``make setup``'s warm-up, or the first start after an edit of every kernel: the node has the
+default scene's kernels compiled by three worker processes, ``cgp_sim_ros.warmup.compile_missing_kernels``,
+before its first tick).  Then ``make setup``'s warm-up (``python -P -m cgp_sim_ros.warmup``: every kernel,
+what a fresh clone's ``make setup``/``make run`` compiles once) is timed; it also puts back the whole cache
+(issue 14's flock rules, the parallel twins for big flocks), so that no kernel the cold node did not reach
+compiles in the middle of the real-time runs.  *Warm*: the same command again — what
 ``make run`` starts on a fresh clone, after ``make setup``.
 
 Writes ``benchmarks/results/realtime.json``.  Run alone: ``.venv/bin/python benchmarks/bench_realtime.py``
