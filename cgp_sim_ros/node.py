@@ -688,11 +688,13 @@ class SimNode(Node):
         return SetParametersResult(successful=True)
 
     def _replan_detail(self) -> None:
-        """A parameter the level of detail depends on changed: new plan, logged, on ~/events and in the bag."""
+        """A parameter the level of detail depends on changed: new plan, logged, on ~/events and in the bag
+        (whose ``custom_data`` also holds the rate the plan is for)."""
         before = self.detail
         self._plan_detail()
-        if (before.fish_detail, before.markers_every, before.flock_poses_every) == \
-                (self.detail.fish_detail, self.detail.markers_every, self.detail.flock_poses_every):
+        if (before.fish_detail, before.markers_every, before.flock_poses_every, before.rate_hz) == \
+                (self.detail.fish_detail, self.detail.markers_every, self.detail.flock_poses_every,
+                 self.detail.rate_hz):
             return
         self.get_logger().info("level of detail changed: " + " ".join(self.detail.lines))
         self._retire_markers()  # fewer parts: the flock's last ones are no longer drawn

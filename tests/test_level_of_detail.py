@@ -189,7 +189,8 @@ def test_the_bag_holds_what_the_plan_says_and_its_markers_draw_every_fish(start_
 def test_changing_the_detail_at_run_time_shows_in_the_markers_the_log_the_events_and_the_bag(
         start_node, probe, tmp_path):
     """fish_detail and markers_every are settable while the node runs: the next ticks draw and publish as the
-    new plan says, and the change is logged, put on ~/events and into the bag's metadata."""
+    new plan says, and the change is logged, put on ~/events and into the bag's metadata — as is a new
+    rate_hz, for which the plan is made."""
     from rcl_interfaces.msg import Parameter as ParameterMsg
     from rcl_interfaces.msg import ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters
@@ -203,7 +204,9 @@ def test_changing_the_detail_at_run_time_shows_in_the_markers_the_log_the_events
     params = [ParameterMsg(name="fish_detail", value=ParameterValue(type=ParameterType.PARAMETER_STRING,
                                                                     string_value="low")),
               ParameterMsg(name="markers_every", value=ParameterValue(type=ParameterType.PARAMETER_INTEGER,
-                                                                      integer_value=3))]
+                                                                      integer_value=3)),
+              ParameterMsg(name="rate_hz", value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
+                                                                double_value=30.0))]
     results = probe.call(SetParameters, "/cgp_sim/set_parameters", SetParameters.Request(parameters=params)).results
     assert all(r.successful for r in results), results
     for _ in range(9):
@@ -225,8 +228,10 @@ def test_changing_the_detail_at_run_time_shows_in_the_markers_the_log_the_events
     # the start-up plan, then one per parameter set (the service sets them one by one)
     assert plans[0]["fish_detail"] == {"fish": "full"} and plans[0]["markers_every"] == 1
     assert plans[-1]["fish_detail"] == {"fish": "low"} and plans[-1]["markers_every"] == 3
-    assert len(plans) == 3
+    assert plans[-1]["rate_hz"] == 30.0
+    assert len(plans) == 4
     info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert info["custom_data"]["cgp_sim.rate_hz"] == "30"
     assert json.loads(info["custom_data"]["cgp_sim.fish_detail"]) == {"fish": "low"}
     assert json.loads(info["custom_data"]["cgp_sim.recorded_every_n_ticks"]) == {}
     assert json.loads(info["custom_data"]["cgp_sim.flock_markers_redrawn_every_n_ticks"]) == {"/cgp_sim/markers": 3}
