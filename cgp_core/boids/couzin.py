@@ -153,11 +153,10 @@ def desired_directions(neighbors: NeighborList, positions: np.ndarray, headings:
     desired = np.empty((n, 3))
     perceived = np.empty(n, np.int64)
     attraction = math.inf if params.neighbor_mode == "topological" else c.perception_radius
-    cos_half_fov = math.cos(math.radians(0.5 * c.field_of_view_deg)) if c.field_of_view_deg < 360.0 else -1.0
     _desired_directions(neighbors.start, neighbors.count, neighbors.index, neighbors.order,
                         neighbors.sorted(positions), neighbors.sorted(headings),
                         np.zeros(3) if period is None else period, c.repulsion_radius,
-                        c.repulsion_radius + c.orientation_width, attraction, cos_half_fov, desired, perceived)
+                        c.repulsion_radius + c.orientation_width, attraction, c.cos_half_fov, desired, perceived)
     return desired, perceived
 
 

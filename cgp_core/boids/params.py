@@ -88,6 +88,12 @@ class CouzinParams:
                              "animals must perceive something)")
 
     @property
+    def cos_half_fov(self) -> float:
+        """cos(α / 2), what the zones' visibility test compares with (``rules.sees``); −1 for α = 360°: no
+        blind cone, every neighbour is seen."""
+        return math.cos(math.radians(0.5 * self.field_of_view_deg)) if self.field_of_view_deg < 360.0 else -1.0
+
+    @property
     def perception_radius(self) -> float:
         """r_r + Δr_o + Δr_a: the outer edge of the zone of attraction [m]."""
         return self.repulsion_radius + self.orientation_width + self.attraction_width
