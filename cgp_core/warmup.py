@@ -153,17 +153,22 @@ def compile_in_parallel(parts: list[CompilePart], worker_module: str, *worker_ar
     have compiled then compile on first use)."""
     root = str(Path(__file__).resolve().parents[1])  # the directory cgp_core (and cgp_sim_ros) was imported from
     python_path = os.pathsep.join([root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
-    workers = {}
-    for part in parts:
-        env = dict(os.environ, PYTHONPATH=python_path, CGP_SIM_JIT_ONLY=",".join(part.modules))
-        workers[part.name] = subprocess.Popen(
-            [sys.executable, "-P", "-m", worker_module, "--part", part.name, *worker_args], env=env,
-            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    failed = {}
-    for name, worker in workers.items():
-        output, _ = worker.communicate()
-        if worker.returncode != 0:
-            failed[name] = output
+    workers, failed = {}, {}
+    try:
+        for part in parts:
+            env = dict(os.environ, PYTHONPATH=python_path, CGP_SIM_JIT_ONLY=",".join(part.modules))
+            workers[part.name] = subprocess.Popen(
+                [sys.executable, "-P", "-m", worker_module, "--part", part.name, *worker_args], env=env,
+                stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        for name, worker in workers.items():
+            output, _ = worker.communicate()
+            if worker.returncode != 0:
+                failed[name] = output
+    finally:  # interrupted (Ctrl-C): no worker outlives the caller
+        for worker in workers.values():
+            if worker.poll() is None:
+                worker.kill()
+                worker.wait()
     return failed
 
 

@@ -103,7 +103,12 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     # Right after an install or an edit of the kernels' sources numba has nothing cached: compile the kernels
     # in parallel processes now (about 25 s on 2 cores), not one by one in the first tick (about 40 s).
-    compile_missing_kernels(lambda text: print(f"cgp-sim: {text}", file=sys.stderr, flush=True))
+    try:
+        compile_missing_kernels(lambda text: print(f"cgp-sim: {text}", file=sys.stderr, flush=True))
+    except KeyboardInterrupt:
+        print("cgp-sim: interrupted while compiling the kernels (the next start compiles what is missing)",
+              file=sys.stderr)
+        return 130
     overrides = [Parameter(spec.name, value=getattr(args, spec.name))
                  for spec in itf.PARAMETERS if spec.flag is not None and getattr(args, spec.name) is not None]
 

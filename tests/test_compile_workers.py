@@ -109,3 +109,40 @@ def test_a_node_without_any_compile_cache_has_its_kernels_compiled_in_parallel(s
     assert not saved, "the node compiled kernels itself:\n" + "\n".join(saved)
     assert len(loaded) >= 20, log[-4000:]  # the workers' kernels: the solver's, the contacts', the flock's
     assert (tmp_path / "bag" / "metadata.yaml").exists()
+
+
+def _workers_using(cache: str) -> list[int]:
+    """Live compile workers (``-m cgp_sim_ros.warmup --part``) whose environment names this numba cache."""
+    from pathlib import Path
+
+    found = []
+    for proc in Path("/proc").iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            cmdline = (proc / "cmdline").read_bytes().split(b"\0")
+            environ = (proc / "environ").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if b"cgp_sim_ros.warmup" in cmdline and f"NUMBA_CACHE_DIR={cache}".encode() in environ:
+            found.append(int(proc.name))
+    return found
+
+
+def test_ctrl_c_while_the_kernels_compile_stops_the_node_and_its_workers(start_node, tmp_path):
+    """SIGINT while the workers compile: cgp-sim says so and exits (130), and no worker is left running."""
+    import signal
+    import time
+
+    cache = str(tmp_path / "cache")
+    node = start_node("--scene", "default", "--bag", str(tmp_path / "bag"),
+                      env=dict(os.environ, NUMBA_CACHE_DIR=cache))
+    deadline = time.monotonic() + 60.0
+    while not _workers_using(cache):
+        assert node.alive() and time.monotonic() < deadline, "no compile worker started:\n" + node.log()[-3000:]
+        time.sleep(0.05)
+    node.send(signal.SIGINT)
+    assert node.wait(timeout=30) == 130, node.log()[-3000:]
+    assert "interrupted while compiling the kernels" in node.log()
+    assert _workers_using(cache) == []
+    assert not (tmp_path / "bag").exists()  # it stopped before building the node
