@@ -47,18 +47,19 @@ def warm_up(ticks: int = 24, *, complete: bool = True, flocks: bool = True) -> "
                       "tetromino": (1.8, 2.0, 0.18)}.items():
         if name in names:
             state.position[names.index(name)] = xyz
-    for _ in range(ticks):
-        world.step()
-    for flock in world.flocks:
-        flock.order()  # the order parameters the node publishes every tick
-    if flocks and complete:
-        _warm_up_flock_rules()
-        with parallel_from(0):  # the same again, on the parallel twins
-            for _ in range(ticks):
-                world.step()
-            for flock in world.flocks:
-                flock.order()
+
+    def run() -> None:
+        for _ in range(ticks):
+            world.step()
+        for flock in world.flocks:
+            flock.order()  # the order parameters the node publishes every tick
+        if flocks and complete:
             _warm_up_flock_rules()
+
+    run()
+    if flocks and complete:
+        with parallel_from(0):  # the same again, on the parallel twins
+            run()
     return world
 
 
@@ -172,43 +173,51 @@ def compile_in_parallel(parts: list[CompilePart], worker_module: str, *worker_ar
     return failed
 
 
-def worker_main(part: CompilePart, scenario) -> int:
-    """A compile worker's body: run ``scenario(flocks=part.steps_flocks)`` with the kernels of
-    ``CGP_SIM_JIT_ONLY`` compiled."""
-    from .jit import JIT_ONLY
-
-    if not JIT_ONLY:
-        print(f"compile worker {part.name}: CGP_SIM_JIT_ONLY is not set (workers are started by "
-              "compile_in_parallel)", file=sys.stderr)
-        return 2
-    scenario(flocks=part.steps_flocks)
-    return 0
-
-
-def part_named(parts: tuple[CompilePart, ...], name: str) -> CompilePart:
-    for part in parts:
-        if part.name == name:
-            return part
-    raise SystemExit(f"no compile part {name!r}: one of {', '.join(p.name for p in parts)}")
+def compile_missing(parts: tuple[CompilePart, ...], worker_module: str, log, *worker_args: str) -> None:
+    """Compile, in parallel worker processes (:func:`compile_in_parallel`), the parts whose kernels are not
+    cached yet; ``log(text)`` says what happens (nothing when every part is cached)."""
+    missing = missing_parts(parts)
+    if not missing:
+        return
+    started = time.perf_counter()
+    log(f"compiling the simulation kernels ({', '.join(p.name for p in missing)}: no compile cache for them yet, "
+        f"as at the first start after an install or an edit) in {len(missing)} processes …")
+    failed = compile_in_parallel(missing, worker_module, *worker_args)
+    for name, output in failed.items():
+        tail = "\n".join(output.strip().splitlines()[-20:])
+        log(f"the {name} compile worker failed (its kernels compile at first use instead):\n{tail}")
+    log(f"kernels compiled in {time.perf_counter() - started:.1f} s")
 
 
-def _main(argv: list[str]) -> int:
+def main(argv: list[str], *, name: str, parts: tuple[CompilePart, ...], worker_module: str, scenario) -> int:
+    """The warm-up command, ``python -m <worker_module>``: compile the missing parts in parallel, then run
+    ``scenario()`` (every kernel: it loads what the workers compiled and compiles anything they did not).
+    With ``--part`` it is one of those workers: it runs ``scenario(complete=..., flocks=...)`` with only the
+    part's modules compiled (``CGP_SIM_JIT_ONLY``, set by :func:`compile_in_parallel`)."""
     import argparse
 
-    parser = argparse.ArgumentParser(prog="python -m cgp_core.warmup", description=__doc__.splitlines()[0])
-    parser.add_argument("--part", help="run as the compile worker of this part (set by compile_in_parallel)")
+    from .jit import JIT_ONLY
+
+    parser = argparse.ArgumentParser(prog=f"python -m {worker_module}", description=__doc__.splitlines()[0])
+    parser.add_argument("--part", choices=[p.name for p in parts],
+                        help="run as the compile worker of this part (set by compile_in_parallel)")
+    parser.add_argument("--default-scene", action="store_true",
+                        help="only the kernels the default scene runs (not issue 14's flock rules, not the "
+                             "parallel twins for big flocks)")
     args = parser.parse_args(argv)
     if args.part:
-        return worker_main(part_named(PARTS, args.part), warm_up)
+        if not JIT_ONLY:
+            parser.error("CGP_SIM_JIT_ONLY is not set (workers are started by compile_in_parallel)")
+        part = next(p for p in parts if p.name == args.part)
+        scenario(complete=not args.default_scene, flocks=part.steps_flocks)
+        return 0
     started = time.perf_counter()
-    failed = compile_in_parallel(missing_parts(), "cgp_core.warmup")
-    for name, output in failed.items():
-        print(f"cgp_core.warmup: the {name} compile worker failed; its kernels compile here:\n{output}",
-              file=sys.stderr)
-    warm_up()  # loads what the workers compiled (and compiles anything they did not)
-    print(f"cgp_core.warmup: compiled kernels ready in {time.perf_counter() - started:.1f} s")
+    compile_missing(parts, worker_module, lambda text: print(f"{name}: {text}", file=sys.stderr, flush=True))
+    scenario(complete=not args.default_scene)
+    print(f"{name}: simulation kernels compiled and cached ({time.perf_counter() - started:.1f} s)")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(_main(sys.argv[1:]))
+    sys.exit(main(sys.argv[1:], name="cgp_core.warmup", parts=PARTS, worker_module="cgp_core.warmup",
+                  scenario=warm_up))

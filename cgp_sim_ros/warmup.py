@@ -14,17 +14,15 @@ sources — so that it does not compile them one after the other, on one core, i
 
 from __future__ import annotations
 
-import argparse
 import sys
-import time
 
-from cgp_core.warmup import PARTS as CORE_PARTS
-from cgp_core.warmup import CompilePart, compile_in_parallel, missing_parts, part_named, worker_main
+from cgp_core import warmup as core
+from cgp_core.warmup import CompilePart
 
 #: cgp_core's parts, the flock's with the node's marker kernels (fish triangles, sphere lists) added
 PARTS: tuple[CompilePart, ...] = tuple(
     CompilePart(p.name, p.modules + ("cgp_sim_ros.shapes",), p.sentinels + ("cgp_sim_ros.shapes:_fish_vertices",))
-    if p.name == "flock" else p for p in CORE_PARTS)
+    if p.name == "flock" else p for p in core.PARTS)
 
 
 def scenario(complete: bool = True, flocks: bool = True) -> None:
@@ -58,36 +56,12 @@ def compile_missing_kernels(log) -> None:
     """Compile, in parallel, the parts of the default scene's kernels that are not cached yet; ``log(text)``
     says what happens.  The kernels the default scene does not use (issue 14's flock rules, the parallel twins
     for big flocks) are left to compile on first use: they would lengthen the flock worker's share."""
-    parts = missing_parts(PARTS)
-    if not parts:
-        return
-    started = time.perf_counter()
-    log(f"compiling the simulation kernels ({', '.join(p.name for p in parts)}: no compile cache for them yet, "
-        f"as at the first start after an install or an edit) in {len(parts)} processes …")
-    failed = compile_in_parallel(parts, "cgp_sim_ros.warmup", "--default-scene")
-    for name, output in failed.items():
-        tail = "\n".join(output.strip().splitlines()[-20:])
-        log(f"the {name} compile worker failed (its kernels compile at first use instead):\n{tail}")
-    log(f"kernels compiled in {time.perf_counter() - started:.1f} s")
+    core.compile_missing(PARTS, "cgp_sim_ros.warmup", log, "--default-scene")
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m cgp_sim_ros.warmup", description=__doc__.splitlines()[0])
-    parser.add_argument("--part", help="run as the compile worker of this part (set by compile_in_parallel)")
-    parser.add_argument("--default-scene", action="store_true",
-                        help="only the kernels the default scene runs (not issue 14's flock rules, not the "
-                             "parallel twins for big flocks)")
-    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
-    if args.part:
-        return worker_main(part_named(PARTS, args.part),
-                           lambda flocks: scenario(complete=not args.default_scene, flocks=flocks))
-    started = time.perf_counter()
-    failed = compile_in_parallel(missing_parts(PARTS), "cgp_sim_ros.warmup")
-    for name, output in failed.items():
-        print(f"cgp_sim: the {name} compile worker failed; its kernels compile here:\n{output}", file=sys.stderr)
-    scenario()  # loads what the workers compiled (and compiles anything they did not)
-    print(f"cgp_sim: simulation kernels compiled and cached ({time.perf_counter() - started:.1f} s)")
-    return 0
+    return core.main(sys.argv[1:] if argv is None else argv, name="cgp_sim", parts=PARTS,
+                     worker_module="cgp_sim_ros.warmup", scenario=scenario)
 
 
 if __name__ == "__main__":
