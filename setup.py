@@ -37,7 +37,8 @@ setup(
     ],
     # ROS packages (rclpy, *_msgs) are not listed: they come from apt on a ROS install and from
     # requirements/ros.txt (PyPI wheels) in the venv; package.xml declares them for rosdep.
-    install_requires=["numpy>=1.26", "scipy>=1.11", "numba>=0.60", "PyYAML>=6.0", "mcap>=1.2", "zstandard>=0.22",
+    # tbb: numba's work-stealing thread pool (cgp_core/jit.py); without it numba falls back to OpenMP
+    install_requires=["numpy>=1.26", "scipy>=1.11", "numba>=0.60", "tbb>=2021.6", "PyYAML>=6.0", "mcap>=1.2", "zstandard>=0.22",
                       "lz4>=4.3", "pillow>=10", "foxglove-sdk>=0.30.3,<0.31"],
     extras_require={
         "test": ["pytest>=8", "pytest-timeout>=2.3", "mcap-ros2-support>=0.5", "rosbags>=0.10", "psutil>=5.9",

@@ -23,11 +23,17 @@ Settings, and why:
   runs (:class:`ParallelKernel`): compiling a loop for the pool costs half again as much as compiling it plain
   (measured: the default scene's flock kernels, 9 s serial and 14 s parallel), and a small flock never needs
   the pool.  Each iteration writes only its own outputs and no floating-point value is reduced across
-  iterations, so the results do not depend on the number of threads.  With the OpenMP pool, idle workers are
-  told to sleep (``OMP_WAIT_POLICY=PASSIVE``) instead of spinning for a while after every kernel: on a
-  2-core machine the spinning worker took the core the bag writer and the DDS threads need (measured: twice
-  the CPU time per flock step, and a slower tick).  Only the node's tick thread launches parallel kernels
-  (numba's fallback ``workqueue`` pool is not safe to enter from two threads at once).
+  iterations, so the results do not depend on the number of threads.  The pool is Intel TBB's
+  (``requirements/python.txt`` installs it; numba takes TBB first when it is there): TBB splits a loop into
+  many chunks and an idle thread *steals* the chunks another has not started.  OpenMP, numba's next choice,
+  gives each thread a fixed half, and on a 2-core machine the node's other threads (the bag writer, DDS)
+  regularly delay one half: the kernel then waits for it while the other core idles (measured on the 15k-fish
+  tick, three alternating runs each: p99 / tick CPU 1.5-1.9 with TBB against 1.7-2.3 with OpenMP).  With the
+  OpenMP pool, idle workers are told to sleep (``OMP_WAIT_POLICY=PASSIVE``) instead of spinning for a while
+  after every kernel: on a 2-core machine the spinning worker took the core the bag writer and the DDS
+  threads need (measured: twice the CPU time per flock step, and a slower tick).  Only the node's tick thread
+  launches parallel kernels (numba's fallback ``workqueue`` pool is not safe to enter from two threads at
+  once).
 
 Compiling in parallel (:mod:`cgp_core.warmup`): numba compiles one kernel at a time, on one core, about 40 s
 for the default scene's kernels when no cache exists.  :func:`cgp_core.warmup.compile_in_parallel` splits
@@ -127,6 +133,12 @@ def parallel_from(items: int):
         PARALLEL_MIN_ITEMS = previous
 
 
+def pool_size() -> int:
+    """How many threads a parallel kernel called now runs on: 1 where :func:`threads_for` picked the serial
+    twins, else numba's thread count (for kernels that split their work into one part per thread)."""
+    return 1 if _calling.serial or JIT_DISABLED else numba.get_num_threads()
+
+
 @contextmanager
 def threads_for(items: int):
     """Run the parallel kernels called inside on all of numba's threads, or as their serial twins for fewer
@@ -144,5 +156,5 @@ def threads_for(items: int):
             numba.set_num_threads(previous[1])
 
 
-__all__ = ["JIT_DISABLED", "JIT_ONLY", "PARALLEL_MIN_ITEMS", "ParallelKernel", "njit", "parallel_from", "prange",
-           "threads_for"]
+__all__ = ["JIT_DISABLED", "JIT_ONLY", "PARALLEL_MIN_ITEMS", "ParallelKernel", "njit", "parallel_from", "pool_size",
+           "prange", "threads_for"]

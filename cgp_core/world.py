@@ -386,7 +386,7 @@ class World:
                 raise EditError("invalid_pose", "initial_pose.orientation: a flock has no orientation (the boids "
                                 "have their own); give the identity (0, 0, 0, 1)")
             self.flocks = [*self.flocks, Flock(spec)]
-            self._flock_mean_velocity_start.append(np.mean(self.flocks[-1].velocities, axis=0))
+            self._flock_mean_velocity_start.append(self.flocks[-1].mean_velocity())
         else:
             if self.body_model.count + 1 > MAX_BODIES:
                 raise EditError("not_possible", f"the world has {self.body_model.count} bodies, the most it "
@@ -441,7 +441,7 @@ class World:
         inside them (:class:`EditError` ``not_possible`` otherwise)."""
         flock = self._flock(name)
         target = check_vector(position, "pose.position")
-        offset = target - flock.positions.mean(axis=0)
+        offset = target - flock.centroid()
         p = flock.params
         if p.bounds_mode != "none":
             low, high = flock.positions.min(axis=0) + offset, flock.positions.max(axis=0) + offset
@@ -456,9 +456,9 @@ class World:
         if self.entity_kind(name) == "flock":
             index = next(k for k, f in enumerate(self.flocks) if f.params.name == name)
             flock = self.flocks[index]
-            v = flock.velocities.mean(axis=0)
+            v = flock.mean_velocity()
             zero = np.zeros(3)
-            return EntityState("flock", flock.positions.mean(axis=0), np.array([0.0, 0.0, 0.0, 1.0]), v, zero,
+            return EntityState("flock", flock.centroid(), np.array([0.0, 0.0, 0.0, 1.0]), v, zero,
                                (v - self._flock_mean_velocity_start[index]) / self.dt, zero.copy())
         i = self._body_index(name)
         model, state = self.body_model, self.body_state
@@ -545,7 +545,7 @@ class World:
         reports (Δv / dt over the last tick); the flocks' mean velocities likewise."""
         state = self.body_state
         self._body_start = (state.linear_momentum.copy(), state.angular_momentum.copy(), state.orientation.copy())
-        self._flock_mean_velocity_start = [flock.velocities.mean(axis=0) for flock in getattr(self, "flocks", [])]
+        self._flock_mean_velocity_start = [flock.mean_velocity() for flock in getattr(self, "flocks", [])]
 
     # ---- views for publishers -------------------------------------------------------------------------
 

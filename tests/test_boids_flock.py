@@ -198,6 +198,18 @@ def test_obstacles_from_bodies_covers_every_shape():
     reference = _signed_distances(model, state, points)
     near = np.minimum(reference.min(axis=1), points[:, 2])
     assert set(np.unique(hits.point)) == set(np.flatnonzero(near < 0.7))
+    # every hit is one (point, shape) pair within reach, in point order, with that pair's distance: the
+    # bodies' (the particle set: each particle sphere's, column 3 is their minimum) and the ground's
+    assert np.all(np.diff(hits.point) >= 0) and np.all(hits.distance < 0.7)
+    particles = state.position[3] + np.array(OBSTACLE_COURSE[3][5])[:, :3] @ R.T
+    for point, distance in zip(hits.point, hits.distance):
+        p = points[point]
+        candidates = np.concatenate([reference[point, [0, 1, 2, 4]], np.linalg.norm(particles - p, axis=1) - 0.5, [p[2]]])
+        assert np.min(np.abs(candidates - distance)) < 1e-9
+    per_point = np.bincount(hits.point, minlength=len(points))
+    expected = ((reference[:, [0, 1, 2, 4]] < 0.7).sum(axis=1) + (np.linalg.norm(points[:, None] - particles, axis=2) - 0.5
+                                                        < 0.7).sum(axis=1) + (points[:, 2] < 0.7))
+    np.testing.assert_array_equal(per_point, expected)
 
 
 def test_compiled_point_shape_distances_are_geometry_pys():

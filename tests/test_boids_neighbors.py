@@ -119,6 +119,39 @@ def test_a_clump_gets_exactly_sized_rows():
     np.testing.assert_array_equal(again.pairs(), BruteForceSearch().neighbors(points + 0.01, 1.0).pairs())
 
 
+def test_completed_rows_do_not_depend_on_how_many_parts_append_them():
+    """The grid's last stage appends each half-shell pair to the other boid's row, split into one part per
+    thread by receiving row.  Whatever the number of parts, every row must be what one sequential walk gives:
+    its own forward entries, then each earlier-walked slot that listed it, in slot order — including forward
+    entries that point to *earlier* slots (a periodic box wraps the last columns onto the first) — and a row
+    without room must be reported for every split."""
+    from cgp_core.boids.neighbors import _complete_rows
+
+    rng = np.random.default_rng(21)
+    n = 400
+    forward = rng.integers(0, 9, n)
+    forward_index = np.concatenate([rng.choice(np.delete(np.arange(n), s), size=k, replace=False)
+                                    for s, k in enumerate(forward)]).astype(np.int32)
+    forward_start = np.concatenate([[0], np.cumsum(forward)[:-1]]).astype(np.int64)
+    # the reference, written from the definition
+    rows = [list(forward_index[forward_start[s]:forward_start[s] + forward[s]]) for s in range(n)]
+    for s in range(n):
+        for t in forward_index[forward_start[s]:forward_start[s] + forward[s]]:
+            rows[t].append(s)
+    room = np.full(n, max(len(r) for r in rows), np.int64)
+    start = np.arange(n, dtype=np.int64) * room[0]
+    for parts in (1, 2, 3, 7):
+        count = np.empty(n, np.int64)
+        index = np.full(n * room[0], -1, np.int32)
+        assert _complete_rows(forward_start, forward, forward_index, start, room, count, index, parts)
+        got = [list(index[start[s]:start[s] + count[s]]) for s in range(n)]
+        assert got == rows, f"{parts} parts"
+        tight = room.copy()
+        tight[int(np.argmax([len(r) for r in rows]))] -= 1  # one row one entry short
+        assert not _complete_rows(forward_start, forward, forward_index, start, tight, np.empty(n, np.int64),
+                                  np.full(n * room[0], -1, np.int32), parts), f"{parts} parts: overflow unseen"
+
+
 @pytest.mark.parametrize("box", [[9.0, 7.0, 6.0], [4.5, 30.0, 5.0]])
 def test_periodic_boxes_give_the_minimum_image_neighbourhoods(box):
     """Every backend in a periodic box == brute force with the minimum-image convention (the second box has

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..jit import njit, prange
+from ..jit import njit, pool_size, prange
 
 # Relative slack on the search radius when *enumerating candidates* (never for membership): covers the tree's
 # own rounding of the distances it compares.
@@ -437,28 +437,39 @@ def _forward_neighbors(relative, sorted_positions, edge, dims, period, dense, ta
         forward[s] = found
 
 
-@njit
-def _complete_rows(forward_start, forward, forward_index, start, room, count, index):
+@njit(parallel=True)
+def _complete_rows(forward_start, forward, forward_index, start, room, count, index, parts):
     """Full rows from the half-shell ones: slot s's row ``index[start[s] :]`` gets s's forward entries (from
     ``forward_index[forward_start[s] :]``; nothing to copy when the two are the same place) and every s' < s
-    that has s among its forward entries.  Sequential, in slot order: the rows it appends to are nearby ones
-    (later slots, spatially close).  ``count`` = the full rows' lengths.  Returns False if a row needed more
-    than ``room[s]`` entries (then the rows are incomplete)."""
+    that has s among its forward entries, in ascending s'.  ``count`` = the full rows' lengths.  Returns False
+    if a row needed more than ``room[s]`` entries (then the rows are incomplete).
+
+    The appending is split into ``parts`` (one per thread) by the *receiving* row: part k walks every forward
+    entry in slot order and appends only to the rows of its range of slots.  Each row is appended to by one
+    part, in the same order as a single sequential walk, so the rows do not depend on ``parts``; every part
+    reads all the entries (a sequential read) but writes only its share (the scattered writes are the cost)."""
     n = forward.shape[0]
     in_place = forward_index is index
-    for s in range(n):
+    for s in prange(n):
         count[s] = forward[s]
         if not in_place:
             for k in range(forward[s]):
                 index[start[s] + k] = forward_index[forward_start[s] + k]
-    for s in range(n):
-        for k in range(forward_start[s], forward_start[s] + forward[s]):
-            t = forward_index[k]
-            if count[t] >= room[t]:
-                return False
-            index[start[t] + count[t]] = s
-            count[t] += 1
-    return True
+    fits = np.ones(parts, np.bool_)
+    for part in prange(parts):
+        low, high = n * part // parts, n * (part + 1) // parts
+        for s in range(n):
+            for k in range(forward_start[s], forward_start[s] + forward[s]):
+                t = forward_index[k]
+                if low <= t < high:
+                    if count[t] >= room[t]:
+                        fits[part] = False
+                        break
+                    index[start[t] + count[t]] = s
+                    count[t] += 1
+            if not fits[part]:
+                break
+    return fits.all()
 
 
 @njit
@@ -590,7 +601,7 @@ class GridSearch:
             start, room = self._uniform_layout(n)
             _forward_neighbors(*grid, start, room - 1, forward, self._index)
             if forward.max() < self._capacity - 1 and _complete_rows(start, forward, self._index, start, room, count,
-                                                                     self._index):
+                                                                     self._index, pool_size()):
                 return NeighborList(order, start, count, self._index)
             self._capacity = int(1.5 * self._capacity) + 8  # a flock denser than ever: more room, once more
         result = self._exact(grid, order, forward, count)
@@ -625,7 +636,7 @@ class GridSearch:
         start = np.zeros(n, np.int64)
         np.cumsum(full[:-1], out=start[1:])
         index = np.empty(int(full.sum()), np.int32)
-        if not _complete_rows(forward_start, forward, forward_index, start, full, count, index):
+        if not _complete_rows(forward_start, forward, forward_index, start, full, count, index, pool_size()):
             raise AssertionError("exact neighbour rows overflowed")  # pragma: no cover - sized exactly
         return NeighborList(order, start, count, index)
 

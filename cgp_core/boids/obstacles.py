@@ -148,16 +148,20 @@ class Obstacles:
         ground_height = float(self.ground_height) if ground else 0.0
         counts = np.empty(n, np.int64)
         no_hits = (np.zeros(0, np.int64), np.zeros(0), np.zeros((3, 0)))
-        args = (rows, float(reach), low, cell, dims, table, shape_ids, kind, center, rotation, half, radius, grown,
-                ground, ground_height)
-        _point_hits(False, *args, counts, *no_hits)
-        total = int(counts.sum())
-        if total == 0:
+        args = (float(reach), low, cell, dims, table, shape_ids, kind, center, rotation, half, radius, grown, ground,
+                ground_height)
+        _point_hits(False, rows, np.arange(0), *args, counts, *no_hits)  # count, for every point
+        # write, for the points that hit something: usually a few hundred of thousands of boids, so a second
+        # pass over all of them would cost as much as the first
+        hitting = np.flatnonzero(counts)
+        if len(hitting) == 0:
             return ObstacleHits(*no_hits)
-        start = np.zeros(n, np.int64)
+        counts = counts[hitting]
+        start = np.zeros(len(hitting), np.int64)
         np.cumsum(counts[:-1], out=start[1:])
+        total = int(start[-1] + counts[-1])
         hits = ObstacleHits(np.empty(total, np.int64), np.empty(total), np.empty((3, total)))
-        _point_hits(True, *args, start, hits.point, hits.distance, hits.normal)
+        _point_hits(True, rows, hitting, *args, start, hits.point, hits.distance, hits.normal)
         return hits
 
     def _packed(self):
@@ -281,11 +285,13 @@ def _bin_shapes(center, grown, low, cell, dims):
 
 
 @njit(parallel=True)
-def _point_hits(fill, points, reach, low, cell, dims, table, shape_ids, kind, center, rotation, half, radius,
-                grown, ground, ground_height, counts_or_start, hit_point, hit_distance, hit_normal):
+def _point_hits(fill, points, selected, reach, low, cell, dims, table, shape_ids, kind, center, rotation, half,
+                radius, grown, ground, ground_height, counts_or_start, hit_point, hit_distance, hit_normal):
     """Per point, the shapes of its cell within ``reach`` and the ground plane z = ``ground_height`` (if
-    ``ground``): counted (``fill`` False) or written from ``counts_or_start[i]`` on (``fill`` True)."""
-    for i in prange(points.shape[0]):
+    ``ground``): counted for every point into ``counts_or_start[i]`` (``fill`` False), or, for the points
+    ``selected[q]`` (``fill`` True), written from ``counts_or_start[q]`` on."""
+    for q in prange(selected.shape[0] if fill else points.shape[0]):
+        i = selected[q] if fill else q
         px, py, pz = points[i, 0], points[i, 1], points[i, 2]
         cx = min(int((px - low[0]) / cell), dims[0] - 1)
         cy = min(int((py - low[1]) / cell), dims[1] - 1)
@@ -313,10 +319,10 @@ def _point_hits(fill, points, reach, low, cell, dims, table, shape_ids, kind, ce
                 if d >= reach:
                     continue
             if fill:
-                slot = counts_or_start[i] + found
+                slot = counts_or_start[q] + found
                 hit_point[slot] = i
                 hit_distance[slot] = d
                 hit_normal[0, slot], hit_normal[1, slot], hit_normal[2, slot] = nx, ny, nz
             found += 1
         if not fill:
-            counts_or_start[i] = found
+            counts_or_start[q] = found
