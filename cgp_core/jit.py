@@ -50,6 +50,7 @@ import functools
 import os
 import threading
 import types
+import warnings
 from contextlib import contextmanager
 
 # Before numba loads its OpenMP thread pool (at the first parallel kernel); a user's own setting wins.
@@ -133,6 +134,17 @@ def parallel_from(items: int):
         PARALLEL_MIN_ITEMS = previous
 
 
+def refuse_unparallelized_kernels() -> None:
+    """From now on in this process, a ``parallel=True`` kernel that numba compiles without any parallel loop
+    is an error instead of a warning (``NumbaPerformanceWarning``: "no transformation for parallel execution
+    was possible").  numba gives up on a ``prange`` it cannot split (e.g. ``prange(a if c else b)``) and
+    compiles a plain loop: the kernel is then silently one core's.  The warm-up (``make setup``, the compile
+    workers) calls this, so such a kernel fails the set-up — and CI — instead of slowing every big flock."""
+    warnings.filterwarnings("error", message=r"\s*The keyword argument 'parallel=True' was specified but no "
+                            r"transformation for parallel execution was possible",
+                            category=numba.NumbaPerformanceWarning)
+
+
 def pool_size() -> int:
     """How many threads a parallel kernel called now runs on: 1 where :func:`threads_for` picked the serial
     twins, else numba's thread count (for kernels that split their work into one part per thread)."""
@@ -157,4 +169,4 @@ def threads_for(items: int):
 
 
 __all__ = ["JIT_DISABLED", "JIT_ONLY", "PARALLEL_MIN_ITEMS", "ParallelKernel", "njit", "parallel_from", "pool_size",
-           "prange", "threads_for"]
+           "prange", "refuse_unparallelized_kernels", "threads_for"]

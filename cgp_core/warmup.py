@@ -196,8 +196,9 @@ def main(argv: list[str], *, name: str, parts: tuple[CompilePart, ...], worker_m
     part's modules compiled (``CGP_SIM_JIT_ONLY``, set by :func:`compile_in_parallel`)."""
     import argparse
 
-    from .jit import JIT_ONLY
+    from .jit import JIT_ONLY, refuse_unparallelized_kernels
 
+    refuse_unparallelized_kernels()
     parser = argparse.ArgumentParser(prog=f"python -m {worker_module}", description=__doc__.splitlines()[0])
     parser.add_argument("--part", choices=[p.name for p in parts],
                         help="run as the compile worker of this part (set by compile_in_parallel)")

@@ -93,6 +93,51 @@ def test_a_parallel_kernel_and_its_serial_twin_agree_and_have_caches_of_their_ow
     assert np.load(tmp_path / "r2.npy")[2].tobytes() == picked.tobytes()
 
 
+UNSPLITTABLE = r"""
+import sys
+import numpy as np
+from cgp_core.jit import njit, prange, refuse_unparallelized_kernels, threads_for
+
+if sys.argv[1] == "strict":
+    refuse_unparallelized_kernels()
+
+@njit(parallel=True)
+def splittable(x, out):
+    for i in prange(x.shape[0]):
+        out[i] = 2.0 * x[i]
+
+@njit(parallel=True)
+def unsplittable(x, out, half):
+    for i in prange(x.shape[0] // 2 if half else x.shape[0]):  # numba cannot split this range
+        out[i] = 2.0 * x[i]
+
+x = np.arange(5000.0)
+out = np.zeros_like(x)
+with threads_for(len(x)):
+    splittable(x, out)
+    print("splittable compiled", flush=True)
+    unsplittable(x, out, False)
+print("unsplittable compiled")
+"""
+
+
+def test_the_warm_up_refuses_a_parallel_kernel_numba_could_not_parallelize(tmp_path):
+    """A ``prange`` numba cannot split compiles to a plain loop with only a warning: the kernel would quietly
+    run on one core.  Where the warm-up runs (make setup, the compile workers) that is an error."""
+    script = tmp_path / "unsplittable.py"
+    script.write_text(UNSPLITTABLE)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    lenient = subprocess.run([sys.executable, str(script), "lenient"], env=env, capture_output=True, text=True,
+                             timeout=120)
+    assert lenient.returncode == 0 and "unsplittable compiled" in lenient.stdout, lenient.stderr[-2000:]
+    assert "no transformation for parallel execution was possible" in lenient.stderr
+    strict = subprocess.run([sys.executable, str(script), "strict"], env=dict(env, NUMBA_CACHE_DIR=str(
+        tmp_path / "cache2")), capture_output=True, text=True, timeout=120)
+    assert strict.returncode != 0 and "splittable compiled" in strict.stdout, strict.stderr[-2000:]
+    assert "unsplittable compiled" not in strict.stdout
+    assert "no transformation for parallel execution was possible" in strict.stderr
+
+
 def test_a_node_without_any_compile_cache_has_its_kernels_compiled_in_parallel(start_node, tmp_path):
     """`cgp-sim` on the default scene with an empty numba cache: it has the compile workers compile the
     default scene's kernels (solver, contacts, flock), and then finds every kernel it runs in the cache —

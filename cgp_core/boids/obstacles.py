@@ -290,8 +290,9 @@ def _point_hits(fill, points, selected, reach, low, cell, dims, table, shape_ids
     """Per point, the shapes of its cell within ``reach`` and the ground plane z = ``ground_height`` (if
     ``ground``): counted for every point into ``counts_or_start[i]`` (``fill`` False), or, for the points
     ``selected[q]`` (``fill`` True), written from ``counts_or_start[q]`` on."""
-    for q in prange(selected.shape[0] if fill else points.shape[0]):
-        i = selected[q] if fill else q
+    items = selected.shape[0] if fill else points.shape[0]
+    for q in prange(items):
+        i = selected[q] if fill else np.int64(q)  # (a prange index is unsigned: one integer type for both)
         px, py, pz = points[i, 0], points[i, 1], points[i, 2]
         cx = min(int((px - low[0]) / cell), dims[0] - 1)
         cy = min(int((py - low[1]) / cell), dims[1] - 1)
