@@ -315,6 +315,14 @@ def run(quick: bool = False, first_s: float = 20.0, next_s: float = 60.0, sphere
 
     out.data["fish"] = fish
     out.data["sphere"] = sphere
+    import numba
+
+    # which thread pool ran the flock's parallel kernels (TBB when installed, else OpenMP: cgp_core/jit.py), and
+    # the GIL switch interval the node set
+    out.data["numba_threading_layer"] = numba.threading_layer()
+    out.data["gil_switch_interval_s"] = sys.getswitchinterval()
+    print(f"  numba thread pool: {out.data['numba_threading_layer']}, {numba.get_num_threads()} threads; GIL switch "
+          f"interval {sys.getswitchinterval() * 1e3:g} ms")
     first, later = (fish["windows"][label] for label, _ in windows)
     out.figure("tick_15k_fish_p99_first", f"15k fish + 20 bodies, recorded: tick p99, first {first_s:g} s (bodies "
                f"falling)", first["p99"], "ms", f"<= {TARGET_MS:.1f}", first["p99"] <= TARGET_MS, issue12=True,

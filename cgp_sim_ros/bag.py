@@ -73,6 +73,7 @@ import atexit
 import os
 import queue
 import re
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -237,6 +238,15 @@ class BagWriter:
         on_error: called once, with a message, on the first error (from the writer thread or the caller).
         custom_data: ``custom_data`` of metadata.yaml (str -> str).
         ros_distro: ``ros_distro`` of metadata.yaml.
+        writer_nice: how much lower the writer thread's CPU priority is than the caller's (Linux ``nice``
+            increment for that thread alone; 0: the same).  The writer has slack — a bounded queue, and the
+            idle core during the caller's serial Python — while the simulation's compiled kernels want both
+            cores for a few milliseconds at a time: a writer that takes a core then (lz4 on a 1 MB chunk,
+            ~2 ms) makes the kernel wait for its delayed half.  A lower priority lets the kernels have the
+            cores when they run and the writer catch up in between; nothing is lost (``on_queue_full``).
+            Measured on the 15k-fish tick (three alternating runs each): p99 / tick CPU 1.46-1.70 at 10
+            against 1.63-1.71 at 0 — within this machine's run-to-run noise — and the bag kept up (queue at
+            most 3.6 MB, nothing dropped).
     """
 
     def __init__(self, path, *, compression: str = "lz4", chunk_size: int = 1024 * 1024,
@@ -244,7 +254,7 @@ class BagWriter:
                  max_queue_bytes: int = 256 * 1024 * 1024, on_queue_full: str = "block",
                  block_timeout_s: float = 10.0, sync_interval_s: float | None = 1.0,
                  on_error: Callable[[str], None] | None = None, custom_data: dict | None = None,
-                 ros_distro: str = "jazzy") -> None:
+                 ros_distro: str = "jazzy", writer_nice: int = 10) -> None:
         if compression not in COMPRESSIONS:
             raise ValueError(f"compression={compression!r}: expected one of {sorted(COMPRESSIONS)}")
         if on_queue_full not in _QUEUE_POLICIES:
@@ -286,6 +296,7 @@ class BagWriter:
         self._on_error = on_error
         self._custom_data = dict(custom_data or {})
         self._ros_distro = ros_distro
+        self._writer_nice = int(writer_nice)
 
         # Caller-side state (only the caller thread writes these).
         self._topics: dict[str, _Topic] = {}
@@ -658,6 +669,7 @@ class BagWriter:
         # caller's first put of each tick, which costs that write() ~35 µs (futex wake-up and GIL hand-over,
         # measured); polling every _POLL_S keeps every write() at ~1 µs and delays the bag by a few ms.  A caller
         # that knows when its burst of writes is over says so with wake() (once per tick).
+        self._lower_priority()
         get = self._queue.get_nowait
         while True:
             try:
@@ -687,6 +699,18 @@ class BagWriter:
             finally:
                 if type(item) is not tuple:
                     item.done.set()
+
+    def _lower_priority(self) -> None:
+        """This (the writer) thread's nice value raised by ``writer_nice`` (see the constructor).  Linux only:
+        there a thread is a task with its own nice value (``setpriority`` on its thread id); elsewhere the same
+        call would lower the whole process."""
+        if self._writer_nice <= 0 or not sys.platform.startswith("linux"):
+            return
+        thread = threading.get_native_id()
+        try:
+            os.setpriority(os.PRIO_PROCESS, thread, os.getpriority(os.PRIO_PROCESS, thread) + self._writer_nice)
+        except OSError:  # not permitted (a sandbox): the writer keeps the caller's priority
+            pass
 
     def _guard(self, action, doing: str, *args) -> None:
         try:

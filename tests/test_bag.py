@@ -224,6 +224,34 @@ def test_metadata_exists_from_the_start_and_lists_topics(tmp_path):
     assert [g[:2] for g in read_rosbags(tmp_path / "early")[0]] == [("/clock", 5)]
 
 
+def _nice(thread_id: int) -> int:
+    """A thread's nice value, as the kernel reports it (/proc/<pid>/task/<tid>/stat, field 19)."""
+    stat = Path(f"/proc/self/task/{thread_id}/stat").read_text()
+    return int(stat.rsplit(")", 1)[1].split()[16])
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread nice values are Linux's")
+def test_the_writer_thread_runs_at_a_lower_priority_than_the_caller_and_loses_nothing(tmp_path):
+    """The writer thread yields the cores to the simulation (nice + writer_nice, its own thread only: the
+    caller keeps its priority) and still writes every message."""
+    import threading
+
+    caller = _nice(threading.get_native_id())
+    bag = BagWriter(tmp_path / "low")
+    other = BagWriter(tmp_path / "same", writer_nice=0)
+    for writer in (bag, other):
+        writer.add_topic("/clock", "rosgraph_msgs/msg/Clock")
+        for k in range(50):
+            writer.write("/clock", cdr.clock(k), k)
+        assert writer.flush(timeout=5)
+    assert _nice(bag._thread.native_id) == min(caller + 10, 19)
+    assert _nice(other._thread.native_id) == caller
+    assert _nice(threading.get_native_id()) == caller
+    bag.close()
+    other.close()
+    assert [g[1] for g in read_rosbags(tmp_path / "low")[0]] == list(range(50))
+
+
 def test_topic_added_mid_recording_is_in_metadata_yaml_from_the_next_commit(tmp_path):
     """A topic added while recording (a spawned body) is listed by metadata.yaml, with its committed message
     count, while the recording goes on — without a flush or close (the writer no longer rewrites the file per
