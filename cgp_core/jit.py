@@ -23,12 +23,15 @@ Settings, and why:
   runs (:class:`ParallelKernel`): compiling a loop for the pool costs half again as much as compiling it plain
   (measured: the default scene's flock kernels, 9 s serial and 14 s parallel), and a small flock never needs
   the pool.  Each iteration writes only its own outputs and no floating-point value is reduced across
-  iterations, so the results do not depend on the number of threads.  The pool is Intel TBB's
-  (``requirements/python.txt`` installs it; numba takes TBB first when it is there): TBB splits a loop into
-  many chunks and an idle thread *steals* the chunks another has not started.  OpenMP, numba's next choice,
-  gives each thread a fixed half, and on a 2-core machine the node's other threads (the bag writer, DDS)
-  regularly delay one half: the kernel then waits for it while the other core idles (measured on the 15k-fish
-  tick, three alternating runs each: p99 / tick CPU 1.5-1.9 with TBB against 1.7-2.3 with OpenMP).  With the
+  iterations, so the results do not depend on the number of threads.  By default numba cuts a parallel loop
+  into one chunk per thread; a thread that the node's other threads (the bag writer, DDS) delay on a 2-core
+  machine then holds up the whole kernel while the other core idles.  :func:`threads_for` therefore cuts it
+  into chunks of :data:`PARALLEL_CHUNK` iterations (~15 at 15k boids), and the pool is Intel TBB's
+  (``requirements/python.txt`` installs it; numba takes TBB first when it is there), which hands the chunks
+  out as threads become free: the delayed thread's chunks are taken by the other (measured on the 15k-fish
+  tick, three alternating runs each: p99 / tick CPU 1.5-1.9 with TBB against 1.7-2.3 with OpenMP, one chunk
+  per thread both; then with TBB, chunks of 1024 against one per thread: 1.41-1.65 against 1.44-1.85, the
+  worst run's p99 21 ms against 26 ms — gains of the size of this machine's run-to-run noise).  With the
   OpenMP pool, idle workers are told to sleep (``OMP_WAIT_POLICY=PASSIVE``) instead of spinning for a while
   after every kernel: on a 2-core machine the spinning worker took the core the bag writer and the DDS
   threads need (measured: twice the CPU time per flock step, and a slower tick).  Only the node's tick thread
@@ -151,22 +154,31 @@ def pool_size() -> int:
     return 1 if _calling.serial or JIT_DISABLED else numba.get_num_threads()
 
 
+#: iterations per chunk of a parallel loop run inside :func:`threads_for` (see the module docstring): small
+#: enough that a delayed thread's share is taken over, large enough that handing chunks out costs nothing
+#: measurable (~15 chunks for 15k boids)
+PARALLEL_CHUNK = 1024
+
+
 @contextmanager
 def threads_for(items: int):
-    """Run the parallel kernels called inside on all of numba's threads, or as their serial twins for fewer
-    than :data:`PARALLEL_MIN_ITEMS` items (per calling thread; the previous setting is restored)."""
-    serial = items < PARALLEL_MIN_ITEMS
+    """Run the parallel kernels called inside on all of numba's threads, in chunks of :data:`PARALLEL_CHUNK`
+    iterations, or as their serial twins for fewer than :data:`PARALLEL_MIN_ITEMS` items (per calling thread;
+    the previous settings are restored)."""
+    serial = items < PARALLEL_MIN_ITEMS or JIT_DISABLED
     previous = _calling.serial, numba.get_num_threads()
     _calling.serial = serial
     if not serial:
         numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        previous_chunk = numba.set_parallel_chunksize(PARALLEL_CHUNK)
     try:
         yield
     finally:
         _calling.serial = previous[0]
         if not serial:
             numba.set_num_threads(previous[1])
+            numba.set_parallel_chunksize(previous_chunk)
 
 
-__all__ = ["JIT_DISABLED", "JIT_ONLY", "PARALLEL_MIN_ITEMS", "ParallelKernel", "njit", "parallel_from", "pool_size",
-           "prange", "refuse_unparallelized_kernels", "threads_for"]
+__all__ = ["JIT_DISABLED", "JIT_ONLY", "PARALLEL_CHUNK", "PARALLEL_MIN_ITEMS", "ParallelKernel", "njit",
+           "parallel_from", "pool_size", "prange", "refuse_unparallelized_kernels", "threads_for"]

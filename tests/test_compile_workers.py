@@ -93,6 +93,28 @@ def test_a_parallel_kernel_and_its_serial_twin_agree_and_have_caches_of_their_ow
     assert np.load(tmp_path / "r2.npy")[2].tobytes() == picked.tobytes()
 
 
+def test_big_parallel_loops_are_handed_out_in_chunks_and_the_settings_come_back():
+    """Inside threads_for for a big flock, parallel loops are cut into PARALLEL_CHUNK-iteration chunks (so a
+    delayed thread's share is taken over), on every thread; a small flock runs the serial twins and changes
+    nothing; afterwards the caller's own settings are back."""
+    import numba
+
+    from cgp_core.jit import PARALLEL_CHUNK, PARALLEL_MIN_ITEMS, threads_for
+
+    numba.set_num_threads(1)
+    before = numba.set_parallel_chunksize(7)
+    try:
+        with threads_for(PARALLEL_MIN_ITEMS):
+            assert numba.get_parallel_chunksize() == PARALLEL_CHUNK
+            assert numba.get_num_threads() == numba.config.NUMBA_NUM_THREADS
+        assert numba.get_parallel_chunksize() == 7 and numba.get_num_threads() == 1
+        with threads_for(PARALLEL_MIN_ITEMS - 1):
+            assert numba.get_parallel_chunksize() == 7 and numba.get_num_threads() == 1
+    finally:
+        numba.set_parallel_chunksize(before)
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+
+
 UNSPLITTABLE = r"""
 import sys
 import numpy as np
