@@ -53,7 +53,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 
-from common import Results, format_figures  # noqa: E402
+from common import GcWatch, Results, format_figures  # noqa: E402
 
 TARGET_RATE_HZ = 59.5
 TARGET_WARM_S = 5.0
@@ -74,16 +74,7 @@ def child(out_path: str, seconds: float, no_freeze: bool, argv: list[str]) -> in
     from cgp_sim_ros.node import SimNode
 
     callbacks, starts, ends = [], [], []
-    gcs = {"count": [0, 0, 0], "longest_ms": 0.0, "total_ms": 0.0, "_t": 0.0}
-
-    def gc_callback(phase, info):
-        if phase == "start":
-            gcs["_t"] = time.perf_counter()
-        else:
-            ms = (time.perf_counter() - gcs["_t"]) * 1e3
-            gcs["count"][info["generation"]] += 1
-            gcs["longest_ms"] = max(gcs["longest_ms"], ms)
-            gcs["total_ms"] += ms
+    gc_watch = GcWatch()  # installed at the first tick
 
     original_on_timer, original_tick = SimNode._on_timer, SimNode.tick
 
@@ -99,13 +90,13 @@ def child(out_path: str, seconds: float, no_freeze: bool, argv: list[str]) -> in
             starts.append(start)
             ends.append(time.perf_counter())
             if len(starts) == 1:
-                gc.callbacks.append(gc_callback)
+                gc.callbacks.append(gc_watch)
                 threading.Timer(seconds, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
 
     SimNode._on_timer, SimNode.tick = on_timer, tick
     status = cli.main(["cgp-sim", *argv])
     Path(out_path).write_text(json.dumps({
-        "status": status, "callbacks": callbacks, "starts": starts, "ends": ends, "gc": gcs,
+        "status": status, "callbacks": callbacks, "starts": starts, "ends": ends, "gc": gc_watch.as_dict(),
         "process_start_to_first_tick_s": (starts[0] - _PROCESS_START_PERF) if starts else None}))
     return 0
 

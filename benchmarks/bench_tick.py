@@ -39,7 +39,6 @@ afterwards) bags somewhere other than the system temp directory.
 from __future__ import annotations
 
 import argparse
-import gc
 import json
 import os
 import random
@@ -62,7 +61,7 @@ if "CGP_SIM_BENCH_DOMAIN" not in os.environ:
     os.environ["CGP_SIM_BENCH_DOMAIN"] = str(random.Random(os.getpid() ^ time.time_ns()).randint(1, 101))
 os.environ["ROS_DOMAIN_ID"] = os.environ["CGP_SIM_BENCH_DOMAIN"]
 
-from common import RESULTS, Results, format_figures  # noqa: E402
+from common import RESULTS, GcWatch, Results, format_figures  # noqa: E402
 
 SCENE = Path(__file__).resolve().parent / "scenes" / "tick_15k_fish.yaml"
 TARGET_MS = 1e3 / 60.0
@@ -125,32 +124,6 @@ def thread_cpu_s(native_id: int | None) -> float:
     except OSError:
         return 0.0
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-class GcWatch:
-    """Python's garbage collections while it is installed: how many per generation, and the longest."""
-
-    def __init__(self):
-        self.count = [0, 0, 0]
-        self.longest_ms = 0.0
-        self.total_ms = 0.0
-        self._start = 0.0
-
-    def __call__(self, phase, info):
-        if phase == "start":
-            self._start = time.perf_counter()
-        else:
-            ms = (time.perf_counter() - self._start) * 1e3
-            self.count[info["generation"]] += 1
-            self.longest_ms = max(self.longest_ms, ms)
-            self.total_ms += ms
-
-    def __enter__(self):
-        gc.callbacks.append(self)
-        return self
-
-    def __exit__(self, *exc):
-        gc.callbacks.remove(self)
 
 
 def make_node(scene: Path, bag_dir: Path, name: str):

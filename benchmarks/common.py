@@ -14,6 +14,7 @@ target for (the others are supporting figures: budget splits, references).  ``ru
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import platform
@@ -156,3 +157,32 @@ def speed_probe(repeats: int = 5) -> dict:
         python_ms.append((t2 - t1) * 1e3)
     return {"numpy_ms": round(float(np.median(numpy_ms[1:])), 2),
             "python_ms": round(float(np.median(python_ms[1:])), 2)}
+
+
+class GcWatch:
+    """Python's garbage collections while it is installed: how many per generation, and the longest."""
+
+    def __init__(self):
+        self.count = [0, 0, 0]
+        self.longest_ms = 0.0
+        self.total_ms = 0.0
+        self._start = 0.0
+
+    def __call__(self, phase, info):
+        if phase == "start":
+            self._start = time.perf_counter()
+        else:
+            ms = (time.perf_counter() - self._start) * 1e3
+            self.count[info["generation"]] += 1
+            self.longest_ms = max(self.longest_ms, ms)
+            self.total_ms += ms
+
+    def __enter__(self):
+        gc.callbacks.append(self)
+        return self
+
+    def __exit__(self, *exc):
+        gc.callbacks.remove(self)
+
+    def as_dict(self) -> dict:
+        return {"count": list(self.count), "longest_ms": self.longest_ms, "total_ms": self.total_ms}

@@ -30,6 +30,7 @@ Bad input (what a node on a shared graph must expect):
 from __future__ import annotations
 
 import collections
+import copy
 import gc
 import json
 import math
@@ -195,6 +196,7 @@ class SimNode(Node):
                if self.recorder.recording else f", NOT recording (the bag {str(self.bag_path)!r} cannot be "
                "written: see the error above)"))
         self.get_logger().info("level of detail: " + " ".join(self.detail.lines))
+        self._load_kernels()
         self._freeze_startup_objects()
         self._share_the_gil_finely()
 
@@ -375,6 +377,25 @@ class SimNode(Node):
                                      custom_data=self._detail_custom_data())
         except BagExistsError as exc:  # created between the check in __init__ and now
             raise ConfigError(f"bag: {exc}") from None
+
+    def _load_kernels(self) -> None:
+        """Have the compiled kernels the first tick runs loaded before it.  numba loads a kernel from its
+        on-disk cache at the kernel's first call, ~9 ms each: the default scene's first tick took ~170 ms
+        (24 kernels), ten 60 Hz periods of a real-time run lost at its start.  A throwaway copy of the world
+        takes one tick here and its messages are built (every marker part) and dropped: nothing is published,
+        the world itself is untouched.  Whatever fails here fails again, and is reported, in the real tick."""
+        world = copy.deepcopy(self.world)
+        try:
+            world.step()
+            messages = TickMessages(world, itf.WORLD_FRAME, self.detail)
+            t = world.time_ns
+            for build in (messages.clock, messages.body_poses, messages.body_odometry, messages.flock_poses,
+                          messages.flock_stats):
+                build(t)
+            messages.markers(t, delete_all_first=True, tick=world.ticks)
+            BodyTransforms(world, itf.WORLD_FRAME).dynamic(t)
+        except Exception as exc:  # noqa: BLE001 - the real first tick reports it
+            self.get_logger().debug(f"loading the kernels before the first tick: {exc!r}")
 
     @staticmethod
     def _freeze_startup_objects() -> None:
