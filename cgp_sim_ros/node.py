@@ -387,13 +387,9 @@ class SimNode(Node):
         world = copy.deepcopy(self.world)
         try:
             world.step()
-            messages = TickMessages(world, itf.WORLD_FRAME, self.detail)
-            t = world.time_ns
-            for build in (messages.clock, messages.body_poses, messages.body_odometry, messages.flock_poses,
-                          messages.flock_stats):
-                build(t)
-            messages.markers(t, delete_all_first=True, tick=world.ticks)
-            BodyTransforms(world, itf.WORLD_FRAME).dynamic(t)
+            for _ in self._tick_messages(world, TickMessages(world, itf.WORLD_FRAME, self.detail),
+                                         BodyTransforms(world, itf.WORLD_FRAME), delete_all_markers=True):
+                pass  # built, not published
         except Exception as exc:  # noqa: BLE001 - the real first tick reports it
             self.get_logger().debug(f"loading the kernels before the first tick: {exc!r}")
 
@@ -479,26 +475,35 @@ class SimNode(Node):
 
     def _publish_state(self) -> None:
         t = self.world.time_ns
-        m = self.messages
-        self._out(self.pub_clock, m.clock(t), t)
-        self._out(self.pub_body_poses, m.body_poses(t), t)
-        for pub, data in zip(self.pub_odom, m.body_odometry(t)):
-            self._out(pub, data, t)
-        record_poses = self.world.ticks % self.detail.flock_poses_every == 0  # the data: published every tick
-        for pub, data in zip(self.pub_flock_poses, m.flock_poses(t)):
-            self._out(pub, data, t, record=record_poses)
-        for pub, data in zip(self.pub_flock_stats, m.flock_stats(t)):  # tiny: recorded on every tick
-            self._out(pub, data, t)
-        tf = self.tf.dynamic(t)
-        if tf is not None:
-            self._out(self.pub_tf, tf, t)
-        if self.world.ticks == 1:
-            self._publish_static_tf()  # the first: whatever changed before it is in it
+        for publisher, data, record in self._tick_messages(self.world, self.messages, self.tf,
+                                                           self._delete_all_markers):
+            self._out(publisher, data, t, record=record)
+        self._delete_all_markers = False
+
+    def _tick_messages(self, world, messages: TickMessages, tf: BodyTransforms, delete_all_markers: bool):
+        """What a tick publishes, in publishing order, as ``(publisher, CDR bytes, recorded?)``, each built as
+        the caller takes it, from ``world`` by ``messages`` and ``tf``: the node's own every tick
+        (:meth:`_publish_state`), a throwaway copy's once before the first (:meth:`_load_kernels`)."""
+        t = world.time_ns
+        yield self.pub_clock, messages.clock(t), True
+        yield self.pub_body_poses, messages.body_poses(t), True
+        for pub, data in zip(self.pub_odom, messages.body_odometry(t)):
+            yield pub, data, True
+        record_poses = world.ticks % self.detail.flock_poses_every == 0  # the data: published every tick
+        for pub, data in zip(self.pub_flock_poses, messages.flock_poses(t)):
+            yield pub, data, record_poses
+        for pub, data in zip(self.pub_flock_stats, messages.flock_stats(t)):  # tiny: recorded on every tick
+            yield pub, data, True
+        dynamic = tf.dynamic(t)
+        if dynamic is not None:
+            yield self.pub_tf, dynamic, True
+        if world.ticks == 1:  # the first /tf_static (later ones: _publish_static_tf): what changed before it
+            static = tf.static_if_changed(t)
+            if static is not None:
+                yield self.pub_tf_static, static, True
         # every tick: ground, bodies and one part of each flock's marker (a flock is redrawn every
         # markers_every ticks, part by part: cgp_sim_ros/messages.py)
-        self._out(self.pub_markers, m.markers(t, delete_all_first=self._delete_all_markers, tick=self.world.ticks),
-                  t)
-        self._delete_all_markers = False
+        yield self.pub_markers, messages.markers(t, delete_all_first=delete_all_markers, tick=world.ticks), True
 
     def _show_progress(self, final: bool = False) -> None:
         line, status = self._progress
