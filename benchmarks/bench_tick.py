@@ -29,6 +29,10 @@ Reported:
   not in it);
 - the bag writer thread's CPU time per tick (it runs beside the tick, sharing the cores and the GIL), its
   largest backlog and dropped messages; Python's garbage collections during the run and the longest;
+- the same run timer-driven, as ``make run`` runs a scene (``realtime`` true: the node's own 60 Hz timer, spun
+  by an executor; the tick timed around the same ``node.tick()``): p99 per window and the achieved rate — issue
+  12 asks for the timer-driven figures too (a tick that sleeps between ticks can run slower than back to back);
+  here the bag writer works between the ticks (``BagWriter.hold``), back to back it works beside them;
 - the same scene with ``model: sphere`` over its first 20 s, for reference (issue 12 measured 27 ms there).
 
 Writes ``benchmarks/results/tick.json``.  Run alone: ``.venv/bin/python benchmarks/bench_tick.py``
@@ -126,14 +130,43 @@ def thread_cpu_s(native_id: int | None) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def make_node(scene: Path, bag_dir: Path, name: str):
+def make_node(scene: Path, bag_dir: Path, name: str, realtime: bool = False):
     from rclpy.parameter import Parameter
 
     from cgp_sim_ros.node import SimNode
 
     return SimNode(node_name=name, parameter_overrides=[
         Parameter("scene", value=str(scene)), Parameter("bag", value=str(bag_dir)),
-        Parameter("realtime", value=False)])
+        Parameter("realtime", value=realtime)])
+
+
+class TimedTicks:
+    """Times ``node.tick()`` however it is called — by this script back to back (batch) or by the node's own
+    60 Hz timer (real time: ``node.tick`` is shadowed on the instance, which the timer callback calls) — into
+    preallocated arrays: wall time, the tick thread's CPU time, the split (``TickTimer``), bodies awake, and
+    when the tick started (for the achieved rate)."""
+
+    def __init__(self, node, timer: TickTimer, total: int):
+        self.node, self.timer, self.total, self.done = node, timer, total, 0
+        self.ticks_ms, self.cpu_ms = np.empty(total), np.empty(total)
+        self.split_ms = np.empty((total, len(STAGES)))
+        self.awake = np.zeros(total, bool)
+        self.starts = np.empty(total)
+        self._tick = node.tick
+
+    def __call__(self) -> None:
+        if self.done >= self.total:  # real time: the timer may fire once more before the loop sees we are done
+            return self._tick()
+        k = self.done
+        self.awake[k] = not self.node.world.bodies_asleep
+        start, start_cpu = time.perf_counter(), time.thread_time()
+        self._tick()
+        elapsed = time.perf_counter() - start
+        self.starts[k] = start
+        self.ticks_ms[k] = elapsed * 1e3
+        self.cpu_ms[k] = (time.thread_time() - start_cpu) * 1e3
+        self.split_ms[k] = np.array(self.timer.take(elapsed)) * 1e3
+        self.done += 1
 
 
 def window_stats(ms: np.ndarray) -> dict:
@@ -141,30 +174,34 @@ def window_stats(ms: np.ndarray) -> dict:
             "p99": float(np.percentile(ms, 99)), "max": float(ms.max()), "mean": float(ms.mean())}
 
 
-def run_scene(scene: Path, bag_dir: Path, windows: list[tuple[str, int]], name: str) -> dict:
-    """Tick the node from its first tick through the windows ``[(label, ticks), ...]``; close the bag; return
-    tick statistics per window, the split, the bag's size and what the writer thread did."""
-    node = make_node(scene, bag_dir, name)
+def run_scene(scene: Path, bag_dir: Path, windows: list[tuple[str, int]], name: str,
+              realtime: bool = False) -> dict:
+    """Tick the node from its first tick through the windows ``[(label, ticks), ...]`` — back to back
+    (``realtime`` False: this loop calls ``node.tick()``) or as ``make run`` does (True: the node's 60 Hz timer,
+    spun by an executor); close the bag; return tick statistics per window, the split, the bag's size and what
+    the writer thread did."""
+    import rclpy
+
+    node = make_node(scene, bag_dir, name, realtime=realtime)
     timer = TickTimer(node)
     timer.install()
     writer = node.recorder.writer
     writer_tid = writer._thread.native_id if writer._thread is not None else None
     total = sum(ticks for _, ticks in windows)
-    ticks_ms = np.empty(total)
-    cpu_ms = np.empty(total)  # the tick thread's own CPU time (not the numba worker's, nor the bag writer's)
-    split_ms = np.empty((total, len(STAGES)))
-    awake = np.zeros(total, bool)
+    timed = TimedTicks(node, timer, total)
     cpu0, wall0, writer_cpu0 = time.process_time(), time.perf_counter(), thread_cpu_s(writer_tid)
     try:
         with GcWatch() as gc_watch:
-            for k in range(total):
-                awake[k] = not node.world.bodies_asleep
-                start, start_cpu = time.perf_counter(), time.thread_time()
-                node.tick()
-                elapsed = time.perf_counter() - start
-                ticks_ms[k] = elapsed * 1e3
-                cpu_ms[k] = (time.thread_time() - start_cpu) * 1e3
-                split_ms[k] = np.array(timer.take(elapsed)) * 1e3
+            if realtime:
+                node.tick = timed  # the timer callback calls self.tick()
+                executor = rclpy.executors.SingleThreadedExecutor()
+                executor.add_node(node)
+                while timed.done < total:
+                    executor.spin_once(timeout_sec=0.1)
+                executor.remove_node(node)
+            else:
+                while timed.done < total:
+                    timed()
         wall = time.perf_counter() - wall0
         cpu = time.process_time() - cpu0
         writer_cpu = thread_cpu_s(writer_tid) - writer_cpu0
@@ -177,7 +214,10 @@ def run_scene(scene: Path, bag_dir: Path, windows: list[tuple[str, int]], name: 
         node.close()  # finishes the bag: summary, metadata.yaml
         node.destroy_node()
     bag_bytes = sum(p.stat().st_size for p in bag_dir.iterdir() if p.is_file())
-    out = {"scene": str(scene.relative_to(ROOT)) if scene.is_relative_to(ROOT) else scene.name, "boids": boids, "ticks": total, "sim_seconds": sim_seconds,
+    ticks_ms, cpu_ms, split_ms, awake = timed.ticks_ms, timed.cpu_ms, timed.split_ms, timed.awake
+    out = {"scene": str(scene.relative_to(ROOT)) if scene.is_relative_to(ROOT) else scene.name, "boids": boids,
+           "mode": "real time (the node's 60 Hz timer)" if realtime else "back to back", "ticks": total,
+           "sim_seconds": sim_seconds,
            "windows": {}, "neighbors_per_boid_at_end": neighbors, "process_cpu_cores": cpu / wall,
            "bag_MB": bag_bytes / 1e6, "bag_MB_per_sim_second": bag_bytes / 1e6 / sim_seconds,
            "bag_payload_MB_per_sim_second": payload / 1e6 / sim_seconds,
@@ -191,6 +231,8 @@ def run_scene(scene: Path, bag_dir: Path, windows: list[tuple[str, int]], name: 
         part = slice(first, first + ticks)
         stats = window_stats(ticks_ms[part])
         stats["bodies_awake_fraction"] = float(awake[part].mean())
+        starts = timed.starts[part]
+        stats["achieved_hz"] = float((len(starts) - 1) / (starts[-1] - starts[0])) if len(starts) > 1 else None
         stats["tick_thread_cpu_ms"] = {"median": float(np.median(cpu_ms[part])),
                                        "p99": float(np.percentile(cpu_ms[part], 99))}
         stats["split_median_ms"] = dict(zip(STAGES, np.median(split_ms[part], axis=0).tolist()))
@@ -272,6 +314,11 @@ def run(quick: bool = False, first_s: float = 20.0, next_s: float = 60.0, sphere
               f"time (ROS_DOMAIN_ID {os.environ['ROS_DOMAIN_ID']}, bag in {root})", flush=True)
         fish = run_scene(SCENE, root / "fish", windows, "cgp_sim_bench_fish")
         fish["fish_in_bag"] = fish_in_bag(root / "fish")
+        shutil.rmtree(root / "fish", ignore_errors=True)
+        print(f"the same, timer-driven at 60 Hz in real time (as make run runs a scene): {first_s:g} s + {next_s:g} s "
+              "...", flush=True)
+        realtime = run_scene(SCENE, root / "fish_realtime", windows, "cgp_sim_bench_fish_rt", realtime=True)
+        shutil.rmtree(root / "fish_realtime", ignore_errors=True)
         sphere = None
         if sphere_s > 0:
             raw = yaml.safe_load(SCENE.read_text())
@@ -287,6 +334,7 @@ def run(quick: bool = False, first_s: float = 20.0, next_s: float = 60.0, sphere
         shutil.rmtree(root, ignore_errors=True)
 
     out.data["fish"] = fish
+    out.data["fish_realtime"] = realtime
     out.data["sphere"] = sphere
     import numba
 
@@ -303,6 +351,13 @@ def run(quick: bool = False, first_s: float = 20.0, next_s: float = 60.0, sphere
     out.figure("tick_15k_fish_p99_next", f"15k fish + 20 bodies, recorded: tick p99, next {next_s:g} s",
                later["p99"], "ms", f"<= {TARGET_MS:.1f}", later["p99"] <= TARGET_MS, issue12=True,
                median=later["median"], max=later["max"])
+    rt_first, rt_later = (realtime["windows"][label] for label, _ in windows)
+    out.figure("tick_15k_fish_rt_p99_first", f"  the same in real time (60 Hz timer): tick p99, first {first_s:g} s",
+               rt_first["p99"], "ms", f"<= {TARGET_MS:.1f}", rt_first["p99"] <= TARGET_MS, issue12=True,
+               median=rt_first["median"], max=rt_first["max"], achieved_hz=rt_first["achieved_hz"])
+    out.figure("tick_15k_fish_rt_p99_next", f"  the same in real time (60 Hz timer): tick p99, next {next_s:g} s",
+               rt_later["p99"], "ms", f"<= {TARGET_MS:.1f}", rt_later["p99"] <= TARGET_MS, issue12=True,
+               median=rt_later["median"], max=rt_later["max"], achieved_hz=rt_later["achieved_hz"])
     out.figure("bag_15k_fish_MB_per_s", "15k fish run: bag growth per simulated second", fish["bag_MB_per_sim_second"],
                "MB/s", f"<= {TARGET_BAG_MB_PER_S:g}", fish["bag_MB_per_sim_second"] <= TARGET_BAG_MB_PER_S,
                issue12=True)
@@ -322,13 +377,16 @@ def run(quick: bool = False, first_s: float = 20.0, next_s: float = 60.0, sphere
     path = out.write()
 
     print()
-    for label, stats in fish["windows"].items():
-        print(f"  {label}: tick median {stats['median']:.2f} ms, p90 {stats['p90']:.2f}, p99 {stats['p99']:.2f}, max "
+    for label, stats in [(f"{fish['mode']}, {k}", v) for k, v in fish["windows"].items()] + \
+            [(f"{realtime['mode']}, {k}", v) for k, v in realtime["windows"].items()]:
+        print(f"  {label}: achieved {stats['achieved_hz']:.1f} Hz, tick median {stats['median']:.2f} ms, p90 {stats['p90']:.2f}, p99 {stats['p99']:.2f}, max "
               f"{stats['max']:.2f}; bodies awake {100 * stats['bodies_awake_fraction']:.0f} % of ticks; tick thread "
               f"CPU median {stats['tick_thread_cpu_ms']['median']:.2f} ms, p99 {stats['tick_thread_cpu_ms']['p99']:.2f}")
         for stage in STAGES:
             print(f"    {stage:44} median {stats['split_median_ms'][stage]:6.2f}  p99 "
                   f"{stats['split_p99_ms'][stage]:6.2f}  slowest 1 %: {stats['split_of_slowest_1pct_ms'][stage]:6.2f}")
+    print(f"  real time: writer thread {realtime['bag_writer_cpu_ms_per_tick']:.2f} ms CPU per tick, backlog max "
+          f"{realtime['bag_backlog_max_MB']:.1f} MB, dropped {realtime['bag_dropped_messages']}")
     print(f"  bag: {fish['bag_MB']:.0f} MB for {fish['sim_seconds']:.0f} s = {fish['bag_MB_per_sim_second']:.1f} MB per "
           f"simulated second (payload {fish['bag_payload_MB_per_sim_second']:.1f} MB/s); writer thread "
           f"{fish['bag_writer_cpu_ms_per_tick']:.2f} ms CPU per tick, backlog max {fish['bag_backlog_max_MB']:.1f} MB, "

@@ -452,6 +452,10 @@ class SimNode(Node):
     def tick(self) -> None:
         """One simulation tick: commands in, step, everything out."""
         start = time.perf_counter()
+        if self.recorder is not None and self.params["realtime"]:
+            # the bag writer works between real-time ticks, not in them (back to back there is no "between":
+            # it works beside the ticks)
+            self.recorder.begin_tick()
         self._apply_pending_commands()
         self.world.step()
         for event in self.world.take_events():

@@ -51,6 +51,11 @@ class Recorder:
     def write(self, topic: str, data: bytes, stamp_ns: int) -> None:
         self.writer.write(topic, data, stamp_ns, stamp_ns)
 
+    def begin_tick(self) -> None:
+        """A real-time tick starts: the writer thread leaves the cores to it until :meth:`end_tick`
+        (BagWriter.hold: bounded, so a bag never falls behind for it)."""
+        self.writer.hold()
+
     def end_tick(self) -> None:
         """The tick's messages are all written: the writer thread may take them now (BagWriter.wake)."""
         self.writer.wake()

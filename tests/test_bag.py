@@ -252,6 +252,51 @@ def test_the_writer_thread_runs_at_a_lower_priority_than_the_caller_and_loses_no
     assert [g[1] for g in read_rosbags(tmp_path / "low")[0]] == list(range(50))
 
 
+def _wait_until(condition, timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.005)
+    return True
+
+
+def test_a_held_writer_takes_nothing_until_woken_within_its_bounds(tmp_path, monkeypatch):
+    """hold(): the writer thread leaves the queue alone while a real-time tick runs — it polls every 5 ms, so
+    0.2 s held with nothing taken shows the hold — and takes it all after wake().  Bounded: with hold_bytes
+    waiting it works anyway, a flush is never held, and neither is a hold its caller never ended."""
+    from cgp_sim_ros import bag as bag_module
+
+    payload = cdr.pose_array(0, "w", np.zeros((17, 3)), np.zeros((17, 4)))  # 980 B
+    bag = BagWriter(tmp_path / "held", hold_bytes=5_000)
+    bag.add_topic("/x", "geometry_msgs/msg/PoseArray")
+    assert bag.flush(timeout=5)
+
+    bag.hold()
+    for k in range(4):  # 3.9 kB: under hold_bytes
+        bag.write("/x", payload, k)
+    time.sleep(0.2)
+    assert bag._drained_bytes == 0  # nothing taken while held
+    bag.wake()
+    assert _wait_until(lambda: bag._drained_bytes == 4 * len(payload))
+
+    bag.hold()  # past hold_bytes: the writer works beside the caller
+    for k in range(4, 14):  # 9.8 kB
+        bag.write("/x", payload, k)
+    assert _wait_until(lambda: bag._enqueued_bytes - bag._drained_bytes < 5_000)
+    assert bag._held_since is not None  # still held
+    bag.write("/x", payload, 14)
+    assert bag.flush(timeout=5)  # a flush is not held: everything so far is written
+    assert bag._drained_bytes == 15 * len(payload)
+
+    monkeypatch.setattr(bag_module, "_HOLD_MAX_S", 0.05)
+    bag.hold()  # never woken: after 0.05 s the hold no longer applies
+    bag.write("/x", payload, 15)
+    assert _wait_until(lambda: bag._drained_bytes == 16 * len(payload))
+    bag.close()
+    assert [ts for _, ts, _, _ in read_rosbags(tmp_path / "held")[0]] == list(range(16))
+
+
 def test_topic_added_mid_recording_is_in_metadata_yaml_from_the_next_commit(tmp_path):
     """A topic added while recording (a spawned body) is listed by metadata.yaml, with its committed message
     count, while the recording goes on — without a flush or close (the writer no longer rewrites the file per
