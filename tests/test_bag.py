@@ -297,6 +297,78 @@ def test_a_held_writer_takes_nothing_until_woken_within_its_bounds(tmp_path, mon
     assert [ts for _, ts, _, _ in read_rosbags(tmp_path / "held")[0]] == list(range(16))
 
 
+def _metadata_count(bag_dir: Path) -> int:
+    info = yaml.safe_load((bag_dir / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    return info["message_count"]
+
+
+def test_the_periodic_fsync_runs_beside_the_writer_and_metadata_never_counts_ahead(tmp_path, monkeypatch):
+    """The fsync every sync_interval_s runs on the bag's sync thread: while it takes its time (0.3 s here)
+    the writer thread goes on committing what comes in.  The metadata.yaml that sync stores describes the
+    state it was asked to fsync (no more messages than the file had then); at close, every message."""
+    import threading
+
+    real_fsync = os.fsync
+    synced: list[tuple[str, int]] = []  # (thread, messages committed to the file when its fsync began)
+    slow_sync_running = threading.Event()
+    bag = BagWriter(tmp_path / "bg", chunk_size=512, sync_interval_s=0.0)  # a sync due at every commit
+
+    def fsync(fd):
+        name = threading.current_thread().name
+        if name.startswith("bag-sync"):
+            synced.append((name, bag._committed_messages))
+            slow_sync_running.set()
+            time.sleep(0.3)
+            slow_sync_running.clear()
+        return real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    bag.add_topic("/clock", "rosgraph_msgs/msg/Clock")
+    k = 0
+    while not slow_sync_running.is_set():  # commits until the first background sync has begun
+        assert k < 10_000
+        bag.write("/clock", cdr.clock(k), k)
+        k += 1
+        time.sleep(0.001)
+    committed_at_start = bag._committed_messages
+    for _ in range(60):  # 60 more messages (> 512 B of chunks) while that fsync sleeps
+        bag.write("/clock", cdr.clock(k), k)
+        k += 1
+    assert _wait_until(lambda: bag._committed_messages >= committed_at_start + 50, timeout=0.25)
+    assert slow_sync_running.is_set()  # ... all committed while the fsync was still running
+    assert _wait_until(lambda: not slow_sync_running.is_set())
+    assert _metadata_count(tmp_path / "bg") <= synced[0][1]  # what that sync stored: no more than it synced
+    bag.close()
+    assert {name for name, _ in synced} == {"bag-sync:bg"}
+    assert _metadata_count(tmp_path / "bg") == k
+    assert [ts for _, ts, _, _ in read_rosbags(tmp_path / "bg")[0]] == list(range(k))
+
+
+def test_a_failing_background_fsync_is_reported_and_the_bag_keeps_what_was_committed(tmp_path, monkeypatch):
+    real_fsync = os.fsync
+    errors = []
+
+    def fsync(fd):
+        import threading
+
+        if threading.current_thread().name.startswith("bag-sync"):
+            raise OSError(5, "Input/output error")
+        return real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    bag = BagWriter(tmp_path / "eio", chunk_size=256, sync_interval_s=0.0, on_error=errors.append)
+    bag.add_topic("/clock", "rosgraph_msgs/msg/Clock")
+    for k in range(200):
+        if not bag.write("/clock", cdr.clock(k), k):
+            break
+        time.sleep(0.001)
+    assert _wait_until(lambda: bag.error is not None)
+    bag.close()
+    assert len(errors) == 1 and "syncing" in errors[0] and "Input/output error" in errors[0]
+    got = [ts for _, ts, _, _ in read_rosbags(tmp_path / "eio")[0]]
+    assert got == list(range(len(got)))  # what was committed, in order, readable
+
+
 def test_topic_added_mid_recording_is_in_metadata_yaml_from_the_next_commit(tmp_path):
     """A topic added while recording (a spawned body) is listed by metadata.yaml, with its committed message
     count, while the recording goes on — without a flush or close (the writer no longer rewrites the file per
