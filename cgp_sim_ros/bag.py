@@ -633,12 +633,12 @@ class BagWriter:
         self._housekeeping_due = True  # done by the writer loop, between the caller's ticks (_housekeep)
 
     def _housekeep(self) -> None:
-        """After commits: fsync (every ``sync_interval_s``) and metadata.yaml (with it, or every second without
-        sync, or when a topic was added).  The writer loop calls it only while the caller does not hold the
-        writer (:meth:`hold`): an fsync takes ~14 ms (~2 ms of it CPU, in the kernel) and metadata.yaml ~2 ms of
-        Python holding the GIL, once a second — done inside a 15k-fish tick they were what its slowest ticks
-        were made of (measured: the slowest 2 % of ticks had ~4.5 ms of the writer's work inside them against
-        0.3 ms on average)."""
+        """After commits: the fsync every ``sync_interval_s`` (handed to the sync thread with its metadata.yaml:
+        :meth:`_sync_in_background`), or metadata.yaml alone (every second without sync, or when a topic was
+        added: ~2 ms of Python holding the GIL).  The writer loop calls it only while the caller does not hold
+        the writer (:meth:`hold`).  Done inside the commit, as before, the fsync (~14 ms, ~2 ms of it CPU in the
+        kernel) and metadata.yaml were what the 15k-fish scene's slowest real-time ticks were made of: the
+        slowest 2 % of ticks had ~4.5 ms of the writer's work inside them against 0.3 ms on average."""
         self._housekeeping_due = False
         now = time.monotonic()
         if self._sync_interval is not None and now - self._last_sync >= self._sync_interval:
@@ -735,8 +735,9 @@ class BagWriter:
         """Writer thread: have the sync thread fsync the file as committed now, then store (and fsync) the
         metadata.yaml of that state — so a metadata.yaml on disk never counts messages its file may lack.  An
         fsync takes ~14 ms here (the kernel writes a second of recording out), during which a writer that did it
-        itself took no messages, and caught up inside the caller's next tick (measured on the 15k-fish scene:
-        tick p99 at 60 Hz 15.0-18.4 ms with the fsync on the writer thread, 13.8-15.1 ms without any fsync)."""
+        itself took no messages, and caught up inside the caller's next tick.  Measured on the 15k-fish scene at
+        60 Hz in real time, alternating runs: tick p99 15.0-18.4 ms with the fsync on the writer thread,
+        13.2-15.6 ms on the sync thread, 13.6-15.5 ms with no fsync at all."""
         if self._sync_thread is None:
             self._sync_thread = threading.Thread(target=self._run_syncs, name=f"bag-sync:{self._name}", daemon=True)
             self._sync_thread.start()
