@@ -246,6 +246,23 @@ def _keep_within(positions, pairs, radius2, period, keep):
         keep[k] = squared_length(dx, dy, dz) < radius2
 
 
+def kd_tree(positions: np.ndarray, period: np.ndarray, who: str):
+    """``(tree, points)``: scipy's ``cKDTree`` over ``positions`` (N, 3) and the points it holds.  In a box
+    periodic along every axis (``period`` > 0) the tree gets ``boxsize=period``, which wants coordinates in
+    [0, L): the points are shifted by the lower corner and the rounding at L is folded back to 0.  A box
+    periodic along some axes only is refused (``who`` names the caller in the error)."""
+    from scipy.spatial import cKDTree  # here, not at import: scipy.spatial takes ~0.3 s to load
+
+    periodic = period > 0.0
+    if np.any(periodic) and not np.all(periodic):
+        raise ValueError(f"{who} handles a box periodic along every axis or none")
+    if np.all(periodic):
+        points = np.mod(positions - positions.min(axis=0), period)
+        points[points >= period] = 0.0
+        return cKDTree(points, boxsize=period), points
+    return cKDTree(positions), positions
+
+
 class KDTreeSearch:
     """scipy ``cKDTree.query_pairs`` (``boxsize`` for periodic boxes) with a slightly larger radius, then the
     shared membership test; the pairs become rows in ascending index."""
@@ -256,24 +273,11 @@ class KDTreeSearch:
         pass
 
     def neighbors(self, positions: np.ndarray, radius: float, period=None) -> NeighborList:
-        from scipy.spatial import cKDTree  # here, not at import: scipy.spatial takes ~0.3 s to load
-
         period = _check(positions, radius, period)
         n = len(positions)
         if n < 2:
             return _empty(n)
-        periodic = period > 0.0
-        if np.any(periodic) and not np.all(periodic):
-            raise ValueError("KDTreeSearch handles a box periodic along every axis or none")
-        if np.all(periodic):
-            # cKDTree wants coordinates in [0, L): shift by the lower corner, fold the rounding at L back to 0
-            low = positions.min(axis=0)
-            points = np.mod(positions - low, period)
-            points[points >= period] = 0.0
-            tree = cKDTree(points, boxsize=period)
-        else:
-            points = positions
-            tree = cKDTree(points)
+        tree, _ = kd_tree(positions, period, "KDTreeSearch")
         scale = float(np.max(np.abs(positions))) if n else 0.0
         found = tree.query_pairs(radius * (1.0 + _CANDIDATE_SLACK) + 1e-12 * scale, output_type="ndarray")
         keep = np.empty(len(found), dtype=np.bool_)

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..jit import njit, prange
-from .neighbors import NeighborList, minimum_image, pair_offset, squared_length
+from .neighbors import NeighborList, kd_tree, minimum_image, pair_offset, squared_length
 
 #: Tunstrøm et al. 2013's thresholds on O_p (polarization) and O_r (milling)
 ORDERED = 0.65
@@ -163,18 +163,7 @@ def _nearest_of_all(queries, positions, period, out):
 
 def _nearest_by_tree(queries: np.ndarray, positions: np.ndarray, period: np.ndarray) -> np.ndarray:
     """The same as :func:`_nearest_of_all` with a KD-tree (a periodic box: ``boxsize``), for many queries."""
-    from scipy.spatial import cKDTree  # here, not at import: scipy.spatial takes ~0.3 s to load
-
-    periodic = period > 0.0
-    if np.any(periodic) and not np.all(periodic):
-        raise ValueError("nearest_neighbor_distances handles a box periodic along every axis or none")
-    if np.all(periodic):  # cKDTree wants [0, L): shift by the lower corner, fold the rounding at L back to 0
-        points = np.mod(positions - positions.min(axis=0), period)
-        points[points >= period] = 0.0
-        tree = cKDTree(points, boxsize=period)
-    else:
-        points = positions
-        tree = cKDTree(points)
+    tree, points = kd_tree(positions, period, "nearest_neighbor_distances")
     distance, _ = tree.query(points[queries], k=2)
     return np.asarray(distance, dtype=np.float64).reshape(len(queries), 2)[:, 1]
 
