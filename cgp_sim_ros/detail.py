@@ -39,13 +39,13 @@ import json
 import math
 from dataclasses import dataclass, field
 
+from .interface import FISH_DETAIL_CHOICES
 from .shapes import FISH_DETAILS
 
 #: marker payload per simulated second the automatic choices keep to [bytes]
 MARKER_BYTES_PER_S = 32e6
 #: flock PoseArray payload per simulated second the bag keeps to [bytes]
 BAG_POSES_BYTES_PER_S = 32e6
-FISH_DETAIL_CHOICES = ("auto", "full", "low")
 
 _POINT_BYTES = 24  # geometry_msgs/Point: 3 float64
 _POSE_BYTES = 56  # geometry_msgs/Pose: 7 float64

@@ -69,6 +69,8 @@ from dataclasses import dataclass
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 WORLD_FRAME = "world"
+#: how model:fish flocks may be drawn: "auto" (cgp_sim_ros/detail.py chooses) or a detail of shapes.FISH_DETAILS
+FISH_DETAIL_CHOICES = ("auto", "full", "low")
 
 # State topics: reliable so RViz / Foxglove (reliable by default) and best-effort subscribers both match;
 # KEEP_LAST so a subscriber that never reads cannot make the publisher block or grow memory.
@@ -164,7 +166,7 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "at start-up).", minimum=0, maximum=10000, flag="--markers-every"),
     ParameterSpec("fish_detail", "auto", "How model:fish flocks are drawn: full (10 triangles per fish), low (3: "
                   "the outline seen from above and the tail fin) or auto (full unless the markers would exceed "
-                  "32 MB/s at the tick rate).", flag="--fish-detail", choices=("auto", "full", "low")),
+                  "32 MB/s at the tick rate).", flag="--fish-detail", choices=FISH_DETAIL_CHOICES),
     ParameterSpec("bag_flock_poses_every", 0, "Record ~/flocks/<flock>/poses in the bag every N ticks (they are "
                   "published every tick); 0 = automatic: every tick unless the flocks' poses would exceed 32 MB/s, "
                   "then as often as fits. Written into the bag's metadata (custom_data).", read_only=True,

@@ -20,6 +20,7 @@ from scipy.spatial import ConvexHull
 from cgp_core.boids import FlockParams
 from cgp_core.rotation import quat_to_matrix
 from cgp_sim_ros import detail
+from cgp_sim_ros import interface as itf
 from cgp_sim_ros.shapes import FISH_DETAILS, FISH_LOW_TEMPLATE, FISH_TEMPLATE, VERTEX_QUANTUM, fish_triangles
 
 
@@ -70,6 +71,9 @@ def test_parameters_override_their_rule_and_bad_values_are_refused():
     assert detail.plan(flocks, 60.0, markers_every=3).fish_detail == {"school": "low"}  # the rest still automatic
     with pytest.raises(ValueError, match="fish_detail must be one of auto, full, low"):
         detail.plan(flocks, 60.0, fish_detail="medium")
+    # the parameter offers exactly the details the shapes have, and "auto"
+    (spec,) = [s for s in itf.PARAMETERS if s.name == "fish_detail"]
+    assert spec.choices == itf.FISH_DETAIL_CHOICES == ("auto", *FISH_DETAILS)
 
 
 def test_seen_from_above_the_low_fish_has_the_full_fishs_outline():
