@@ -267,6 +267,8 @@ def test_a_held_writer_takes_nothing_until_woken_within_its_bounds(tmp_path, mon
     waiting it works anyway, a flush is never held, and neither is a hold its caller never ended."""
     from cgp_sim_ros import bag as bag_module
 
+    # a hold that cannot age out while this test runs, however slowly (the age bound is checked at the end)
+    monkeypatch.setattr(bag_module, "_HOLD_MAX_S", 60.0)
     payload = cdr.pose_array(0, "w", np.zeros((17, 3)), np.zeros((17, 4)))  # 980 B
     bag = BagWriter(tmp_path / "held", hold_bytes=5_000)
     bag.add_topic("/x", "geometry_msgs/msg/PoseArray")
@@ -303,41 +305,42 @@ def _metadata_count(bag_dir: Path) -> int:
 
 
 def test_the_periodic_fsync_runs_beside_the_writer_and_metadata_never_counts_ahead(tmp_path, monkeypatch):
-    """The fsync every sync_interval_s runs on the bag's sync thread: while it takes its time (0.3 s here)
-    the writer thread goes on committing what comes in.  The metadata.yaml that sync stores describes the
-    state it was asked to fsync (no more messages than the file had then); at close, every message."""
+    """The fsync every sync_interval_s runs on the bag's sync thread: while it is held up (here until the test
+    lets it go) the writer thread goes on committing what comes in.  A metadata.yaml stored by a sync describes
+    the state it was asked to fsync: it never counts more messages than were committed when a sync began; at
+    close, every message."""
     import threading
 
     real_fsync = os.fsync
     synced: list[tuple[str, int]] = []  # (thread, messages committed to the file when its fsync began)
-    slow_sync_running = threading.Event()
+    sync_started, release = threading.Event(), threading.Event()
     bag = BagWriter(tmp_path / "bg", chunk_size=512, sync_interval_s=0.0)  # a sync due at every commit
 
     def fsync(fd):
         name = threading.current_thread().name
         if name.startswith("bag-sync"):
             synced.append((name, bag._committed_messages))
-            slow_sync_running.set()
-            time.sleep(0.3)
-            slow_sync_running.clear()
+            sync_started.set()
+            release.wait(30)
         return real_fsync(fd)
 
     monkeypatch.setattr(os, "fsync", fsync)
     bag.add_topic("/clock", "rosgraph_msgs/msg/Clock")
     k = 0
-    while not slow_sync_running.is_set():  # commits until the first background sync has begun
+    while not sync_started.is_set():  # commits until the first background sync has begun
         assert k < 10_000
         bag.write("/clock", cdr.clock(k), k)
         k += 1
         time.sleep(0.001)
     committed_at_start = bag._committed_messages
-    for _ in range(60):  # 60 more messages (> 512 B of chunks) while that fsync sleeps
+    for _ in range(60):  # 60 more messages (> 512 B of chunks) while that fsync is held up
         bag.write("/clock", cdr.clock(k), k)
         k += 1
-    assert _wait_until(lambda: bag._committed_messages >= committed_at_start + 50, timeout=0.25)
-    assert slow_sync_running.is_set()  # ... all committed while the fsync was still running
-    assert _wait_until(lambda: not slow_sync_running.is_set())
-    assert _metadata_count(tmp_path / "bg") <= synced[0][1]  # what that sync stored: no more than it synced
+    assert _wait_until(lambda: bag._committed_messages >= committed_at_start + 50)
+    assert not bag._sync_idle.is_set()  # ... all committed while the first sync was still in its fsync
+    release.set()
+    assert _wait_until(bag._sync_idle.is_set)
+    assert _metadata_count(tmp_path / "bg") <= max(count for _, count in synced)
     bag.close()
     assert {name for name, _ in synced} == {"bag-sync:bg"}
     assert _metadata_count(tmp_path / "bg") == k
