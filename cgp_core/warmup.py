@@ -20,9 +20,12 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import os
+import signal
 import subprocess
 import sys
+import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -146,6 +149,25 @@ def missing_parts(parts: tuple[CompilePart, ...] = PARTS) -> list[CompilePart]:
     return missing
 
 
+@contextmanager
+def _sigint_deferred():
+    """A SIGINT (Ctrl-C) that arrives inside the block is held back and delivered, to the handler there was
+    before, when the block ends.  Only the main thread can set a signal handler; elsewhere nothing is held back
+    (and a process-directed signal could not be deferred by blocking it in one thread: any other thread of the
+    process — numba's, DDS's — would take it)."""
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is None:
+        yield  # (None: a handler not set from Python, which could not be put back)
+        return
+    arrived = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: arrived.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if arrived:
+            signal.raise_signal(signal.SIGINT)
+
+
 def compile_in_parallel(parts: list[CompilePart], worker_module: str, *worker_args: str) -> dict[str, str]:
     """Run one worker process per part, ``python -P -m <worker_module> --part <name> <worker_args>`` with
     ``CGP_SIM_JIT_ONLY`` set to the part's modules, all at once; wait for them.  The workers import the same
@@ -156,11 +178,14 @@ def compile_in_parallel(parts: list[CompilePart], worker_module: str, *worker_ar
     python_path = os.pathsep.join([root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
     workers, failed = {}, {}
     try:
-        for part in parts:
-            env = dict(os.environ, PYTHONPATH=python_path, CGP_SIM_JIT_ONLY=",".join(part.modules))
-            workers[part.name] = subprocess.Popen(
-                [sys.executable, "-P", "-m", worker_module, "--part", part.name, *worker_args], env=env,
-                stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        # A Ctrl-C between a worker's start and its entry in `workers` would leave that worker out of the
+        # clean-up below, compiling on after the caller exits: SIGINT waits until every worker is entered.
+        with _sigint_deferred():
+            for part in parts:
+                env = dict(os.environ, PYTHONPATH=python_path, CGP_SIM_JIT_ONLY=",".join(part.modules))
+                workers[part.name] = subprocess.Popen(
+                    [sys.executable, "-P", "-m", worker_module, "--part", part.name, *worker_args], env=env,
+                    stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         for name, worker in workers.items():
             output, _ = worker.communicate()
             if worker.returncode != 0:

@@ -213,3 +213,37 @@ def test_ctrl_c_while_the_kernels_compile_stops_the_node_and_its_workers(start_n
     assert "interrupted while compiling the kernels" in node.log()
     assert _workers_using(cache) == []
     assert not (tmp_path / "bag").exists()  # it stopped before building the node
+
+
+def test_ctrl_c_while_a_worker_is_being_started_leaves_no_worker_running(tmp_path, monkeypatch):
+    """A Ctrl-C that lands between a worker's start and its entry in the worker list (a loaded machine makes
+    that window wide): compile_in_parallel is still interrupted, and every worker it started is stopped — none
+    compiles on after the caller (seen once in a clean clone's `make test`)."""
+    import signal
+
+    from cgp_core import warmup
+
+    (tmp_path / "sleeping_worker.py").write_text("import time\ntime.sleep(60)\n")
+    monkeypatch.setenv("PYTHONPATH", str(tmp_path))
+    started = []
+    real_popen = subprocess.Popen
+
+    def popen_then_ctrl_c(*args, **kwargs):
+        process = real_popen(*args, **kwargs)
+        started.append(process)
+        if len(started) == 1:
+            signal.raise_signal(signal.SIGINT)  # Ctrl-C right after the first worker started
+        return process
+
+    monkeypatch.setattr(warmup.subprocess, "Popen", popen_then_ctrl_c)
+    parts = [warmup.CompilePart(name=f"part{i}", modules=("cgp_core",), sentinels=()) for i in range(3)]
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            warmup.compile_in_parallel(parts, "sleeping_worker")
+        assert len(started) == 3  # the interrupt waited until every worker was started and entered ...
+        assert [process.poll() is not None for process in started] == [True] * 3  # ... and stopped them all
+    finally:
+        for process in started:
+            if process.poll() is None:
+                process.kill()
+                process.wait()
