@@ -383,9 +383,18 @@ class SimNode(Node):
         on-disk cache at the kernel's first call, ~9 ms each: the default scene's first tick took ~170 ms
         (24 kernels), ten 60 Hz periods of a real-time run lost at its start.  A throwaway copy of the world
         takes one tick here and its messages are built (every marker part) and dropped: nothing is published,
-        the world itself is untouched.  Whatever fails here fails again, and is reported, in the real tick."""
+        the world itself is untouched.  Whatever fails here fails again, and is reported, in the real tick.
+
+        That tick runs the kernels of the scene's first instant only: the contact kernels of shapes that touch
+        later were loaded when they first touched — the default scene's ball lands 0.7 s in, and that tick
+        took ~16 ms (the penetration recovery's kernel loading).  So the core's warm-up scenario (its own
+        world: bodies of every shape placed in contact, no flock) takes one tick here too: every rigid-body
+        kernel is loaded before the first tick, also for bodies spawned later (~0.1 s more start-up)."""
+        from cgp_core.warmup import warm_up
+
         world = copy.deepcopy(self.world)
         try:
+            warm_up(ticks=1, complete=False, flocks=False)
             world.step()
             for _ in self._tick_messages(world, TickMessages(world, itf.WORLD_FRAME, self.detail),
                                          BodyTransforms(world, itf.WORLD_FRAME), delete_all_markers=True):
