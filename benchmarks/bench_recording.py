@@ -1,0 +1,178 @@
+"""What recording costs the 15k-fish real-time tick, and which part of the recording it is: one node, one run, the
+ways of recording interleaved every few seconds.
+
+Why interleaved: this machine's speed drifts by up to ~1.6x within minutes, so runs in separate processes, one
+after the other, cannot tell a 2 ms difference in p99 apart (alternating 25 s runs measured p99 spreads of
+3-5 ms for the same code).  Here every mode gets a share of every minute of the same run: the same node, the
+same flock, the same bag file, the same phase of the machine.
+
+Modes, switched in turn every ``--segment`` ticks of the node's own 60 Hz timer (the first
+:data:`SETTLE_TICKS` ticks after a switch are not counted: the writer's backlog from the mode before drains):
+
+- ``record``: as the node records — the bag writer thread frames each message into MCAP chunks (mcap-python's
+  ``Writer``: Python, copying the data into its buffers), compresses (lz4), checksums (CRC32), writes
+  (``pwritev``) and syncs (the sync thread's fsync) each chunk (``cgp_sim_ros/bag.py``);
+- ``framing``: the same framing, but the chunks are neither compressed, checksummed, written nor synced;
+- ``drain``: the writer thread takes every message off its queue and drops it (what is left: the tick's
+  ``recorder.write`` and the queue);
+- ``off``: the node hands nothing to the recorder.
+
+Measured 2026-12-02, this script (250 s, the machine at a tick median of ~13.4 ms): p99 ``record`` 20.3 ms,
+``framing`` 20.2 ms, ``drain`` 17.2 ms, ``off`` 17.1 ms (medians 13.3-13.5 ms in every mode); five earlier runs
+of the same design, two or three modes each, agreed (``record`` − ``drain`` 2.7-3.8 ms at p99; ``framing`` ≈
+``record``; compression alone off: within 0.7 ms of ``record``; the writer thread at nice 0 or a 0.2 ms GIL switch
+interval: no better).  So compression, checksums, writes and syncs are not what the tick pays for; the framing
+is.  mcap-python copies each message's data into its chunk buffer, the chunk into its record buffer, that into
+the stream (and ``_CommittingFile`` into its pending buffer): ~1.3 MB of payload per tick, copied about five
+times, each copy holding the GIL (a memcpy inside one C call: no switch interval interrupts it), plus ~20
+records' Python per tick; in the machine's slower phases the writer's work no longer fits between the ticks.
+The likely fix: MCAP chunks assembled from the messages' own bytes (header records built with ``struct``, the
+CRC and lz4 fed part by part, one ``pwritev``), instead of mcap-python's ``Writer`` for the data section.
+
+The ``framing`` mode leaves the bag unreadable (the file's offsets advance without data); the bag is deleted
+after the run.
+
+    .venv/bin/python benchmarks/bench_recording.py [--seconds 250] [--segment 300] [--quick]
+
+Prints a table, writes benchmarks/results/recording.json; asserts nothing.  Part of ``run.py --extras``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import bench_tick  # noqa: E402  (sets this process's ROS domain before rclpy loads)
+from common import Results  # noqa: E402
+
+MODES = ("record", "framing", "drain", "off")
+#: ticks not counted after each switch (the writer's backlog from the previous mode drains)
+SETTLE_TICKS = 30
+#: the run's first seconds are not counted (start-up; the bodies are dropped at t = 0)
+SKIP_S = 10.0
+
+
+class Modes:
+    """The switch the patched recording looks at, and the patches (made once, before the node exists)."""
+
+    def __init__(self):
+        self.mode = MODES[0]
+        import lz4.frame
+        import mcap.writer
+        import zlib
+
+        from cgp_sim_ros import bag, recorder
+
+        modes = self
+        write, write_message = recorder.Recorder.write, bag.BagWriter._write_message
+        commit, sync_in_background = bag._CommittingFile.commit, bag.BagWriter._sync_in_background
+        compress = lz4.frame.compress
+
+        def recorder_write(self, topic, data, stamp_ns):
+            if modes.mode != "off":
+                write(self, topic, data, stamp_ns)
+
+        def writer_write_message(self, topic, data, log_time, publish_time):
+            if modes.mode != "drain":
+                write_message(self, topic, data, log_time, publish_time)
+
+        def file_commit(self, final=False):
+            if modes.mode != "framing":
+                return commit(self, final)
+            self.committed += len(self.pending)  # as if written: the offsets mcap keeps stay consistent
+            self.pending.clear()
+
+        def writer_sync(self):
+            if modes.mode != "framing":
+                sync_in_background(self)
+
+        class _Checksums:  # mcap.writer's zlib, for its chunk CRCs
+            @staticmethod
+            def crc32(data, value=0):
+                return 0 if modes.mode == "framing" else zlib.crc32(data, value)
+
+        recorder.Recorder.write = recorder_write
+        bag.BagWriter._write_message = writer_write_message
+        bag._CommittingFile.commit = file_commit
+        bag.BagWriter._sync_in_background = writer_sync
+        lz4.frame.compress = lambda data, *a, **k: data if modes.mode == "framing" else compress(data, *a, **k)
+        mcap.writer.zlib = _Checksums
+
+
+def run(seconds: float, segment: int) -> Results:
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    out = Results("recording", options={"seconds": seconds, "segment": segment, "modes": list(MODES)})
+    modes = Modes()
+    rclpy.init(domain_id=int(os.environ["ROS_DOMAIN_ID"]))
+    work = Path(tempfile.mkdtemp(prefix="bench_recording_"))
+    node = bench_tick.make_node(bench_tick.SCENE, work / "bag", "bench_recording", realtime=True)
+    total = int(seconds * 60)
+    mode_of, tick_ms = np.empty(total, np.int64), np.empty(total)
+    done = 0
+    tick = node.tick
+
+    def timed_tick():
+        nonlocal done
+        if done >= total:
+            return tick()
+        modes.mode = MODES[(done // segment) % len(MODES)]
+        start = time.perf_counter()
+        tick()
+        tick_ms[done] = (time.perf_counter() - start) * 1e3
+        mode_of[done] = MODES.index(modes.mode)
+        done += 1
+
+    node.tick = timed_tick  # what the node's timer callback calls
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        while done < total:
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        modes.mode = MODES[0]
+        node.close()
+        node.destroy_node()
+        rclpy.try_shutdown()
+        shutil.rmtree(work, ignore_errors=True)
+
+    counted = (np.arange(total) >= SKIP_S * 60) & (np.arange(total) % segment >= SETTLE_TICKS)
+    rows = []
+    for index, mode in enumerate(MODES):
+        ms = tick_ms[counted & (mode_of == index)]
+        row = {"mode": mode, "ticks": len(ms), "median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)),
+               "p99": float(np.percentile(ms, 99))}
+        rows.append(row)
+        out.figure(f"recording_{mode}_p99", f"15k-fish real-time tick p99, recording mode '{mode}' (median, p95 in "
+                   "the JSON)", row["p99"], "ms", "(comparison)", None, median=row["median"], p95=row["p95"])
+    out.data["rows"] = rows
+    return out
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seconds", type=float, default=250.0, help="length of the run (wall ≈ simulated)")
+    parser.add_argument("--segment", type=int, default=300, help="ticks per mode before switching to the next")
+    parser.add_argument("--quick", action="store_true", help="100 s instead of --seconds")
+    args = parser.parse_args(argv)
+    out = run(100.0 if args.quick else args.seconds, args.segment)
+    print(f"{'mode':10s} {'ticks':>6s} {'median':>8s} {'p95':>8s} {'p99':>8s}   (ms, 15k fish, real time)")
+    for row in out.data["rows"]:
+        print(f"{row['mode']:10s} {row['ticks']:6d} {row['median']:8.2f} {row['p95']:8.2f} {row['p99']:8.2f}")
+    print(f"wrote {out.write()}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
