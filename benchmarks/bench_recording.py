@@ -22,12 +22,14 @@ Measured 2026-12-02, this script (250 s, the machine at a tick median of ~13.4 m
 of the same design, two or three modes each, agreed (``record`` − ``drain`` 2.7-3.8 ms at p99; ``framing`` ≈
 ``record``; compression alone off: within 0.7 ms of ``record``; the writer thread at nice 0 or a 0.2 ms GIL switch
 interval: no better).  So compression, checksums, writes and syncs are not what the tick pays for; the framing
-is.  mcap-python copies each message's data into its chunk buffer, the chunk into its record buffer, that into
-the stream (and ``_CommittingFile`` into its pending buffer): ~1.3 MB of payload per tick, copied about five
-times, each copy holding the GIL (a memcpy inside one C call: no switch interval interrupts it), plus ~20
-records' Python per tick; in the machine's slower phases the writer's work no longer fits between the ticks.
-The likely fix: MCAP chunks assembled from the messages' own bytes (header records built with ``struct``, the
-CRC and lz4 fed part by part, one ``pwritev``), instead of mcap-python's ``Writer`` for the data section.
+is: mcap-python's ``Writer`` building records in Python and copying each message's data into its chunk buffer,
+the chunk into its record buffer, that into the stream (and ``_CommittingFile`` into its pending buffer), all
+holding the GIL.  Profiled alone (the writer fed the 15k tick's messages on one thread) that is ~0.7 ms per tick
+of the writer's ~2 ms (the rest: lz4 0.8, CRC 0.2, pwritev 0.3, none of which holds the GIL); how it becomes ~3 ms of the tick's p99 is not pinned down — the likely path is the
+writer's work running into the next tick in the machine's slower phases (the gap between ticks is then ~3 ms)
+and taking the GIL each time a kernel of the tick returns.  What would take it off: MCAP chunks assembled from
+the messages' own bytes (headers built with ``struct``, CRC and lz4 fed part by part, one ``pwritev``) instead of
+mcap-python's ``Writer`` for the data section — to be measured with this script.
 
 The ``framing`` mode leaves the bag unreadable (the file's offsets advance without data); the bag is deleted
 after the run.
