@@ -18,18 +18,22 @@ Modes, switched in turn every ``--segment`` ticks of the node's own 60 Hz timer 
 - ``off``: the node hands nothing to the recorder.
 
 Measured 2026-12-02, this script (250 s, the machine at a tick median of ~13.4 ms): p99 ``record`` 20.3 ms,
-``framing`` 20.2 ms, ``drain`` 17.2 ms, ``off`` 17.1 ms (medians 13.3-13.5 ms in every mode); five earlier runs
-of the same design, two or three modes each, agreed (``record`` − ``drain`` 2.7-3.8 ms at p99; ``framing`` ≈
-``record``; compression alone off: within 0.7 ms of ``record``; the writer thread at nice 0 or a 0.2 ms GIL switch
-interval: no better).  So compression, checksums, writes and syncs are not what the tick pays for; the framing
-is: mcap-python's ``Writer`` building records in Python and copying each message's data into its chunk buffer,
-the chunk into its record buffer, that into the stream (and ``_CommittingFile`` into its pending buffer), all
-holding the GIL.  Profiled alone (the writer fed the 15k tick's messages on one thread) that is ~0.7 ms per tick
-of the writer's ~2 ms (the rest: lz4 0.8, CRC 0.2, pwritev 0.3, none of which holds the GIL); how it becomes ~3 ms of the tick's p99 is not pinned down — the likely path is the
-writer's work running into the next tick in the machine's slower phases (the gap between ticks is then ~3 ms)
-and taking the GIL each time a kernel of the tick returns.  What would take it off: MCAP chunks assembled from
-the messages' own bytes (headers built with ``struct``, CRC and lz4 fed part by part, one ``pwritev``) instead of
-mcap-python's ``Writer`` for the data section — to be measured with this script.
+``framing`` 20.2 ms, ``drain`` 17.2 ms, ``off`` 17.1 ms (medians 13.3-13.5 ms in every mode).  Five earlier runs
+of the same design, two or three modes each, agreed: ``record`` − ``drain`` 2.7-3.8 ms at p99, ``framing`` ≈
+``record``.  No better than ``record`` either: compression alone off (within 0.7 ms), the writer thread at nice 0,
+a 0.2 ms GIL switch interval.  A stand-in for a leaner writer — chunks assembled from the messages' own bytes
+(headers built with ``struct``, one join, CRC, lz4 and one ``pwritev`` per 1 MB chunk, no fsync), as a mode of
+its own: p99 ``record`` 22.1, lean 20.9, ``drain`` 17.2 ms (200 s, medians 12.7-13.1 ms).
+
+So no one part of the recording is the cost, and the mechanism is not pinned down: the framing alone (~0.7 ms of
+the writer's ~2 ms per tick when profiled alone, the rest being lz4, CRC and ``pwritev``, which release the GIL)
+costs the tick as much as all of it, and the lean stand-in for all of it still ~3.7 ms.  What is known: in the
+machine's slower phases the gap between ticks (~3.4 ms at a 13.3 ms median) barely holds the writer's work, and
+its items are indivisible (``BagWriter.hold`` is checked between messages; one chunk's lz4 takes ~2 ms), so the
+writer works during ticks — though the ``framing`` mode's ~0.7 ms per tick would fit the gap, and costs as much.
+The next things to try, measured with this script: writer work that yields to a tick mid-item (chunks compressed
+and written block by block, the hold checked between blocks); the writer in a process of its own (no GIL, no
+allocator or cache shared with the tick's thread).
 
 The ``framing`` mode leaves the bag unreadable (the file's offsets advance without data); the bag is deleted
 after the run.
