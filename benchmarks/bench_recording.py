@@ -23,9 +23,13 @@ of the same design, two or three modes each, agreed: ``record`` − ``drain`` 2.
 ``record``.  No better than ``record`` either: compression alone off (within 0.7 ms), the writer thread at nice 0,
 a 0.2 ms GIL switch interval.  A stand-in for a leaner writer — chunks assembled from the messages' own bytes
 (headers built with ``struct``, one join, CRC, lz4 and one ``pwritev`` per 1 MB chunk, no fsync), as a mode of
-its own: p99 ``record`` 22.1, lean 20.9, ``drain`` 17.2 ms (200 s, medians 12.7-13.1 ms).
+its own: p99 ``record`` 22.1, lean 20.9, ``drain`` 17.2 ms (200 s, medians 12.7-13.1 ms).  But a seventh run,
+shorter (160 s) and in a slightly faster phase (medians 12.0-12.6 ms), showed no cost at all: p99 ``record``
+17.9, ``framing`` 17.6, ``drain`` 19.2 ms.  A p99 of ~3,000 ticks is their ~30th slowest: still noisy; run it long.
+In that run the writer thread was inside a tick 0.28 ms per tick on average (2.0 ms in the slowest 2 % of
+ticks) with ``record``, and almost never (0.01 ms per tick) with ``framing``.
 
-So no one part of the recording is the cost, and the mechanism is not pinned down: the framing alone (~0.7 ms of
+So, where recording costs the tick, no one part of it is the cost, and the mechanism is not pinned down: the framing alone (~0.7 ms of
 the writer's ~2 ms per tick when profiled alone, the rest being lz4, CRC and ``pwritev``, which release the GIL)
 costs the tick as much as all of it, and the lean stand-in for all of it still ~3.7 ms.  What is known: in the
 machine's slower phases the gap between ticks (~3.4 ms at a 13.3 ms median) barely holds the writer's work, and
