@@ -18,9 +18,9 @@ Modes, switched in turn every ``--segment`` ticks of the node's own 60 Hz timer 
 - ``off``: the node hands nothing to the recorder.
 
 Measured 2026-12-02, this script (250 s, the machine at a tick median of ~13.4 ms): p99 ``record`` 20.3 ms,
-``framing`` 20.2 ms, ``drain`` 17.2 ms, ``off`` 17.1 ms (medians 13.3-13.5 ms in every mode).  Five earlier runs
-of the same design, two or three modes each, agreed: ``record`` − ``drain`` 2.7-3.8 ms at p99, ``framing`` ≈
-``record``.  No better than ``record`` either: compression alone off (within 0.7 ms), the writer thread at nice 0,
+``framing`` 20.2 ms, ``drain`` 17.2 ms, ``off`` 17.1 ms (medians 13.3-13.5 ms in every mode).  Earlier runs of the
+same design, two or three modes each, 100-220 s, agreed: ``record`` − ``drain`` 2.7-3.8 ms at p99 (three runs),
+``record`` − ``off`` 1.2-4.7 ms (four runs), ``framing`` ≈ ``record`` (one run).  No better than ``record`` either: compression alone off (within 0.7 ms), the writer thread at nice 0,
 a 0.2 ms GIL switch interval.  A stand-in for a leaner writer — chunks assembled from the messages' own bytes
 (headers built with ``struct``, one join, CRC, lz4 and one ``pwritev`` per 1 MB chunk, no fsync), as a mode of
 its own: p99 ``record`` 22.1, lean 20.9, ``drain`` 17.2 ms (200 s, medians 12.7-13.1 ms).  But a seventh run,
