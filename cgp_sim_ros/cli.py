@@ -142,7 +142,8 @@ def main(argv: list[str] | None = None) -> int:
         if node.recorder is not None:
             print(node.recorder.summary_text(), flush=True)
         executor.remove_node(node)
-        node.destroy_node()
+        node.destroy_node()  # with it the DDS participant: before the process exits (SimNode.destroy_node)
+        executor.shutdown()
         rclpy.try_shutdown()
     return 0
 

@@ -768,6 +768,17 @@ class SimNode(Node):
         if self.recorder is not None:
             self.recorder.close()
 
+    def destroy_node(self) -> None:
+        """rclpy's ``destroy_node`` plus what it leaves behind: the ``simulate_steps`` action server.  rclpy
+        destroys a node's publishers, subscriptions, services, timers and guard conditions, but not its action
+        servers, and a live action server keeps the rcl node, and with it the process's DDS participant, alive
+        until the process exits.  Fast DDS then deletes that participant from a static destructor while its
+        threads still handle other participants leaving — seen as a node hanging at exit at full CPU, or
+        aborting with "malloc_consolidate(): unaligned fastbin chunk detected", when several nodes on one
+        domain stop at once."""
+        self.sim.close()
+        super().destroy_node()
+
 
 def _resolve_bag_path(text: str) -> Path:
     """The absolute bag directory ``text`` names, resolved as the OS resolves it (``~``, symlinks, ``..``)."""

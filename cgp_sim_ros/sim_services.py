@@ -142,6 +142,13 @@ class SimulationInterfaces:
                                           goal_callback=lambda goal: GoalResponse.ACCEPT,
                                           cancel_callback=lambda goal_handle: CancelResponse.ACCEPT)
 
+    def close(self) -> None:
+        """Destroy the action server (:meth:`SimNode.destroy_node` says why rclpy's ``destroy_node`` does not);
+        the services go with the node.  Safe to call twice."""
+        if self.action_server is not None:
+            self.action_server.destroy()
+            self.action_server = None
+
     def _guarded(self, name: str, callback):
         """``callback`` that answers OPERATION_FAILED (and logs the traceback) instead of raising: a bug in one
         request must not take the simulation down (an exception in a callback ends rclpy's spin)."""

@@ -31,9 +31,22 @@ class Probe:
         self.received: dict[str, Received] = {}
         self.subscriptions: dict = {}
         self._clients: dict = {}
+        self._action_clients: list = []
+
+    def action_client(self, action_type, name: str):
+        """An rclpy ActionClient on the probe's node, destroyed by :meth:`close`."""
+        from rclpy.action import ActionClient
+
+        client = ActionClient(self.node, action_type, name)
+        self._action_clients.append(client)
+        return client
 
     def close(self) -> None:
         self.executor.remove_node(self.node)
+        # rclpy's destroy_node leaves action clients alive, and with them the node and this process's DDS
+        # participant, which Fast DDS would then delete at exit (see test_node_graph's participant test)
+        for client in self._action_clients:
+            client.destroy()
         self.node.destroy_node()
 
     def spin_for(self, seconds: float) -> None:

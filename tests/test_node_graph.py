@@ -3,6 +3,7 @@ and `lib/cgp_sim_ros/sim_node` found through the ament index) and is observed fr
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -138,6 +139,8 @@ def test_apply_wrench_message_crosses_processes(probe):
         for _ in range(50):
             pub.publish(m)
             rclpy.spin_once(n, timeout_sec=0.05)
+        n.destroy_node()
+        rclpy.shutdown()
     """)
     sender = subprocess.Popen([sys.executable, "-c", code])
     try:
@@ -174,3 +177,37 @@ def test_core_runs_without_any_ros_package():
     """)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=Path(__file__).parents[1])
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
+
+
+_RUN_MAIN_THEN_LIST_THREADS = """
+import json, os, sys, threading
+from cgp_sim_ros.cli import main
+code = main(["cgp-sim"] + sys.argv[1:])
+# what still runs once the node's main has returned, before the interpreter's exit runs any destructor
+print("AFTER MAIN " + json.dumps({
+    "code": code,
+    "os_threads": sorted(open(f"/proc/self/task/{t}/comm").read().strip() for t in os.listdir("/proc/self/task")),
+    "python_threads": sorted(t.name for t in threading.enumerate())}), flush=True)
+"""
+
+
+def test_the_node_leaves_the_dds_domain_before_the_process_exits(start_node, tmp_path):
+    """When `cgp-sim` stops, its DDS participant is deleted by the node's own shutdown, not left to a static
+    destructor at exit: there Fast DDS deletes it while its threads still handle other participants leaving,
+    and a node hung at full CPU or aborted ("malloc_consolidate(): unaligned fastbin chunk detected") when
+    several nodes stopped at once (the gallery test, in CI).  rclpy's destroy_node had left the simulate_steps
+    action server, and with it the rcl node and the participant, alive.  Observed, with everything on, once
+    main() has returned: no thread of the participant (Fast DDS names them dds.*; only the shared-memory
+    watchdog is process-wide) and no Python thread of ours (the bag writer, the Foxglove server's) left."""
+    script = tmp_path / "run_main.py"
+    script.write_text(_RUN_MAIN_THEN_LIST_THREADS)
+    node = start_node("--scene", "default", "--realtime", "false", "--duration", "0.2", "--bag",
+                      str(tmp_path / "bag"), "--foxglove", "true", "--foxglove-port", "0",
+                      command=[sys.executable, str(script)])
+    assert node.wait(120) == 0, node.log()[-3000:]
+    line = next((ln for ln in node.log().splitlines() if ln.startswith("AFTER MAIN ")), None)
+    assert line is not None, node.log()[-3000:]
+    after = json.loads(line.removeprefix("AFTER MAIN "))
+    assert after["code"] == 0, after
+    assert [name for name in after["os_threads"] if name.startswith("dds.") and name != "dds.shm.wdog"] == [], after
+    assert after["python_threads"] == ["MainThread"], after

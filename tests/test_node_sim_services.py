@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 from geometry_msgs.msg import PoseArray, WrenchStamped
 from nav_msgs.msg import Odometry
-from rclpy.action import ActionClient
 from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from simulation_interfaces.action import SimulateSteps
@@ -135,7 +134,7 @@ def test_simulate_steps_action_feedback_and_cancel(start_node, probe):
     wire = probe.subscribe("/cgp_sim/simulate_steps/_action/feedback", SimulateSteps.Impl.FeedbackMessage)
     node, sim = start_paused(start_node, probe, "zero_g", "--realtime", "false")
     probe.wait_for_publisher("/clock")
-    client = ActionClient(probe.node, SimulateSteps, "/cgp_sim/simulate_steps")
+    client = probe.action_client(SimulateSteps, "/cgp_sim/simulate_steps")
     probe.spin_until(client.server_is_ready, 30, "the simulate_steps action server")
     # feedback is a topic: wait until the server's feedback writer is matched, or the first ticks' are lost
     probe.spin_until(lambda: probe.node.count_publishers("/cgp_sim/simulate_steps/_action/feedback") > 0, 30,
