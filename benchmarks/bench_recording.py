@@ -15,7 +15,10 @@ Modes, switched in turn every ``--segment`` ticks of the node's own 60 Hz timer 
 - ``framing``: the same framing, but the chunks are neither compressed, checksummed, written nor synced;
 - ``drain``: the writer thread takes every message off its queue and drops it (what is left: the tick's
   ``recorder.write`` and the queue);
-- ``off``: the node hands nothing to the recorder.
+- ``off``: the node hands nothing to the recorder;
+- ``pipe`` (not in the default set: ``--modes record pipe drain``): the writer thread hands each message (a
+  header and the bytes) to a child process through a pipe, with ``os.write``, and the child reads and drops it —
+  what the tick would still pay if the MCAP writer ran in a process of its own.
 
 Measured 2026-12-02, this script (250 s, the machine at a tick median of ~13.4 ms): p99 ``record`` 20.3 ms,
 ``framing`` 20.2 ms, ``drain`` 17.2 ms, ``off`` 17.1 ms (medians 13.3-13.5 ms in every mode).  Earlier runs of the
@@ -39,10 +42,16 @@ The next things to try, measured with this script: writer work that yields to a 
 and written block by block, the hold checked between blocks); the writer in a process of its own (no GIL, no
 allocator or cache shared with the tick's thread).
 
+``--modes record pipe drain``, 2026-12-02, two runs of 240 s: p99 ``record`` 21.8 / 18.7, ``pipe`` 19.3 / 17.4,
+``drain`` 19.0 / 17.1 ms (medians 14.0-14.5 / 12.8-12.9 ms): handing the bytes to another process cost the tick
+~0.3 ms at p99 of the 1.6-2.8 ms that recording cost in those runs.  An indication that the MCAP writer in a
+process of its own would take most of recording off the tick, not a measurement of such a writer (which would
+also need its errors, roll-over and crash safety carried across the process boundary).
+
 The ``framing`` mode leaves the bag unreadable (the file's offsets advance without data); the bag is deleted
 after the run.
 
-    .venv/bin/python benchmarks/bench_recording.py [--seconds 250] [--segment 300] [--quick]
+    .venv/bin/python benchmarks/bench_recording.py [--seconds 250] [--segment 300] [--quick] [--modes ...]
 
 Prints a table, writes benchmarks/results/recording.json; asserts nothing.  Part of ``run.py --extras``.
 """
@@ -50,8 +59,11 @@ Prints a table, writes benchmarks/results/recording.json; asserts nothing.  Part
 from __future__ import annotations
 
 import argparse
+import fcntl
 import os
 import shutil
+import struct
+import subprocess
 import sys
 import tempfile
 import time
@@ -65,7 +77,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_tick  # noqa: E402  (sets this process's ROS domain before rclpy loads)
 from common import Results  # noqa: E402
 
-MODES = ("record", "framing", "drain", "off")
+#: every way of recording the script knows, and the ones a run interleaves unless told (--modes)
+ALL_MODES = ("record", "framing", "drain", "off", "pipe")
+DEFAULT_MODES = ("record", "framing", "drain", "off")
 #: ticks not counted after each switch (the writer's backlog from the previous mode drains)
 SETTLE_TICKS = 30
 #: the run's first seconds are not counted (start-up; the bodies are dropped at t = 0)
@@ -75,8 +89,8 @@ SKIP_S = 10.0
 class Modes:
     """The switch the patched recording looks at, and the patches (made once, before the node exists)."""
 
-    def __init__(self):
-        self.mode = MODES[0]
+    def __init__(self, names: tuple[str, ...]):
+        self.mode = names[0]
         import lz4.frame
         import mcap.writer
         import zlib
@@ -92,8 +106,19 @@ class Modes:
             if modes.mode != "off":
                 write(self, topic, data, stamp_ns)
 
+        self.pipe_reader = None
+        if "pipe" in names:  # a child that reads and drops; its pipe 1 MB deep (F_SETPIPE_SZ), as a writer's would be
+            self.pipe_reader = subprocess.Popen([sys.executable, "-c", _PIPE_READER], stdin=subprocess.PIPE)
+            pipe = self.pipe_reader.stdin.fileno()
+            fcntl.fcntl(pipe, 1031, 1 << 20)
+
         def writer_write_message(self, topic, data, log_time, publish_time):
-            if modes.mode != "drain":
+            if modes.mode == "pipe":
+                os.write(pipe, struct.pack("<QQI32s", log_time, publish_time, len(data), topic.name.encode()[:32]))
+                view = memoryview(data)
+                while view:
+                    view = view[os.write(pipe, view):]
+            elif modes.mode != "drain":
                 write_message(self, topic, data, log_time, publish_time)
 
         def file_commit(self, final=False):
@@ -119,12 +144,25 @@ class Modes:
         mcap.writer.zlib = _Checksums
 
 
-def run(seconds: float, segment: int) -> Results:
+    def close(self) -> None:
+        if self.pipe_reader is not None:
+            self.pipe_reader.stdin.close()
+            self.pipe_reader.wait()
+
+
+_PIPE_READER = """
+import os
+while os.read(0, 1 << 20):
+    pass
+"""
+
+
+def run(seconds: float, segment: int, names: tuple[str, ...] = DEFAULT_MODES) -> Results:
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    out = Results("recording", options={"seconds": seconds, "segment": segment, "modes": list(MODES)})
-    modes = Modes()
+    out = Results("recording", options={"seconds": seconds, "segment": segment, "modes": list(names)})
+    modes = Modes(names)
     rclpy.init(domain_id=int(os.environ["ROS_DOMAIN_ID"]))
     work = Path(tempfile.mkdtemp(prefix="bench_recording_"))
     node = bench_tick.make_node(bench_tick.SCENE, work / "bag", "bench_recording", realtime=True)
@@ -137,11 +175,11 @@ def run(seconds: float, segment: int) -> Results:
         nonlocal done
         if done >= total:
             return tick()
-        modes.mode = MODES[(done // segment) % len(MODES)]
+        modes.mode = names[(done // segment) % len(names)]
         start = time.perf_counter()
         tick()
         tick_ms[done] = (time.perf_counter() - start) * 1e3
-        mode_of[done] = MODES.index(modes.mode)
+        mode_of[done] = names.index(modes.mode)
         done += 1
 
     node.tick = timed_tick  # what the node's timer callback calls
@@ -151,15 +189,16 @@ def run(seconds: float, segment: int) -> Results:
         while done < total:
             executor.spin_once(timeout_sec=0.1)
     finally:
-        modes.mode = MODES[0]
+        modes.mode = names[0]
         node.close()
         node.destroy_node()
         rclpy.try_shutdown()
+        modes.close()
         shutil.rmtree(work, ignore_errors=True)
 
     counted = (np.arange(total) >= SKIP_S * 60) & (np.arange(total) % segment >= SETTLE_TICKS)
     rows = []
-    for index, mode in enumerate(MODES):
+    for index, mode in enumerate(names):
         ms = tick_ms[counted & (mode_of == index)]
         row = {"mode": mode, **bench_tick.window_stats(ms), "p95": float(np.percentile(ms, 95))}
         rows.append(row)
@@ -174,8 +213,10 @@ def main(argv=None) -> int:
     parser.add_argument("--seconds", type=float, default=250.0, help="length of the run (wall ≈ simulated)")
     parser.add_argument("--segment", type=int, default=300, help="ticks per mode before switching to the next")
     parser.add_argument("--quick", action="store_true", help="100 s instead of --seconds")
+    parser.add_argument("--modes", nargs="+", choices=ALL_MODES, default=list(DEFAULT_MODES),
+                        help="the ways of recording to interleave (the module docstring says what each is)")
     args = parser.parse_args(argv)
-    out = run(100.0 if args.quick else args.seconds, args.segment)
+    out = run(100.0 if args.quick else args.seconds, args.segment, tuple(args.modes))
     print(f"{'mode':10s} {'ticks':>6s} {'median':>8s} {'p95':>8s} {'p99':>8s}   (ms, 15k fish, real time)")
     for row in out.data["rows"]:
         print(f"{row['mode']:10s} {row['ticks']:6d} {row['median']:8.2f} {row['p95']:8.2f} {row['p99']:8.2f}")
