@@ -101,16 +101,16 @@ class Modes:
         write, write_message = recorder.Recorder.write, bag.BagWriter._write_message
         commit, sync_in_background = bag._CommittingFile.commit, bag.BagWriter._sync_in_background
         compress = lz4.frame.compress
+        # 'pipe': a child process that reads and drops, its pipe 1 MB deep (as a writer process's would be)
+        self.pipe_reader = None
+        if "pipe" in names:
+            self.pipe_reader = subprocess.Popen([sys.executable, "-c", _PIPE_READER], stdin=subprocess.PIPE)
+            pipe = self.pipe_reader.stdin.fileno()
+            fcntl.fcntl(pipe, fcntl.F_SETPIPE_SZ, 1 << 20)
 
         def recorder_write(self, topic, data, stamp_ns):
             if modes.mode != "off":
                 write(self, topic, data, stamp_ns)
-
-        self.pipe_reader = None
-        if "pipe" in names:  # a child that reads and drops; its pipe 1 MB deep (F_SETPIPE_SZ), as a writer's would be
-            self.pipe_reader = subprocess.Popen([sys.executable, "-c", _PIPE_READER], stdin=subprocess.PIPE)
-            pipe = self.pipe_reader.stdin.fileno()
-            fcntl.fcntl(pipe, 1031, 1 << 20)
 
         def writer_write_message(self, topic, data, log_time, publish_time):
             if modes.mode == "pipe":
@@ -142,7 +142,6 @@ class Modes:
         bag.BagWriter._sync_in_background = writer_sync
         lz4.frame.compress = lambda data, *a, **k: data if modes.mode == "framing" else compress(data, *a, **k)
         mcap.writer.zlib = _Checksums
-
 
     def close(self) -> None:
         if self.pipe_reader is not None:
