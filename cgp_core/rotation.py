@@ -79,23 +79,11 @@ def quat_conjugate(q: np.ndarray) -> np.ndarray:
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrix ``R`` (columns = body axes in world coordinates) of unit quaternion(s); ``(..., 3, 3)``."""
+    """Rotation matrix ``R`` (columns = body axes in world coordinates) of unit quaternion(s) of any shape
+    ``(..., 4)``: ``(..., 3, 3)``.  The formula's one home is :func:`quat_to_matrices`."""
     q = np.asarray(q, dtype=float)
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz = x * y, x * z, y * z
-    wx, wy, wz = w * x, w * y, w * z
-    R = np.empty(np.shape(x) + (3, 3))
-    R[..., 0, 0] = 1.0 - 2.0 * (yy + zz)
-    R[..., 0, 1] = 2.0 * (xy - wz)
-    R[..., 0, 2] = 2.0 * (xz + wy)
-    R[..., 1, 0] = 2.0 * (xy + wz)
-    R[..., 1, 1] = 1.0 - 2.0 * (xx + zz)
-    R[..., 1, 2] = 2.0 * (yz - wx)
-    R[..., 2, 0] = 2.0 * (xz - wy)
-    R[..., 2, 1] = 2.0 * (yz + wx)
-    R[..., 2, 2] = 1.0 - 2.0 * (xx + yy)
-    return R
+    rows = np.ascontiguousarray(q.reshape(-1, 4))
+    return quat_to_matrices(rows).reshape(q.shape[:-1] + (3, 3))
 
 
 def matrix_to_quat(R: np.ndarray) -> np.ndarray:
@@ -230,7 +218,8 @@ def quat_rotate_scalar(qx, qy, qz, qw, vx, vy, vz):
 
 @njit
 def quat_to_matrices(q):
-    """:func:`quat_to_matrix` for ``(n, 4)`` quaternions as one compiled loop: ``(n, 3, 3)``."""
+    """Rotation matrices ``R`` (columns = body axes in world coordinates) of ``(n, 4)`` unit quaternions
+    ``(x, y, z, w)``, one compiled loop: ``(n, 3, 3)``.  :func:`quat_to_matrix` takes any shape."""
     R = np.empty((len(q), 3, 3))
     for i in range(len(q)):
         x, y, z, w = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
