@@ -12,6 +12,8 @@ Modes, switched in turn every ``--segment`` ticks of the node's own 60 Hz timer 
 - ``record``: as the node records — the bag writer thread frames each message into MCAP chunks (mcap-python's
   ``Writer``: Python, copying the data into its buffers), compresses (lz4), checksums (CRC32), writes
   (``pwritev``) and syncs (the sync thread's fsync) each chunk (``cgp_sim_ros/bag.py``);
+- ``unpinned``: ``record`` with the node's ``pin_threads`` off (the tick's thread not on a CPU of its own: the
+  OS places every thread; ``cgp_core.jit.ThreadPlacement``);
 - ``framing``: the same framing, but the chunks are neither compressed, checksummed, written nor synced;
 - ``drain``: the writer thread takes every message off its queue and drops it (what is left: the tick's
   ``recorder.write`` and the queue);
@@ -48,6 +50,18 @@ allocator or cache shared with the tick's thread).
 process of its own would take most of recording off the tick, not a measurement of such a writer (which would
 also need its errors, roll-over and crash safety carried across the process boundary).
 
+What it was (found 2026-12-02, after the runs above): not the writer's work inside the ticks — timed, it no
+longer fell in them — but where the scheduler put the threads after it.  The poses are recorded every 2nd tick,
+and the tick after the writer had framed them was the slow one (mean 9.6 against 8.7 ms, p90 12.6 against
+9.2 ms; without recording both 8.7 ms).  In those ticks the numba pool's worker waited ~1.1 ms for a core
+(``/proc/<pid>/task/<tid>/schedstat``: 0.1 ms in the other ticks, 0.02 ms without recording): in one of five it
+had last run on the tick's own core.  Stand-ins for the writer's work between ticks (a thread that spins, copies
+or lz4-compresses the same bytes, or writes them to a file) did not reproduce it; a writer that wrote nothing to
+the file, or compressed nothing, or polled less, still did.  Pinning the tick's thread to one core and every
+other thread to the other removed it: real-time p99 13.2 / 13.0 ms unpinned against 9.8 / 10.0 ms pinned
+(alternating 30 s runs, separate processes), as without recording.  The node does so by default now
+(``pin_threads``; the ``unpinned`` mode here is the comparison).
+
 The ``framing`` mode leaves the bag unreadable (the file's offsets advance without data); the bag is deleted
 after the run.
 
@@ -78,8 +92,8 @@ import bench_tick  # noqa: E402  (sets this process's ROS domain before rclpy lo
 from common import Results  # noqa: E402
 
 #: every way of recording the script knows, and the ones a run interleaves unless told (--modes)
-ALL_MODES = ("record", "framing", "drain", "off", "pipe")
-DEFAULT_MODES = ("record", "framing", "drain", "off")
+ALL_MODES = ("record", "unpinned", "framing", "drain", "off", "pipe")
+DEFAULT_MODES = ("record", "unpinned", "framing", "drain", "off")
 #: ticks not counted after each switch (the writer's backlog from the previous mode drains)
 SETTLE_TICKS = 30
 #: the run's first seconds are not counted (start-up; the bodies are dropped at t = 0)
@@ -174,7 +188,11 @@ def run(seconds: float, segment: int, names: tuple[str, ...] = DEFAULT_MODES) ->
         nonlocal done
         if done >= total:
             return tick()
-        modes.mode = names[(done // segment) % len(names)]
+        mode = names[(done // segment) % len(names)]
+        if mode != modes.mode or done == 0:
+            modes.mode = mode
+            node.params["pin_threads"] = mode != "unpinned"
+            node._place_threads()  # as the parameter's callback does
         start = time.perf_counter()
         tick()
         tick_ms[done] = (time.perf_counter() - start) * 1e3

@@ -171,6 +171,11 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "published every tick); 0 = automatic: every tick unless the flocks' poses would exceed 32 MB/s, "
                   "then as often as fits. Written into the bag's metadata (custom_data).", read_only=True,
                   minimum=0, maximum=10000, flag="--bag-flock-poses-every"),
+    ParameterSpec("pin_threads", True, "While a flock runs on numba's thread pool (2,000 boids or more): the "
+                  "tick's thread on a CPU of its own, every other thread (the pool's workers, the bag writer, DDS) "
+                  "on the others (Linux, 2 CPUs or more; cgp_core/jit.py ThreadPlacement: on 2 cores it cut the "
+                  "15k-fish real-time tick's p99 from ~13 to ~10 ms). false: the OS places every thread. Logged "
+                  "when it changes.", flag="--pin-threads"),
     ParameterSpec("foxglove", False, "Serve a live view to the Foxglove app over WebSocket (Foxglove SDK): "
                   "every topic as the same CDR bytes, the simulation time, wrench commands and the services "
                   "(cgp_sim_ros/foxglove_server.py).", read_only=True, flag="--foxglove"),

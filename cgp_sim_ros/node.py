@@ -8,6 +8,8 @@ Threading: one single-threaded executor runs the timer, the subscriptions and th
 interleave with a step and need no locks.  The bag is written on its own thread (:mod:`cgp_sim_ros.bag`).
 With ``foxglove:=true`` a Foxglove WebSocket server (:mod:`cgp_sim_ros.foxglove_server`) gets the same bytes in
 :meth:`SimNode._out`; what its clients send reaches the node through the same executor (a guard condition).
+While a flock big enough for numba's thread pool runs (``pin_threads``), the executor's thread — the tick's —
+has a CPU of its own and every other thread the others (:meth:`SimNode._place_threads`).
 The interface (topics, QoS, parameters) is defined and documented in :mod:`cgp_sim_ros.interface`.
 
 Bad input (what a node on a shared graph must expect):
@@ -49,6 +51,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
+from cgp_core.jit import ThreadPlacement, runs_on_pool
 from cgp_core.scene import SceneError
 from cgp_core.world import World
 from cgp_core.wrenches import MAX_NAME_LENGTH, WrenchError, make_command
@@ -199,6 +202,9 @@ class SimNode(Node):
         self._load_kernels()
         self._freeze_startup_objects()
         self._share_the_gil_finely()
+        self._thread_placement = ThreadPlacement()
+        self._thread_placement_said: str | None = None
+        self._place_threads()
 
     # ---- set-up -----------------------------------------------------------------------------------------
 
@@ -426,6 +432,29 @@ class SimNode(Node):
         speed varied between the runs almost as much)."""
         sys.setswitchinterval(min(sys.getswitchinterval(), cls.GIL_SWITCH_INTERVAL_S))
 
+    def _place_threads(self) -> None:
+        """The tick's thread on a CPU of its own, every other thread on the others (``cgp_core.jit.ThreadPlacement``:
+        why, and what it measured), while ``pin_threads`` is on and a flock runs on numba's thread pool; else every
+        thread on every CPU.  Called at start-up and every REPORT_PERIOD_S from the tick (threads started since
+        are moved too; a flock spawned or deleted changes the answer); each change of the answer is logged."""
+        on_pool = any(runs_on_pool(f.count) for f in self.world.flocks)
+        placement = self._thread_placement
+        if on_pool and self.params["pin_threads"] and placement.place():
+            said = (f"threads: the tick on CPU {placement.cpu} alone; numba's pool workers, the bag writer and DDS "
+                    f"on CPU {', '.join(map(str, placement.others))} (pin_threads; a flock runs on numba's pool)")
+        else:
+            placement.release()
+            if not on_pool:  # said only after a placement: a small flock's node has nothing to say about it
+                said = "threads: not pinned (no flock runs on numba's pool now)" if self._thread_placement_said \
+                    else None
+            elif not self.params["pin_threads"]:
+                said = "threads: not pinned (pin_threads false)"
+            else:
+                said = f"threads: not pinned ({placement.unavailable})"
+        if said is not None and said != self._thread_placement_said:
+            self.get_logger().info(said)
+            self._thread_placement_said = said
+
     def _plan_detail(self) -> None:
         """(Re)make the level-of-detail plan from the flocks and the parameters (cgp_sim_ros/detail.py)."""
         self.detail = lod.plan([f.params for f in self.world.flocks], self.params["rate_hz"],
@@ -553,6 +582,7 @@ class SimNode(Node):
                 f"{median_ms:.1f} ms); dt stays {self.world.dt * 1e3:.3f} ms, so simulated time runs slower "
                 "than the wall clock")
         self._window_start, self._window_ticks = now, 0
+        self._place_threads()
 
     def _report(self) -> None:
         """Every REPORT_PERIOD_S of wall time: rejected / dropped commands, recording errors."""
@@ -739,6 +769,8 @@ class SimNode(Node):
                 self._window_start = None  # the rate check starts over at the new rate
         if any(param.name in ("rate_hz", "markers_every", "fish_detail") for param in parameters):
             self._replan_detail()
+        if any(param.name == "pin_threads" for param in parameters):
+            self._place_threads()
         return SetParametersResult(successful=True)
 
     def _replan_detail(self) -> None:
@@ -777,6 +809,8 @@ class SimNode(Node):
         aborting with "malloc_consolidate(): unaligned fastbin chunk detected", when several nodes on one
         domain stop at once."""
         self.sim.close()
+        if hasattr(self, "_thread_placement"):
+            self._thread_placement.release()
         super().destroy_node()
 
 
