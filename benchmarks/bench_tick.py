@@ -208,6 +208,9 @@ def run_scene(scene: Path, bag_dir: Path, windows: list[tuple[str, int]], name: 
         backlog, dropped, payload = writer.max_queued_bytes, writer.dropped_messages, writer._enqueued_bytes
         sim_seconds = node.world.time
         plan = node.detail
+        placement = node._thread_placement  # pin_threads (cgp_core/jit.py ThreadPlacement): as the run had it
+        threads = ({"tick_cpu": placement.cpu, "other_cpus": list(placement.others)} if placement.caller is not None
+                   else {"not_pinned": placement.unavailable or "no flock on numba's pool / pin_threads false"})
         boids = sum(f.count for f in node.world.flocks)
         neighbors = float(np.mean([f.mean_neighbors for f in node.world.flocks]))
     finally:
@@ -224,6 +227,7 @@ def run_scene(scene: Path, bag_dir: Path, windows: list[tuple[str, int]], name: 
            "bag_writer_cpu_ms_per_tick": writer_cpu / total * 1e3, "bag_backlog_max_MB": backlog / 1e6,
            "bag_dropped_messages": dropped, "gc": {"collections": gc_watch.count, "longest_ms": gc_watch.longest_ms,
                                                   "total_ms": gc_watch.total_ms},
+           "thread_placement": threads,
            "level_of_detail": {"fish_detail": plan.fish_detail, "markers_every": plan.markers_every,
                                "bag_flock_poses_every": plan.flock_poses_every, "lines": plan.lines}}
     first = 0
