@@ -440,8 +440,10 @@ class SimNode(Node):
         on_pool = any(runs_on_pool(f.count) for f in self.world.flocks)
         placement = self._thread_placement
         if on_pool and self.params["pin_threads"] and placement.place():
+            others = placement.others
             said = (f"threads: the tick on CPU {placement.cpu} alone; numba's pool workers, the bag writer and DDS "
-                    f"on CPU {', '.join(map(str, placement.others))} (pin_threads; a flock runs on numba's pool)")
+                    f"on CPU{'s' if len(others) > 1 else ''} {', '.join(map(str, others))} (pin_threads; a flock runs "
+                    "on numba's pool)")
         else:
             placement.release()
             if not on_pool:  # said only after a placement: a small flock's node has nothing to say about it
