@@ -173,6 +173,7 @@ while os.read(0, 1 << 20):
 def run(seconds: float, segment: int, names: tuple[str, ...] = DEFAULT_MODES) -> Results:
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
 
     out = Results("recording", options={"seconds": seconds, "segment": segment, "modes": list(names)})
     modes = Modes(names)
@@ -191,8 +192,7 @@ def run(seconds: float, segment: int, names: tuple[str, ...] = DEFAULT_MODES) ->
         mode = names[(done // segment) % len(names)]
         if mode != modes.mode or done == 0:
             modes.mode = mode
-            node.params["pin_threads"] = mode != "unpinned"
-            node._place_threads()  # as the parameter's callback does
+            node.set_parameters([Parameter("pin_threads", value=mode != "unpinned")])  # the node's own callback
         start = time.perf_counter()
         tick()
         tick_ms[done] = (time.perf_counter() - start) * 1e3

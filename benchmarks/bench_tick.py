@@ -208,9 +208,8 @@ def run_scene(scene: Path, bag_dir: Path, windows: list[tuple[str, int]], name: 
         backlog, dropped, payload = writer.max_queued_bytes, writer.dropped_messages, writer._enqueued_bytes
         sim_seconds = node.world.time
         plan = node.detail
-        placement = node._thread_placement  # pin_threads (cgp_core/jit.py ThreadPlacement): as the run had it
-        threads = ({"tick_cpu": placement.cpu, "other_cpus": list(placement.others)} if placement.caller is not None
-                   else {"not_pinned": placement.unavailable or "no flock on numba's pool / pin_threads false"})
+        # pin_threads (cgp_core/jit.py ThreadPlacement) as the run had it: the tick's CPU and the node's log line
+        threads = {"tick_cpu": node._thread_placement.cpu, "log": node._thread_placement_said}
         boids = sum(f.count for f in node.world.flocks)
         neighbors = float(np.mean([f.mean_neighbors for f in node.world.flocks]))
     finally:
