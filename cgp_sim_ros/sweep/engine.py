@@ -213,10 +213,10 @@ def _connect(scheduler: str | None, workers: int | None):
             raise EngineError(f"the Dask scheduler at {scheduler} has no worker (waited {WORKER_TIMEOUT_S:g} s)")
         return client, [client]
     count = workers or os.cpu_count() or 1
-    # one single-threaded process per core; a flock big enough for numba's thread pool would otherwise start
-    # a pool per worker on every core
+    # one single-threaded process per core (a flock of 2,000 boids or more also uses numba's pool in each:
+    # cgp_core.jit; NUMBA_NUM_THREADS=1 in the workers is refused by jit.threads_for, so it is left as is)
     cluster = LocalCluster(n_workers=count, threads_per_worker=1, processes=True, dashboard_address=None,
-                           silence_logs=logging.ERROR, env={"NUMBA_NUM_THREADS": "1"} if count > 1 else {})
+                           silence_logs=logging.ERROR)
     client = Client(cluster)
     return client, [cluster, client]
 
