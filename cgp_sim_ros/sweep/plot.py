@@ -157,8 +157,7 @@ def plot(out: Path, figure: Path | None = None, *, x: str | None = None, flock: 
                 axis.bar(positions, heights, bottom=bottom, color=COLORS[kind], label=kind, width=0.85)
             bottom += heights
         axis.set_xticks(positions, [f"{v:g}" for v in share], fontsize=7)
-        chain = (" (carried over, " + ("decreasing" if experiment["reverse"] else "increasing") + ")"
-                 if experiment["chain"] == x else "")
+        chain = " (carried over)" if experiment["chain"] == x else ""
         axis.set_title(f"{experiment['name']}{chain}", fontsize=9)
         axis.set_xlabel(x, fontsize=8)
         if column == 0:
