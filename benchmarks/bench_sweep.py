@@ -9,10 +9,11 @@ machine's drifting speed cannot favour one side:
 
 1. in-process, every 8th run: the sweep's own run function (``runner.run_task``: the same stepping and
    measurements a worker does), and ``World.from_scene`` + ``world.step()`` x ticks, nothing else;
-2. the whole sweep on a LocalCluster of **1** worker, 3. on **2** workers (each cluster started and its workers
-   warmed with one short run before the clock starts: the figures are per run, the start-up is reported
-   apart), each into a fresh output directory (no run is resumed);
-4. in-process, every 8th run from the 5th (a quarter of the runs in all).
+2. the sweep on LocalClusters of **1** and of **2** workers (both started, and their workers warmed with a short
+   run, before the clock starts: the figures are per run, the start-up is reported apart), in halves (every
+   other Δr_o) in the order 1, 2, 2, 1 workers, so that a steady drift of the machine's speed (tens of
+   percent within minutes here) cancels out of the ratio; each into a fresh output directory (nothing resumed);
+3. in-process, every 8th run from the 5th (a quarter of the runs in all).
 
 Figures: the wall time with 1 and 2 workers and the speed-up (goal >= 1.8x on this 2-core machine), and the
 overhead per run of the 1-worker sweep (its wall time / runs) over the same runs in-process (goal <= 5 %):
@@ -75,23 +76,52 @@ def in_process(sweep, runs) -> tuple[list[float], list[float]]:
     return measured, bare
 
 
-def on_cluster(sweep, workers: int, work: Path) -> dict:
+def _bare_runs(path: str, indices: list[int]) -> float:
+    """In a process of its own: bare stepping of the sweep's runs ``indices``; returns the seconds."""
+    sweep = load_sweep(path)
+    in_process(sweep, [sweep.runs[i] for i in indices[:1]])  # load the kernels first, not timed
+    started = time.perf_counter()
+    for i in indices:
+        run = sweep.runs[i]
+        world = World(scene_from_dict(copy.deepcopy(run.scene)), dt=sweep.experiments[0].dt, seed=run.seed)
+        for _ in range(sweep.experiments[0].ticks):
+            world.step()
+    return time.perf_counter() - started
+
+
+def machine_ceiling(path: Path, count: int) -> float:
+    """The speed-up this machine gives the same work without Dask: ``count`` runs stepped by 1 process, then
+    by 2 processes side by side (half each): wall(1) / wall(2)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(1, mp_context=context) as pool:
+        one = pool.submit(_bare_runs, str(path), list(range(count))).result()
+    with ProcessPoolExecutor(2, mp_context=context) as pool:
+        halves = [pool.submit(_bare_runs, str(path), list(range(k, count, 2))) for k in (0, 1)]
+        two = max(h.result() for h in halves)
+    return one / two
+
+
+def start_cluster(workers: int, work: Path):
+    """A LocalCluster of ``workers`` processes, its workers warmed (each has loaded the kernels); returns
+    (cluster, client, seconds it took)."""
     from distributed import Client, LocalCluster
 
     started = time.perf_counter()
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
     client = Client(cluster)
-    try:
-        warm = load_sweep(work / "warm.yaml")
-        run_sweep(warm, work / f"warm_{workers}", client=client, quiet=True)  # each worker loads the kernels
-        ready = time.perf_counter()
-        outcome = run_sweep(sweep, work / f"out_{workers}", client=client, quiet=True)
-        assert outcome.exit_code == 0 and outcome.ran == len(sweep.runs), outcome
-        return {"workers": workers, "start_and_warm_up_s": ready - started, "wall_s": outcome.wall_s,
-                "runs": outcome.ran, "rows": outcome.rows}
-    finally:
-        client.close()
-        cluster.close()
+    run_sweep(load_sweep(work / "warm.yaml"), work / f"warm_{workers}", client=client, quiet=True)
+    return cluster, client, time.perf_counter() - started
+
+
+def sweep_on(client, path: Path, out: Path) -> float:
+    """Wall seconds of running the sweep file ``path`` into the fresh directory ``out`` on ``client``."""
+    sweep = load_sweep(path)
+    outcome = run_sweep(sweep, out, client=client, quiet=True)
+    assert outcome.exit_code == 0 and outcome.ran == len(sweep.runs), outcome
+    return outcome.wall_s
 
 
 def main(argv=None) -> int:
@@ -106,18 +136,32 @@ def main(argv=None) -> int:
         (work / "warm.yaml").write_text(SWEEP.format(duration=1, seeds=4, widths=[1.0], window=1))
         sweep = load_sweep(work / "sweep.yaml")
         runs = sweep.runs
-        print(f"{len(runs)} runs of {duration} s at 60 Hz; in-process, a quarter of them", flush=True)
+        # the sweep's two halves (every other Δr_o) as sweep files of their own, for the A B B A order below
+        halves = []
+        for index in (0, 1):
+            halves.append(work / f"half{index}.yaml")
+            halves[-1].write_text(SWEEP.format(duration=duration, seeds=seeds, widths=widths[index::2],
+                                               window=window))
+        print(f"{len(runs)} runs of {duration} s at 60 Hz; in-process, an 8th of them", flush=True)
         measured, bare = in_process(sweep, runs[0::8])
         probes = [speed_probe()]
-        clusters = {}
-        for workers in (1, 2):
-            print(f"LocalCluster, {workers} worker(s)", flush=True)
-            clusters[workers] = on_cluster(sweep, workers, work)
+        clusters = {w: start_cluster(w, work) for w in (1, 2)}
+        walls = {1: 0.0, 2: 0.0}
+        # A B B A: the machine's speed drifts by tens of percent within minutes; this order cancels a steady drift
+        for step, (workers, half) in enumerate(((1, 0), (2, 0), (2, 1), (1, 1))):
+            print(f"half {half} of the sweep on {workers} worker(s)", flush=True)
+            walls[workers] += sweep_on(clusters[workers][1], halves[half], work / f"out_{step}")
             probes.append(speed_probe())
-        print("in-process, another quarter", flush=True)
+        for cluster, client, _ in clusters.values():
+            client.close()
+            cluster.close()
+        print("in-process, another 8th", flush=True)
         more = in_process(sweep, runs[4::8])
         measured, bare = measured + more[0], bare + more[1]
         probes.append(speed_probe())
+        clusters = {w: {"workers": w, "start_and_warm_up_s": clusters[w][2], "wall_s": walls[w]} for w in (1, 2)}
+        print("the same work in 1 and in 2 plain processes (the machine's own speed-up)", flush=True)
+        ceiling = machine_ceiling(work / "sweep.yaml", 4 if args.quick else 8)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     per_run_local = sum(measured) / len(measured)
@@ -131,6 +175,8 @@ def main(argv=None) -> int:
                issue26=True)
     out.figure("sweep_speedup_2_workers", "speed-up of 2 workers over 1 (2-core machine)", speedup, "x", ">= 1.8",
                speedup >= 1.8, issue26=True)
+    out.figure("sweep_machine_speedup_2_processes", "the same stepping in 2 plain processes over 1 (no Dask): "
+               "this machine's ceiling", ceiling, "x", "", None)
     out.figure("sweep_overhead_per_run", "sweep (1 worker) per run over the same run in-process", 100 * overhead,
                "%", "<= 5", overhead <= 0.05, issue26=True)
     out.figure("sweep_in_process_per_run", "a run in-process (run_task: steps + measurements)", per_run_local, "s", "",
