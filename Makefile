@@ -101,10 +101,11 @@ bench: setup
 	@$(PIP) -r requirements/bench.txt 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)
 	@$(VPY) benchmarks/run.py
 
-# Issue 14's figures (README): Couzin et al. 2002's phases and hysteresis loop (the sweep: ~3 min of CPU, run on
-# 2 processes; with the dt = 1/60 s rate check) and the predator's fountain effect.  FIGURE_ARGS="--seeds 4"
-# for a quicker, coarser sweep;
-# `benchmarks/figures/couzin_sweep.py --plot-only` redraws from benchmarks/results/couzin_sweep.json.
+# Issue 14's figures (README): Couzin et al. 2002's phases and hysteresis loop (the built-in sweep
+# couzin_hysteresis run by cgp-sim-sweep on a LocalCluster, one worker per core, into sweeps/: ~3 min of CPU; with
+# the dt = 1/60 s rate check, the sweep couzin_rate_check) and the predator's fountain effect.  Resumable: a
+# finished run is never run again.  FIGURE_ARGS="--seeds 4" for a quicker, coarser sweep;
+# `benchmarks/figures/couzin_sweep.py --plot-only` redraws from the sweep's tables in sweeps/.
 FIGURE_ARGS ?= --rate-check
 figures: setup
 	@$(PIP) -r requirements/figures.txt 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)

@@ -3,7 +3,8 @@ scenes / parameter files of `msgs_config`.
 
 Installs, with pip or colcon alike:
 - the Python packages `cgp_core`, `cgp_sim_ros`, `msgs_config` (scenes and parameter files as package data);
-- the console scripts `cgp-sim` (the node) and `cgp-sim-render` (bags to pictures, no ROS needed);
+- the console scripts `cgp-sim` (the node), `cgp-sim-render` (bags to pictures, no ROS needed) and
+  `cgp-sim-sweep` (many headless runs on Dask, results as Parquet tables; no ROS needed);
 - the ament layout `ros2 run cgp_sim_ros sim_node` resolves:
   share/ament_index/resource_index/packages/cgp_sim_ros, share/cgp_sim_ros/package.xml,
   lib/cgp_sim_ros/sim_node (a data file, since pip ignores setup.cfg's install_scripts).
@@ -26,12 +27,13 @@ setup(
     license="Apache-2.0",
     python_requires=">=3.10",
     packages=find_packages(include=["cgp_core", "cgp_core.*", "cgp_sim_ros", "cgp_sim_ros.*", "msgs_config"]),
-    package_data={"msgs_config": ["scenes/*.yaml", "params/*.yaml", "foxglove/*.json"], "cgp_sim_ros": ["assets/*"]},
+    package_data={"msgs_config": ["scenes/*.yaml", "params/*.yaml", "sweeps/*.yaml", "foxglove/*.json"], "cgp_sim_ros": ["assets/*"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/scenes", sorted(glob("msgs_config/scenes/*.yaml"))),
         (f"share/{PACKAGE}/params", sorted(glob("msgs_config/params/*.yaml"))),
+        (f"share/{PACKAGE}/sweeps", sorted(glob("msgs_config/sweeps/*.yaml"))),
         (f"share/{PACKAGE}/foxglove", sorted(glob("msgs_config/foxglove/*.json"))),
         (f"lib/{PACKAGE}", ["scripts/sim_node"]),
     ],
@@ -39,15 +41,20 @@ setup(
     # requirements/ros.txt (PyPI wheels) in the venv; package.xml declares them for rosdep.
     # tbb: numba's work-stealing thread pool (cgp_core/jit.py); without it numba falls back to OpenMP
     install_requires=["numpy>=1.26", "scipy>=1.11", "numba>=0.60", "tbb>=2021.6", "PyYAML>=6.0", "mcap>=1.2", "zstandard>=0.22",
-                      "lz4>=4.3", "pillow>=10", "foxglove-sdk>=0.30.3,<0.31"],
+                      "lz4>=4.3", "pillow>=10", "foxglove-sdk>=0.30.3,<0.31",
+                      # cgp-sim-sweep: the Dask engine and the Parquet tables (cgp_sim_ros/sweep)
+                      "dask[distributed]>=2024.8", "pyarrow>=15"],
     extras_require={
         "test": ["pytest>=8", "pytest-timeout>=2.3", "mcap-ros2-support>=0.5", "rosbags>=0.10", "psutil>=5.9",
                  "websockets>=15"],
         "bench": ["pybullet", "mujoco", "pyinstrument", "matplotlib"],
         # MP4 output of cgp-sim-render (a wheel that ships ffmpeg); PNG and GIF need only Pillow
         "render": ["imageio-ffmpeg>=0.5"],
+        # `cgp-sim-sweep plot` (the figures from a sweep's table); running a sweep never needs it
+        "plot": ["matplotlib"],
     },
     entry_points={"console_scripts": ["cgp-sim = cgp_sim_ros.cli:main",
-                                      "cgp-sim-render = cgp_sim_ros.render.cli:main"]},
+                                      "cgp-sim-render = cgp_sim_ros.render.cli:main",
+                                      "cgp-sim-sweep = cgp_sim_ros.sweep.cli:main"]},
     zip_safe=False,
 )
