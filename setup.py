@@ -2,7 +2,8 @@
 scenes / parameter files of `msgs_config`.
 
 Installs, with pip or colcon alike:
-- the Python packages `cgp_core`, `cgp_sim_ros`, `msgs_config` (scenes and parameter files as package data);
+- the Python packages `cgp_core`, `cgp_sim_ros` (with its subpackages: `ros` — the only one that needs rclpy —,
+  `wire`, `drawing`, `render`), `msgs_config` (scenes and parameter files as package data);
 - the console scripts `cgp-sim` (the node) and `cgp-sim-render` (bags to pictures, no ROS needed);
 - the ament layout `ros2 run cgp_sim_ros sim_node` resolves:
   share/ament_index/resource_index/packages/cgp_sim_ros, share/cgp_sim_ros/package.xml,
@@ -26,7 +27,7 @@ setup(
     license="Apache-2.0",
     python_requires=">=3.10",
     packages=find_packages(include=["cgp_core", "cgp_core.*", "cgp_sim_ros", "cgp_sim_ros.*", "msgs_config"]),
-    package_data={"msgs_config": ["scenes/*.yaml", "params/*.yaml", "foxglove/*.json"], "cgp_sim_ros": ["assets/*"]},
+    package_data={"msgs_config": ["scenes/*.yaml", "params/*.yaml", "foxglove/*.json"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -47,7 +48,7 @@ setup(
         # MP4 output of cgp-sim-render (a wheel that ships ffmpeg); PNG and GIF need only Pillow
         "render": ["imageio-ffmpeg>=0.5"],
     },
-    entry_points={"console_scripts": ["cgp-sim = cgp_sim_ros.cli:main",
+    entry_points={"console_scripts": ["cgp-sim = cgp_sim_ros.ros.cli:main",
                                       "cgp-sim-render = cgp_sim_ros.render.cli:main"]},
     zip_safe=False,
 )

@@ -181,7 +181,7 @@ def test_core_runs_without_any_ros_package():
 
 _RUN_MAIN_THEN_LIST_THREADS = """
 import json, os, sys, threading
-from cgp_sim_ros.cli import main
+from cgp_sim_ros.ros.cli import main
 code = main(["cgp-sim"] + sys.argv[1:])
 # what still runs once the node's main has returned, before the interpreter's exit runs any destructor
 print("AFTER MAIN " + json.dumps({
