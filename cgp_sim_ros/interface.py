@@ -1,8 +1,8 @@
 """The node's ROS interface, defined in one place: every topic, service and parameter with its type and
 meaning, and the limits on what the node accepts (the README's interface table is this file, in prose).
 
-ROS-free (names, defaults and numbers only), so that the ``cgp-sim`` flags, the level-of-detail planner and the
-docs tests read it without rclpy; the QoS profile each topic is offered with is in
+ROS-free (names, defaults and numbers only), so that the level-of-detail planner and the docs tests read it
+without rclpy; the QoS profile each topic is offered with is in
 :mod:`cgp_sim_ros.ros.qos`: ``STATE_QOS`` for the published state topics, ``CLOCK_QOS`` for ``/clock``,
 ``COMMAND_QOS`` for the command topics and ``~/events``, ``TF_QOS`` / ``TF_STATIC_QOS`` for TF.
 

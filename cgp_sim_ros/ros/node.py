@@ -287,8 +287,8 @@ class SimNode(Node):
 
     def _detail_custom_data(self) -> dict:
         return self.detail.custom_data({f.params.name: pub.topic_name for f, pub in
-                                        zip(self.world.flocks, self.outputs.flock_poses)},
-                                       self.outputs.markers.topic_name)
+                                        zip(self.world.flocks, self.outputs.pub_flock_poses)},
+                                       self.outputs.pub_markers.topic_name)
 
     def _place_threads(self) -> None:
         self.threads.update(self.world.flocks, self.params["pin_threads"])

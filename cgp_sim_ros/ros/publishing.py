@@ -43,19 +43,19 @@ class TickPublisher:
         #: the per-tick serializers (rebuilt by :meth:`rebuild` after the world's entities changed)
         self.messages = TickMessages(self.world, itf.WORLD_FRAME)
         self.tf = BodyTransforms(self.world, itf.WORLD_FRAME)
-        self.clock = node.create_publisher(TickMessages.Clock, itf.TOPIC_CLOCK, CLOCK_QOS)
-        self.body_poses = node.create_publisher(TickMessages.PoseArray, itf.TOPIC_BODY_POSES, STATE_QOS)
-        self.markers = node.create_publisher(TickMessages.MarkerArray, itf.TOPIC_MARKERS, STATE_QOS)
-        self.events = node.create_publisher(String, itf.TOPIC_EVENTS, COMMAND_QOS)
-        self.tf_dynamic = node.create_publisher(BodyTransforms.TFMessage, itf.TOPIC_TF, TF_QOS)
-        self.tf_static = node.create_publisher(BodyTransforms.TFMessage, itf.TOPIC_TF_STATIC, TF_STATIC_QOS)
+        self.pub_clock = node.create_publisher(TickMessages.Clock, itf.TOPIC_CLOCK, CLOCK_QOS)
+        self.pub_body_poses = node.create_publisher(TickMessages.PoseArray, itf.TOPIC_BODY_POSES, STATE_QOS)
+        self.pub_markers = node.create_publisher(TickMessages.MarkerArray, itf.TOPIC_MARKERS, STATE_QOS)
+        self.pub_events = node.create_publisher(String, itf.TOPIC_EVENTS, COMMAND_QOS)
+        self.pub_tf = node.create_publisher(BodyTransforms.TFMessage, itf.TOPIC_TF, TF_QOS)
+        self.pub_tf_static = node.create_publisher(BodyTransforms.TFMessage, itf.TOPIC_TF_STATIC, TF_STATIC_QOS)
         # per body / per flock (name -> publisher), and in the world's order (see follow_entities)
         self._odom: dict = {}
         self._flock_poses: dict = {}
         self._flock_stats: dict = {}
-        self.odom: list = []
-        self.flock_poses: list = []
-        self.flock_stats: list = []
+        self.pub_odom: list = []
+        self.pub_flock_poses: list = []
+        self.pub_flock_stats: list = []
         self._marker_ids: dict[str, set[int]] = {}  # marker namespace -> the ids drawn (see retire_markers)
         self._delete_all_markers = False  # see redraw_all_markers
 
@@ -80,9 +80,9 @@ class TickPublisher:
                     publishers[name] = node.create_publisher(msg_type, topic.format(**{key: name}), STATE_QOS,
                                                              event_callbacks=_NO_EVENT_HANDLERS)
                     added.append(publishers[name])
-        self.odom = [self._odom[n] for n in names]
-        self.flock_poses = [self._flock_poses[n] for n in flock_names]
-        self.flock_stats = [self._flock_stats[n] for n in flock_names]
+        self.pub_odom = [self._odom[n] for n in names]
+        self.pub_flock_poses = [self._flock_poses[n] for n in flock_names]
+        self.pub_flock_stats = [self._flock_stats[n] for n in flock_names]
         return added
 
     def rebuild(self) -> None:
@@ -108,7 +108,7 @@ class TickPublisher:
             t = self.world.time_ns
             deletes = [cdr.marker(cdr.MarkerFields(marker_type=cdr.ARROW, action=cdr.DELETE, stamp_ns=t,
                                                    frame_id=itf.WORLD_FRAME, ns=ns, id=i)) for ns, i in stale]
-            self.publish(self.markers, cdr.marker_array(deletes), t)
+            self.publish(self.pub_markers, cdr.marker_array(deletes), t)
         self._marker_ids = drawn
 
     def publish_static_tf(self) -> None:
@@ -118,7 +118,7 @@ class TickPublisher:
             return
         data = self.tf.static_if_changed(self.world.time_ns)
         if data is not None:
-            self.publish(self.tf_static, data, self.world.time_ns)
+            self.publish(self.pub_tf_static, data, self.world.time_ns)
 
     # ---- publishing ---------------------------------------------------------------------------------------
 
@@ -136,7 +136,7 @@ class TickPublisher:
         """Publish (and so record) one line on ~/events: the audit trail of what was done to the world."""
         payload = {"time": round(self.world.time, 9), **payload}
         msg = String(data=json.dumps(payload, separators=(",", ":")))
-        self.publish(self.events, serialize_message(msg), self.world.time_ns)
+        self.publish(self.pub_events, serialize_message(msg), self.world.time_ns)
 
     def publish_tick(self) -> None:
         """Everything one tick publishes (after the world's step)."""
@@ -151,25 +151,25 @@ class TickPublisher:
         the caller takes it, from ``world`` by ``messages`` and ``tf``: the node's own every tick
         (:meth:`publish_tick`), a throwaway copy's once before the first (:meth:`build_throwaway`)."""
         t = world.time_ns
-        yield self.clock, messages.clock(t), True
-        yield self.body_poses, messages.body_poses(t), True
-        for pub, data in zip(self.odom, messages.body_odometry(t)):
+        yield self.pub_clock, messages.clock(t), True
+        yield self.pub_body_poses, messages.body_poses(t), True
+        for pub, data in zip(self.pub_odom, messages.body_odometry(t)):
             yield pub, data, True
         record_poses = world.ticks % self._node.detail.flock_poses_every == 0  # the data: published every tick
-        for pub, data in zip(self.flock_poses, messages.flock_poses(t)):
+        for pub, data in zip(self.pub_flock_poses, messages.flock_poses(t)):
             yield pub, data, record_poses
-        for pub, data in zip(self.flock_stats, messages.flock_stats(t)):  # tiny: recorded on every tick
+        for pub, data in zip(self.pub_flock_stats, messages.flock_stats(t)):  # tiny: recorded on every tick
             yield pub, data, True
         dynamic = tf.dynamic(t)
         if dynamic is not None:
-            yield self.tf_dynamic, dynamic, True
+            yield self.pub_tf, dynamic, True
         if world.ticks == 1:  # the first /tf_static (later ones: publish_static_tf): what changed before it
             static = tf.static_if_changed(t)
             if static is not None:
-                yield self.tf_static, static, True
+                yield self.pub_tf_static, static, True
         # every tick: ground, bodies and one part of each flock's marker (a flock is redrawn every
         # markers_every ticks, part by part: cgp_sim_ros/ros/messages.py)
-        yield self.markers, messages.markers(t, delete_all_first=delete_all_markers, tick=world.ticks), True
+        yield self.pub_markers, messages.markers(t, delete_all_first=delete_all_markers, tick=world.ticks), True
 
     def build_throwaway(self, world) -> None:
         """Build (and drop: nothing is published) everything a tick of ``world`` — a copy of the node's —
