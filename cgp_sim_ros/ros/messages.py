@@ -8,11 +8,11 @@ Markers (``~/markers``, frame ``world``), with stable namespaces and ids:
   capsule's end SPHEREs), SPHERE_LIST (particle set, drawn in the body frame);
 - ``flocks/<flock>`` / 0 … K−1: SPHERE_LIST of boids (``model: sphere``) or TRIANGLE_LIST of fish (``model:
   fish``, :mod:`cgp_sim_ros.drawing.shapes`; full or low detail as :mod:`cgp_sim_ros.drawing.detail` chose),
-  points rounded to 1/1024 m (a view: the poses are exact).  A flock redrawn every K ticks (``markers_every``) is split into K
-  parts, part k = boids [k·N/K, (k+1)·N/K) with id k, and each array carries the part of its tick (tick mod
-  K): every boid is redrawn every K ticks, with the same bytes on every tick (the whole flock every K-th tick
-  was a burst the bag writer's compression then spent the next tick's second core on).  K = 1: one marker,
-  id 0, every tick.
+  points rounded to 1/1024 m (a view: the poses are exact).  A flock redrawn every K ticks (``markers_every``)
+  is split into K parts, part k = boids [k·N/K, (k+1)·N/K) with id k, and each array carries the part of its
+  tick (tick mod K): every boid is redrawn every K ticks, with the same bytes on every tick (the whole flock
+  every K-th tick was a burst the bag writer's compression then spent the next tick's second core on).
+  K = 1: one marker, id 0, every tick.
 After a reset the first marker of the array is a DELETEALL, then the full set (every part).
 
 The flock markers are the big ones: each part is laid out once in its own buffer

@@ -32,6 +32,7 @@ Bad input (what a node on a shared graph must expect):
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -71,7 +72,7 @@ class SimNode(Node):
       :mod:`cgp_sim_ros.ros.process`: the tuning of the process for the tick.
 
     What the collaborators use of the node (its public surface): :attr:`world`, :attr:`params`,
-    :attr:`paused`, :attr:`recorder`, :attr:`foxglove`, :attr:`command_inputs`, :meth:`reset`,
+    :attr:`paused`, :attr:`detail`, :attr:`recorder`, :attr:`foxglove`, :attr:`command_inputs`, :meth:`reset`,
     :meth:`world_edited`, :meth:`report_rejection`, :meth:`emit_event`, and rclpy's own ``Node`` methods.
     """
 
@@ -112,7 +113,7 @@ class SimNode(Node):
 
     # ---- set-up (in the order __init__ runs them) -------------------------------------------------------
 
-    def _bag_path(self):
+    def _bag_path(self) -> Path | None:
         if not self.params["bag"]:
             return None
         from .recorder import bag_directory  # the MCAP writer is imported only when recording
