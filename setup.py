@@ -2,7 +2,8 @@
 scenes / parameter files of `msgs_config`.
 
 Installs, with pip or colcon alike:
-- the Python packages `cgp_core`, `cgp_sim_ros`, `msgs_config` (scenes and parameter files as package data);
+- the Python packages `cgp_core`, `cgp_sim_ros` (with its subpackages: `ros` — the only one that needs rclpy —,
+  `wire`, `drawing`, `render`, `sweep`), `msgs_config` (scenes, sweeps and parameter files as package data);
 - the console scripts `cgp-sim` (the node), `cgp-sim-render` (bags to pictures, no ROS needed) and
   `cgp-sim-sweep` (many headless runs on Dask, results as Parquet tables; no ROS needed);
 - the ament layout `ros2 run cgp_sim_ros sim_node` resolves:
@@ -27,7 +28,7 @@ setup(
     license="Apache-2.0",
     python_requires=">=3.10",
     packages=find_packages(include=["cgp_core", "cgp_core.*", "cgp_sim_ros", "cgp_sim_ros.*", "msgs_config"]),
-    package_data={"msgs_config": ["scenes/*.yaml", "params/*.yaml", "sweeps/*.yaml", "foxglove/*.json"], "cgp_sim_ros": ["assets/*"]},
+    package_data={"msgs_config": ["scenes/*.yaml", "params/*.yaml", "sweeps/*.yaml", "foxglove/*.json"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -53,7 +54,7 @@ setup(
         # `cgp-sim-sweep plot` (the figures from a sweep's table); running a sweep never needs it
         "plot": ["matplotlib"],
     },
-    entry_points={"console_scripts": ["cgp-sim = cgp_sim_ros.cli:main",
+    entry_points={"console_scripts": ["cgp-sim = cgp_sim_ros.ros.cli:main",
                                       "cgp-sim-render = cgp_sim_ros.render.cli:main",
                                       "cgp-sim-sweep = cgp_sim_ros.sweep.cli:main"]},
     zip_safe=False,

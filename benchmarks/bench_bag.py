@@ -1,6 +1,6 @@
-"""Bag recording cost per tick (cgp_sim_ros.bag.BagWriter), on this machine.
+"""Bag recording cost per tick (cgp_sim_ros.wire.bag.BagWriter), on this machine.
 
-Scenes (the messages of one tick, serialized once with cgp_sim_ros.cdr, from positions that move a little
+Scenes (the messages of one tick, serialized once with cgp_sim_ros.wire.cdr, from positions that move a little
 each tick like a simulation's, so the compressors see realistic float data):
 - ``default``: ~300 boids in 2 flocks + 8 bodies: 3 PoseArrays (bodies, 2 flocks), a MarkerArray (8 body
   markers + 2 coloured SPHERE_LISTs), 8 Odometry, a Clock.
@@ -38,8 +38,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from cgp_sim_ros import cdr  # noqa: E402
-from cgp_sim_ros.bag import BagWriter  # noqa: E402
+from cgp_sim_ros.wire import cdr  # noqa: E402
+from cgp_sim_ros.wire.bag import BagOptions, BagWriter  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RATE_HZ = 60
@@ -81,9 +81,10 @@ class Scene:
         self.bodies += self.rng.normal(scale=0.01, size=self.bodies.shape)
         quats = np.tile([0.0, 0.0, 0.0, 1.0], (n_b, 1)) + self.rng.normal(scale=1e-3, size=(n_b, 4))
         out.append(("/cgp_sim/bodies/poses", self.body_serializer.serialize(stamp, self.bodies, quats)))
-        markers = [cdr.marker(marker_type=cdr.SPHERE, stamp_ns=stamp, frame_id="world", ns="bodies", id=i,
-                              position=self.bodies[i], orientation=quats[i], scale=(0.5, 0.5, 0.5),
-                              color=(0.8, 0.2, 0.2, 1.0)) for i in range(n_b)]
+        markers = [cdr.marker(cdr.MarkerFields(marker_type=cdr.SPHERE, stamp_ns=stamp, frame_id="world", ns="bodies",
+                                               id=i, position=self.bodies[i], orientation=quats[i],
+                                               scale=(0.5, 0.5, 0.5), color=(0.8, 0.2, 0.2, 1.0)))
+                   for i in range(n_b)]
         for k, (name, pos, vel) in enumerate(self.flocks):
             vel += self.rng.normal(scale=0.05, size=vel.shape)
             pos += vel / RATE_HZ
@@ -95,8 +96,9 @@ class Scene:
             speed = np.linalg.norm(vel, axis=1)
             colors = np.stack([speed / (speed.max() + 1e-9), 0.5 + 0 * speed, 1 - speed / (speed.max() + 1e-9),
                                np.ones_like(speed)], axis=1).astype(np.float32)
-            markers.append(cdr.marker(marker_type=cdr.SPHERE_LIST, stamp_ns=stamp, frame_id="world",
-                                      ns=f"flock_{k}", points=pos, colors=colors, scale=(0.1, 0.1, 0.1)))
+            markers.append(cdr.marker(cdr.MarkerFields(marker_type=cdr.SPHERE_LIST, stamp_ns=stamp, frame_id="world",
+                                                       ns=f"flock_{k}", points=pos, colors=colors,
+                                                       scale=(0.1, 0.1, 0.1))))
         out.append(("/cgp_sim/markers", cdr.marker_array(markers)))
         lin = self.rng.normal(size=(n_b, 3))
         for body, data in zip(self.body_names,
@@ -143,7 +145,7 @@ def paced_run(topics, ticks, compression, work, seconds: float, directory: Path)
     if compression is None:
         bag = None
     else:
-        bag = BagWriter(directory, compression=compression)
+        bag = BagWriter(directory, BagOptions(compression=compression))
         for name, type_name in topics.items():
             bag.add_topic(name, type_name)
     n = int(seconds * RATE_HZ)
@@ -182,7 +184,7 @@ def paced_run(topics, ticks, compression, work, seconds: float, directory: Path)
 
 def capacity_run(topics, ticks, compression, n_ticks: int, directory: Path) -> dict:
     """Writer fed as fast as the caller can write (blocking at the queue bound): sustained payload MB/s."""
-    bag = BagWriter(directory, compression=compression, max_queue_bytes=64 * 1024 * 1024)
+    bag = BagWriter(directory, BagOptions(compression=compression, max_queue_bytes=64 * 1024 * 1024))
     for name, type_name in topics.items():
         bag.add_topic(name, type_name)
     payload = 0

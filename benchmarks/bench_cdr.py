@@ -1,4 +1,4 @@
-"""CDR serialization with numpy (cgp_sim_ros.cdr) vs rclpy message objects, on this machine.
+"""CDR serialization with numpy (cgp_sim_ros.wire.cdr) vs rclpy message objects, on this machine.
 
 Per message, median of interleaved repetitions (each variant runs in turn, several rounds):
 - PoseArray 1k / 10k / 100k poses:
@@ -45,8 +45,8 @@ from rclpy.serialization import serialize_message  # noqa: E402
 from std_msgs.msg import ColorRGBA  # noqa: E402
 from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
-from cgp_sim_ros import cdr  # noqa: E402
-from cgp_sim_ros.bag import BagWriter  # noqa: E402
+from cgp_sim_ros.wire import cdr  # noqa: E402
+from cgp_sim_ros.wire.bag import BagOptions, BagWriter  # noqa: E402
 from common import Results  # noqa: E402
 
 TARGET_RATIO_10K = 20.0
@@ -132,7 +132,7 @@ def main(argv=None) -> int:
     node = rclpy.create_node("bench_cdr", context=context)
     publisher = node.create_publisher(PoseArray, "bench_poses", 10)
     bag_dir = Path(tempfile.mkdtemp(prefix="bench_cdr_")) / "bag"
-    bag = BagWriter(bag_dir, max_queue_bytes=1 << 30)
+    bag = BagWriter(bag_dir, BagOptions(max_queue_bytes=1 << 30))
     bag.add_topic("/bench_poses", "geometry_msgs/msg/PoseArray")
     try:
         for n in (1_000, 10_000, 100_000):
@@ -184,8 +184,8 @@ def main(argv=None) -> int:
             colors = rng.uniform(size=(n, 4)).astype(np.float32)
             times = interleaved({
                 "rclpy objects": lambda: serialize_message(rclpy_sphere_list(points, colors)),
-                "numpy": lambda: cdr.marker(marker_type=cdr.SPHERE_LIST, frame_id="world", points=points,
-                                            colors=colors, scale=(0.1, 0.1, 0.1)),
+                "numpy": lambda: cdr.marker(cdr.MarkerFields(marker_type=cdr.SPHERE_LIST, frame_id="world",
+                                                             points=points, colors=colors, scale=(0.1, 0.1, 0.1))),
             }, rounds if n < 100_000 else max(3, rounds // 2))
             for name, t in times.items():
                 rows.append({"message": f"SPHERE_LIST {n}", "variant": name, "ms": t * 1e3,
@@ -208,7 +208,8 @@ def main(argv=None) -> int:
             return serialize_message(array)
 
         times = interleaved({"rclpy objects": rclpy_shapes,
-                             "numpy": lambda: cdr.marker_array([cdr.marker(**kw) for kw in shapes])}, rounds)
+                             "numpy": lambda: cdr.marker_array([cdr.marker(cdr.MarkerFields(**kw)) for kw in shapes])},
+                            rounds)
         for name, t in times.items():
             rows.append({"message": "MarkerArray 20 shapes", "variant": name, "ms": t * 1e3,
                          "speedup": times["rclpy objects"] / t})

@@ -8,7 +8,7 @@
 - ``flock_order(x, v)`` without a neighbour list: every boid searched from scratch (all pairs, or a KD-tree
   beyond ``order.BRUTE_FORCE_PAIRS``);
 - scipy's ``cKDTree(x).query(x, k=2)``: the textbook way to the same distances;
-- the FlockStats CDR serialization (``cgp_sim_ros.cdr.FlockStatsSerializer``), when the ROS side is installed.
+- the FlockStats CDR serialization (``cgp_sim_ros.wire.cdr.FlockStatsSerializer``), when the ROS side is installed.
 
 The flocks are the default flock (``FlockParams()``) at its steady-state density (0.52 boids/m³, as
 ``bench_boids.py`` and the 15k-fish tick scene), stepped 60 ticks from a random start (so the neighbour list is
@@ -49,7 +49,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     out = Results("flock_stats", options=vars(args))
     try:
-        from cgp_sim_ros.cdr import FlockStatsSerializer
+        from cgp_sim_ros.wire.cdr import FlockStatsSerializer
         serializer = FlockStatsSerializer("world")
     except ImportError:  # without the ROS side installed, the serialization is not timed
         serializer = None

@@ -58,7 +58,7 @@ BLOCK = 30  # ticks per on / off block
 def make_node(scene: str):
     from rclpy.parameter import Parameter
 
-    from cgp_sim_ros.node import SimNode
+    from cgp_sim_ros.ros.node import SimNode
 
     return SimNode(node_name="cgp_sim_bench_foxglove", parameter_overrides=[
         Parameter("scene", value=scene), Parameter("realtime", value=False), Parameter("foxglove", value=True),
@@ -153,13 +153,14 @@ def hook_cost_us(node, server, repeats: int) -> tuple[float, int, int]:
     """µs per tick that ``FoxgloveServer.publish`` takes for one tick's messages (median of ``repeats``), the
     number of messages and their bytes."""
     captured = []
-    original = node._out
-    node._out = lambda publisher, data, stamp, **_: captured.append((publisher, data, stamp))
+    outputs = node.outputs
+    original = outputs.publish
+    outputs.publish = lambda publisher, data, stamp, **_: captured.append((publisher, data, stamp))
     try:
         node.tick()
     finally:
-        del node.__dict__["_out"]
-    assert node._out == original
+        del outputs.__dict__["publish"]
+    assert outputs.publish == original
     publish = server.publish
     times = []
     for _ in range(repeats):

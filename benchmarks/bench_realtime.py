@@ -2,7 +2,7 @@
 its start-up.
 
 **Real time** (target: achieved tick rate over 30 s >= 59.5 Hz, no "falling behind" warning).  A child process
-runs ``cgp_sim_ros.cli.main`` — exactly what the ``cgp-sim`` command runs, with ``--bag`` as ``make run``
+runs ``cgp_sim_ros.ros.cli.main`` — exactly what the ``cgp-sim`` command runs, with ``--bag`` as ``make run``
 passes it — on the default scene (60 Hz, real time), with two timing wrappers installed on the node class
 before it is built: one on the timer callback (when each tick *starts*: the period between ticks) and one
 around ``tick()`` (how long a tick *takes*).  30 s after the first tick the child sends itself SIGINT, which
@@ -64,14 +64,14 @@ WARNING = "falling behind real time"
 # ---- the child: cgp-sim's main() with timing wrappers ----------------------------------------------------
 
 def child(out_path: str, seconds: float, no_freeze: bool, argv: list[str]) -> int:
-    """Run ``cgp_sim_ros.cli.main(argv)`` with the node's timer callback and tick timed; stop ``seconds``
+    """Run ``cgp_sim_ros.ros.cli.main(argv)`` with the node's timer callback and tick timed; stop ``seconds``
     after the first tick with SIGINT (cgp-sim's clean stop); write the times to ``out_path``."""
     import gc
 
     if no_freeze:
         gc.freeze = lambda: None  # the comparison run: the node's freeze does nothing
-    from cgp_sim_ros import cli
-    from cgp_sim_ros.node import SimNode
+    from cgp_sim_ros.ros import cli
+    from cgp_sim_ros.ros.node import SimNode
 
     callbacks, starts, ends = [], [], []
     gc_watch = GcWatch()  # installed at the first tick

@@ -11,7 +11,7 @@ Modes, switched in turn every ``--segment`` ticks of the node's own 60 Hz timer 
 
 - ``record``: as the node records — the bag writer thread frames each message into MCAP chunks (mcap-python's
   ``Writer``: Python, copying the data into its buffers), compresses (lz4), checksums (CRC32), writes
-  (``pwritev``) and syncs (the sync thread's fsync) each chunk (``cgp_sim_ros/bag.py``);
+  (``pwritev``) and syncs (the sync thread's fsync) each chunk (``cgp_sim_ros/wire/bag.py``);
 - ``unpinned``: ``record`` with the node's ``pin_threads`` off (the tick's thread not on a CPU of its own: the
   OS places every thread; ``cgp_core.jit.ThreadPlacement``);
 - ``framing``: the same framing, but the chunks are neither compressed, checksummed, written nor synced;
@@ -109,7 +109,8 @@ class Modes:
         import mcap.writer
         import zlib
 
-        from cgp_sim_ros import bag, recorder
+        from cgp_sim_ros.ros import recorder
+        from cgp_sim_ros.wire import bag
 
         modes = self
         write, write_message = recorder.Recorder.write, bag.BagWriter._write_message

@@ -47,7 +47,7 @@ os.environ["ROS_DOMAIN_ID"] = os.environ["CGP_SIM_BENCH_DOMAIN"]
 
 from common import RESULTS, Results  # noqa: E402
 
-from cgp_sim_ros import cdr  # noqa: E402
+from cgp_sim_ros.wire import cdr  # noqa: E402
 from cgp_sim_ros.render.primitives import MarkerSet, extent_points, primitives  # noqa: E402
 from cgp_sim_ros.render.raster import (AMBIENT, DIFFUSE, LIGHT_DIRECTION, SKY_BOTTOM, SKY_TOP, Camera,  # noqa: E402
                                        Rasterizer)
@@ -60,7 +60,7 @@ def default_scene_frame(seconds: float = 10.0):
     """The default scene's markers after ``seconds``, as the node serializes them, decoded as the renderer
     decodes them."""
     from cgp_core import World
-    from cgp_sim_ros.messages import TickMessages
+    from cgp_sim_ros.ros.messages import TickMessages
 
     world = World.from_scene("default")
     for _ in range(round(seconds / world.dt)):

@@ -1,6 +1,6 @@
 """Real-time factor of every built-in scene: can it run live on this machine?
 
-For each scene in ``msgs_config/scenes`` a :class:`~cgp_sim_ros.node.SimNode` (the real node, in this process,
+For each scene in ``msgs_config/scenes`` a :class:`~cgp_sim_ros.ros.node.SimNode` (the real node, in this process,
 its own ROS domain, no bag, ``realtime=false``) runs ``--seconds`` of simulated time with ``node.tick()``
 called back to back: commands, ``World.step()``, every message serialized and published.  The real-time
 factor is simulated time / wall time: >= 1 means the scene keeps up with the wall clock at its 60 Hz.  The
@@ -36,7 +36,7 @@ from common import Results  # noqa: E402
 def run_scene(name: str, seconds: float) -> dict:
     from rclpy.parameter import Parameter
 
-    from cgp_sim_ros.node import SimNode
+    from cgp_sim_ros.ros.node import SimNode
 
     node = SimNode(node_name=f"bench_{name}", parameter_overrides=[
         Parameter("scene", value=name), Parameter("realtime", value=False)])

@@ -175,7 +175,7 @@ def tick_split(fixed: bool, bodies: int, settle_ticks: int, timed_ticks: int) ->
     from rclpy.parameter import Parameter
     from simulation_interfaces.srv import SpawnEntity
 
-    from cgp_sim_ros.node import SimNode
+    from cgp_sim_ros.ros.node import SimNode
 
     bag_root = Path(tempfile.mkdtemp(prefix="bench_spawn_split_", dir=os.environ.get("BENCH_BAG_DIR")))
     rclpy.init()

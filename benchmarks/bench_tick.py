@@ -1,7 +1,7 @@
 """Issue 12's tick figures: 15,000 fish + 20 bodies, recorded, the real node path, timed from the first tick.
 
 The node is built exactly as ``cgp-sim`` builds it — ``SimNode(parameter_overrides=[scene, bag,
-realtime=False])``, default level of detail (``cgp_sim_ros/detail.py`` chooses how the fish are drawn and what
+realtime=False])``, default level of detail (``cgp_sim_ros/drawing/detail.py`` chooses how the fish are drawn and what
 is recorded at what rate, and logs it) — in a process of its own ROS domain, and ``node.tick()`` is called back
 to back from the very first tick (batch mode: no timer; the timer-driven real-time mode is
 ``bench_realtime.py``).  A tick is: commands in, ``World.step()`` (the 20 bodies × 4 sub-steps, then the flock),
@@ -99,11 +99,11 @@ class TickTimer:
 
     def install(self) -> None:
         node = self.node
-        self._targets = [(node.world, "step", "step"), (node, "_out", "out")]
+        self._targets = [(node.world, "step", "step"), (node.outputs, "publish", "out")]
         self._targets += [(flock, "step", "flock") for flock in node.world.flocks]
-        self._targets += [(node.messages, name, "serialize")
+        self._targets += [(node.outputs.messages, name, "serialize")
                           for name in ("clock", "body_poses", "body_odometry", "flock_poses", "markers")]
-        self._targets.append((node.messages, "flock_stats", "stats"))
+        self._targets.append((node.outputs.messages, "flock_stats", "stats"))
         if node.recorder is not None:
             self._targets.append((node.recorder, "write", "record"))
         for obj, name, bucket in self._targets:
@@ -133,7 +133,7 @@ def thread_cpu_s(native_id: int | None) -> float:
 def make_node(scene: Path, bag_dir: Path, name: str, realtime: bool = False):
     from rclpy.parameter import Parameter
 
-    from cgp_sim_ros.node import SimNode
+    from cgp_sim_ros.ros.node import SimNode
 
     return SimNode(node_name=name, parameter_overrides=[
         Parameter("scene", value=str(scene)), Parameter("bag", value=str(bag_dir)),
@@ -209,7 +209,7 @@ def run_scene(scene: Path, bag_dir: Path, windows: list[tuple[str, int]], name: 
         sim_seconds = node.world.time
         plan = node.detail
         # pin_threads (cgp_core/jit.py ThreadPlacement) as the run had it: the tick's CPU and the node's log line
-        threads = {"tick_cpu": node._thread_placement.cpu, "log": node._thread_placement_said}
+        threads = {"tick_cpu": node.threads.placement.cpu, "log": node.threads.said}
         boids = sum(f.count for f in node.world.flocks)
         neighbors = float(np.mean([f.mean_neighbors for f in node.world.flocks]))
     finally:
@@ -259,7 +259,7 @@ def fish_in_bag(bag_dir: Path, samples: int = 6) -> dict:
     from visualization_msgs.msg import Marker, MarkerArray
 
     from cgp_core.rotation import quat_to_matrix
-    from cgp_sim_ros.shapes import FISH_DETAILS, VERTEX_QUANTUM
+    from cgp_sim_ros.drawing.shapes import FISH_DETAILS, VERTEX_QUANTUM
 
     info = yaml.safe_load((bag_dir / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     parts = next(iter(json.loads(info["custom_data"]["cgp_sim.flock_markers_redrawn_every_n_ticks"]).values()))

@@ -122,7 +122,7 @@ class World:
         self.events: list[WorldEvent] = []
         self.spawned: list[str] = []
         self.model_version = 0
-        self._remember_tick_start()
+        self.remember_tick_start()
 
     @classmethod
     def from_scene(cls, scene: str | Scene, **kwargs) -> "World":
@@ -134,7 +134,7 @@ class World:
     def step(self) -> None:
         """Advance one tick (see the module docstring for the stages)."""
         h = self.dt / self.substeps
-        self._remember_tick_start()
+        self.remember_tick_start()
         model, state = self.body_model, self.body_state
         islands = self.islands()
         if islands is not None and self.wrenches.active:
@@ -287,7 +287,7 @@ class World:
             for flock in self.flocks:
                 flock.reset()
             self.wrenches.clear()
-            self._remember_tick_start()
+            self.remember_tick_start()
             if hasattr(self.solver, "reset"):
                 self.solver.reset()
         self.wake()
@@ -521,7 +521,7 @@ class World:
         self.flocks = [Flock(p) for p in self._scene_flock_params]
         self.spawned = []
         self.wrenches.clear()
-        self._remember_tick_start()
+        self.remember_tick_start()
         self._bodies_changed()
         self.model_version += 1
 
@@ -540,7 +540,7 @@ class World:
             self.solver.reset()
         self.wake()
 
-    def _remember_tick_start(self) -> None:
+    def remember_tick_start(self) -> None:
         """Momenta and orientations at the start of the tick, for the accelerations :meth:`entity_state`
         reports (Δv / dt over the last tick); the flocks' mean velocities likewise."""
         state = self.body_state

@@ -1,5 +1,10 @@
-"""The node's ROS interface, defined in one place: every topic, service and parameter with its type, QoS and
-meaning (the README's interface table is this file, in prose).
+"""The node's ROS interface, defined in one place: every topic, service and parameter with its type and
+meaning, and the limits on what the node accepts (docs/interface.md is this file, in prose).
+
+ROS-free (names, defaults and numbers only), so that the level-of-detail planner and the docs tests read it
+without rclpy; the QoS profile each topic is offered with is in
+:mod:`cgp_sim_ros.ros.qos`: ``STATE_QOS`` for the published state topics, ``CLOCK_QOS`` for ``/clock``,
+``COMMAND_QOS`` for the command topics and ``~/events``, ``TF_QOS`` / ``TF_STATIC_QOS`` for TF.
 
 All names are relative (``~/`` = the node's name, default ``cgp_sim``), so ``--ros-args -r __ns:=/robot1``
 and ``-r __node:=sim`` and per-topic remaps work.  ``/clock`` is absolute by convention.
@@ -40,7 +45,7 @@ TF (``tf2_msgs/TFMessage``, absolute names as every tf2 user expects): ``/tf`` e
 the fixed bodies, sent again whenever that set or a fixed body's pose changes.
 
 ``simulation_interfaces`` (ROS 2's simulator standard, Jazzy 1.5.1; implemented in
-:mod:`cgp_sim_ros.sim_services`, every call also a line on ``~/events``):
+:mod:`cgp_sim_ros.ros.sim_services`, every call also a line on ``~/events``):
 
 ==============================  =====================================================================
 ``~/get_simulator_features``    GetSimulatorFeatures: what is supported, ``spawn_formats: [yaml]``
@@ -59,29 +64,17 @@ the fixed bodies, sent again whenever that set or a fixed body's pose changes.
 
 With ``foxglove:=true`` all of the above is also served over a Foxglove WebSocket (``foxglove_host``,
 ``foxglove_port``): the same topics as channels, the same commands and services (see
-:mod:`cgp_sim_ros.foxglove_server`).
+:mod:`cgp_sim_ros.ros.foxglove_server`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
 WORLD_FRAME = "world"
-#: how model:fish flocks may be drawn: "auto" (cgp_sim_ros/detail.py chooses) or a detail of shapes.FISH_DETAILS
+#: how model:fish flocks may be drawn: "auto" (cgp_sim_ros/drawing/detail.py chooses) or a detail of
+#: drawing.shapes.FISH_DETAILS
 FISH_DETAIL_CHOICES = ("auto", "full", "low")
-
-# State topics: reliable so RViz / Foxglove (reliable by default) and best-effort subscribers both match;
-# KEEP_LAST so a subscriber that never reads cannot make the publisher block or grow memory.
-STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE)
-# /clock: as rclpy / rclcpp's own clock QoS expects (a reliable writer also serves best-effort readers).
-CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE)
-# Commands: reliable, a deep enough queue for bursts; the node bounds its own pending queue as well.
-COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
 
 TOPIC_BODY_POSES = "~/bodies/poses"
 TOPIC_BODY_ODOM = "~/bodies/{body}/odom"
@@ -92,13 +85,6 @@ TOPIC_MARKERS = "~/markers"
 TOPIC_EVENTS = "~/events"
 TOPIC_CLOCK = "/clock"
 TOPIC_APPLY_WRENCH = "~/apply_wrench"
-# TF, as tf2_ros' broadcasters offer it: /tf reliable, volatile, keep last 100; /tf_static reliable,
-# transient local, keep last 1 (a late subscriber gets the latest set of static transforms).
-TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                    durability=DurabilityPolicy.VOLATILE)
-TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
 TOPIC_TF = "/tf"
 TOPIC_TF_STATIC = "/tf_static"
 SERVICE_RESET = "~/reset"
@@ -162,8 +148,8 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   flag="--max-torque"),
     ParameterSpec("markers_every", 0, "Redraw each flock's marker every N ticks, in N parts published one per "
                   "tick (~/markers itself goes out every tick); 0 = automatic: every tick unless the flock markers "
-                  "would exceed 32 MB/s, then as often as fits (see cgp_sim_ros/detail.py; the choice is logged "
-                  "at start-up).", minimum=0, maximum=10000, flag="--markers-every"),
+                  "would exceed 32 MB/s, then as often as fits (see cgp_sim_ros/drawing/detail.py; the choice is "
+                  "logged at start-up).", minimum=0, maximum=10000, flag="--markers-every"),
     ParameterSpec("fish_detail", "auto", "How model:fish flocks are drawn: full (10 triangles per fish), low (3: "
                   "the outline seen from above and the tail fin) or auto (full unless the markers would exceed "
                   "32 MB/s at the tick rate).", flag="--fish-detail", choices=FISH_DETAIL_CHOICES),
@@ -178,7 +164,7 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "when it changes.", flag="--pin-threads"),
     ParameterSpec("foxglove", False, "Serve a live view to the Foxglove app over WebSocket (Foxglove SDK): "
                   "every topic as the same CDR bytes, the simulation time, wrench commands and the services "
-                  "(cgp_sim_ros/foxglove_server.py).", read_only=True, flag="--foxglove"),
+                  "(cgp_sim_ros/ros/foxglove_server.py).", read_only=True, flag="--foxglove"),
     ParameterSpec("foxglove_host", "127.0.0.1", "Address the Foxglove WebSocket server listens on (127.0.0.1: "
                   "this machine only; 0.0.0.0: every interface, and anyone who reaches it can push the bodies "
                   "and reset the simulation).", read_only=True, flag="--foxglove-host"),
@@ -187,3 +173,17 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   maximum=65535, flag="--foxglove-port"),
 )
 PARAMETER_BY_NAME = {p.name: p for p in PARAMETERS}
+
+# ---- limits on what the node accepts (the command path: cgp_sim_ros/ros/commands.py; the Foxglove live view's
+# client input: cgp_sim_ros/ros/foxglove_server.py)
+
+#: commands waiting for the next tick; beyond this, the oldest are dropped (and counted, and reported)
+MAX_PENDING_COMMANDS = 2000
+#: how often (wall seconds) rejected-command reports and rate checks are summarized in the log
+REPORT_PERIOD_S = 2.0
+#: larger than any valid ApplyWrench / WrenchStamped: their only unbounded fields are the strings `body` and
+#: `header.frame_id`, names of at most MAX_NAME_LENGTH (255) characters (≈ 620 serialized bytes in all).
+#: Anything larger is dropped on arrival, before it is decoded or recorded.
+MAX_COMMAND_BYTES = 1024
+#: a command callback goes on taking waiting commands for at most this long (wall seconds)
+COMMAND_BATCH_S = 0.002

@@ -21,7 +21,8 @@ from cgp_core.warmup import CompilePart
 
 #: cgp_core's parts, the flock's with the node's marker kernels (fish triangles, sphere lists) added
 PARTS: tuple[CompilePart, ...] = tuple(
-    CompilePart(p.name, p.modules + ("cgp_sim_ros.shapes",), p.sentinels + ("cgp_sim_ros.shapes:_fish_vertices",))
+    CompilePart(p.name, p.modules + ("cgp_sim_ros.drawing.shapes",),
+                p.sentinels + ("cgp_sim_ros.drawing.shapes:_fish_vertices",))
     if p.name == "flock" else p for p in core.PARTS)
 
 
@@ -34,7 +35,7 @@ def scenario(complete: bool = True, flocks: bool = True) -> None:
     from cgp_core.jit import parallel_from
     from cgp_core.warmup import warm_up
 
-    from .shapes import fish_triangles, quantized_points
+    from .drawing.shapes import fish_triangles, quantized_points
 
     world = warm_up(complete=complete, flocks=flocks)
     if not flocks:

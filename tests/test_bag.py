@@ -1,4 +1,4 @@
-"""cgp_sim_ros.bag.BagWriter: bags that rosbags and mcap_ros2 read, and what faults leave behind.
+"""cgp_sim_ros.wire.bag.BagWriter: bags that rosbags and mcap_ros2 read, and what faults leave behind.
 
 Every bag written here is read back by readers that share no code with the writer: rosbags' AnyReader over
 the directory (which also re-parses each schema text and checks it against the recorded type hash),
@@ -30,8 +30,8 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from cgp_sim_msgs.msg import ApplyWrench
-from cgp_sim_ros import cdr, schemas
-from cgp_sim_ros.bag import BagExistsError, BagWriter, recover_bag
+from cgp_sim_ros.wire import cdr, schemas
+from cgp_sim_ros.wire.bag import BagExistsError, BagOptions, BagWriter, recover_bag
 
 REPO = Path(__file__).resolve().parents[1]
 DT = 16_666_667  # ns, 60 Hz
@@ -89,7 +89,7 @@ def metadata(bag_dir: Path) -> dict:
 def recorded(tmp_path):
     """A short run of the node's kinds of messages, with what was written."""
     bag_dir = tmp_path / "run"
-    bag = BagWriter(bag_dir, chunk_size=64 * 1024, custom_data={"scene": "test"})
+    bag = BagWriter(bag_dir, BagOptions(chunk_size=64 * 1024), custom_data={"scene": "test"})
     qos = QoSProfile(depth=10)
     bag.add_topic("/clock", "rosgraph_msgs/msg/Clock", qos)
     bag.add_topic("/cgp_sim/flocks/a/poses", "geometry_msgs/msg/PoseArray", qos)
@@ -106,8 +106,9 @@ def recorded(tmp_path):
         msgs = [("/clock", cdr.clock(t)),
                 ("/cgp_sim/flocks/a/poses", cdr.pose_array(t, "world", pos, quat)),
                 ("/cgp_sim/markers", cdr.marker_array([
-                    cdr.marker(marker_type=cdr.SPHERE_LIST, frame_id="world", ns="a", points=pos),
-                    cdr.marker(marker_type=cdr.SPHERE, frame_id="world", ns="ball", position=pos[0])])),
+                    cdr.marker(cdr.MarkerFields(marker_type=cdr.SPHERE_LIST, frame_id="world", ns="a", points=pos)),
+                    cdr.marker(cdr.MarkerFields(marker_type=cdr.SPHERE, frame_id="world", ns="ball",
+                                                position=pos[0]))])),
                 ("/cgp_sim/bodies/ball/odom", odom.serialize(t, pos[:1], quat[:1], pos[:1], pos[:1])[0])]
         if k % 40 == 0:  # a received command, serialized by rclpy
             cmd = ApplyWrench(body="ball")
@@ -238,7 +239,7 @@ def test_the_writer_thread_runs_at_a_lower_priority_than_the_caller_and_loses_no
 
     caller = _nice(threading.get_native_id())
     bag = BagWriter(tmp_path / "low")
-    other = BagWriter(tmp_path / "same", writer_nice=0)
+    other = BagWriter(tmp_path / "same", BagOptions(writer_nice=0))
     for writer in (bag, other):
         writer.add_topic("/clock", "rosgraph_msgs/msg/Clock")
         for k in range(50):
@@ -265,12 +266,12 @@ def test_a_held_writer_takes_nothing_until_woken_within_its_bounds(tmp_path, mon
     """hold(): the writer thread leaves the queue alone while a real-time tick runs — it polls every 5 ms, so
     0.2 s held with nothing taken shows the hold — and takes it all after wake().  Bounded: with hold_bytes
     waiting it works anyway, a flush is never held, and neither is a hold its caller never ended."""
-    from cgp_sim_ros import bag as bag_module
+    from cgp_sim_ros.wire import bag as bag_module
 
     # a hold that cannot age out while this test runs, however slowly (the age bound is checked at the end)
     monkeypatch.setattr(bag_module, "_HOLD_MAX_S", 60.0)
     payload = cdr.pose_array(0, "w", np.zeros((17, 3)), np.zeros((17, 4)))  # 980 B
-    bag = BagWriter(tmp_path / "held", hold_bytes=5_000)
+    bag = BagWriter(tmp_path / "held", BagOptions(hold_bytes=5_000))
     bag.add_topic("/x", "geometry_msgs/msg/PoseArray")
     assert bag.flush(timeout=5)
 
@@ -314,7 +315,7 @@ def test_the_periodic_fsync_runs_beside_the_writer_and_metadata_never_counts_ahe
     real_fsync = os.fsync
     synced: list[tuple[str, int]] = []  # (thread, messages committed to the file when its fsync began)
     sync_started, release = threading.Event(), threading.Event()
-    bag = BagWriter(tmp_path / "bg", chunk_size=512, sync_interval_s=0.0)  # a sync due at every commit
+    bag = BagWriter(tmp_path / "bg", BagOptions(chunk_size=512, sync_interval_s=0.0))  # a sync due at every commit
 
     def fsync(fd):
         name = threading.current_thread().name
@@ -359,7 +360,7 @@ def test_a_failing_background_fsync_is_reported_and_the_bag_keeps_what_was_commi
         return real_fsync(fd)
 
     monkeypatch.setattr(os, "fsync", fsync)
-    bag = BagWriter(tmp_path / "eio", chunk_size=256, sync_interval_s=0.0, on_error=errors.append)
+    bag = BagWriter(tmp_path / "eio", BagOptions(chunk_size=256, sync_interval_s=0.0), on_error=errors.append)
     bag.add_topic("/clock", "rosgraph_msgs/msg/Clock")
     for k in range(200):
         if not bag.write("/clock", cdr.clock(k), k):
@@ -377,7 +378,7 @@ def test_topic_added_mid_recording_is_in_metadata_yaml_from_the_next_commit(tmp_
     count, while the recording goes on — without a flush or close (the writer no longer rewrites the file per
     new topic, but at the next chunk commit)."""
     bag_dir = tmp_path / "mid"
-    bag = BagWriter(bag_dir, chunk_interval_s=0.05)
+    bag = BagWriter(bag_dir, BagOptions(chunk_interval_s=0.05))
     bag.add_topic("/clock", "rosgraph_msgs/msg/Clock")
     for k in range(3):
         bag.write("/clock", cdr.clock(k), k)
@@ -420,7 +421,7 @@ def write_sequence(bag: BagWriter, n: int, period_ns: int = DT, size: int = 20):
 
 
 def test_split_by_size_reads_back_as_one_bag(tmp_path):
-    bag = BagWriter(tmp_path / "big", chunk_size=8 * 1024, max_bytes=40 * 1024, compression="none")
+    bag = BagWriter(tmp_path / "big", BagOptions(chunk_size=8 * 1024, max_bytes=40 * 1024, compression="none"))
     written = write_sequence(bag, 300)
     bag.close()
     info = metadata(tmp_path / "big")
@@ -440,7 +441,7 @@ def test_split_by_size_reads_back_as_one_bag(tmp_path):
 
 
 def test_split_by_duration(tmp_path):
-    bag = BagWriter(tmp_path / "long", max_duration_s=1.0)
+    bag = BagWriter(tmp_path / "long", BagOptions(max_duration_s=1.0))
     written = write_sequence(bag, 50, period_ns=100_000_000)  # 5 s of log time at 10 Hz
     bag.close()
     info = metadata(tmp_path / "long")
@@ -455,16 +456,16 @@ def test_split_by_duration(tmp_path):
 CHILD = textwrap.dedent("""
     import os, resource, signal, sys, time
     import numpy as np
-    from cgp_sim_ros import cdr
-    from cgp_sim_ros.bag import BagWriter
+    from cgp_sim_ros.wire import cdr
+    from cgp_sim_ros.wire.bag import BagOptions, BagWriter
 
     mode, bag_dir = sys.argv[1], sys.argv[2]
     if mode == "fsize":  # a disk that fills up: files may not grow past 150 kB
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
         resource.setrlimit(resource.RLIMIT_FSIZE, (150_000, resource.RLIM_INFINITY))
     errors = []
-    bag = BagWriter(bag_dir, chunk_size=16 * 1024, chunk_interval_s=0.05, on_error=errors.append,
-                    compression="lz4", max_bytes=20_000 if mode == "kill" else 0)
+    bag = BagWriter(bag_dir, BagOptions(chunk_size=16 * 1024, chunk_interval_s=0.05, compression="lz4",
+                                        max_bytes=20_000 if mode == "kill" else 0), on_error=errors.append)
     bag.add_topic("/poses", "geometry_msgs/msg/PoseArray")
     accepted = 0
     if mode == "signal":
@@ -614,7 +615,8 @@ def test_existing_non_empty_directory_is_refused(tmp_path):
 # --------------------------------------------------------------------------------------- queue bound
 def test_queue_full_drop_policy_drops_and_reports(tmp_path):
     errors = []
-    bag = BagWriter(tmp_path / "drop", max_queue_bytes=10_000, on_queue_full="drop", on_error=errors.append)
+    bag = BagWriter(tmp_path / "drop", BagOptions(max_queue_bytes=10_000, on_queue_full="drop"),
+                    on_error=errors.append)
     bag.add_topic("/x", "geometry_msgs/msg/PoseArray")
     assert bag.flush(timeout=5)
     bag._gate.clear()  # a disk that does not keep up: the writer thread makes no progress
@@ -630,7 +632,7 @@ def test_queue_full_drop_policy_drops_and_reports(tmp_path):
 
 
 def test_queue_full_block_policy_loses_nothing(tmp_path):
-    bag = BagWriter(tmp_path / "block", max_queue_bytes=20_000, chunk_size=4096)
+    bag = BagWriter(tmp_path / "block", BagOptions(max_queue_bytes=20_000, chunk_size=4096))
     written = write_sequence(bag, 400, size=40)  # 2.3 kB messages: the caller is much faster than the disk
     bag.close()
     assert bag.dropped_messages == 0 and bag.error is None
@@ -641,7 +643,8 @@ def test_queue_full_block_policy_loses_nothing(tmp_path):
 
 def test_stalled_writer_stops_blocking_the_caller(tmp_path):
     errors = []
-    bag = BagWriter(tmp_path / "stall", max_queue_bytes=2_000, block_timeout_s=0.2, on_error=errors.append)
+    bag = BagWriter(tmp_path / "stall", BagOptions(max_queue_bytes=2_000, block_timeout_s=0.2),
+                    on_error=errors.append)
     bag.add_topic("/x", "geometry_msgs/msg/PoseArray")
     bag._gate.clear()
     data = cdr.pose_array(1, "w", np.zeros((27, 3)), np.zeros((27, 4)))  # 1540 B
@@ -672,4 +675,4 @@ def test_bad_usage_is_a_clear_error(tmp_path):
             bag.add_topic("bad name", "std_msgs/msg/Header")
     assert bag.write("/c", cdr.clock(0), 0) is False  # after close: ignored
     with pytest.raises(ValueError, match="compression"):
-        BagWriter(tmp_path / "x", compression="gzip")
+        BagWriter(tmp_path / "x", BagOptions(compression="gzip"))

@@ -1,4 +1,4 @@
-"""cgp_sim_ros.cdr against rclpy: numpy-built CDR bytes are the messages rclpy builds the slow way.
+"""cgp_sim_ros.wire.cdr against rclpy: numpy-built CDR bytes are the messages rclpy builds the slow way.
 
 Three independent checks per case:
 1. rclpy deserializes the numpy bytes into a message equal, field by field, to the message built from rclpy
@@ -24,7 +24,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray, UVCoordinate
 
-from cgp_sim_ros import cdr
+from cgp_sim_ros.wire import cdr
 
 SIZES = (0, 1, 7, 1000)
 # Lengths 0..5 bytes move everything after the string through every alignment phase; plus non-ASCII UTF-8.
@@ -260,7 +260,7 @@ def test_odometry_batch_rejects_wrong_row_count():
 
 # --------------------------------------------------------------------------------------------- Marker
 def slow_marker(**kw):
-    """rclpy Marker from the same keyword arguments as cdr.marker."""
+    """rclpy Marker from the same keyword arguments as cdr.MarkerFields."""
     msg = Marker()
     msg.header.stamp = time_msg(kw.get("stamp_ns", 0))
     msg.header.frame_id = kw.get("frame_id", "")
@@ -340,7 +340,7 @@ MARKER_CASES = marker_cases()
 @pytest.mark.parametrize("frame_id", ("", "wo", "world", "wörld_é"))
 def test_marker_equals_rclpy(case, frame_id):
     kw = dict(MARKER_CASES[case], frame_id=frame_id, stamp_ns=STAMPS[case % len(STAMPS)])
-    assert_equivalent(cdr.marker(**kw), slow_marker(**kw))
+    assert_equivalent(cdr.marker(cdr.MarkerFields(**kw)), slow_marker(**kw))
 
 
 @pytest.mark.parametrize("count", SIZES)
@@ -359,9 +359,10 @@ def test_marker_points_serializer_equals_rclpy_and_marker(count, frame_id):
             points = rng.normal(size=(n, 3))
             serializer.points[:] = points
             data = bytes(serializer.serialize(stamp))
-            assert data == cdr.marker(points=points, stamp_ns=stamp, **fields)
+            assert data == cdr.marker(cdr.MarkerFields(points=points, stamp_ns=stamp, **fields))
             assert_equivalent(data, slow_marker(points=points, stamp_ns=stamp, **fields))
-        array = cdr.marker_array([cdr.marker(marker_type=cdr.CUBE, ns="ground"), serializer.serialize(7)])
+        array = cdr.marker_array([cdr.marker(cdr.MarkerFields(marker_type=cdr.CUBE, ns="ground")),
+                                  serializer.serialize(7)])
         assert_equivalent(array, MarkerArray(markers=[slow_marker(marker_type=cdr.CUBE, ns="ground"),
                                                       slow_marker(points=points, stamp_ns=7, **fields)]))
 
@@ -380,8 +381,8 @@ def test_marker_pose_serializer_equals_marker(frame_id):
             serializer = cdr.MarkerPoseSerializer(**fields)
             for stamp in STAMPS[:3]:
                 position, orientation = rng.normal(size=3), rng.normal(size=4)
-                assert serializer.serialize(stamp, position, orientation) == cdr.marker(
-                    stamp_ns=stamp, position=position, orientation=orientation, **fields)
+                assert serializer.serialize(stamp, position, orientation) == cdr.marker(cdr.MarkerFields(
+                    stamp_ns=stamp, position=position, orientation=orientation, **fields))
     with pytest.raises(ValueError, match="3 \\+ 4 numbers"):
         serializer.serialize(0, (1.0, 2.0), (0.0, 0.0, 0.0, 1.0))
 
@@ -405,7 +406,7 @@ def test_marker_rejects_bad_input_with_a_clear_error(bad, match):
     kw = dict(marker_type=cdr.SPHERE_LIST)
     kw.update(bad)
     with pytest.raises(ValueError, match=match):
-        cdr.marker(**kw)
+        cdr.marker(cdr.MarkerFields(**kw))
 
 
 # ---------------------------------------------------------------------------------------- MarkerArray
@@ -419,7 +420,7 @@ def test_marker_array_equals_rclpy(count, source):
     kws = [dict(MARKER_CASES[i], frame_id=str(f), stamp_ns=int(i)) for i, f in zip(picks, frames)]
     slow = MarkerArray(markers=[slow_marker(**kw) for kw in kws])
     if source == "cdr":
-        serialized = [cdr.marker(**kw) for kw in kws]
+        serialized = [cdr.marker(cdr.MarkerFields(**kw)) for kw in kws]
     else:  # rclpy's own bytes, with uninitialised padding, must be accepted too
         serialized = [serialize_message(m) for m in slow.markers]
     assert_equivalent(cdr.marker_array(serialized), slow, zero_padding=source == "cdr")
@@ -432,7 +433,7 @@ def test_marker_array_covers_both_phases():
     for kw in MARKER_CASES[:9]:
         offset += -offset % 4
         phases.add(offset % 8)
-        offset += len(cdr.marker(**kw, frame_id="wor")) - 4
+        offset += len(cdr.marker(cdr.MarkerFields(**kw, frame_id="wor"))) - 4
     assert phases == {0, 4}
 
 
@@ -472,7 +473,8 @@ def test_read_marker_array_decodes_what_rclpy_serialized(count, source):
     kws = [dict(MARKER_CASES[i], frame_id=str(rng.choice(["", "w", "wor", "world"])),
                 stamp_ns=STAMPS[i % len(STAMPS)]) for i in picks]
     slow = MarkerArray(markers=[slow_marker(**kw) for kw in kws])
-    data = cdr.marker_array([cdr.marker(**kw) for kw in kws]) if source == "cdr" else serialize_message(slow)
+    data = cdr.marker_array([cdr.marker(cdr.MarkerFields(**kw)) for kw in kws]) if source == "cdr" else \
+        serialize_message(slow)
     decoded = cdr.read_marker_array(data)
     assert len(decoded) == count
     for got, msg in zip(decoded, slow.markers):
@@ -487,7 +489,7 @@ def test_read_marker_array_decodes_what_rclpy_serialized(count, source):
 def test_read_marker_array_rejects_what_is_not_one(bad, match):
     with pytest.raises(cdr.CdrError, match=match):
         cdr.read_marker_array(bad)
-    whole = cdr.marker_array([cdr.marker(marker_type=cdr.SPHERE_LIST, points=np.ones((10, 3)))])
+    whole = cdr.marker_array([cdr.marker(cdr.MarkerFields(marker_type=cdr.SPHERE_LIST, points=np.ones((10, 3))))])
     with pytest.raises(cdr.CdrError, match="truncated"):
         cdr.read_marker_array(whole[:-40])
 

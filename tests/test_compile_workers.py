@@ -255,7 +255,7 @@ import rclpy
 from numba.core.registry import CPUDispatcher
 from rclpy.parameter import Parameter
 from cgp_core.jit import ParallelKernel
-from cgp_sim_ros.node import SimNode
+from cgp_sim_ros.ros.node import SimNode
 
 def loaded():
     out = {}

@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from cgp_core.boids.order import FlockOrder
-from cgp_sim_ros.cdr import FlockStatsSerializer
+from cgp_sim_ros.wire.cdr import FlockStatsSerializer
 from ros_probe import pause
 from sim_client import OK
 from test_cdr import reference_bytes

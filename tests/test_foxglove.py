@@ -435,7 +435,7 @@ def test_without_the_parameter_the_sdk_is_not_even_imported(tmp_path):
         import sys
         import rclpy
         from rclpy.parameter import Parameter
-        from cgp_sim_ros.node import SimNode
+        from cgp_sim_ros.ros.node import SimNode
 
         rclpy.init()
         node = SimNode(parameter_overrides=[Parameter("scene", value="zero_g"), Parameter("realtime", value=False)])

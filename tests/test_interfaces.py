@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from cgp_sim_ros import schemas
+from cgp_sim_ros.wire import schemas
 
 REPO = Path(__file__).resolve().parents[1]
 REFERENCE = json.loads((REPO / "tests" / "data" / "jazzy_interfaces.json").read_text(encoding="utf-8"))

@@ -1,4 +1,4 @@
-"""Level of detail for big flocks (cgp_sim_ros/detail.py, shapes.py): the plan keeps the marker and bag
+"""Level of detail for big flocks (cgp_sim_ros/drawing/detail.py, shapes.py): the plan keeps the marker and bag
 budgets for any flock size and keeps the default scene's full fish on every tick; the low-detail fish is the
 full fish's outline seen from above plus its tail fin, drawn at the boid's pose; and through the node: what the
 plan says is what the bag holds — each flock's marker in parts, one per tick, flock poses at the planned ticks,
@@ -19,9 +19,9 @@ from scipy.spatial import ConvexHull
 
 from cgp_core.boids import FlockParams
 from cgp_core.rotation import quat_to_matrix
-from cgp_sim_ros import detail
+from cgp_sim_ros.drawing import detail
 from cgp_sim_ros import interface as itf
-from cgp_sim_ros.shapes import FISH_DETAILS, FISH_LOW_TEMPLATE, FISH_TEMPLATE, VERTEX_QUANTUM, fish_triangles
+from cgp_sim_ros.drawing.shapes import FISH_DETAILS, FISH_LOW_TEMPLATE, FISH_TEMPLATE, VERTEX_QUANTUM, fish_triangles
 
 
 def test_the_default_scene_keeps_its_full_fish_on_every_tick():
@@ -248,7 +248,7 @@ def test_a_reset_redraws_every_part_after_its_deleteall():
 
     from cgp_core.scene import parse_scene
     from cgp_core.world import World
-    from cgp_sim_ros.messages import TickMessages
+    from cgp_sim_ros.ros.messages import TickMessages
 
     world = World(parse_scene(SCENE))
     messages = TickMessages(world, "world", detail.plan([f.params for f in world.flocks], 60.0, markers_every=4))

@@ -215,8 +215,8 @@ def test_simulate_steps_action_feedback_and_cancel(start_node, probe):
 
 
 def test_spawn_watch_it_fall_teleport_and_delete(start_node, probe):
-    """The README's worked example, checked: spawn a box above the crate, it falls (v = −g t), teleport it,
-    delete it — and everything per body follows, as another node sees it."""
+    """The worked example of docs/simulation-interfaces.md, checked: spawn a box above the crate, it falls
+    (v = −g t), teleport it, delete it — and everything per body follows, as another node sees it."""
     poses = probe.subscribe("/cgp_sim/bodies/poses", PoseArray)
     odom = probe.subscribe("/cgp_sim/bodies/box1/odom", Odometry)
     markers = probe.subscribe("/cgp_sim/markers", MarkerArray, raw=True)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from cgp_sim_ros import cdr
+from cgp_sim_ros.wire import cdr
 from conftest import VENV_BIN
 
 RENDER = str(VENV_BIN / "cgp-sim-render")
@@ -146,7 +146,7 @@ def test_runs_where_rclpy_cannot_be_imported(default_bag, tmp_path):
 
 def _marker_bag(path, messages):
     """A bag written with the project's BagWriter: [(time_s, [marker bytes...]), ...] on /cgp_sim/markers."""
-    from cgp_sim_ros.bag import BagWriter
+    from cgp_sim_ros.wire.bag import BagWriter
 
     with BagWriter(path) as writer:
         writer.add_topic("/cgp_sim/markers", "visualization_msgs/msg/MarkerArray")
@@ -161,10 +161,12 @@ def test_markers_as_a_viewer_replays_them(tmp_path):
     red = dict(marker_type=cdr.SPHERE, ns="bodies/a", id=0, scale=(1, 1, 1), color=(1.0, 0.1, 0.1, 1.0))
     blue = dict(marker_type=cdr.CUBE, ns="bodies/b", id=0, scale=(1, 1, 1), color=(0.1, 0.2, 1.0, 1.0))
     _marker_bag(tmp_path / "bag", [
-        (0.0, [cdr.marker(**red, position=(-1.5, 0, 0))]),
-        (1.0, [cdr.marker(**red, position=(1.5, 0, 0))]),  # moved
-        (2.0, [cdr.marker_deleteall(), cdr.marker(**blue, position=(0, 0, 0))]),  # reset: only the cube
-        (3.0, [cdr.marker(marker_type=cdr.SPHERE, ns="bodies/a", id=0, action=cdr.DELETE)]),  # no-op
+        (0.0, [cdr.marker(cdr.MarkerFields(**red, position=(-1.5, 0, 0)))]),
+        (1.0, [cdr.marker(cdr.MarkerFields(**red, position=(1.5, 0, 0)))]),  # moved
+        (2.0, [cdr.marker_deleteall(),
+               cdr.marker(cdr.MarkerFields(**blue, position=(0, 0, 0)))]),  # reset: only the cube
+        (3.0, [cdr.marker(cdr.MarkerFields(marker_type=cdr.SPHERE, ns="bodies/a", id=0,
+                                           action=cdr.DELETE))]),  # no-op
     ])
     seen = {}
     for t in (0.5, 1.5, 2.5, 3.0):

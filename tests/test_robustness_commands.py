@@ -38,7 +38,7 @@ from cgp_core.wrenches import MAX_NAME_LENGTH, WrenchError, WrenchSchedule, make
 
 DT_NS = round(1e9 / 60)
 BOX_MASS = 2.0
-MAX_PENDING_COMMANDS = 2000  # cgp_sim_ros.node.MAX_PENDING_COMMANDS (the test checks the node's figure)
+MAX_PENDING_COMMANDS = 2000  # cgp_sim_ros.interface.MAX_PENDING_COMMANDS (the test checks the node's figure)
 
 
 # ---- helpers --------------------------------------------------------------------------------------------

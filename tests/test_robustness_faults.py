@@ -119,7 +119,7 @@ def test_a_subscriber_that_never_reads_does_not_slow_the_tick(start_node, probe,
     2-core machine; the writer QoS below is what guarantees that nothing waits for the stalled reader.
 
     Why a stalled reliable reader cannot hold up the publisher: the node's state topics are published
-    RELIABLE with KEEP_LAST(10) history on the writer (``cgp_sim_ros.interface.STATE_QOS``; /clock is
+    RELIABLE with KEEP_LAST(10) history on the writer (``cgp_sim_ros.ros.qos.STATE_QOS``; /clock is
     KEEP_LAST(1)).  A reliable writer keeps each sample for retransmission until every matched reader has
     acknowledged it.  With KEEP_ALL it would keep every sample a frozen reader never acknowledges (memory
     growing with the stall) and, once its resource limits are reached, ``publish`` would block for up to

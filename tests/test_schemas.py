@@ -1,4 +1,4 @@
-"""cgp_sim_ros.schemas: rosbag2's schema text, type hashes and QoS YAML, checked against independent sources.
+"""cgp_sim_ros.wire.schemas: rosbag2's schema text, type hashes and QoS YAML, checked against independent sources.
 
 - The concatenated definition is rebuilt here from the rosidl type descriptions (``<Type>.json``: the fields'
   nested types, not the regular expression over the ``.msg`` text that rosbag2 and the module use) and the raw
@@ -31,7 +31,7 @@ from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, Qo
 from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from cgp_sim_ros import schemas
+from cgp_sim_ros.wire import schemas
 
 TYPES = (
     "geometry_msgs/msg/PoseArray",

@@ -236,6 +236,16 @@ class Flock:
         return self.params.name
 
     @property
+    def noise_generator(self) -> np.random.Generator:
+        """The random stream of Couzin's angular noise: part of the flock's dynamic state, so a run continued
+        from another (a sweep's chain) sets it too, and the stream goes on as if the flock had never stopped."""
+        return self._noise
+
+    @noise_generator.setter
+    def noise_generator(self, generator: np.random.Generator) -> None:
+        self._noise = generator
+
+    @property
     def positions(self) -> np.ndarray:
         return self._x
 

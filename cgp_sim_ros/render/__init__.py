@@ -3,5 +3,5 @@
 Modules: :mod:`.bagread` (the marker topic of an MCAP bag, read with the ``mcap`` library),
 :mod:`.primitives` (markers on display → world-frame triangles and spheres), :mod:`.raster` (camera and the
 z-buffer rasterizer), :mod:`.cli` (the command, the output writers).  Nothing here imports rclpy: the
-messages are decoded by :func:`cgp_sim_ros.cdr.read_marker_array`.
+messages are decoded by :func:`cgp_sim_ros.wire.cdr.read_marker_array`.
 """

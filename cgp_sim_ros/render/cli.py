@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import cdr
+from ..wire import cdr
 from ..progress import ProgressLine, bar, format_duration
 from .bagread import BagError, MarkerStream, open_marker_stream
 from .primitives import MarkerSet, extent_points, primitives

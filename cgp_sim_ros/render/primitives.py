@@ -29,7 +29,7 @@ import numpy as np
 
 from cgp_core.rotation import quat_to_matrix
 
-from .. import cdr
+from ..wire import cdr
 
 #: the namespace of the node's ground marker: drawn (as a checkerboard), but not framed by the default camera
 BACKDROP_NS = "ground"

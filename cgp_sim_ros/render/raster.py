@@ -1,6 +1,6 @@
 """A small CPU rasterizer with a z-buffer: flat-shaded triangles and exact shaded spheres, supersampled.
 
-Why our own (``benchmarks/bench_render.py`` measures the alternatives; the numbers are in the README):
+Why our own (``benchmarks/bench_render.py`` measures the alternatives; the numbers are in benchmarks/README.md):
 matplotlib's mplot3d sorts whole polygons by depth (painter's algorithm), so fish and bodies pierce one another
 wrongly, and draws ~10 frames/s of this scene at best; Pillow's polygon fill is fast but also painter's
 and draws spheres as flat discs; OpenGL-based libraries (VTK, pyrender, moderngl) need a system OpenGL /

@@ -207,11 +207,8 @@ def carry_state(old: World, new: World, link: int) -> None:
         for name in ("positions", "velocities", "headings", "dorsals", "orientations"):
             getattr(after, name)[:] = getattr(before, name)
         after.time, after.steps = before.time, before.steps
-        # The Couzin noise generator is part of a flock's dynamic state, and Flock has no public accessor for
-        # it (nothing else carries a flock from one parameter set to the next): read and set it here.  A
-        # rename in Flock fails loudly here (AttributeError), and tests/test_sweep.py's chain test with it.
-        after._noise = copy.deepcopy(before._noise)  # noqa: SLF001
-    new._remember_tick_start()  # noqa: SLF001 - the last tick's accelerations start from the carried state
+        after.noise_generator = copy.deepcopy(before.noise_generator)
+    new.remember_tick_start()  # the last tick's accelerations start from the carried state
 
 
 def names_of(world: World) -> str:
@@ -254,8 +251,8 @@ class _Bag:
     one message each per sample.  Written with the node's own bag writer and CDR serializers (no ROS needed)."""
 
     def __init__(self, payload: dict, run: dict, world: World):
-        from cgp_sim_ros import cdr
-        from cgp_sim_ros.bag import BagWriter
+        from cgp_sim_ros.wire import cdr
+        from cgp_sim_ros.wire.bag import BagWriter
 
         if not payload.get("bag_dir"):
             raise RunFailed("record.bag needs an output directory for the bags (the engine sets it)")

@@ -17,7 +17,7 @@ import argparse
 import signal
 import sys
 
-from . import interface as itf
+from .. import interface as itf
 
 
 def _bool(text: str) -> bool:
@@ -85,8 +85,9 @@ def main(argv: list[str] | None = None) -> int:
     from rclpy.parameter import Parameter
     from rclpy.signals import SignalHandlerOptions
 
-    from .node import ConfigError, SimNode
-    from .warmup import compile_missing_kernels
+    from ..warmup import compile_missing_kernels
+    from .node import SimNode
+    from .parameters import ConfigError
 
     try:
         args = build_parser().parse_args(rclpy.utilities.remove_ros_args(argv)[1:])

@@ -1,17 +1,17 @@
 """TF for the bodies: what a tf2 listener (RViz, ``tf2_echo``, your node's ``tf2_ros.Buffer``) needs.
 
-- ``/tf`` (:data:`~cgp_sim_ros.interface.TF_QOS`), every tick: ``world`` → ``<body>`` for every *movable* body,
+- ``/tf`` (:data:`~cgp_sim_ros.ros.qos.TF_QOS`), every tick: ``world`` → ``<body>`` for every *movable* body,
   stamped with the simulation time of the tick, in one ``tf2_msgs/TFMessage`` (numpy-built CDR,
-  :class:`cgp_sim_ros.cdr.TFMessageSerializer`).  The transform is the body frame: origin at the centre of
+  :class:`cgp_sim_ros.wire.cdr.TFMessageSerializer`).  The transform is the body frame: origin at the centre of
   mass, the body's axes — the pose ``~/bodies/<body>/odom`` carries, whose ``child_frame_id`` is the same name.
-- ``/tf_static`` (:data:`~cgp_sim_ros.interface.TF_STATIC_QOS`, transient local): the *fixed* bodies, all in
+- ``/tf_static`` (:data:`~cgp_sim_ros.ros.qos.TF_STATIC_QOS`, transient local): the *fixed* bodies, all in
   one message, as tf2_ros' static broadcaster sends them; sent with the first tick and again whenever that set
   or a fixed body's pose changes (spawn, delete, reset, teleport), so a late subscriber gets the current set.
   A deleted fixed body's frame stays in the buffers of listeners that already had it (static transforms
   never expire in tf2); listeners that join later do not get it.
 
 Spawned bodies appear in the next message; deleted ones are no longer sent.  Both topics are published
-through the node's ``_out`` (recorded in the bag like every topic).
+through :meth:`cgp_sim_ros.ros.publishing.TickPublisher.publish` (recorded in the bag like every topic).
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from geometry_msgs.msg import TransformStamped
 from rclpy.serialization import serialize_message
 from tf2_msgs.msg import TFMessage
 
-from . import interface as itf
-from .cdr import TFMessageSerializer, split_stamp
+from .. import interface as itf
+from ..wire.cdr import TFMessageSerializer, split_stamp
 
 
 class BodyTransforms:

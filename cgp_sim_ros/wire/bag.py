@@ -6,8 +6,8 @@ name, as rosbag2 names them) and ``metadata.yaml``.  What is written, and why:
 Files
     MCAP written with the ``mcap`` library's :class:`mcap.writer.Writer`: profile ``ros2``; one schema per type,
     named ``pkg/msg/Type``, encoding ``ros2msg``, data = the concatenated definition of
-    :func:`cgp_sim_ros.schemas.message_definition`; one channel per topic, message encoding ``cdr``, metadata
-    ``offered_qos_profiles`` (YAML, :func:`~cgp_sim_ros.schemas.offered_qos_profiles_yaml`) and
+    :func:`cgp_sim_ros.wire.schemas.message_definition`; one channel per topic, message encoding ``cdr``, metadata
+    ``offered_qos_profiles`` (YAML, :func:`~cgp_sim_ros.wire.schemas.offered_qos_profiles_yaml`) and
     ``topic_type_hash`` (``RIHS01_…``); chunked and compressed (lz4 by default, see ``benchmarks/bench_bag.py``)
     with message indexes, chunk indexes, statistics and summary offsets; before the summary a ``rosbag2``
     metadata record ``{"serialized_metadata": <the bag's metadata as YAML>}`` as rosbag2's MCAP plugin writes it
@@ -88,7 +88,7 @@ from mcap.writer import MCAP0_MAGIC, CompressionType, IndexType, Writer
 
 from . import schemas
 
-__all__ = ["BagWriter", "BagExistsError", "recover_bag", "METADATA_VERSION", "COMPRESSIONS"]
+__all__ = ["BagWriter", "BagOptions", "BagExistsError", "recover_bag", "METADATA_VERSION", "COMPRESSIONS"]
 
 #: rosbag2 metadata version written (Jazzy's; rosbags reads <= 9).
 METADATA_VERSION = 9
@@ -113,7 +113,7 @@ def _provisional_tail() -> bytes:
 
 
 _TAIL = _provisional_tail()
-_LIBRARY = f"cgp_sim_ros.bag; mcap-python/{_MCAP_VERSION}"
+_LIBRARY = f"cgp_sim_ros.wire.bag; mcap-python/{_MCAP_VERSION}"
 
 
 class _CommittingFile:
@@ -217,6 +217,71 @@ def bag_path_occupied(path: Path) -> bool:
     return path.exists() and (not path.is_dir() or any(path.iterdir()))
 
 
+@dataclass(frozen=True)
+class BagOptions:
+    """How a :class:`BagWriter` writes: compression and chunking, file splitting, the bound on what waits for
+    the writer thread and what happens at it, fsync, the writer thread's priority.  The defaults are what the
+    node records with.  Checked on construction (a ``ValueError`` naming the option).
+
+    compression: ``"lz4"`` (default), ``"zstd"`` or ``"none"``: MCAP chunk compression.  lz4 is the
+        default because it keeps the 15k-boid tick budget: zstd (level 3, mcap-python's fixed level)
+        compresses this float data 1.4x instead of 1.1x but costs ~3x the CPU and barely keeps up with
+        the ~87 MB/s of a 15k-boid scene on this 2-core machine (``benchmarks/bench_bag.py``).
+    chunk_size: a chunk is finished once it holds this many (uncompressed) bytes.
+    chunk_interval_s: ... or once its first message is this old (wall time): bounds what a kill loses.
+    max_bytes: split to a new file once the current one has this many bytes (0 = no limit).
+    max_duration_s: split once a message's log time is this far past the file's first (0 = no limit).
+    max_queue_bytes: bound on payload bytes waiting for the writer thread.
+    on_queue_full: ``"block"`` (wait; default) or ``"drop"`` (drop and count) at the bound.
+    block_timeout_s: with ``"block"``: a writer without progress for this long is declared stalled.
+    sync_interval_s: fsync file + metadata.yaml at most this often (None: never fsync).
+    ros_distro: ``ros_distro`` of metadata.yaml.
+    writer_nice: how much lower the writer thread's CPU priority is than the caller's (Linux ``nice``
+        increment for that thread alone; 0: the same).  The writer has slack — a bounded queue, and the
+        idle core during the caller's serial Python — while the simulation's compiled kernels want both
+        cores for a few milliseconds at a time: a writer that takes a core then (lz4 on a 1 MB chunk,
+        ~2 ms) makes the kernel wait for its delayed half.  A lower priority lets the kernels have the
+        cores when they run and the writer catch up in between; nothing is lost (``on_queue_full``).
+        Measured on the 15k-fish tick (three alternating runs each): p99 / tick CPU 1.46-1.70 at 10
+        against 1.63-1.71 at 0 — within this machine's run-to-run noise — and the bag kept up (queue at
+        most 3.6 MB, nothing dropped).
+    hold_bytes: while the caller holds the writer (:meth:`BagWriter.hold`: a real-time tick is running), the
+        writer takes nothing from the queue until :meth:`BagWriter.wake` — unless this many bytes are waiting (then it
+        works beside the caller, as without a hold, so that a caller that never leaves it time cannot make
+        the queue grow without bound).
+    """
+
+    compression: str = "lz4"
+    chunk_size: int = 1024 * 1024
+    chunk_interval_s: float = 0.5
+    max_bytes: int = 0
+    max_duration_s: float = 0.0
+    max_queue_bytes: int = 256 * 1024 * 1024
+    on_queue_full: str = "block"
+    block_timeout_s: float = 10.0
+    sync_interval_s: float | None = 1.0
+    ros_distro: str = "jazzy"
+    writer_nice: int = 10
+    hold_bytes: int = 16 * 1024 * 1024
+
+    def __post_init__(self) -> None:
+        if self.compression not in COMPRESSIONS:
+            raise ValueError(f"compression={self.compression!r}: expected one of {sorted(COMPRESSIONS)}")
+        if self.on_queue_full not in _QUEUE_POLICIES:
+            raise ValueError(f"on_queue_full={self.on_queue_full!r}: expected one of {_QUEUE_POLICIES}")
+        for name in ("chunk_size", "max_queue_bytes", "hold_bytes"):
+            if int(getattr(self, name)) <= 0:
+                raise ValueError(f"{name}={getattr(self, name)} must be > 0")
+        for name in ("chunk_interval_s", "block_timeout_s"):
+            if not float(getattr(self, name)) > 0:
+                raise ValueError(f"{name}={getattr(self, name)} must be > 0 seconds")
+        if int(self.max_bytes) < 0 or float(self.max_duration_s) < 0:
+            raise ValueError(f"max_bytes={self.max_bytes} and max_duration_s={self.max_duration_s} must be >= 0 "
+                             f"(0 = no splitting)")
+        if self.sync_interval_s is not None and float(self.sync_interval_s) < 0:
+            raise ValueError(f"sync_interval_s={self.sync_interval_s} must be >= 0 or None")
+
+
 class BagWriter:
     """Writes a rosbag2-style MCAP bag directory from already-serialized CDR messages.
 
@@ -225,58 +290,14 @@ class BagWriter:
 
     Args:
         path: the bag directory (created; must not exist or be empty).
-        compression: ``"lz4"`` (default), ``"zstd"`` or ``"none"``: MCAP chunk compression.  lz4 is the
-            default because it keeps the 15k-boid tick budget: zstd (level 3, mcap-python's fixed level)
-            compresses this float data 1.4x instead of 1.1x but costs ~3x the CPU and barely keeps up with
-            the ~87 MB/s of a 15k-boid scene on this 2-core machine (``benchmarks/bench_bag.py``).
-        chunk_size: a chunk is finished once it holds this many (uncompressed) bytes.
-        chunk_interval_s: ... or once its first message is this old (wall time): bounds what a kill loses.
-        max_bytes: split to a new file once the current one has this many bytes (0 = no limit).
-        max_duration_s: split once a message's log time is this far past the file's first (0 = no limit).
-        max_queue_bytes: bound on payload bytes waiting for the writer thread.
-        on_queue_full: ``"block"`` (wait; default) or ``"drop"`` (drop and count) at the bound.
-        block_timeout_s: with ``"block"``: a writer without progress for this long is declared stalled.
-        sync_interval_s: fsync file + metadata.yaml at most this often (None: never fsync).
+        options: how it is written (:class:`BagOptions`; the defaults if None).
         on_error: called once, with a message, on the first error (from the writer thread or the caller).
         custom_data: ``custom_data`` of metadata.yaml (str -> str).
-        ros_distro: ``ros_distro`` of metadata.yaml.
-        writer_nice: how much lower the writer thread's CPU priority is than the caller's (Linux ``nice``
-            increment for that thread alone; 0: the same).  The writer has slack — a bounded queue, and the
-            idle core during the caller's serial Python — while the simulation's compiled kernels want both
-            cores for a few milliseconds at a time: a writer that takes a core then (lz4 on a 1 MB chunk,
-            ~2 ms) makes the kernel wait for its delayed half.  A lower priority lets the kernels have the
-            cores when they run and the writer catch up in between; nothing is lost (``on_queue_full``).
-            Measured on the 15k-fish tick (three alternating runs each): p99 / tick CPU 1.46-1.70 at 10
-            against 1.63-1.71 at 0 — within this machine's run-to-run noise — and the bag kept up (queue at
-            most 3.6 MB, nothing dropped).
-        hold_bytes: while the caller holds the writer (:meth:`hold`: a real-time tick is running), the writer
-            takes nothing from the queue until :meth:`wake` — unless this many bytes are waiting (then it
-            works beside the caller, as without a hold, so that a caller that never leaves it time cannot make
-            the queue grow without bound).
     """
 
-    def __init__(self, path, *, compression: str = "lz4", chunk_size: int = 1024 * 1024,
-                 chunk_interval_s: float = 0.5, max_bytes: int = 0, max_duration_s: float = 0.0,
-                 max_queue_bytes: int = 256 * 1024 * 1024, on_queue_full: str = "block",
-                 block_timeout_s: float = 10.0, sync_interval_s: float | None = 1.0,
-                 on_error: Callable[[str], None] | None = None, custom_data: dict | None = None,
-                 ros_distro: str = "jazzy", writer_nice: int = 10, hold_bytes: int = 16 * 1024 * 1024) -> None:
-        if compression not in COMPRESSIONS:
-            raise ValueError(f"compression={compression!r}: expected one of {sorted(COMPRESSIONS)}")
-        if on_queue_full not in _QUEUE_POLICIES:
-            raise ValueError(f"on_queue_full={on_queue_full!r}: expected one of {_QUEUE_POLICIES}")
-        for name, value in (("chunk_size", chunk_size), ("max_queue_bytes", max_queue_bytes),
-                            ("hold_bytes", hold_bytes)):
-            if int(value) <= 0:
-                raise ValueError(f"{name}={value} must be > 0")
-        for name, value in (("chunk_interval_s", chunk_interval_s), ("block_timeout_s", block_timeout_s)):
-            if not float(value) > 0:
-                raise ValueError(f"{name}={value} must be > 0 seconds")
-        if int(max_bytes) < 0 or float(max_duration_s) < 0:
-            raise ValueError(f"max_bytes={max_bytes} and max_duration_s={max_duration_s} must be >= 0 "
-                             f"(0 = no splitting)")
-        if sync_interval_s is not None and float(sync_interval_s) < 0:
-            raise ValueError(f"sync_interval_s={sync_interval_s} must be >= 0 or None")
+    def __init__(self, path, options: BagOptions | None = None, *, on_error: Callable[[str], None] | None = None,
+                 custom_data: dict | None = None) -> None:
+        options = BagOptions() if options is None else options
         if custom_data is not None and not all(isinstance(k, str) and isinstance(v, str)
                                                for k, v in custom_data.items()):
             raise ValueError("custom_data must map str to str")
@@ -291,20 +312,20 @@ class BagWriter:
             raise BagExistsError(f"bag directory {str(self.path)!r} already exists and is not empty (or is not "
                                  f"a directory); refusing to overwrite a bag (choose a new directory)")
         self._name = self.path.resolve().name or "bag"
-        self._compression = COMPRESSIONS[compression]
-        self._chunk_size = int(chunk_size)
-        self._chunk_interval = float(chunk_interval_s)
-        self._max_bytes = int(max_bytes)
-        self._max_duration_ns = int(float(max_duration_s) * _NS_PER_S)
-        self._max_queue_bytes = int(max_queue_bytes)
-        self._drop_when_full = on_queue_full == "drop"
-        self._block_timeout = float(block_timeout_s)
-        self._sync_interval = None if sync_interval_s is None else float(sync_interval_s)
+        self._compression = COMPRESSIONS[options.compression]
+        self._chunk_size = int(options.chunk_size)
+        self._chunk_interval = float(options.chunk_interval_s)
+        self._max_bytes = int(options.max_bytes)
+        self._max_duration_ns = int(float(options.max_duration_s) * _NS_PER_S)
+        self._max_queue_bytes = int(options.max_queue_bytes)
+        self._drop_when_full = options.on_queue_full == "drop"
+        self._block_timeout = float(options.block_timeout_s)
+        self._sync_interval = None if options.sync_interval_s is None else float(options.sync_interval_s)
         self._on_error = on_error
         self._custom_data = dict(custom_data or {})
-        self._ros_distro = ros_distro
-        self._writer_nice = int(writer_nice)
-        self._hold_bytes = min(int(hold_bytes), self._max_queue_bytes // 2)
+        self._ros_distro = options.ros_distro
+        self._writer_nice = int(options.writer_nice)
+        self._hold_bytes = min(int(options.hold_bytes), self._max_queue_bytes // 2)
 
         # Caller-side state (only the caller thread writes these).
         self._topics: dict[str, _Topic] = {}
@@ -414,7 +435,7 @@ class BagWriter:
             qos: the rclpy ``QoSProfile`` (or a list of them) the topic is published / subscribed with;
                 None = no profile (``[]``).
             qos_as_discovered: write the profile as rosbag2 would see it through the ROS graph (see
-                :func:`cgp_sim_ros.schemas.qos_profile_dict`).
+                :func:`cgp_sim_ros.wire.schemas.qos_profile_dict`).
         Raises ValueError / FileNotFoundError for a bad name or an unknown type (a programming error).
         """
         if not isinstance(name, str) or not _TOPIC_NAME.match(name):

@@ -5,9 +5,10 @@ app connects with "Open connection" → Foxglove WebSocket → ``ws://localhost:
 
 - **Channels**: one per topic the node publishes or takes commands on (the topics the bag records), each with
   message encoding ``cdr`` and the schema ``pkg/msg/Type`` in ``ros2msg`` with the bag's concatenated definition
-  (:func:`cgp_sim_ros.schemas.message_definition`).  The messages are the very bytes the node publishes on DDS,
-  handed over in :meth:`SimNode._out` (no second serialization), stamped with the tick's simulation time; the
-  command topics carry every command the node received (over DDS or from a Foxglove client), as the bag does.
+  (:func:`cgp_sim_ros.wire.schemas.message_definition`).  The messages are the very bytes the node publishes
+  on DDS, handed over in :meth:`cgp_sim_ros.ros.publishing.TickPublisher.publish` (no second serialization),
+  stamped with the tick's simulation time; the command topics carry every command the node received (over DDS
+  or from a Foxglove client), as the bag does.
   A channel no client subscribes to costs one ``Channel.has_sinks()`` call (~50 ns) and nothing else.
 - **Time** (capability ``time``): the simulation time, broadcast with the first message of each tick anyone
   subscribed to (and to a new subscriber at once, even while paused), so the app's timeline follows ``/clock``;
@@ -68,10 +69,10 @@ from rclpy.serialization import deserialize_message, serialize_message
 
 from cgp_core.wrenches import WrenchError
 
-from . import interface as itf
-from .node import COMMAND_BATCH_S, MAX_COMMAND_BYTES, MAX_PENDING_COMMANDS, REPORT_PERIOD_S
+from .. import interface as itf
+from ..interface import COMMAND_BATCH_S, MAX_COMMAND_BYTES, MAX_PENDING_COMMANDS, REPORT_PERIOD_S
+from ..wire.schemas import message_definition, normalize_type_name, service_definitions
 from .recorder import INFRASTRUCTURE_TOPICS, type_name
-from .schemas import message_definition, normalize_type_name, service_definitions
 
 #: The node's services a Foxglove client may call, named as the node creates them: one line each (e.g. the
 #: simulation_interfaces services, once the node offers them).  Request and response schemas, decoding and the
@@ -179,7 +180,7 @@ class FoxgloveServer:
             f"{self.url} (or open {self.server.app_url()}); layout: msgs_config/foxglove/cgp_sim_layout.json")
 
     def follow_endpoints(self, added) -> None:
-        """After the node's entities changed (spawn, delete, reset: ``SimNode._sync_entities``): a channel for
+        """After the node's entities changed (spawn, delete, reset: :meth:`SimNode.world_edited`): a channel for
         each new publisher's or subscription's topic (a topic seen before keeps its channel), the publishers that
         are gone no longer mapped, and the command inputs as the node has them now.  The node's thread."""
         for endpoint in added:
@@ -306,7 +307,7 @@ class FoxgloveServer:
                 item = self._inbox.popleft() if self._inbox else None
                 dropped, self._inbox_dropped = self._inbox_dropped, 0
             if dropped:
-                self.node._reject(SOURCE, WrenchError(
+                self.node.report_rejection(SOURCE, WrenchError(
                     "message", f"more than {MAX_INBOX} client messages waiting for the simulation; dropped the "
                     f"{dropped} oldest", "flood"), count=dropped)
             if item is None:
@@ -324,7 +325,7 @@ class FoxgloveServer:
                 try:
                     data = serialize_message(_message_from_json(route.msg_type, data))
                 except WrenchError as exc:
-                    self.node._reject(SOURCE, exc)
+                    self.node.report_rejection(SOURCE, exc)
                     return
             route.handle(data)  # the node's command path: size, record, decode, validate, queue for the tick
         elif kind == "call":
@@ -336,10 +337,10 @@ class FoxgloveServer:
             except Exception as exc:  # noqa: BLE001 - the client gets the error, the node goes on
                 future.set_exception(exc)
         elif kind == "reject":
-            self.node._reject(SOURCE, item[1])
+            self.node.report_rejection(SOURCE, item[1])
         elif kind == "refused":
             _, client_id, error = item
-            self.node._reject(SOURCE, error)
+            self.node.report_rejection(SOURCE, error)
             self._status(f"client {client_id}: refused channel: {error}", (error.field, error.kind))
         elif kind == "time":
             self._time_sent = max(self._time_sent, self.node.world.time_ns)

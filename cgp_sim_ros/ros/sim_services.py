@@ -3,8 +3,8 @@ written against the standard calls, on Gazebo, Isaac Sim, O3DE and here alike.
 
 Every service name is relative to the node (``/cgp_sim/spawn_entity`` by default), as ros_gz_sim has them;
 :mod:`cgp_sim_ros.interface` lists them.  The world edits go to :class:`cgp_core.world.World` (spawn, delete,
-set_body_state / move_flock, entity_state, entity_names, reset); the node then makes its per-body endpoints
-follow (``SimNode._sync_entities``).  Rules kept by every handler:
+set_body_state / move_flock, entity_state, entity_names) and the node's own reset (:meth:`SimNode.reset`); after
+an edit the node makes its per-body endpoints follow (:meth:`SimNode.world_edited`).  Rules kept by every handler:
 
 - The reply carries ``simulation_interfaces/msg/Result``: ``RESULT_OK`` or the most specific code the service
   defines (``SpawnEntity.Response.NAME_NOT_UNIQUE``, ...), and an ``error_message`` naming what was wrong.  A
@@ -42,7 +42,7 @@ from simulation_interfaces.srv import (DeleteEntity, GetEntities, GetEntitiesSta
 from cgp_core.editing import WORLD_FRAMES, EditError
 from cgp_core.scene import MAX_SCENE_BYTES, SPAWN_KINDS, SceneError, parse_yaml
 
-from . import interface as itf
+from .. import interface as itf
 
 OK = Result.RESULT_OK
 NOT_FOUND = Result.RESULT_NOT_FOUND
@@ -71,7 +71,7 @@ CUSTOM_INFO = (
     "body, without position/orientation (initial_pose; for a flock initial_pose.position is the spawn centre). "
     "Entity states: a body's COM pose, twist in world axes, last tick's acceleration; a flock's centroid and "
     "mean velocity (set moves it rigidly). Reset scopes STATE, SPAWNED, ALL; time keeps running (no "
-    "SCOPE_TIME). get_entities filters: POSIX ERE on names, TYPE_SPHERE bounds. See the README."
+    "SCOPE_TIME). get_entities filters: POSIX ERE on names, TYPE_SPHERE bounds. See docs/simulation-interfaces.md."
 )
 
 _STATE_NAMES = {SimulationState.STATE_STOPPED: "STOPPED", SimulationState.STATE_PLAYING: "PLAYING",
@@ -107,7 +107,8 @@ class _SteppingJob:
 
 
 class SimulationInterfaces:
-    """The services and the action, on ``node`` (a :class:`cgp_sim_ros.node.SimNode`)."""
+    """The services and the action, on ``node`` (a :class:`cgp_sim_ros.ros.node.SimNode`; this class uses its
+    public surface: ``world``, ``paused``, ``reset``, ``world_edited``, ``emit_event``)."""
 
     def __init__(self, node):
         self.node = node
@@ -158,8 +159,8 @@ class SimulationInterfaces:
             self.node.get_logger().error(f"{service} failed: {exc!r}\n{traceback.format_exc()}")
             if hasattr(response, "result"):
                 response.result = Result(result=FAILED, error_message=f"internal error: {exc!r}")
-            self.node._event({"event": "service", "name": service, "result": "OPERATION_FAILED",
-                              "message": f"internal error: {exc!r}"})
+            self.node.emit_event({"event": "service", "name": service, "result": "OPERATION_FAILED",
+                                  "message": f"internal error: {exc!r}"})
             return response
 
         if inspect.iscoroutinefunction(callback):
@@ -250,12 +251,7 @@ class SimulationInterfaces:
         payload = {"event": "service", "name": service, **summary, "result": _code_names(*codes).get(code, code)}
         if message:
             payload["message"] = message
-        self.node._event(payload)
-
-    def _after_edit(self) -> None:
-        """The world's entities or poses may have changed: endpoints, serializers, /tf_static follow."""
-        self.node._sync_entities()
-        self.node._publish_static_tf()
+        self.node.emit_event(payload)
 
     def _entity_state_msg(self, name: str) -> EntityState:
         state = self.node.world.entity_state(name)
@@ -306,7 +302,7 @@ class SimulationInterfaces:
         response.features.features = list(FEATURES)
         response.features.spawn_formats = list(SPAWN_FORMATS)
         response.features.custom_info = CUSTOM_INFO
-        self.node._event({"event": "service", "name": "get_simulator_features", "result": "OK"})
+        self.node.emit_event({"event": "service", "name": "get_simulator_features", "result": "OK"})
         return response
 
     def _spawn_entity(self, request, response):
@@ -357,7 +353,7 @@ class SimulationInterfaces:
             code = {"name_taken": R.NAME_NOT_UNIQUE, "name_invalid": R.NAME_INVALID,
                     "invalid_pose": R.INVALID_POSE}.get(exc.kind, FAILED)
             return code, str(exc), ""
-        self._after_edit()
+        self.node.world_edited()
         return OK, "", name
 
     def _delete_entity(self, request, response):
@@ -365,7 +361,7 @@ class SimulationInterfaces:
             kind = self.node.world.delete(request.entity)
         except EditError as exc:
             return self._reply(response, "delete_entity", NOT_FOUND, str(exc), entity=request.entity)
-        self._after_edit()
+        self.node.world_edited()
         return self._reply(response, "delete_entity", OK, entity=request.entity, kind=kind)
 
     def _get_entities(self, request, response):
@@ -421,7 +417,7 @@ class SimulationInterfaces:
                 world.set_body_state(name, position, orientation, linear, angular)
         except EditError as exc:
             return (R.INVALID_POSE if exc.kind == "invalid_pose" else FAILED), str(exc)
-        self.node._publish_static_tf()  # a fixed body may have moved
+        self.node.world_edited()  # a fixed body may have moved: /tf_static
         return OK, ""
 
     def _reset_simulation(self, request, response):
@@ -436,11 +432,7 @@ class SimulationInterfaces:
                           else f"scope {scope}: unknown scope bits {unknown}")
                 return self._reply(response, "reset_simulation", UNSUPPORTED, reason, scope=scope)
             state, spawned = bool(scope & _SCOPE_STATE), bool(scope & _SCOPE_SPAWNED)
-        self.node.world.reset(state=state, spawned=spawned)
-        if state:
-            self.node._pending.clear()
-        self.node._delete_all_markers = True
-        self._after_edit()
+        self.node.reset(state=state, spawned=spawned)
         return self._reply(response, "reset_simulation", OK, scope=scope)
 
     def _get_simulation_state(self, request, response):
@@ -474,10 +466,7 @@ class SimulationInterfaces:
         elif target == S.STATE_STOPPED:
             self._abort_job("interrupted: the simulation was stopped")
             self.node.paused = True
-            self.node.world.reset()
-            self.node._pending.clear()
-            self.node._delete_all_markers = True
-            self._after_edit()
+            self.node.reset()
             self.stopped = True
         else:  # QUITTING
             self._abort_job("interrupted: the simulator is quitting")

@@ -47,6 +47,7 @@ __all__ = [
     "TFMessageSerializer",
     "FLOCK_STATS_FIELDS",
     "FlockStatsSerializer",
+    "MarkerFields",
     "marker",
     "MarkerPointsSerializer",
     "MarkerPoseSerializer",
@@ -486,32 +487,61 @@ def _optional_bytes(value, what: str) -> bytes:
     raise TypeError(f"{what} must be bytes or a uint8 array, got {type(value).__name__}")
 
 
-def marker(*, marker_type: int, stamp_ns: int = 0, frame_id: str = "", ns: str = "", id: int = 0,  # noqa: A002
-           action: int = ADD, position=(0.0, 0.0, 0.0), orientation=(0.0, 0.0, 0.0, 1.0),
-           scale=(1.0, 1.0, 1.0), color=(1.0, 1.0, 1.0, 1.0), lifetime_ns: int = 0, frame_locked: bool = False,
-           points=None, colors=None, texture_resource: str = "", texture_stamp_ns: int = 0,
-           texture_frame_id: str = "", texture_format: str = "", texture_data=None, uv_coordinates=None,
-           text: str = "", mesh_resource: str = "", mesh_filename: str = "", mesh_data=None,
-           mesh_use_embedded_materials: bool = False) -> bytes:
-    """``visualization_msgs/Marker`` with every field (defaults = the message defaults, except a white
-    opaque ``color``, unit ``scale`` and identity ``orientation``, which rviz needs to draw anything).
+@dataclass(frozen=True)
+class MarkerFields:
+    """Every field of a ``visualization_msgs/Marker``, for :func:`marker` (defaults = the message defaults,
+    except a white opaque ``color``, unit ``scale`` and identity ``orientation``, which rviz needs to draw
+    anything).  The nested messages are flattened: ``header`` → ``stamp_ns`` / ``frame_id``, ``pose`` →
+    ``position`` / ``orientation``, ``texture`` (sensor_msgs/CompressedImage) → ``texture_*``, ``mesh_file``
+    (visualization_msgs/MeshFile) → ``mesh_filename`` / ``mesh_data``.
 
     Array fields (numpy, any real dtype):
         points: (N, 3) -> ``points`` (float64).  TRIANGLE_LIST needs N % 3 == 0.
         colors: (N, 4) RGBA -> ``colors`` (float32); N must be 0 or len(points) (TRIANGLE_LIST also accepts
             one color per triangle, as rviz does).
         uv_coordinates: (N, 2) -> ``uv_coordinates`` (float32).
-    ``texture_*`` fill ``texture`` (sensor_msgs/CompressedImage), ``mesh_filename`` / ``mesh_data`` fill
-    ``mesh_file`` (visualization_msgs/MeshFile).
+    ``texture_data`` and ``mesh_data``: bytes or a uint8 array.  Checked by :func:`marker`, not here.
     """
-    marker_type = int(marker_type)
+
+    marker_type: int
+    stamp_ns: int = 0
+    frame_id: str = ""
+    ns: str = ""
+    id: int = 0  # noqa: A003 - the message's field name
+    action: int = ADD
+    position: Sequence[float] = (0.0, 0.0, 0.0)
+    orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0)
+    scale: Sequence[float] = (1.0, 1.0, 1.0)
+    color: Sequence[float] = (1.0, 1.0, 1.0, 1.0)
+    lifetime_ns: int = 0
+    frame_locked: bool = False
+    points: object = None
+    colors: object = None
+    texture_resource: str = ""
+    texture_stamp_ns: int = 0
+    texture_frame_id: str = ""
+    texture_format: str = ""
+    texture_data: object = None
+    uv_coordinates: object = None
+    text: str = ""
+    mesh_resource: str = ""
+    mesh_filename: str = ""
+    mesh_data: object = None
+    mesh_use_embedded_materials: bool = False
+
+
+def marker(fields: MarkerFields) -> bytes:
+    """``visualization_msgs/Marker`` with every field of ``fields``; a ``ValueError`` / ``TypeError`` naming the
+    field for a value the message cannot carry."""
+    f = fields
+    marker_type = int(f.marker_type)
     if marker_type not in _MARKER_TYPES:
         raise ValueError(f"marker_type={marker_type} is not a visualization_msgs/Marker type (0..12)")
-    if int(action) not in _MARKER_ACTIONS:
-        raise ValueError(f"action={action} is not a visualization_msgs/Marker action (0 ADD, 2 DELETE, "
+    if int(f.action) not in _MARKER_ACTIONS:
+        raise ValueError(f"action={f.action} is not a visualization_msgs/Marker action (0 ADD, 2 DELETE, "
                          f"3 DELETEALL)")
-    pts = _float_rows(points, 3, "points") if points is not None else _NO_POINTS
-    cols = _float_rows(colors, 4, "colors", np.float32) if colors is not None else _NO_COLORS
+    pts = _float_rows(f.points, 3, "points") if f.points is not None else _NO_POINTS
+    cols = _float_rows(f.colors, 4, "colors", np.float32) if f.colors is not None else _NO_COLORS
     if marker_type == TRIANGLE_LIST and len(pts) % 3:
         raise ValueError(f"a TRIANGLE_LIST marker needs 3 points per triangle, got {len(pts)} points")
     allowed_colors = {0, len(pts)} | ({len(pts) // 3} if marker_type == TRIANGLE_LIST else set())
@@ -521,8 +551,8 @@ def marker(*, marker_type: int, stamp_ns: int = 0, frame_id: str = "", ns: str =
 
     # Everything up to ``colors`` is packed directly (the per-tick path: ~10 markers per tick); offsets are
     # body offsets (after the encapsulation header).
-    frame = _encode_string(frame_id, "frame_id")
-    ns_raw = _encode_string(ns, "ns")
+    frame = _encode_string(f.frame_id, "frame_id")
+    ns_raw = _encode_string(f.ns, "ns")
     pos = 8 + len(frame)
     pad_ns = -pos % 4
     pos += pad_ns + len(ns_raw)
@@ -531,45 +561,45 @@ def marker(*, marker_type: int, stamp_ns: int = 0, frame_id: str = "", ns: str =
     pad_pose = -pos % 8
     pos += pad_pose + _MARKER_BLOCK.size
     try:
-        block = _MARKER_BLOCK.pack(*_floats(position, 3, "position"), *_floats(orientation, 4, "orientation"),
-                                   *_floats(scale, 3, "scale"), *_floats(color, 4, "color"),
-                                   *split_stamp(lifetime_ns), bool(frame_locked))
+        block = _MARKER_BLOCK.pack(*_floats(f.position, 3, "position"), *_floats(f.orientation, 4, "orientation"),
+                                   *_floats(f.scale, 3, "scale"), *_floats(f.color, 4, "color"),
+                                   *split_stamp(f.lifetime_ns), bool(f.frame_locked))
     except struct.error:
-        raise ValueError(f"lifetime_ns={lifetime_ns!r} is not an integer nanosecond duration within the int32 "
+        raise ValueError(f"lifetime_ns={f.lifetime_ns!r} is not an integer nanosecond duration within the int32 "
                          f"seconds range") from None
-    parts = [ENCAPSULATION, _pack_stamp(stamp_ns), frame, _ZEROS[:pad_ns], ns_raw, _ZEROS[:pad_ids],
-             struct.pack("<iii", _check_int32(id, "id"), marker_type, int(action)), _ZEROS[:pad_pose], block]
+    parts = [ENCAPSULATION, _pack_stamp(f.stamp_ns), frame, _ZEROS[:pad_ns], ns_raw, _ZEROS[:pad_ids],
+             struct.pack("<iii", _check_int32(f.id, "id"), marker_type, int(f.action)), _ZEROS[:pad_pose], block]
     w = _Writer(parts, pos)
     w.sequence(len(pts), 8, pts)
     w.sequence(len(cols), 4, cols)
     # From here on nothing is 8-aligned and the offset is a multiple of 4: the common all-default rest of
     # the message is one constant.
-    if (uv_coordinates is None and texture_data is None and mesh_data is None and not texture_resource
-            and not texture_stamp_ns and not texture_frame_id and not texture_format and not text
-            and not mesh_resource and not mesh_filename):
-        parts.append(_MARKER_TAIL_EMBEDDED if mesh_use_embedded_materials else _MARKER_TAIL)
+    if (f.uv_coordinates is None and f.texture_data is None and f.mesh_data is None and not f.texture_resource
+            and not f.texture_stamp_ns and not f.texture_frame_id and not f.texture_format and not f.text
+            and not f.mesh_resource and not f.mesh_filename):
+        parts.append(_MARKER_TAIL_EMBEDDED if f.mesh_use_embedded_materials else _MARKER_TAIL)
         return b"".join(parts)
-    uvs = (_float_rows(uv_coordinates, 2, "uv_coordinates", np.float32) if uv_coordinates is not None
+    uvs = (_float_rows(f.uv_coordinates, 2, "uv_coordinates", np.float32) if f.uv_coordinates is not None
            else np.zeros((0, 2), dtype=np.float32))
-    w.string(_encode_string(texture_resource, "texture_resource"))
+    w.string(_encode_string(f.texture_resource, "texture_resource"))
     w.align(4)
-    w.header(texture_stamp_ns, texture_frame_id)
-    w.string(_encode_string(texture_format, "texture_format"))
-    data = _optional_bytes(texture_data, "texture_data")
+    w.header(f.texture_stamp_ns, f.texture_frame_id)
+    w.string(_encode_string(f.texture_format, "texture_format"))
+    data = _optional_bytes(f.texture_data, "texture_data")
     w.sequence(len(data), 1, data)
     w.sequence(len(uvs), 4, uvs)
-    w.string(_encode_string(text, "text"))
-    w.string(_encode_string(mesh_resource, "mesh_resource"))
-    w.string(_encode_string(mesh_filename, "mesh_filename"))
-    data = _optional_bytes(mesh_data, "mesh_data")
+    w.string(_encode_string(f.text, "text"))
+    w.string(_encode_string(f.mesh_resource, "mesh_resource"))
+    w.string(_encode_string(f.mesh_filename, "mesh_filename"))
+    data = _optional_bytes(f.mesh_data, "mesh_data")
     w.sequence(len(data), 1, data)
-    w.raw(b"\x01" if mesh_use_embedded_materials else b"\x00")
+    w.raw(b"\x01" if f.mesh_use_embedded_materials else b"\x00")
     return w.getvalue()
 
 
 class MarkerPointsSerializer:
     """Fast path for a marker whose only per-tick changes are its stamp and its ``points`` (a fixed number):
-    the flocks' SPHERE_LIST / TRIANGLE_LIST.  The same bytes as :func:`marker` with those arguments.
+    the flocks' SPHERE_LIST / TRIANGLE_LIST.  The same bytes as :func:`marker` with those fields.
 
     The message is laid out once in a buffer; :attr:`points` is an ``(n, 3)`` float64 view of its points, for
     the caller to write into (the fish kernel writes its vertices there directly), and :meth:`serialize`
@@ -583,7 +613,7 @@ class MarkerPointsSerializer:
     def __init__(self, count: int, **fields) -> None:
         if "points" in fields or "stamp_ns" in fields:
             raise TypeError("MarkerPointsSerializer sets points and stamp_ns itself")
-        template = marker(points=np.full((count, 3), self._SENTINEL), **fields)
+        template = marker(MarkerFields(points=np.full((count, 3), self._SENTINEL), **fields))
         block = np.full(3 * count, self._SENTINEL).tobytes()
         offset = template.find(block) if count else len(template)
         if count and (offset < 0 or (offset - 4) % 8):
@@ -603,7 +633,7 @@ class MarkerPointsSerializer:
 
 class MarkerPoseSerializer:
     """Fast path for a marker whose only per-tick changes are its stamp and its pose (the bodies' markers): the
-    same bytes as :func:`marker` with those arguments, from a template laid out once (patching 9 numbers
+    same bytes as :func:`marker` with those fields, from a template laid out once (patching 9 numbers
     costs a few microseconds; building the marker, ~10 times that).  Not thread-safe."""
 
     _SENTINEL = -1.2345678901234567e-300  # marks the pose while the layout is found
@@ -612,7 +642,8 @@ class MarkerPoseSerializer:
     def __init__(self, **fields) -> None:
         if {"position", "orientation", "stamp_ns"} & set(fields):
             raise TypeError("MarkerPoseSerializer sets position, orientation and stamp_ns itself")
-        template = marker(position=(self._SENTINEL,) * 3, orientation=(self._SENTINEL,) * 4, **fields)
+        sentinel = self._SENTINEL
+        template = marker(MarkerFields(position=(sentinel,) * 3, orientation=(sentinel,) * 4, **fields))
         self._offset = template.find(self._POSE.pack(*(self._SENTINEL,) * 7))
         if self._offset < 0:
             raise AssertionError("marker pose not found in the template")  # pragma: no cover
@@ -655,7 +686,7 @@ _MARKER_TAIL_EMBEDDED = _default_marker_tail(True)
 
 def marker_deleteall(stamp_ns: int = 0, frame_id: str = "", ns: str = "") -> bytes:
     """A DELETEALL marker (removes all markers, or those of ``ns`` if given)."""
-    return marker(marker_type=ARROW, action=DELETEALL, stamp_ns=stamp_ns, frame_id=frame_id, ns=ns)
+    return marker(MarkerFields(marker_type=ARROW, action=DELETEALL, stamp_ns=stamp_ns, frame_id=frame_id, ns=ns))
 
 
 # ----------------------------------------------------------------------------------------- MarkerArray

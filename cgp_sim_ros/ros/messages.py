@@ -1,4 +1,4 @@
-"""What the node publishes each tick, serialized once as CDR bytes (:mod:`cgp_sim_ros.cdr`, numpy-built and
+"""What the node publishes each tick, serialized once as CDR bytes (:mod:`cgp_sim_ros.wire.cdr`, numpy-built and
 proven equal to rclpy's serialization in tests/test_cdr.py) — the same bytes are published and recorded.
 
 Markers (``~/markers``, frame ``world``), with stable namespaces and ids:
@@ -7,16 +7,16 @@ Markers (``~/markers``, frame ``world``), with stable namespaces and ids:
 - ``bodies/<body>`` / 0: the body's shape — SPHERE, CUBE (box), CYLINDER (capsule shaft; ids 1 and 2 are the
   capsule's end SPHEREs), SPHERE_LIST (particle set, drawn in the body frame);
 - ``flocks/<flock>`` / 0 … K−1: SPHERE_LIST of boids (``model: sphere``) or TRIANGLE_LIST of fish (``model:
-  fish``, :mod:`cgp_sim_ros.shapes`; full or low detail as :mod:`cgp_sim_ros.detail` chose), points rounded to
-  1/1024 m (a view: the poses are exact).  A flock redrawn every K ticks (``markers_every``) is split into K
-  parts, part k = boids [k·N/K, (k+1)·N/K) with id k, and each array carries the part of its tick (tick mod
-  K): every boid is redrawn every K ticks, with the same bytes on every tick (the whole flock every K-th tick
-  was a burst the bag writer's compression then spent the next tick's second core on).  K = 1: one marker,
-  id 0, every tick.
+  fish``, :mod:`cgp_sim_ros.drawing.shapes`; full or low detail as :mod:`cgp_sim_ros.drawing.detail` chose),
+  points rounded to 1/1024 m (a view: the poses are exact).  A flock redrawn every K ticks (``markers_every``)
+  is split into K parts, part k = boids [k·N/K, (k+1)·N/K) with id k, and each array carries the part of its
+  tick (tick mod K): every boid is redrawn every K ticks, with the same bytes on every tick (the whole flock
+  every K-th tick was a burst the bag writer's compression then spent the next tick's second core on).
+  K = 1: one marker, id 0, every tick.
 After a reset the first marker of the array is a DELETEALL, then the full set (every part).
 
 The flock markers are the big ones: each part is laid out once in its own buffer
-(:class:`cgp_sim_ros.cdr.MarkerPointsSerializer`) and the compiled fish kernel writes the vertices straight
+(:class:`cgp_sim_ros.wire.cdr.MarkerPointsSerializer`) and the compiled fish kernel writes the vertices straight
 into it; the marker array copies it once.
 """
 
@@ -32,9 +32,9 @@ from visualization_msgs.msg import MarkerArray
 from cgp_core.bodies import Shape
 from cgp_core.rotation import quat_rotate
 
-from . import cdr
-from .detail import DetailPlan
-from .shapes import FISH_DETAILS, fish_triangles, quantized_points
+from ..drawing.detail import DetailPlan
+from ..drawing.shapes import FISH_DETAILS, fish_triangles, quantized_points
+from ..wire import cdr
 
 GROUND_SIZE = 60.0  # m, edge of the drawn ground tile
 GROUND_COLOR = (0.55, 0.57, 0.6, 1.0)
@@ -127,8 +127,9 @@ class TickMessages:
             out.append(cdr.marker_deleteall(stamp_ns, self.frame_id))
         common = {"stamp_ns": stamp_ns, "frame_id": self.frame_id}
         if self.world.ground is not None:
-            out.append(cdr.marker(marker_type=cdr.CUBE, ns="ground", id=0, position=(0.0, 0.0, -0.025),
-                                  scale=(GROUND_SIZE, GROUND_SIZE, 0.05), color=GROUND_COLOR, **common))
+            out.append(cdr.marker(cdr.MarkerFields(
+                marker_type=cdr.CUBE, ns="ground", id=0, position=(0.0, 0.0, -0.025),
+                scale=(GROUND_SIZE, GROUND_SIZE, 0.05), color=GROUND_COLOR, **common)))
         out.extend(self._body_markers(common))
         for index, flock in enumerate(self.world.flocks):
             parts = self.flock_parts(flock)

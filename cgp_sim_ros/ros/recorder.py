@@ -1,8 +1,8 @@
 """The node's recording: every topic it publishes and every command it receives, into a rosbag2-style MCAP
-bag (:class:`cgp_sim_ros.bag.BagWriter`: its own thread, chunked, lz4, crash-safe).
+bag (:class:`cgp_sim_ros.wire.bag.BagWriter`: its own thread, chunked, lz4, crash-safe).
 
 What is recorded at what rate: every message of every topic, except what the level-of-detail plan
-(:mod:`cgp_sim_ros.detail`) records less often — the node decides per tick and calls :meth:`Recorder.write`
+(:mod:`cgp_sim_ros.drawing.detail`) records less often — the node decides per tick and calls :meth:`Recorder.write`
 only for what goes into the bag; the plan is in the bag's ``custom_data`` (``cgp_sim.recorded_every_n_ticks``,
 topic → N) and on ``~/events``.
 
@@ -16,9 +16,35 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from .bag import BagWriter
+from ..wire.bag import BagOptions, BagWriter, bag_path_occupied
+from .parameters import ConfigError
 
 INFRASTRUCTURE_TOPICS = ("/rosout", "/parameter_events")
+
+
+def bag_directory(text: str) -> Path | None:
+    """The bag directory the parameter ``bag`` names (None for ""), resolved once (``~``, symlinks and ``..``
+    as the OS resolves them): the recording writes inside it and nowhere else (a lexical ``a/new/../bag`` would
+    make ``mkdir -p`` create ``a/new``).  Checked before anything is built or published: recording into an
+    old bag would mix two runs, so an existing, non-empty one is a :class:`ConfigError`.  A path that cannot
+    even be examined (a name longer than NAME_MAX...) is not a configuration error here: the recorder
+    reports it as it reports any unwritable location, and the simulation goes on."""
+    if not text:
+        return None
+    path = Path(text).expanduser()
+    try:
+        path = path.resolve()
+    except (OSError, RuntimeError):  # a symlink loop, ...: left for the recorder to report
+        path = path.absolute()
+    try:
+        occupied = bag_path_occupied(path)
+    except OSError:
+        occupied = False
+    if occupied:
+        raise ConfigError(f"bag: {str(path)!r} already exists and is "
+                          f"{'not empty' if path.is_dir() else 'not a directory'}; choose a new "
+                          "directory (a bag is never overwritten)")
+    return path
 
 
 def type_name(msg_class) -> str:
@@ -33,7 +59,7 @@ class Recorder:
         self.directory = directory.resolve()
         self._error_reported = False
         self._own_data = {"recorder": "cgp_sim", "scene": str(node.world.scene.source)}
-        self.writer = BagWriter(self.directory, max_bytes=max_bytes, max_duration_s=max_duration_s,
+        self.writer = BagWriter(self.directory, BagOptions(max_bytes=max_bytes, max_duration_s=max_duration_s),
                                 custom_data={**self._own_data, **(custom_data or {})})
         self.started = time.monotonic()
         # Every topic the node itself publishes or subscribes to (not rclpy's own /rosout, /parameter_events).

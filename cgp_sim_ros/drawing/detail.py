@@ -24,7 +24,7 @@ Rules, for the parameters' automatic values (``fish_detail: auto``, ``markers_ev
    marker budget on every tick; otherwise ``low`` (3 triangles: the full fish's outline seen from above and
    its tail fin, ``shapes.py``);
 2. each flock's marker is redrawn every N-th tick, the smallest N that fits the marker budget — in N parts,
-   one part per tick (``messages.py``), so that every tick carries the same bytes: the whole flock every
+   one part per tick (``ros/messages.py``), so that every tick carries the same bytes: the whole flock every
    N-th tick was a burst that the bag writer's compression then spent the next tick's second core on (the
    15k-fish flock step took 14 ms on that tick instead of 8.5);
 3. in the bag, ``~/flocks/<flock>/poses`` is recorded every M-th tick, the smallest M that fits the poses
@@ -39,7 +39,7 @@ import json
 import math
 from dataclasses import dataclass, field
 
-from .interface import FISH_DETAIL_CHOICES
+from ..interface import FISH_DETAIL_CHOICES
 from .shapes import FISH_DETAILS
 
 #: marker payload per simulated second the automatic choices keep to [bytes]

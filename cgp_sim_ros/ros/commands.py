@@ -1,0 +1,230 @@
+"""The wrench commands the node takes, from the moment they arrive to the tick that applies them.
+
+Every command input — ``~/apply_wrench`` and every movable body's ``~/bodies/<body>/wrench``, over DDS or from a
+Foxglove client (:attr:`CommandInputs.inputs`: topic → message type and handler of its CDR bytes) — goes the
+same path, in this module:
+
+1. size: a message larger than any valid command (:data:`~cgp_sim_ros.interface.MAX_COMMAND_BYTES`) is
+   dropped before it is decoded or recorded;
+2. recorded (the bag, the live view) as received;
+3. decoded, and validated by :func:`cgp_core.wrenches.make_command` (the node's ``max_force`` /
+   ``max_torque``);
+4. queued for the next tick: a bounded queue (:data:`~cgp_sim_ros.interface.MAX_PENDING_COMMANDS`, the oldest
+   dropped and reported); the tick hands it to the world, whose active wrenches are bounded too
+   (``WrenchSchedule.max_active``).
+
+A rejected command (at any step, or a Foxglove client's bad input: :meth:`CommandInputs.reject`) is logged at
+once the first time its (source, field, kind of problem) occurs, then summarized every
+:data:`~cgp_sim_ros.interface.REPORT_PERIOD_S` seconds with a count (log and ``~/events``), so a flood cannot
+flood the log.
+"""
+
+from __future__ import annotations
+
+import collections
+import time
+from dataclasses import replace
+
+from cgp_sim_msgs.msg import ApplyWrench
+from geometry_msgs.msg import WrenchStamped
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.serialization import deserialize_message
+
+from cgp_core.wrenches import MAX_NAME_LENGTH, WrenchError, make_command
+
+from .. import interface as itf
+from .qos import COMMAND_QOS
+
+#: The per-body command subscriptions are made without rclpy's default QoS-event handlers (the "incompatible
+#: QoS / type" warnings): each handler is a waitable the executor adds to its wait set, in Python, on every spin
+#: (see cgp_sim_ros/ros/publishing.py, which does the same for the per-entity publishers).
+_NO_EVENT_HANDLERS = SubscriptionEventCallbacks(use_default_callbacks=False)
+
+
+class CommandInputs:
+    """The command subscriptions of ``node`` (a :class:`~cgp_sim_ros.ros.node.SimNode`), the queue of validated
+    commands waiting for the next tick, and the count of rejected ones (see the module docstring)."""
+
+    def __init__(self, node):
+        self._node = node
+        #: every command input: topic -> (message type, handler of its serialized bytes), for other transports
+        self.inputs: dict[str, tuple[type, object]] = {}
+        self._pending: collections.deque = collections.deque()  # validated commands, for the next tick
+        self._dropped = 0  # pending commands dropped (the oldest) since the last report
+        self._rejections: collections.Counter = collections.Counter()
+        self._last_rejection: dict[tuple[str, str, str], str] = {}  # (source, field, kind) -> last reason
+        self._apply_wrench = self._subscription(ApplyWrench, itf.TOPIC_APPLY_WRENCH, self._on_apply_wrench)
+        self._body_wrench: dict = {}  # body name -> its ~/bodies/<body>/wrench subscription
+        self._body_names: list[str] = []  # the body set the pending commands' indices refer to
+
+    # ---- the per-body subscriptions ------------------------------------------------------------------------
+
+    def follow_bodies(self, names: list[str], movable: set[str]) -> list:
+        """After the body set changed: a ``~/bodies/<body>/wrench`` subscription for every movable body (made
+        for new ones, destroyed for gone ones, kept for the others); pending commands follow their body (its
+        new index), those on deleted bodies are dropped.  Returns the subscriptions made."""
+        node = self._node
+        for name in [n for n in self._body_wrench if n not in movable]:
+            subscription = self._body_wrench.pop(name)
+            self.inputs.pop(subscription.topic_name, None)
+            node.destroy_subscription(subscription)
+        added = []
+        for name in names:
+            if name in movable and name not in self._body_wrench:
+                self._body_wrench[name] = self._subscription(
+                    WrenchStamped, itf.TOPIC_BODY_WRENCH.format(body=name),
+                    lambda data, body=name: self._on_body_wrench(body, data), per_entity=True)
+                added.append(self._body_wrench[name])
+        # pending commands hold body indices of the model they were validated against
+        new_index = {name: i for i, name in enumerate(names)}
+        old_names = self._body_names
+        self._pending = collections.deque(
+            replace(c, body=new_index[old_names[c.body]]) for c in self._pending
+            if c.body < len(old_names) and old_names[c.body] in new_index)
+        self._body_names = list(names)
+        return added
+
+    def _subscription(self, msg_type, topic: str, handle, per_entity: bool = False):
+        """A raw command subscription whose callback also takes the messages already waiting behind the first.
+
+        rclpy's executor takes one message per subscription per wait, and a wait costs a fraction of a
+        millisecond of Python, so a flood would be read at a few hundred messages per tick at best and the rest
+        overwritten in the DDS reader's bounded history.  Taking what is waiting in one go (bounded by
+        COMMAND_BATCH_S of wall time, so a tick is never held up for long) reads thousands per second."""
+        subscription = None
+
+        def take_all(data: bytes) -> None:
+            handle(data)
+            deadline = time.perf_counter() + itf.COMMAND_BATCH_S
+            while time.perf_counter() < deadline:
+                with subscription.handle:
+                    taken = subscription.handle.take_message(msg_type, True)
+                if taken is None:
+                    return
+                handle(taken[0])
+
+        subscription = self._node.create_subscription(msg_type, topic, take_all, COMMAND_QOS, raw=True,
+                                                      event_callbacks=_NO_EVENT_HANDLERS if per_entity else None)
+        self.inputs[subscription.topic_name] = (msg_type, handle)
+        return subscription
+
+    # ---- arrival: size, record, decode, validate, queue ----------------------------------------------------
+
+    def _on_apply_wrench(self, data: bytes) -> None:
+        if self._oversized("apply_wrench", data):
+            return
+        self._record_received(self._apply_wrench.topic_name, data)
+        world, params = self._node.world, self._node.params
+        try:
+            msg = _decode(data, ApplyWrench)
+            if msg.duration.nanosec >= 1_000_000_000:
+                raise WrenchError("duration.nanosec", f"must be < 1e9, got {msg.duration.nanosec}", "malformed")
+            command = make_command(
+                world.body_model.names, msg.body,
+                force=(msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z),
+                torque=(msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z),
+                point=(msg.point.x, msg.point.y, msg.point.z), frame=msg.header.frame_id,
+                duration=msg.duration.sec + 1e-9 * msg.duration.nanosec,
+                max_force=params["max_force"], max_torque=params["max_torque"],
+                fixed=world.body_model.fixed, positions=world.body_state.position)
+        except WrenchError as exc:
+            self.reject("apply_wrench", exc)
+            return
+        self._enqueue(command)
+
+    def _on_body_wrench(self, body: str, data: bytes) -> None:
+        source = f"bodies/{body}/wrench"
+        if self._oversized(source, data):
+            return
+        self._record_received(self._body_wrench[body].topic_name, data)
+        params = self._node.params
+        try:
+            msg = _decode(data, WrenchStamped)
+            command = make_command(
+                self._node.world.body_model.names, body,
+                force=(msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z),
+                torque=(msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z),
+                point=None, frame=msg.header.frame_id, duration=0.0,
+                max_force=params["max_force"], max_torque=params["max_torque"])
+        except WrenchError as exc:
+            self.reject(source, exc)
+            return
+        self._enqueue(command)
+
+    def _oversized(self, source: str, data: bytes) -> bool:
+        """Drop a message larger than any valid command, cheaply (no decoding, no recording)."""
+        if len(data) <= itf.MAX_COMMAND_BYTES:
+            return False
+        self.reject(source, WrenchError(
+            "message", f"{len(data)} bytes, more than any valid command ({itf.MAX_COMMAND_BYTES} bytes: body and "
+            f"header.frame_id are names of at most {MAX_NAME_LENGTH} characters); dropped unread", "too large"))
+        return True
+
+    def _record_received(self, topic: str, data: bytes) -> None:
+        node = self._node
+        if node.recorder is not None:
+            node.recorder.write(topic, data, node.world.time_ns)
+        if node.foxglove is not None:
+            node.foxglove.received(topic, data, node.world.time_ns)
+
+    def _enqueue(self, command) -> None:
+        if len(self._pending) >= itf.MAX_PENDING_COMMANDS:
+            self._pending.popleft()
+            self._dropped += 1
+        self._pending.append(command)
+
+    # ---- the tick, and the services that clear ------------------------------------------------------------
+
+    def apply_pending(self, world) -> None:
+        """Hand the waiting commands to ``world`` (the tick, before its step); those over the world's limit of
+        active wrenches are rejected."""
+        if not self._pending:
+            return
+        commands = list(self._pending)
+        self._pending.clear()
+        accepted = world.add_commands(commands)
+        if accepted < len(commands):
+            self.reject("apply_wrench", WrenchError(
+                "wrenches", f"{len(commands) - accepted} wrench(es) over the limit of "
+                f"{world.wrenches.max_active} active wrenches (clear some with ~/clear_wrenches)", "too many"),
+                count=len(commands) - accepted)
+
+    def clear_pending(self) -> int:
+        """Drop the waiting commands (a reset, ~/clear_wrenches); returns how many there were."""
+        count = len(self._pending)
+        self._pending.clear()
+        return count
+
+    # ---- rejections -----------------------------------------------------------------------------------------
+
+    def reject(self, source: str, error: WrenchError, count: int = 1) -> None:
+        """Count rejected commands; the first of each (source, field, kind) is logged at once, the rest are
+        summarized every REPORT_PERIOD_S (see :meth:`report`)."""
+        key = (source, error.field, error.kind)
+        if key not in self._last_rejection:
+            self._node.get_logger().warn(f"rejected {source} command: {error}")
+        self._rejections[key] += count
+        self._last_rejection[key] = str(error)
+
+    def report(self) -> None:
+        """The summary of the last REPORT_PERIOD_S: dropped and rejected commands (log and ``~/events``)."""
+        node = self._node
+        if self._dropped:
+            node.get_logger().warn(f"command flood: dropped the {self._dropped} oldest pending wrench "
+                                   f"commands (more than {itf.MAX_PENDING_COMMANDS} arrived within one tick)")
+            node.emit_event({"event": "dropped_commands", "count": self._dropped})
+            self._dropped = 0
+        for (source, field, kind), count in self._rejections.items():
+            reason = self._last_rejection[(source, field, kind)]
+            node.get_logger().warn(f"rejected {count} {source} command(s) with {kind} {field} in the last "
+                                   f"{itf.REPORT_PERIOD_S:g} s; last reason: {reason}")
+            node.emit_event({"event": "rejected", "source": source, "field": field, "kind": kind, "count": count,
+                             "reason": reason})
+        self._rejections.clear()
+
+
+def _decode(data: bytes, msg_type):
+    try:
+        return deserialize_message(data, msg_type)
+    except Exception as exc:  # undecodable bytes: a peer with a mismatched definition
+        raise WrenchError("message", f"cannot decode: {exc}", "undecodable") from None

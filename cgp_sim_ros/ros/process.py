@@ -1,0 +1,102 @@
+"""What the node does to its process so that the tick keeps its budget — none of it changes a result.
+
+Called by :class:`~cgp_sim_ros.ros.node.SimNode` once its world and endpoints exist (:func:`load_kernels`,
+:func:`freeze_startup_objects`, :func:`share_the_gil_finely`), and while it runs (:class:`ThreadPinning`,
+the parameter ``pin_threads``).  Why each, and what it measured, is in its docstring; ARCHITECTURE.md ("What
+runs where") has the threads and cores.
+"""
+
+from __future__ import annotations
+
+import copy
+import gc
+import sys
+from collections.abc import Callable
+
+from cgp_core.jit import ThreadPlacement, runs_on_pool
+
+#: how long a thread that wants the GIL waits before the holder must let go [s] (Python's default: 5 ms)
+GIL_SWITCH_INTERVAL_S = 0.001
+
+
+def load_kernels(world, build_tick: Callable, log_debug: Callable[[str], None]) -> None:
+    """Have the compiled kernels the first tick runs loaded before it.  numba loads a kernel from its
+    on-disk cache at the kernel's first call, ~9 ms each: the default scene's first tick took ~170 ms
+    (24 kernels), ten 60 Hz periods of a real-time run lost at its start.  A throwaway copy of ``world``
+    takes one tick here and ``build_tick(copy)`` builds its messages (every marker part), which are dropped:
+    nothing is published, the world itself is untouched.  Whatever fails here fails again, and is reported,
+    in the real tick (here it goes to ``log_debug``).
+
+    That tick runs the kernels of the scene's first instant only: the contact kernels of shapes that touch
+    later were loaded when they first touched — the default scene's ball lands 0.7 s in, and that tick
+    took ~16 ms (the penetration recovery's kernel loading).  So the core's warm-up scenario (its own
+    world: bodies of every shape placed in contact, no flock) takes one tick here too: every rigid-body
+    kernel is loaded before the first tick, also for bodies spawned later (~0.1 s more start-up)."""
+    from cgp_core.warmup import warm_up
+
+    world = copy.deepcopy(world)
+    try:
+        warm_up(ticks=1, complete=False, flocks=False)
+        world.step()
+        build_tick(world)
+    except Exception as exc:  # noqa: BLE001 - the real first tick reports it
+        log_debug(f"loading the kernels before the first tick: {exc!r}")
+
+
+def freeze_startup_objects() -> None:
+    """Everything built so far — the imported modules (rclpy, numpy, scipy, numba and its compiled kernels),
+    the scene, the world — lives as long as the node: move it out of the cyclic garbage collector's sight
+    (``gc.freeze``).  Python's full collections, which it runs now and then between ticks, then scan only
+    what the ticks create: about a millisecond instead of the ~200 ms pause measured at 15k fish, which
+    alone would break the tick's 16.7 ms."""
+    gc.collect()
+    gc.freeze()
+
+
+def share_the_gil_finely() -> None:
+    """The tick releases the GIL in every compiled kernel (``nogil``), and the bag writer's thread takes it
+    for its Python (MCAP framing, chunk buffers).  When a kernel returns while the writer is busy, the
+    tick waits for the GIL until the writer blocks or the switch interval forces a hand-over — up to 5 ms
+    by Python's default, a third of a 60 Hz tick, on any of the ~15 kernel calls of a flock step.  At 1 ms
+    the wait is bounded by 1 ms; both threads still get their share (measured on the 15k-fish tick, three
+    alternating runs each: p99 14.6-21.8 ms against 18.3-28.7 ms at 5 ms — an indication: this machine's
+    speed varied between the runs almost as much)."""
+    sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_INTERVAL_S))
+
+
+class ThreadPinning:
+    """The tick's thread on a CPU of its own, every other thread on the others (``cgp_core.jit.ThreadPlacement``:
+    why, and what it measured), while ``pin_threads`` is on and a flock runs on numba's thread pool; else every
+    thread on every CPU.  :meth:`update` is called by the node at start-up and every REPORT_PERIOD_S from the
+    tick (threads started since are moved too; a flock spawned or deleted changes the answer); each change of
+    the answer is logged (``log_info``).  Made on the thread that ticks: that is the one it pins."""
+
+    def __init__(self, log_info: Callable[[str], None]):
+        self.placement = ThreadPlacement()
+        #: the last placement logged (None: nothing said yet)
+        self.said: str | None = None
+        self._log = log_info
+
+    def update(self, flocks, pin_threads: bool) -> None:
+        on_pool = any(runs_on_pool(f.count) for f in flocks)
+        placement = self.placement
+        if on_pool and pin_threads and placement.place():
+            others = placement.others
+            said = (f"threads: the tick on CPU {placement.cpu} alone; numba's pool workers, the bag writer and DDS "
+                    f"on CPU{'s' if len(others) > 1 else ''} {', '.join(map(str, others))} (pin_threads; a flock runs "
+                    "on numba's pool)")
+        else:
+            placement.release()
+            if not on_pool:  # said only after a placement: a small flock's node has nothing to say about it
+                said = "threads: not pinned (no flock runs on numba's pool now)" if self.said else None
+            elif not pin_threads:
+                said = "threads: not pinned (pin_threads false)"
+            else:
+                said = f"threads: not pinned ({placement.unavailable})"
+        if said is not None and said != self.said:
+            self._log(said)
+            self.said = said
+
+    def release(self) -> None:
+        """Every thread on every CPU again (the node is going away)."""
+        self.placement.release()

@@ -1,0 +1,179 @@
+"""Everything the node publishes, and the one path every message takes: published on DDS, recorded in the
+bag (:class:`~cgp_sim_ros.ros.recorder.Recorder`) and shown in the Foxglove live view as the very same bytes
+(:meth:`TickPublisher.publish`).
+
+What a tick publishes, in order (:meth:`TickPublisher.tick_messages`; the bytes are built by
+:class:`~cgp_sim_ros.ros.messages.TickMessages` and :class:`~cgp_sim_ros.ros.tf.BodyTransforms`): ``/clock``,
+``~/bodies/poses``, every body's ``~/bodies/<body>/odom``, every flock's ``~/flocks/<flock>/poses`` (recorded
+on the ticks the level-of-detail plan says) and ``~/flocks/<flock>/stats``, ``/tf``, the first ``/tf_static``,
+``~/markers``.  Besides the ticks: ``~/events`` (:meth:`TickPublisher.event`), ``/tf_static`` again when the
+fixed bodies change, DELETE markers for what is no longer drawn.
+
+The per-body and per-flock publishers follow the world's entities (:meth:`TickPublisher.follow_entities`).
+They are made without rclpy's default QoS-event handlers (the "incompatible QoS / type" warnings).  Each
+handler is a waitable the executor adds to its wait set, in Python, on every spin: with 100 spawned bodies
+their ~400 handlers cost the single-threaded executor ~5 ms per tick (measured: the tick rate fell to 45 Hz
+while they were spawned).  The node's fixed topics keep the warnings.
+"""
+
+from __future__ import annotations
+
+import json
+
+from rclpy.event_handler import PublisherEventCallbacks
+from rclpy.serialization import serialize_message
+from std_msgs.msg import String
+
+from .. import interface as itf
+from ..wire import cdr
+from .messages import TickMessages
+from .qos import CLOCK_QOS, COMMAND_QOS, STATE_QOS, TF_QOS, TF_STATIC_QOS
+from .tf import BodyTransforms
+
+_NO_EVENT_HANDLERS = PublisherEventCallbacks(use_default_callbacks=False)
+
+
+class TickPublisher:
+    """The publishers of ``node`` (a :class:`~cgp_sim_ros.ros.node.SimNode`) and the serializers of its world
+    (see the module docstring)."""
+
+    def __init__(self, node):
+        self._node = node
+        self.world = node.world
+        #: the per-tick serializers (rebuilt by :meth:`rebuild` after the world's entities changed)
+        self.messages = TickMessages(self.world, itf.WORLD_FRAME)
+        self.tf = BodyTransforms(self.world, itf.WORLD_FRAME)
+        self.pub_clock = node.create_publisher(TickMessages.Clock, itf.TOPIC_CLOCK, CLOCK_QOS)
+        self.pub_body_poses = node.create_publisher(TickMessages.PoseArray, itf.TOPIC_BODY_POSES, STATE_QOS)
+        self.pub_markers = node.create_publisher(TickMessages.MarkerArray, itf.TOPIC_MARKERS, STATE_QOS)
+        self.pub_events = node.create_publisher(String, itf.TOPIC_EVENTS, COMMAND_QOS)
+        self.pub_tf = node.create_publisher(BodyTransforms.TFMessage, itf.TOPIC_TF, TF_QOS)
+        self.pub_tf_static = node.create_publisher(BodyTransforms.TFMessage, itf.TOPIC_TF_STATIC, TF_STATIC_QOS)
+        # per body / per flock (name -> publisher), and in the world's order (see follow_entities)
+        self._odom: dict = {}
+        self._flock_poses: dict = {}
+        self._flock_stats: dict = {}
+        self.pub_odom: list = []
+        self.pub_flock_poses: list = []
+        self.pub_flock_stats: list = []
+        self._marker_ids: dict[str, set[int]] = {}  # marker namespace -> the ids drawn (see retire_markers)
+        self._delete_all_markers = False  # see redraw_all_markers
+
+    # ---- the world's entities -------------------------------------------------------------------------------
+
+    def follow_entities(self) -> list:
+        """``~/bodies/<body>/odom``, ``~/flocks/<flock>/poses`` and ``~/flocks/<flock>/stats`` publishers for the
+        world's bodies and flocks now: created for new entities, destroyed for gone ones, kept for the others
+        (subscribers stay matched).  Returns the publishers made."""
+        node, world = self._node, self.world
+        names = list(world.body_model.names)
+        flock_names = [f.params.name for f in world.flocks]
+        added = []
+        for publishers, wanted, topic, msg_type, key in (
+                (self._odom, names, itf.TOPIC_BODY_ODOM, TickMessages.Odometry, "body"),
+                (self._flock_poses, flock_names, itf.TOPIC_FLOCK_POSES, TickMessages.PoseArray, "flock"),
+                (self._flock_stats, flock_names, itf.TOPIC_FLOCK_STATS, TickMessages.FlockStats, "flock")):
+            for name in [n for n in publishers if n not in wanted]:
+                node.destroy_publisher(publishers.pop(name))
+            for name in wanted:
+                if name not in publishers:
+                    publishers[name] = node.create_publisher(msg_type, topic.format(**{key: name}), STATE_QOS,
+                                                             event_callbacks=_NO_EVENT_HANDLERS)
+                    added.append(publishers[name])
+        self.pub_odom = [self._odom[n] for n in names]
+        self.pub_flock_poses = [self._flock_poses[n] for n in flock_names]
+        self.pub_flock_stats = [self._flock_stats[n] for n in flock_names]
+        return added
+
+    def rebuild(self) -> None:
+        """New per-tick serializers for the world's bodies and flocks now (the plan is set again by the
+        caller: :meth:`set_plan`)."""
+        self.messages = TickMessages(self.world, itf.WORLD_FRAME)
+
+    def set_plan(self, plan) -> None:
+        """Draw as the level-of-detail ``plan`` (:class:`~cgp_sim_ros.drawing.detail.DetailPlan`) says (what is
+        recorded follows ``node.detail``)."""
+        self.messages.set_plan(plan)
+
+    def redraw_all_markers(self) -> None:
+        """The next marker array starts with a DELETEALL, then every marker (after a reset)."""
+        self._delete_all_markers = True
+
+    def retire_markers(self) -> None:
+        """DELETE the markers no longer drawn — a deleted body's or flock's, a flock's parts beyond the ones it is
+        now drawn in — so that no viewer keeps them (a marker without a lifetime never expires)."""
+        drawn = self.messages.marker_ids()
+        stale = [(ns, i) for ns, ids in self._marker_ids.items() for i in sorted(ids - drawn.get(ns, set()))]
+        if stale and not self._delete_all_markers:  # a pending DELETEALL (after a reset) removes them anyway
+            t = self.world.time_ns
+            deletes = [cdr.marker(cdr.MarkerFields(marker_type=cdr.ARROW, action=cdr.DELETE, stamp_ns=t,
+                                                   frame_id=itf.WORLD_FRAME, ns=ns, id=i)) for ns, i in stale]
+            self.publish(self.pub_markers, cdr.marker_array(deletes), t)
+        self._marker_ids = drawn
+
+    def publish_static_tf(self) -> None:
+        """``/tf_static`` again if the fixed bodies changed.  Not before the first tick: a node publishes nothing
+        before it (a paused node is silent; a bag starts with the first tick, at its time)."""
+        if self.world.ticks == 0:
+            return
+        data = self.tf.static_if_changed(self.world.time_ns)
+        if data is not None:
+            self.publish(self.pub_tf_static, data, self.world.time_ns)
+
+    # ---- publishing ---------------------------------------------------------------------------------------
+
+    def publish(self, publisher, data: bytes, stamp_ns: int, record: bool = True) -> None:
+        """Publish serialized bytes, and record (unless the level-of-detail plan records this topic on fewer
+        ticks: ``record`` False) and show in Foxglove the very same bytes."""
+        publisher.publish(data)
+        recorder, foxglove = self._node.recorder, self._node.foxglove
+        if record and recorder is not None:
+            recorder.write(publisher.topic_name, data, stamp_ns)
+        if foxglove is not None:
+            foxglove.publish(publisher, data, stamp_ns)
+
+    def event(self, payload: dict) -> None:
+        """Publish (and so record) one line on ~/events: the audit trail of what was done to the world."""
+        payload = {"time": round(self.world.time, 9), **payload}
+        msg = String(data=json.dumps(payload, separators=(",", ":")))
+        self.publish(self.pub_events, serialize_message(msg), self.world.time_ns)
+
+    def publish_tick(self) -> None:
+        """Everything one tick publishes (after the world's step)."""
+        t = self.world.time_ns
+        for publisher, data, record in self.tick_messages(self.world, self.messages, self.tf,
+                                                          self._delete_all_markers):
+            self.publish(publisher, data, t, record=record)
+        self._delete_all_markers = False
+
+    def tick_messages(self, world, messages: TickMessages, tf: BodyTransforms, delete_all_markers: bool):
+        """What a tick publishes, in publishing order, as ``(publisher, CDR bytes, recorded?)``, each built as
+        the caller takes it, from ``world`` by ``messages`` and ``tf``: the node's own every tick
+        (:meth:`publish_tick`), a throwaway copy's once before the first (:meth:`build_throwaway`)."""
+        t = world.time_ns
+        yield self.pub_clock, messages.clock(t), True
+        yield self.pub_body_poses, messages.body_poses(t), True
+        for pub, data in zip(self.pub_odom, messages.body_odometry(t)):
+            yield pub, data, True
+        record_poses = world.ticks % self._node.detail.flock_poses_every == 0  # the data: published every tick
+        for pub, data in zip(self.pub_flock_poses, messages.flock_poses(t)):
+            yield pub, data, record_poses
+        for pub, data in zip(self.pub_flock_stats, messages.flock_stats(t)):  # tiny: recorded on every tick
+            yield pub, data, True
+        dynamic = tf.dynamic(t)
+        if dynamic is not None:
+            yield self.pub_tf, dynamic, True
+        if world.ticks == 1:  # the first /tf_static (later ones: publish_static_tf): what changed before it
+            static = tf.static_if_changed(t)
+            if static is not None:
+                yield self.pub_tf_static, static, True
+        # every tick: ground, bodies and one part of each flock's marker (a flock is redrawn every
+        # markers_every ticks, part by part: cgp_sim_ros/ros/messages.py)
+        yield self.pub_markers, messages.markers(t, delete_all_first=delete_all_markers, tick=world.ticks), True
+
+    def build_throwaway(self, world) -> None:
+        """Build (and drop: nothing is published) everything a tick of ``world`` — a copy of the node's —
+        publishes, every marker part included: what the first real tick will run, run once before it."""
+        for _ in self.tick_messages(world, TickMessages(world, itf.WORLD_FRAME, self._node.detail),
+                                    BodyTransforms(world, itf.WORLD_FRAME), delete_all_markers=True):
+            pass
