@@ -41,8 +41,8 @@ setup(
     # ROS packages (rclpy, *_msgs) are not listed: they come from apt on a ROS install and from
     # requirements/ros.txt (PyPI wheels) in the venv; package.xml declares them for rosdep.
     # tbb: numba's work-stealing thread pool (cgp_core/jit.py); without it numba falls back to OpenMP
-    install_requires=["numpy>=1.26", "scipy>=1.11", "numba>=0.60", "tbb>=2021.6", "PyYAML>=6.0", "mcap>=1.2", "zstandard>=0.22",
-                      "lz4>=4.3", "pillow>=10", "foxglove-sdk>=0.30.3,<0.31",
+    install_requires=["numpy>=1.26", "scipy>=1.11", "numba>=0.60", "tbb>=2021.6", "PyYAML>=6.0", "mcap>=1.2",
+                      "zstandard>=0.22", "lz4>=4.3", "pillow>=10", "foxglove-sdk>=0.30.3,<0.31",
                       # cgp-sim-sweep: the Dask engine and the Parquet tables (cgp_sim_ros/sweep)
                       "dask[distributed]>=2024.8", "pyarrow>=15"],
     extras_require={

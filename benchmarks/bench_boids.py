@@ -264,7 +264,8 @@ def breakdown(flock: Flock, obstacles: Obstacles | None = None, repeats: int = 1
         out["obstacle query"] = median_ms(lambda: obstacles.query(flock._x.T, 2.5))
     heading, dorsal, q = flock._heading.copy(), flock._dorsal.copy(), flock._q.copy()
     out["frames + quaternions"] = median_ms(lambda: (
-        update_frames_rows(heading, dorsal, flock._v, DT, p.bank_gain, low_pass_weight(DT, p.orientation_time_constant)),
+        update_frames_rows(heading, dorsal, flock._v, DT, p.bank_gain,
+                           low_pass_weight(DT, p.orientation_time_constant)),
         quaternions_rows(heading, dorsal, q)))
     out["whole step"] = median_ms(lambda: flock.step(DT, obstacles))
     return out

@@ -39,6 +39,7 @@ if "CGP_SIM_BENCH_DOMAIN" not in os.environ:
     os.environ["CGP_SIM_BENCH_DOMAIN"] = str(random.Random(os.getpid() ^ time.time_ns()).randint(1, 101))
 os.environ["ROS_DOMAIN_ID"] = os.environ["CGP_SIM_BENCH_DOMAIN"]
 
+from common import Results  # noqa: E402
 from geometry_msgs.msg import Point, Pose, PoseArray  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
@@ -47,7 +48,6 @@ from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
 from cgp_sim_ros.wire import cdr  # noqa: E402
 from cgp_sim_ros.wire.bag import BagOptions, BagWriter  # noqa: E402
-from common import Results  # noqa: E402
 
 TARGET_RATIO_10K = 20.0
 

@@ -36,13 +36,14 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from common import Results, format_figures  # noqa: E402
+
 from cgp_core.bodies import BodyModel, BodyState, Shape  # noqa: E402
 from cgp_core.collision import BROAD_PHASES, CollisionDetector, Ground  # noqa: E402
 from cgp_core.collision.primitives import build_collision_model, primitive_aabbs  # noqa: E402
 from cgp_core.dynamics import step_bodies  # noqa: E402
 from cgp_core.integrators import make_integrator  # noqa: E402
 from cgp_core.solver import make_solver  # noqa: E402
-from common import Results, format_figures  # noqa: E402
 
 RADIUS = 0.1
 BOX = 5.0

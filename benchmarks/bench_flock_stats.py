@@ -34,9 +34,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_boids import make_flock  # noqa: E402
+from common import Results  # noqa: E402
+
 from cgp_core.boids.order import _moments, flock_order, nearest_neighbor_distances  # noqa: E402
 from cgp_core.jit import threads_for  # noqa: E402
-from common import Results  # noqa: E402
 
 SIZES = (300, 2000, 15000)
 DENSITY = 0.52  # boids per m³: the default flock's steady state (bench_boids.py)

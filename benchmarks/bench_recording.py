@@ -25,24 +25,25 @@ Modes, switched in turn every ``--segment`` ticks of the node's own 60 Hz timer 
 Measured 2026-12-02, this script (250 s, the machine at a tick median of ~13.4 ms): p99 ``record`` 20.3 ms,
 ``framing`` 20.2 ms, ``drain`` 17.2 ms, ``off`` 17.1 ms (medians 13.3-13.5 ms in every mode).  Earlier runs of the
 same design, two or three modes each, 100-220 s, agreed: ``record`` − ``drain`` 2.7-3.8 ms at p99 (three runs),
-``record`` − ``off`` 1.2-4.7 ms (four runs), ``framing`` ≈ ``record`` (one run).  No better than ``record`` either: compression alone off (within 0.7 ms), the writer thread at nice 0,
-a 0.2 ms GIL switch interval.  A stand-in for a leaner writer — chunks assembled from the messages' own bytes
-(headers built with ``struct``, one join, CRC, lz4 and one ``pwritev`` per 1 MB chunk, no fsync), as a mode of
-its own: p99 ``record`` 22.1, lean 20.9, ``drain`` 17.2 ms (200 s, medians 12.7-13.1 ms).  But a seventh run,
-shorter (160 s) and in a slightly faster phase (medians 12.0-12.6 ms), showed no cost at all: p99 ``record``
-17.9, ``framing`` 17.6, ``drain`` 19.2 ms.  A p99 of ~3,000 ticks is their ~30th slowest: still noisy; run it long.
-In that run the writer thread was inside a tick 0.28 ms per tick on average (2.0 ms in the slowest 2 % of
-ticks) with ``record``, and almost never (0.01 ms per tick) with ``framing``.
+``record`` − ``off`` 1.2-4.7 ms (four runs), ``framing`` ≈ ``record`` (one run).  No better than ``record`` either:
+compression alone off (within 0.7 ms), the writer thread at nice 0, a 0.2 ms GIL switch interval.  A stand-in for a
+leaner writer — chunks assembled from the messages' own bytes (headers built with ``struct``, one join, CRC, lz4
+and one ``pwritev`` per 1 MB chunk, no fsync), as a mode of its own: p99 ``record`` 22.1, lean 20.9, ``drain`` 17.2
+ms (200 s, medians 12.7-13.1 ms).  But a seventh run, shorter (160 s) and in a slightly faster phase (medians
+12.0-12.6 ms), showed no cost at all: p99 ``record`` 17.9, ``framing`` 17.6, ``drain`` 19.2 ms.  A p99 of ~3,000
+ticks is their ~30th slowest: still noisy; run it long. In that run the writer thread was inside a tick 0.28 ms per
+tick on average (2.0 ms in the slowest 2 % of ticks) with ``record``, and almost never (0.01 ms per tick) with
+``framing``.
 
-So, where recording costs the tick, no one part of it is the cost, and the mechanism is not pinned down: the framing alone (~0.7 ms of
-the writer's ~2 ms per tick when profiled alone, the rest being lz4, CRC and ``pwritev``, which release the GIL)
-costs the tick as much as all of it, and the lean stand-in for all of it still ~3.7 ms.  What is known: in the
-machine's slower phases the gap between ticks (~3.4 ms at a 13.3 ms median) barely holds the writer's work, and
-its items are indivisible (``BagWriter.hold`` is checked between messages; one chunk's lz4 takes ~2 ms), so the
-writer works during ticks — though the ``framing`` mode's ~0.7 ms per tick would fit the gap, and costs as much.
-The next things to try, measured with this script: writer work that yields to a tick mid-item (chunks compressed
-and written block by block, the hold checked between blocks); the writer in a process of its own (no GIL, no
-allocator or cache shared with the tick's thread).
+So, where recording costs the tick, no one part of it is the cost, and the mechanism is not pinned down: the
+framing alone (~0.7 ms of the writer's ~2 ms per tick when profiled alone, the rest being lz4, CRC and ``pwritev``,
+which release the GIL) costs the tick as much as all of it, and the lean stand-in for all of it still ~3.7 ms.
+What is known: in the machine's slower phases the gap between ticks (~3.4 ms at a 13.3 ms median) barely holds the
+writer's work, and its items are indivisible (``BagWriter.hold`` is checked between messages; one chunk's lz4 takes
+~2 ms), so the writer works during ticks — though the ``framing`` mode's ~0.7 ms per tick would fit the gap, and
+costs as much. The next things to try, measured with this script: writer work that yields to a tick mid-item
+(chunks compressed and written block by block, the hold checked between blocks); the writer in a process of its own
+(no GIL, no allocator or cache shared with the tick's thread).
 
 ``--modes record pipe drain``, 2026-12-02, two runs of 240 s: p99 ``record`` 21.8 / 18.7, ``pipe`` 19.3 / 17.4,
 ``drain`` 19.0 / 17.1 ms (medians 14.0-14.5 / 12.8-12.9 ms): handing the bytes to another process cost the tick
@@ -105,9 +106,10 @@ class Modes:
 
     def __init__(self, names: tuple[str, ...]):
         self.mode = names[0]
+        import zlib
+
         import lz4.frame
         import mcap.writer
-        import zlib
 
         from cgp_sim_ros.ros import recorder
         from cgp_sim_ros.wire import bag

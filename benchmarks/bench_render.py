@@ -47,10 +47,9 @@ os.environ["ROS_DOMAIN_ID"] = os.environ["CGP_SIM_BENCH_DOMAIN"]
 
 from common import RESULTS, Results  # noqa: E402
 
-from cgp_sim_ros.wire import cdr  # noqa: E402
 from cgp_sim_ros.render.primitives import MarkerSet, extent_points, primitives  # noqa: E402
-from cgp_sim_ros.render.raster import (AMBIENT, DIFFUSE, LIGHT_DIRECTION, SKY_BOTTOM, SKY_TOP, Camera,  # noqa: E402
-                                       Rasterizer)
+from cgp_sim_ros.render.raster import AMBIENT, DIFFUSE, LIGHT_DIRECTION, SKY_BOTTOM, SKY_TOP, Camera, Rasterizer  # noqa: E402
+from cgp_sim_ros.wire import cdr  # noqa: E402
 
 WIDTH, HEIGHT = 960, 540
 VENV_BIN = Path(sys.executable).parent

@@ -171,7 +171,7 @@ def main(argv=None) -> int:
     overhead = per_run_sweep / per_run_local - 1.0
     out.figure("sweep_wall_1_worker", f"{len(runs)}-run Couzin sweep (N = 100, {duration} s at 60 Hz), 1 worker",
                clusters[1]["wall_s"], "s", "", None, issue26=True)
-    out.figure("sweep_wall_2_workers", f"the same sweep, 2 workers", clusters[2]["wall_s"], "s", "", None,
+    out.figure("sweep_wall_2_workers", "the same sweep, 2 workers", clusters[2]["wall_s"], "s", "", None,
                issue26=True)
     out.figure("sweep_speedup_2_workers", "speed-up of 2 workers over 1 (2-core machine)", speedup, "x", ">= 1.8",
                speedup >= 1.8, issue26=True)

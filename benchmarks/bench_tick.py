@@ -49,7 +49,6 @@ import random
 import shutil
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -65,7 +64,7 @@ if "CGP_SIM_BENCH_DOMAIN" not in os.environ:
     os.environ["CGP_SIM_BENCH_DOMAIN"] = str(random.Random(os.getpid() ^ time.time_ns()).randint(1, 101))
 os.environ["ROS_DOMAIN_ID"] = os.environ["CGP_SIM_BENCH_DOMAIN"]
 
-from common import RESULTS, GcWatch, Results, format_figures  # noqa: E402
+from common import GcWatch, Results, format_figures  # noqa: E402
 
 SCENE = Path(__file__).resolve().parent / "scenes" / "tick_15k_fish.yaml"
 TARGET_MS = 1e3 / 60.0
@@ -383,17 +382,21 @@ def run(quick: bool = False, first_s: float = 20.0, next_s: float = 60.0, sphere
     print()
     for label, stats in [(f"{fish['mode']}, {k}", v) for k, v in fish["windows"].items()] + \
             [(f"{realtime['mode']}, {k}", v) for k, v in realtime["windows"].items()]:
-        print(f"  {label}: achieved {stats['achieved_hz']:.1f} Hz, tick median {stats['median']:.2f} ms, p90 {stats['p90']:.2f}, p99 {stats['p99']:.2f}, max "
-              f"{stats['max']:.2f}; bodies awake {100 * stats['bodies_awake_fraction']:.0f} % of ticks; tick thread "
-              f"CPU median {stats['tick_thread_cpu_ms']['median']:.2f} ms, p99 {stats['tick_thread_cpu_ms']['p99']:.2f}")
+        print(f"  {label}: achieved {stats['achieved_hz']:.1f} Hz, tick median {stats['median']:.2f} ms, "
+              f"p90 {stats['p90']:.2f}, p99 {stats['p99']:.2f}, max {stats['max']:.2f}; "
+              f"bodies awake {100 * stats['bodies_awake_fraction']:.0f} % of ticks; tick thread "
+              f"CPU median {stats['tick_thread_cpu_ms']['median']:.2f} ms, "
+              f"p99 {stats['tick_thread_cpu_ms']['p99']:.2f}")
         for stage in STAGES:
             print(f"    {stage:44} median {stats['split_median_ms'][stage]:6.2f}  p99 "
                   f"{stats['split_p99_ms'][stage]:6.2f}  slowest 1 %: {stats['split_of_slowest_1pct_ms'][stage]:6.2f}")
     print(f"  real time: writer thread {realtime['bag_writer_cpu_ms_per_tick']:.2f} ms CPU per tick, backlog max "
           f"{realtime['bag_backlog_max_MB']:.1f} MB, dropped {realtime['bag_dropped_messages']}")
-    print(f"  bag: {fish['bag_MB']:.0f} MB for {fish['sim_seconds']:.0f} s = {fish['bag_MB_per_sim_second']:.1f} MB per "
-          f"simulated second (payload {fish['bag_payload_MB_per_sim_second']:.1f} MB/s); writer thread "
-          f"{fish['bag_writer_cpu_ms_per_tick']:.2f} ms CPU per tick, backlog max {fish['bag_backlog_max_MB']:.1f} MB, "
+    print(f"  bag: {fish['bag_MB']:.0f} MB for {fish['sim_seconds']:.0f} s = "
+          f"{fish['bag_MB_per_sim_second']:.1f} MB per simulated second "
+          f"(payload {fish['bag_payload_MB_per_sim_second']:.1f} MB/s); writer thread "
+          f"{fish['bag_writer_cpu_ms_per_tick']:.2f} ms CPU per tick, "
+          f"backlog max {fish['bag_backlog_max_MB']:.1f} MB, "
           f"dropped {fish['bag_dropped_messages']}")
     print(f"  level of detail: {' '.join(fish['level_of_detail']['lines'])}")
     print(f"  fish in the bag: {fish['fish_in_bag']}")

@@ -36,8 +36,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 
-from common import (RESULTS, format_figures, format_value, load_average, machine, speed_probe,  # noqa: E402
-                    verdict)
+from common import RESULTS, format_figures, format_value, load_average, machine, speed_probe, verdict  # noqa: E402
 
 #: name -> script; the order they run in (the tick first: it is the figure that matters most, and it
 #: runs best on a machine that has not been busy for minutes)
@@ -174,7 +173,8 @@ def figures_markdown(figures: list[dict]) -> str:
     for f in figures:
         value = f"{format_value(f['value'])} {f['unit']}".strip() if f["value"] is not None else "n/a"
         note = f" ({f['note']})" if f.get("note") else ""
-        lines.append(f"| {f['figure']}{note} | {value} | {f['target']} | {'**SHORT**' if f['pass'] is False else verdict(f)} |")
+        outcome = "**SHORT**" if f["pass"] is False else verdict(f)
+        lines.append(f"| {f['figure']}{note} | {value} | {f['target']} | {outcome} |")
     return "\n".join(lines)
 
 
@@ -187,8 +187,8 @@ def scaling_markdown(names: list[str]) -> str:
         fish = tick["fish"]
         out += ["**The 15k-fish tick from the first tick** (`bench_tick.py`: 15,000 fish + 20 bodies, recorded; ms per "
                 "tick; per stage: median / p99 / mean of the slowest 1 % of ticks)", "",
-                "| window | ticks | bodies awake | median | p90 | p99 | max | tick-thread CPU median / p99 | rigid bodies | "
-                "flock | flock stats | serialize | publish | record |",
+                "| window | ticks | bodies awake | median | p90 | p99 | max | tick-thread CPU median / p99 | "
+                "rigid bodies | flock | flock stats | serialize | publish | record |",
                 "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
         runs = [("fish", fish)] + ([("sphere", tick["sphere"])] if tick.get("sphere") else [])
         for model, run in runs:
@@ -229,8 +229,8 @@ def scaling_markdown(names: list[str]) -> str:
         if st:
             out += ["", f"Start-up to the first `/clock` (default scene): cold (no compile cache) "
                     f"{st['cold']['start_to_first_clock_s']:.1f} s; then `make setup`'s warm-up, which compiles every "
-                    f"kernel once per clone, {st['cold'].get('setup_warmup_s', float('nan')):.1f} s; warm (what `make run` "
-                    f"starts, after `make setup`) {st['warm']['start_to_first_clock_s']:.1f} s.",
+                    f"kernel once per clone, {st['cold'].get('setup_warmup_s', float('nan')):.1f} s; "
+                    f"warm (what `make run` starts, after `make setup`) {st['warm']['start_to_first_clock_s']:.1f} s.",
                     ""]
     if tick and tick.get("scaling"):
         out += ["**Full tick vs flock size** (20 bodies, bag on; median ms; the split is from the instrumented "
@@ -246,7 +246,8 @@ def scaling_markdown(names: list[str]) -> str:
         nobag = tick.get("tick_no_bag")
         if nobag:
             out += ["", f"Same 15k scene without recording, interleaved in blocks with the recording node: median "
-                    f"{nobag['tick_ms_median']:.1f} ms (bodies {nobag['split_ms_median']['  rigid bodies (substeps) + obstacle set']:.1f},"
+                    f"{nobag['tick_ms_median']:.1f} ms "
+                    f"(bodies {nobag['split_ms_median']['  rigid bodies (substeps) + obstacle set']:.1f},"
                     f" flock {nobag['split_ms_median']['  flock step']:.1f}); the bag writer thread used "
                     f"{tick['tick'].get('bag_writer_cpu_ms_per_tick', float('nan')):.1f} ms CPU per tick for "
                     f"{tick['tick'].get('bag_payload_MB_per_tick', float('nan')):.2f} MB, backlog max "
@@ -313,7 +314,8 @@ def scaling_markdown(names: list[str]) -> str:
             for n in sorted({r["bodies"] for r in contacts["broad_phase"]}):
                 cells = []
                 for ph in phases:
-                    hit = next((r for r in contacts["broad_phase"] if r["bodies"] == n and r["broad_phase"] == ph), None)
+                    hit = next((r for r in contacts["broad_phase"] if r["bodies"] == n and r["broad_phase"] == ph),
+                               None)
                     cells.append(f"{hit['ms']:.2f}" if hit else "–")
                 out.append(f"| {n:,} | " + " | ".join(cells) + " |")
         out.append("")

@@ -7,13 +7,14 @@ world returns or raises (:class:`EntityState`, :class:`EditError`).
 """
 
 from .bodies import BodyModel, BodyState, Shape
-from .editing import EditError, EntityState
 from .boids import Flock, FlockParams
+from .editing import EditError, EntityState
 from .scene import Scene, SceneError, builtin_scene_names, load_scene, parse_scene
 from .world import World, WorldEvent
 from .wrenches import WrenchError
 
 __all__ = [
-    "BodyModel", "BodyState", "EditError", "EntityState", "Flock", "FlockParams", "Scene", "SceneError", "Shape", "World", "WorldEvent",
+    "BodyModel", "BodyState", "EditError", "EntityState", "Flock", "FlockParams", "Scene", "SceneError", "Shape",
+    "World", "WorldEvent",
     "WrenchError", "builtin_scene_names", "load_scene", "parse_scene",
 ]

@@ -98,7 +98,7 @@ class BodyModel:
         return np.linalg.norm(self.half_extents, axis=1) + self.radius
 
     @staticmethod
-    def empty() -> "BodyModel":
+    def empty() -> BodyModel:
         return BodyModel(
             names=[],
             shape=np.zeros(0, dtype=np.int8),
@@ -151,7 +151,7 @@ class BodyState:
     def count(self) -> int:
         return len(self.position)
 
-    def copy(self) -> "BodyState":
+    def copy(self) -> BodyState:
         return BodyState(
             position=self.position.copy(),
             orientation=self.orientation.copy(),

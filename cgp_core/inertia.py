@@ -19,9 +19,8 @@ import math
 
 import numpy as np
 
-from .checks import non_negative, positive
-
 from .bodies import Shape
+from .checks import non_negative, positive
 
 #: A particle set whose smallest principal moment is below this fraction of its largest is rejected as
 #: singular.  A rod of point masses has exactly zero inertia about its axis; nearly-collinear sets with

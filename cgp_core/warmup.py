@@ -28,9 +28,13 @@ import time
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from .world import World
 
 
-def warm_up(ticks: int = 24, *, complete: bool = True, flocks: bool = True) -> "World":
+def warm_up(ticks: int = 24, *, complete: bool = True, flocks: bool = True) -> World:
     """Step the default scene ``ticks`` times with every contact kernel in use; returns the world.
 
     ``complete``: also the flock kernels the default scene does not use — issue 14's (Couzin's model,

@@ -49,15 +49,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bodies import BodyModel, BodyState
 from .boids import Flock, Obstacles
 from .boids.predators import Predators
 from .dynamics import Ground, step_bodies
-from .editing import (EditError, EntityState, body_distances, check_pose, check_vector, concatenate_bodies,
-                      name_filter, select_bodies)
+from .editing import (
+    EditError,
+    EntityState,
+    body_distances,
+    check_pose,
+    check_vector,
+    concatenate_bodies,
+    name_filter,
+    select_bodies,
+)
 from .integrators import make_integrator
-from .rotation import quat_rotate, quat_conjugate, quat_to_matrix
-from .scene import MAX_BODIES, ROS_SAFE_NAME, MAX_NAME_LENGTH, Scene, load_scene, spawn_entry
+from .rotation import quat_conjugate, quat_rotate, quat_to_matrix
+from .scene import MAX_BODIES, MAX_NAME_LENGTH, ROS_SAFE_NAME, Scene, load_scene, spawn_entry
 from .sleep import SLEEP_SPEED, SLEEP_TIME, Islands
 from .solver import make_solver
 from .wrenches import WrenchCommand, WrenchSchedule, make_command
@@ -125,7 +132,7 @@ class World:
         self.remember_tick_start()
 
     @classmethod
-    def from_scene(cls, scene: str | Scene, **kwargs) -> "World":
+    def from_scene(cls, scene: str | Scene, **kwargs) -> World:
         """A world from a scene file path, a built-in scene name, or a parsed :class:`Scene`."""
         return cls(scene if isinstance(scene, Scene) else load_scene(scene), **kwargs)
 

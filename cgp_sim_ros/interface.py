@@ -80,7 +80,8 @@ TOPIC_BODY_POSES = "~/bodies/poses"
 TOPIC_BODY_ODOM = "~/bodies/{body}/odom"
 TOPIC_BODY_WRENCH = "~/bodies/{body}/wrench"
 TOPIC_FLOCK_POSES = "~/flocks/{flock}/poses"
-TOPIC_FLOCK_STATS = "~/flocks/{flock}/stats"  # cgp_sim_msgs/FlockStats (cgp_core/boids/order.py, cdr.FlockStatsSerializer)
+# cgp_sim_msgs/FlockStats (cgp_core/boids/order.py, cdr.FlockStatsSerializer)
+TOPIC_FLOCK_STATS = "~/flocks/{flock}/stats"
 TOPIC_MARKERS = "~/markers"
 TOPIC_EVENTS = "~/events"
 TOPIC_CLOCK = "/clock"

@@ -8,9 +8,19 @@ request of the same type that is refused without any effect (:data:`HARMLESS`).
 from __future__ import annotations
 
 from simulation_interfaces.msg import Result, SimulationState
-from simulation_interfaces.srv import (DeleteEntity, GetEntities, GetEntitiesStates, GetEntityState,
-                                       GetSimulationState, GetSimulatorFeatures, ResetSimulation, SetEntityState,
-                                       SetSimulationState, SpawnEntity, StepSimulation)
+from simulation_interfaces.srv import (
+    DeleteEntity,
+    GetEntities,
+    GetEntitiesStates,
+    GetEntityState,
+    GetSimulationState,
+    GetSimulatorFeatures,
+    ResetSimulation,
+    SetEntityState,
+    SetSimulationState,
+    SpawnEntity,
+    StepSimulation,
+)
 
 NODE = "/cgp_sim"
 OK = Result.RESULT_OK

@@ -19,17 +19,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from cgp_sim_msgs.msg import ApplyWrench
 from geometry_msgs.msg import PoseArray, WrenchStamped
-from nav_msgs.msg import Odometry
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 from mcap_ros2.reader import read_ros2_messages
+from nav_msgs.msg import Odometry
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from cgp_sim_msgs.msg import ApplyWrench
 from cgp_sim_ros.wire import cdr, schemas
 from cgp_sim_ros.wire.bag import BagExistsError, BagOptions, BagWriter, recover_bag
 

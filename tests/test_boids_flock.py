@@ -204,11 +204,13 @@ def test_obstacles_from_bodies_covers_every_shape():
     particles = state.position[3] + np.array(OBSTACLE_COURSE[3][5])[:, :3] @ R.T
     for point, distance in zip(hits.point, hits.distance):
         p = points[point]
-        candidates = np.concatenate([reference[point, [0, 1, 2, 4]], np.linalg.norm(particles - p, axis=1) - 0.5, [p[2]]])
+        candidates = np.concatenate([reference[point, [0, 1, 2, 4]], np.linalg.norm(particles - p, axis=1) - 0.5,
+                                     [p[2]]])
         assert np.min(np.abs(candidates - distance)) < 1e-9
     per_point = np.bincount(hits.point, minlength=len(points))
-    expected = ((reference[:, [0, 1, 2, 4]] < 0.7).sum(axis=1) + (np.linalg.norm(points[:, None] - particles, axis=2) - 0.5
-                                                        < 0.7).sum(axis=1) + (points[:, 2] < 0.7))
+    particle_distance = np.linalg.norm(points[:, None] - particles, axis=2) - 0.5
+    expected = ((reference[:, [0, 1, 2, 4]] < 0.7).sum(axis=1) + (particle_distance < 0.7).sum(axis=1)
+                + (points[:, 2] < 0.7))
     np.testing.assert_array_equal(per_point, expected)
 
 

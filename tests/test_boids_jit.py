@@ -67,7 +67,8 @@ SCENARIO = textwrap.dedent("""
 
 def test_jit_and_plain_python_give_the_same_flock(tmp_path):
     out = tmp_path / "plain.npz"
-    child = SCENARIO + ("\nfrom cgp_core.jit import JIT_DISABLED\nassert JIT_DISABLED, 'the child must run plain Python'"
+    child = SCENARIO + ("\nfrom cgp_core.jit import JIT_DISABLED"
+                        "\nassert JIT_DISABLED, 'the child must run plain Python'"
                         f"\nnp.savez({str(out)!r}, **run())\n")
     env = dict(os.environ, NUMBA_DISABLE_JIT="1")
     result = subprocess.run([sys.executable, "-c", child], cwd=REPO, env=env, capture_output=True, text=True,

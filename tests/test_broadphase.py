@@ -5,8 +5,13 @@ import warnings
 import numpy as np
 import pytest
 
-from cgp_core.collision.broadphase import (BROAD_PHASES, brute_force_pairs, get_broad_phase, grid_pairs,
-                                           sweep_and_prune_pairs)
+from cgp_core.collision.broadphase import (
+    BROAD_PHASES,
+    brute_force_pairs,
+    get_broad_phase,
+    grid_pairs,
+    sweep_and_prune_pairs,
+)
 
 
 def random_boxes(rng, n, *, world=5.0, small=(0.02, 0.3), large_fraction=0.05, large=(1.0, 4.0)):
@@ -92,6 +97,7 @@ def test_structures_agree_on_a_random_scene_of_mixed_shapes():
     """Spheres, boxes, capsules and particle bodies of mixed sizes, randomly placed and turned: the
     primitives' AABBs give the same overlapping pairs with every method."""
     from _bodies import box, capsule, make_bodies, particles, sphere
+
     from cgp_core.collision.primitives import build_collision_model, primitive_aabbs
     from cgp_core.rotation import quat_from_rotvec
 
@@ -126,6 +132,7 @@ def test_structures_agree_on_a_random_scene_of_mixed_shapes():
 def test_primitive_aabbs_are_tight_bounds():
     """A turned box's AABB is the min / max of its corners; a capsule's that of its end spheres."""
     from _bodies import box, capsule, make_bodies
+
     from cgp_core.collision.primitives import build_collision_model, primitive_aabbs
     from cgp_core.rotation import quat_from_rotvec, quat_to_matrix
 

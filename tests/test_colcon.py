@@ -49,7 +49,8 @@ def test_colcon_build_of_a_workspace_holding_the_repo(tmp_path):
     site = f"lib/python{sys.version_info.major}.{sys.version_info.minor}/site-packages"
     run_env = dict(env, AMENT_PREFIX_PATH=os.pathsep.join([str(install / "cgp_sim_ros"),
                                                          str(install / "cgp_sim_msgs"), str(VENV)]),
-                   PYTHONPATH=os.pathsep.join([str(install / "cgp_sim_ros" / site), str(install / "cgp_sim_msgs" / site)]))
+                   PYTHONPATH=os.pathsep.join([str(install / "cgp_sim_ros" / site),
+                                               str(install / "cgp_sim_msgs" / site)]))
     # what `ros2 run cgp_sim_ros sim_node` does after sourcing install/setup.bash: exec the file
     ran = subprocess.run([str(node), "--scene", "zero_g", "--realtime", "false", "--duration", "0.5"],
                          env=run_env, capture_output=True, text=True, timeout=120)

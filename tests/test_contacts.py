@@ -3,8 +3,8 @@ closed forms (rebound height, sliding acceleration, elastic exchange), conservat
 
 import numpy as np
 import pytest
-
 from _bodies import box, capsule, make_bodies, mechanical_energy, particles, sphere
+
 from cgp_core.collision import CollisionDetector, Ground
 from cgp_core.dynamics import step_bodies
 from cgp_core.integrators import make_integrator
@@ -16,7 +16,8 @@ GRAVITY = (0.0, 0.0, -G)
 NO_GRAVITY = (0.0, 0.0, 0.0)
 
 
-def simulate(model, state, steps, h=1 / 240, *, gravity=GRAVITY, ground=Ground(), solver=None, each=None):
+def simulate(model, state, steps, h=1 / 240, *, gravity=GRAVITY, ground=None, solver=None, each=None):
+    ground = ground or Ground()
     integrator = make_integrator("symplectic_euler")
     solver = solver or make_solver()
     for k in range(steps):
@@ -236,7 +237,7 @@ def test_resting_contacts_keep_penetration_near_the_slop():
                                 for j in range(3)] + [box((0.1, 0.1, 0.1), position=(1.0, 0, 0.1 + 0.2 * j))
                                                      for j in range(3)])
     # spheres in columns fall off each other; boxes stack
-    solver = simulate(model, state, 720)
+    simulate(model, state, 720)
     contacts = CollisionDetector(speculative_distance=0.0).detect(model, state, 1e-9, ground=Ground())
     assert contacts.count > 0
     assert contacts.penetration().max() <= slop * 1.2

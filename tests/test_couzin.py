@@ -12,8 +12,14 @@ import numpy as np
 import pytest
 
 from cgp_core.boids import Flock, FlockParams, make_search
-from cgp_core.boids.couzin import NOISE_TIME_STEP, blend_avoidance, desired_directions, noise_angles, turn_towards, \
-    with_noise
+from cgp_core.boids.couzin import (
+    NOISE_TIME_STEP,
+    blend_avoidance,
+    desired_directions,
+    noise_angles,
+    turn_towards,
+    with_noise,
+)
 from cgp_core.boids.order import classify
 from cgp_core.boids.params import CouzinParams
 from cgp_core.boids.topological import k_nearest
@@ -261,7 +267,8 @@ def test_every_rule_set_is_deterministic_per_seed(rules, mode):
     from cgp_core import World
     from cgp_core.scene import parse_scene
 
-    block = "    rules: couzin\n    couzin: {orientation_width: 3.0, attraction_width: 6.0}" if rules == "couzin" else ""
+    couzin = "    rules: couzin\n    couzin: {orientation_width: 3.0, attraction_width: 6.0}"
+    block = couzin if rules == "couzin" else ""
     scene = parse_scene(DETERMINISM_SCENE.format(mode=mode, rules=block))
 
     def run(world):

@@ -10,8 +10,14 @@ import numpy as np
 import pytest
 
 from cgp_core.boids import Flock, FlockParams
-from cgp_core.boids.frames import (GRAVITY, frames_to_quaternions, initial_dorsal, parallel_transport,
-                                   unit_headings, update_frames)
+from cgp_core.boids.frames import (
+    GRAVITY,
+    frames_to_quaternions,
+    initial_dorsal,
+    parallel_transport,
+    unit_headings,
+    update_frames,
+)
 from cgp_core.rotation import matrix_to_quat, quat_rotate, quat_to_matrix
 
 DT = 1.0 / 60.0

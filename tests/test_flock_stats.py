@@ -12,16 +12,16 @@ import numpy as np
 import pytest
 from geometry_msgs.msg import PoseArray
 from rclpy.serialization import deserialize_message, serialize_message
+from ros_probe import pause
 from rosbags.highlevel import AnyReader
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
-
-from cgp_core.boids.order import FlockOrder
-from cgp_sim_ros.wire.cdr import FlockStatsSerializer
-from ros_probe import pause
 from sim_client import OK
 from test_cdr import reference_bytes
 from test_node_sim_services import start_paused
+
+from cgp_core.boids.order import FlockOrder
+from cgp_sim_ros.wire.cdr import FlockStatsSerializer
 
 
 def serialize(stamp_ns: int, frame_id: str, order: FlockOrder) -> bytes:

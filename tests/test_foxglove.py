@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import signal
 import socket
 import subprocess
 import sys
@@ -22,6 +21,7 @@ import time
 import numpy as np
 import pytest
 from cgp_sim_msgs.msg import FlockStats
+from foxglove_client import FoxgloveClient, ServiceCallFailed
 from geometry_msgs.msg import PoseArray, WrenchStamped
 from mcap.reader import make_reader
 from nav_msgs.msg import Odometry
@@ -33,8 +33,6 @@ from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
-
-from foxglove_client import FoxgloveClient, ServiceCallFailed
 
 DT_NS = round(1e9 / 60)
 DT = DT_NS * 1e-9  # the tick the world integrates over: whole nanoseconds (cgp_core.world)
@@ -239,6 +237,7 @@ def test_messages_are_the_dds_bytes_at_the_simulation_time(live, probe):
             assert padded(over_ws[stamp]) == over_dds[stamp], f"{topic} at {stamp} ns: the bytes differ"
     # ~/events (one line per step here), logged at the time they happened.  (The start-up event, the level of
     # detail, went out before this client subscribed: it is the service calls that are compared.)
+
     def service_events():
         return {bytes(m) for m in dds["/cgp_sim/events"].messages if b'"event":"service"' in bytes(m)}
 

@@ -12,13 +12,13 @@ import subprocess
 
 import numpy as np
 import pytest
+from conftest import cgp_sim_executable
+from test_integrators import EulerTopSolution, crossing_times
 
 from cgp_core import World
 from cgp_core.inertia import shape_mass_properties
 from cgp_core.rotation import quat_rotate, quat_to_matrix
 from cgp_core.scene import builtin_scene_names, scene_description
-from conftest import cgp_sim_executable
-from test_integrators import EulerTopSolution, crossing_times
 
 GALLERY = ["box_stack", "couzin_torus", "default", "fish_school", "predator", "pyramid", "ramp", "sphere_pile",
            "tennis_racket", "zero_g"]

@@ -19,8 +19,8 @@ from scipy.spatial import ConvexHull
 
 from cgp_core.boids import FlockParams
 from cgp_core.rotation import quat_to_matrix
-from cgp_sim_ros.drawing import detail
 from cgp_sim_ros import interface as itf
+from cgp_sim_ros.drawing import detail
 from cgp_sim_ros.drawing.shapes import FISH_DETAILS, FISH_LOW_TEMPLATE, FISH_TEMPLATE, VERTEX_QUANTUM, fish_triangles
 
 

@@ -4,8 +4,8 @@ B (the contact point is midway between them)."""
 
 import numpy as np
 import pytest
-
 from _bodies import box, make_bodies, particles, sphere
+
 from cgp_core import geometry
 from cgp_core.collision import GROUND, CollisionDetector, Ground
 from cgp_core.collision import narrowphase as nph

@@ -13,13 +13,12 @@ import pytest
 import yaml
 from geometry_msgs.msg import PoseArray
 from mcap.reader import make_reader
-from mcap.stream_reader import StreamReader
 from mcap.records import Channel, Message
+from mcap.stream_reader import StreamReader
 from mcap_ros2.reader import read_ros2_messages
+from ros_probe import pause
 from rosbags.highlevel import AnyReader
 from rosgraph_msgs.msg import Clock
-from std_srvs.srv import SetBool
-from ros_probe import pause
 
 PUBLISHED = {
     "/clock": "rosgraph_msgs/msg/Clock",

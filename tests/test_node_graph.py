@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from geometry_msgs.msg import PoseArray
 from rclpy.serialization import deserialize_message
-from visualization_msgs.msg import Marker, MarkerArray
 from ros_probe import pause
+from visualization_msgs.msg import Marker, MarkerArray
 
 VENV = Path(sys.prefix)
 

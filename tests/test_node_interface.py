@@ -20,11 +20,11 @@ from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.serialization import deserialize_message
+from ros_probe import pause, step
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import Marker, MarkerArray
-from ros_probe import pause, step
 
 DT = 1.0 / 60.0
 BOX_MASS = 2.0
@@ -234,7 +234,8 @@ def test_body_frame_wrench_turns_with_the_body(zero_g, probe):
     odom = probe.subscribe("/cgp_sim/bodies/spinner/odom", Odometry)
     pub = probe.publisher("/cgp_sim/apply_wrench", ApplyWrench)
     probe.wait_for_subscriber(pub)
-    probe.wait_for_messages("/cgp_sim/bodies/spinner/odom", 1)  # receiving before pausing: a paused node publishes nothing
+    # receiving before pausing: a paused node publishes nothing
+    probe.wait_for_messages("/cgp_sim/bodies/spinner/odom", 1)
     pause(probe, True)
     msg = apply_wrench("spinner", force=(1.0, 0.0, 0.0), frame="spinner", duration=2.0)
     first = send_until_applied(probe, pub, msg, odom, lambda o: np.linalg.norm(vec(o.twist.twist.linear)) > 0)

@@ -17,14 +17,20 @@ from geometry_msgs.msg import PoseArray, WrenchStamped
 from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
+from sim_client import OK, SimClient, quat, vec
 from simulation_interfaces.action import SimulateSteps
 from simulation_interfaces.msg import Bounds, EntityCategory, Result, SimulationState, SimulatorFeatures
-from simulation_interfaces.srv import (GetEntities, GetEntitiesStates, GetSimulatorFeatures, ResetSimulation,
-                                       SetEntityState, SetSimulationState, SpawnEntity)
+from simulation_interfaces.srv import (
+    GetEntities,
+    GetEntitiesStates,
+    GetSimulatorFeatures,
+    ResetSimulation,
+    SetEntityState,
+    SetSimulationState,
+    SpawnEntity,
+)
 from std_msgs.msg import String
 from visualization_msgs.msg import Marker, MarkerArray
-
-from sim_client import OK, SimClient, quat, vec
 
 G = 9.81
 DT = round(1e9 / 60) * 1e-9  # the tick: 1/60 s rounded to whole nanoseconds, as the node steps

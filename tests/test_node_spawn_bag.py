@@ -11,9 +11,8 @@ import yaml
 from geometry_msgs.msg import WrenchStamped
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
-from simulation_interfaces.msg import SimulationState
-
 from sim_client import OK
+from simulation_interfaces.msg import SimulationState
 from test_node_sim_services import start_paused
 
 BOX1_TOPICS = {"/cgp_sim/bodies/box1/odom": "nav_msgs/msg/Odometry",

@@ -10,10 +10,9 @@ import numpy as np
 from nav_msgs.msg import Odometry
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
-from tf2_msgs.msg import TFMessage
-
 from sim_client import OK
 from test_node_sim_services import start_paused
+from tf2_msgs.msg import TFMessage
 
 # what tf2_ros' TransformListener subscribes with (tf2_ros::DynamicListenerQoS / StaticListenerQoS)
 TF_LISTENER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,

@@ -13,9 +13,11 @@ import subprocess
 import time
 
 from conftest import cgp_sim_executable
+
 from cgp_sim_ros.progress import BatchProgress, ProgressLine, format_bytes, format_duration
 
-LINE = re.compile(r"t = (\d+\.\d\d) s of 1 s, (\d+) ticks/s, (\d+\.\d\d)x real time, ETA (\d+:\d\d), bag ([\d.]+ [kMG]?B)")
+LINE = re.compile(r"t = (\d+\.\d\d) s of 1 s, (\d+) ticks/s, (\d+\.\d\d)x real time, ETA (\d+:\d\d), "
+                  r"bag ([\d.]+ [kMG]?B)")
 
 
 def _run_in_pty(args: list[str], timeout: float = 120.0) -> str:

@@ -11,10 +11,10 @@ import textwrap
 
 import numpy as np
 import pytest
+from conftest import VENV_BIN
 from PIL import Image
 
 from cgp_sim_ros.wire import cdr
-from conftest import VENV_BIN
 
 RENDER = str(VENV_BIN / "cgp-sim-render")
 BALL = (0.9, 0.25, 0.2)  # the default scene's colours (msgs_config/scenes/default.yaml, messages.FLOCK_COLORS)
@@ -103,7 +103,8 @@ def test_png_sequence_and_still_agree(default_bag, tmp_path):
     assert names == ["f_000.png", "f_001.png", "f_002.png"]
     render(str(default_bag), "-o", str(tmp_path / "still.png"), "--from", "0.3", "--size", "160x90",
            "--camera", SIDE_CAMERA, "--supersample", "1", "-q")
-    assert np.array_equal(np.asarray(Image.open(tmp_path / "f_001.png")), np.asarray(Image.open(tmp_path / "still.png")))
+    still = np.asarray(Image.open(tmp_path / "still.png"))
+    assert np.array_equal(np.asarray(Image.open(tmp_path / "f_001.png")), still)
 
 
 def test_mp4_has_the_frames_and_size_asked_for(default_bag, tmp_path):

@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
-
 from _bodies import make_bodies, sphere
+
 from cgp_core import World, parse_scene
 from cgp_core.collision import Ground
 from cgp_core.dynamics import step_bodies
@@ -158,8 +158,8 @@ bodies:
   - {{name: low, shape: box, size: [0.4, 0.4, 0.4], mass: 2.0, position: [0, 0, 0.2]}}
   - {{name: high, shape: box, size: [0.4, 0.4, 0.4], mass: 2.0, position: [0, 0, 0.6]}}
   - {{name: lone, shape: box, size: [0.4, 0.4, 0.4], mass: 2.0, position: [0, 3, 0.2]}}
-  - {{name: ball, shape: sphere, radius: 0.1, mass: 1.0, position: [{ball_x}, 0, 0.1], linear_velocity: [{ball_v}, 0, 0],
-     angular_velocity: [0, {ball_w}, 0]}}
+  - {{name: ball, shape: sphere, radius: 0.1, mass: 1.0, position: [{ball_x}, 0, 0.1],
+     linear_velocity: [{ball_v}, 0, 0], angular_velocity: [0, {ball_w}, 0]}}
 """
 
 

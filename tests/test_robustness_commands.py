@@ -25,15 +25,14 @@ from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, SetParameters, SetParametersAtomically
+from ros_probe import PeerProcess, pause, step
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
-from std_srvs.srv import SetBool, Trigger
-from ros_probe import PeerProcess, pause, step
+from std_srvs.srv import Trigger
 
 from cgp_core.bodies import BodyState
 from cgp_core.forces import apply_force_at_point, apply_torque
 from cgp_core.rotation import quat_normalize, quat_rotate
-from cgp_core.world import World
 from cgp_core.wrenches import MAX_NAME_LENGTH, WrenchError, WrenchSchedule, make_command
 
 DT_NS = round(1e9 / 60)

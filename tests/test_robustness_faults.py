@@ -17,9 +17,9 @@ import pytest
 import yaml
 from geometry_msgs.msg import PoseArray
 from mcap.reader import make_reader
+from ros_probe import PeerProcess, pause, step
 from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
-from ros_probe import PeerProcess, pause, step
 from test_node_bag import read_bag
 from test_robustness_commands import assert_clock_advances_by_dt, stamp_ns
 
@@ -325,7 +325,7 @@ def test_bag_files_are_written_only_inside_the_resolved_bag_directory(start_node
          "elsewhere/bag/metadata.yaml", "elsewhere/target"]
         + [p.name for p in tmp_path.glob("node*.log")])
     assert (out / "old" / "keep.txt").read_text() == "an earlier recording\n"
-    for node, (given, resolved) in zip(nodes, cases):
+    for node, (_given, resolved) in zip(nodes, cases):
         log = node.log()
         assert f"recording to {resolved}\n" in log, log
         assert f"cgp-sim: bag in {resolved} " in log, log

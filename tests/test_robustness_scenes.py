@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import ast
 import math
-import os
-import sys
 from pathlib import Path
 
 import pytest
@@ -356,8 +354,8 @@ def test_cgp_sim_refuses_bad_scenes_before_it_starts(start_node, probe, tmp_path
     poses = probe.subscribe("/cgp_sim/bodies/poses", PoseArray)
     nodes = [start_node("--scene", scene) for scene, _ in cases]
     ros_args_node = start_node("--ros-args", "-p", f"scene:={tmp_path / 'several.yaml'}")
-    for node, (scene, says) in zip(nodes + [ros_args_node], cases + [cases[1]]):
-        assert node.wait(30) == 2, (scene, node.log())
+    for node, (scene_text, says) in zip(nodes + [ros_args_node], cases + [cases[1]]):
+        assert node.wait(30) == 2, (scene_text, node.log())
         log = node.log()
         assert log.startswith("cgp-sim: scene: "), log
         assert all(s in log for s in says), (says, log)

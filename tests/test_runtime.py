@@ -43,7 +43,6 @@ def test_ros_is_jazzy_with_fast_dds_2_14():
     else:
         assert rclpy.startswith("9."), rclpy
     import rclpy as rclpy_module  # the bootstrapped import works, and the RMW is Fast DDS
-
     from rclpy.utilities import get_rmw_implementation_identifier
 
     assert rclpy_module is not None and get_rmw_implementation_identifier() == "rmw_fastrtps_cpp"

@@ -292,6 +292,7 @@ def test_service_definitions_are_the_srv_halves_with_their_dependencies(srv):
     description = json.loads((SHARE / package / "srv" / f"{name}.json").read_text())["type_description_msg"]
     by_name = {d["type_name"]: d for d in description["referenced_type_descriptions"]}
     srv_class = getattr(importlib.import_module(f"{package}.srv"), name)
+
     def msg_text(short: str) -> str:
         package, name = short.split("/")
         return (SHARE / package / "msg" / f"{name}.msg").read_bytes().decode("utf-8")

@@ -574,7 +574,7 @@ def test_record_bag_writes_a_bag_per_run_with_the_samples(tmp_path):
     assert len(files) == 1
     counts: dict[str, int] = {}
     with open(files[0], "rb") as f:
-        for _, channel, message in make_reader(f).iter_messages():
+        for _, channel, _message in make_reader(f).iter_messages():
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
     samples = result["results"][0]["flocks"].num_rows  # ticks 0, 2, 4, 6, 8, 10
     assert samples == 6

@@ -78,7 +78,7 @@ def test_a_spawned_body_falls_freely_and_reports_g():
 def test_spawn_errors_are_the_scene_file_errors_with_the_key_path():
     entry = {"shape": "box", "size": [0.4, -1, 0.4], "mass": 2.0}
     with pytest.raises(SceneError) as from_scene:
-        parse_scene(f"bodies: [{{name: box1, shape: box, size: [0.4, -1, 0.4], mass: 2.0}}]", "scene.yaml")
+        parse_scene("bodies: [{name: box1, shape: box, size: [0.4, -1, 0.4], mass: 2.0}]", "scene.yaml")
     world = World.from_scene("zero_g")
     before = snapshot(world)
     with pytest.raises(SceneError) as from_spawn:

@@ -50,7 +50,7 @@ class ObstacleHits:
         return len(self.point)
 
     @staticmethod
-    def concatenate(parts: list["ObstacleHits"]) -> "ObstacleHits":
+    def concatenate(parts: list[ObstacleHits]) -> ObstacleHits:
         parts = [p for p in parts if p.count]
         if not parts:
             return ObstacleHits(np.zeros(0, np.intp), np.zeros(0), np.zeros((3, 0)))
@@ -89,12 +89,12 @@ class Obstacles:
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @staticmethod
-    def empty(ground_height: float | None = None) -> "Obstacles":
+    def empty(ground_height: float | None = None) -> Obstacles:
         return Obstacles(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)),
                          np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0), ground_height)
 
     @staticmethod
-    def from_bodies(model: BodyModel, state: BodyState, ground: bool = False) -> "Obstacles":
+    def from_bodies(model: BodyModel, state: BodyState, ground: bool = False) -> Obstacles:
         """The bodies of a world at their current poses (spheres, boxes, capsules, the particles of particle
         sets as spheres of the body's particle radius), plus the ground plane z = 0 if ``ground``."""
         shape = np.asarray(model.shape)

@@ -295,7 +295,7 @@ class FlockParams:
         """cos(fov / 2): j is visible to i when v̂_i · (x_j − x_i) > cos_half_fov · |x_j − x_i|."""
         return math.cos(math.radians(0.5 * self.fov_deg))
 
-    def with_seed(self, seed: int) -> "FlockParams":
+    def with_seed(self, seed: int) -> FlockParams:
         """A copy with another seed (validated again)."""
         return replace(self, seed=seed)
 

@@ -59,7 +59,7 @@ class Predators:
         return len(self.radius)
 
     @staticmethod
-    def from_bodies(model: BodyModel, state: BodyState) -> "Predators | None":
+    def from_bodies(model: BodyModel, state: BodyState) -> Predators | None:
         """The bodies of a world marked ``predator`` (``BodyModel.predator``), or None if there are none."""
         index = np.flatnonzero(model.predator)
         if len(index) == 0:

@@ -125,4 +125,3 @@ def k_nearest(metric: NeighborList, positions: np.ndarray, k: int) -> NeighborLi
         found = np.asarray(found, dtype=np.int64).reshape(len(stragglers), wanted)
         _rank_candidates(stragglers.astype(np.int64), found, metric.order, sorted_positions, k, index)
     return NeighborList(metric.order, np.arange(n, dtype=np.int64) * k, np.full(n, k, np.int64), index)
-

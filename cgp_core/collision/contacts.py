@@ -54,7 +54,7 @@ class ContactSet:
         return len(self.body_b)
 
     @staticmethod
-    def empty() -> "ContactSet":
+    def empty() -> ContactSet:
         return ContactSet(
             body_a=np.zeros(0, dtype=np.intp),
             body_b=np.zeros(0, dtype=np.intp),
@@ -66,12 +66,12 @@ class ContactSet:
             restitution=np.zeros(0),
         )
 
-    def select(self, mask_or_index: np.ndarray) -> "ContactSet":
+    def select(self, mask_or_index: np.ndarray) -> ContactSet:
         """The subset picked by a boolean mask or an index array."""
         return ContactSet(*(getattr(self, f)[mask_or_index] for f in _FIELDS))
 
     @staticmethod
-    def concatenate(parts: list["ContactSet"]) -> "ContactSet":
+    def concatenate(parts: list[ContactSet]) -> ContactSet:
         parts = [p for p in parts if p.count]
         if not parts:
             return ContactSet.empty()

@@ -32,8 +32,17 @@ from .box_box import box_box_contacts
 from .broadphase import DEFAULT_BROAD_PHASE, get_broad_phase, sweep_and_prune_kernel, sweep_and_prune_pairs
 from .contacts import GROUND, ContactSet
 from .materials import Ground, combine_friction, combine_restitution
-from .narrowphase import (box_capsule_contacts, box_plane_contacts, capsule_capsule_contacts, capsule_plane_contacts,
-                          sphere_box_point, sphere_capsule_point, sphere_plane_point, sphere_sphere_point, write_point)
+from .narrowphase import (
+    box_capsule_contacts,
+    box_plane_contacts,
+    capsule_capsule_contacts,
+    capsule_plane_contacts,
+    sphere_box_point,
+    sphere_capsule_point,
+    sphere_plane_point,
+    sphere_sphere_point,
+    write_point,
+)
 from .primitives import CollisionModel, build_collision_model, primitive_bounds
 
 #: default speculative distance [m]: contacts within this gap are kept even at rest, so a resting contact
@@ -158,8 +167,9 @@ def narrow_phase(prim_body, prim_shape, prim_radius, prim_half, body_friction, b
                  centre, rotation, lo, margin, pair_i, pair_j, has_ground, ground_friction, ground_restitution):
     """Contact points of the active primitives with the ground and of the candidate pairs ``pair_i, pair_j``
     (primitive indices, AABBs overlapping), as the :class:`ContactSet` fields ``(body_a, body_b, normal,
-    separation, point, key, friction, restitution)``, and ``touched (n,)``: the sleeping bodies in a contact; ground contacts first, in primitive order, then the pairs
-    in the order given.  A pair's side A is the primitive whose shape comes first in SPHERE < BOX < CAPSULE.
+    separation, point, key, friction, restitution)``, and ``touched (n,)``: the sleeping bodies in a contact;
+    ground contacts first, in primitive order, then the pairs in the order given.  A pair's side A is the
+    primitive whose shape comes first in SPHERE < BOX < CAPSULE.
     Materials: friction √(μ_a μ_b), restitution max(e_a, e_b) (see :mod:`.materials`)."""
     p = len(prim_body)
     cap = MAX_POINTS_PER_PAIR * (p + len(pair_i)) + 1

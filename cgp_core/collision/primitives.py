@@ -11,9 +11,8 @@ primitives at the bodies' current poses and bounds them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import math
+from dataclasses import dataclass
 
 import numpy as np
 

@@ -18,8 +18,8 @@ from typing import ClassVar, Protocol
 
 import numpy as np
 
-from ..checks import positive
 from ..bodies import BodyModel, BodyState
+from ..checks import positive
 from ..jit import njit
 from ..rotation import cross3
 

@@ -53,7 +53,6 @@ from ..bodies import BodyModel, BodyState
 from ..jit import njit
 from .base import check_step, inverse3_into
 
-
 #: Largest value of h |L| ‖I_body⁻¹‖_F one implicit solve is given.  This bounds both h|Ω| (the angle turned
 #: in the step) and h‖∂(Π × WΠ)/∂Π‖, how far Newton's Jacobian is from the identity; below ~1 Newton
 #: converges from the predictor for any inertia ratio (checked up to 1000:1).  Bodies above it are sub-stepped.

@@ -48,7 +48,7 @@ class RK4:
         W = model.inv_inertia_body
         force = movable * state.force
         torque = movable * state.torque
-        x0, q0 = state.position, state.orientation
+        q0 = state.orientation
         P0, L0 = state.linear_momentum, state.angular_momentum
 
         # Stages k_i = f(y0 + c_i h k_{i-1}).  Ṗ = F and L̇ = τ are constant, so the stage momenta are

@@ -18,8 +18,13 @@ Materials (:mod:`cgp_core.collision.materials`, re-exported here): a contact's f
 
 from __future__ import annotations
 
-from ..collision.materials import (DEFAULT_GROUND_FRICTION, DEFAULT_GROUND_RESTITUTION, Ground, combine_friction,
-                                   combine_restitution)
+from ..collision.materials import (
+    DEFAULT_GROUND_FRICTION,
+    DEFAULT_GROUND_RESTITUTION,
+    Ground,
+    combine_friction,
+    combine_restitution,
+)
 from .base import ContactSolver, SolverSettings
 from .sequential_impulse import SequentialImpulseSolver
 

@@ -77,8 +77,13 @@ from ..bodies import BodyModel, BodyState
 from ..collision import CollisionDetector, ContactSet
 from ..collision.detector import FEATURE_SLOTS
 from ..jit import njit
-from ..rotation import (quat_multiply_scalar, quat_rotate_scalar, quat_to_matrix, quat_to_rotvec_scalar,
-                        rotvec_to_quat_scalar)
+from ..rotation import (
+    quat_multiply_scalar,
+    quat_rotate_scalar,
+    quat_to_matrix,
+    quat_to_rotvec_scalar,
+    rotvec_to_quat_scalar,
+)
 from .base import SolverSettings
 from .manifold import MAX_BLOCK, solve_manifold_lcp
 

@@ -11,10 +11,10 @@ format: ``.mp4`` (H.264 through the ffmpeg that the ``imageio-ffmpeg`` wheel shi
 palette for the whole animation, looping), ``.png`` (one picture at ``--from``; a name with a printf pattern
 such as ``%04d`` writes one numbered picture per frame).
 
-Time: ``--from`` / ``--to`` are seconds from the first marker message of the bag (for a cgp-sim bag that is
-the first tick, in simulation time).  Frame k shows the markers as they were at ``from + k · speed / fps`` — the latest message at
-or before that time, as a viewer replaying the bag would show them (so ``markers_every`` > 1 and DELETEALL
-after a ``~/reset`` are rendered as published).
+Time: ``--from`` / ``--to`` are seconds from the first marker message of the bag (for a cgp-sim bag that is the
+first tick, in simulation time).  Frame k shows the markers as they were at ``from + k · speed / fps`` — the latest
+message at or before that time, as a viewer replaying the bag would show them (so ``markers_every`` > 1 and
+DELETEALL after a ``~/reset`` are rendered as published).
 
 Camera (``--camera EX,EY,EZ[:TX,TY,TZ]``, metres, frame ``world``, z up): the eye, and the point it looks at
 (default: the centre of what is drawn).  Without ``--camera`` the camera looks from the south-east, 25° above
@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..wire import cdr
 from ..progress import ProgressLine, bar, format_duration
+from ..wire import cdr
 from .bagread import BagError, MarkerStream, open_marker_stream
 from .primitives import MarkerSet, extent_points, primitives
 from .raster import Camera, Rasterizer

@@ -85,6 +85,7 @@ class Primitives:
     closed: np.ndarray
     skipped: set[str] = field(default_factory=set)
 
+
 def _rgb(color: np.ndarray, n: int) -> np.ndarray:
     return np.broadcast_to(np.asarray(color, dtype=np.float64)[:3], (n, 3))
 

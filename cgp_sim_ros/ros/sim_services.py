@@ -35,9 +35,19 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.task import Future
 from simulation_interfaces.action import SimulateSteps
 from simulation_interfaces.msg import Bounds, EntityState, Result, SimulationState, SimulatorFeatures
-from simulation_interfaces.srv import (DeleteEntity, GetEntities, GetEntitiesStates, GetEntityState,
-                                       GetSimulationState, GetSimulatorFeatures, ResetSimulation, SetEntityState,
-                                       SetSimulationState, SpawnEntity, StepSimulation)
+from simulation_interfaces.srv import (
+    DeleteEntity,
+    GetEntities,
+    GetEntitiesStates,
+    GetEntityState,
+    GetSimulationState,
+    GetSimulatorFeatures,
+    ResetSimulation,
+    SetEntityState,
+    SetSimulationState,
+    SpawnEntity,
+    StepSimulation,
+)
 
 from cgp_core.editing import WORLD_FRAMES, EditError
 from cgp_core.scene import MAX_SCENE_BYTES, SPAWN_KINDS, SceneError, parse_yaml

@@ -68,4 +68,3 @@ class BodyTransforms:
             t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z, t.transform.rotation.w = q
             msg.transforms.append(t)
         return serialize_message(msg)
-

@@ -210,7 +210,8 @@ def _connect(scheduler: str | None, workers: int | None):
             client.wait_for_workers(1, timeout=WORKER_TIMEOUT_S)
         except TimeoutError:
             client.close()
-            raise EngineError(f"the Dask scheduler at {scheduler} has no worker (waited {WORKER_TIMEOUT_S:g} s)")
+            raise EngineError(
+                f"the Dask scheduler at {scheduler} has no worker (waited {WORKER_TIMEOUT_S:g} s)") from None
         return client, [client]
     count = workers or os.cpu_count() or 1
     # one single-threaded process per core (a flock of 2,000 boids or more also uses numba's pool in each:

@@ -77,8 +77,8 @@ DEFAULT_DT = 1.0 / 60.0
 MAX_SWEEP_BYTES = 4 * 1024 * 1024
 #: an error lists at most this many problems
 MAX_REPORTED_PROBLEMS = 30
-TOP_KEYS = {"description", "title", "scene", "dt", "duration", "seeds", "overrides", "grid", "record", "summary", "chain",
-            "experiments"}
+TOP_KEYS = {"description", "title", "scene", "dt", "duration", "seeds", "overrides", "grid", "record", "summary",
+            "chain", "experiments"}
 #: what an experiment may set (merged over the top level; overrides / grid / record / summary key by key)
 EXPERIMENT_KEYS = {"dt", "duration", "seeds", "overrides", "grid", "record", "summary", "chain"}
 RECORD_KEYS = {"every": 10, "flocks": True, "bodies": False, "bag": False}

@@ -160,7 +160,7 @@ def assemble(out: Path, sweep: Sweep, code: str) -> dict[str, int]:
                 n = table.num_rows
                 arrays = [pa.array([value] * n, kind_type) for _, kind_type, value in labels + extra]
                 names = [name for name, _, _ in labels + extra]
-                for name, array in zip(names, arrays):
+                for name in names:
                     if name in table.column_names:
                         table = table.drop_columns([name])
                 labelled = pa.Table.from_arrays(arrays + table.columns, names=names + table.column_names)

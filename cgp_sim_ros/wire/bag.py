@@ -81,9 +81,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from mcap import __version__ as _MCAP_VERSION
 from mcap.data_stream import RecordBuilder
 from mcap.records import DataEnd, Footer
-from mcap import __version__ as _MCAP_VERSION
 from mcap.writer import MCAP0_MAGIC, CompressionType, IndexType, Writer
 
 from . import schemas

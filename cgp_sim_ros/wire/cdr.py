@@ -3,8 +3,8 @@
 
 Why: building ``geometry_msgs/Pose`` objects one by one and serializing them costs several µs per pose in
 rclpy (a 10k-pose PoseArray: 75-260 ms on this 2-core machine, ``benchmarks/bench_cdr.py``); the same
-message written as CDR bytes from the numpy state costs about half a millisecond.  ``Publisher.publish(bytes)`` sends such bytes as they are, and the bag writer
-records the very same object: one serialization per message per tick.
+message written as CDR bytes from the numpy state costs about half a millisecond.  ``Publisher.publish(bytes)``
+sends such bytes as they are, and the bag writer records the very same object: one serialization per message per tick.
 
 Format (what every function here returns):
 - A 4-byte encapsulation header ``00 01 00 00`` (plain CDR = XCDR1, little endian), then the body.

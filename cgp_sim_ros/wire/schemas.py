@@ -72,7 +72,7 @@ def normalize_type_name(type_name: str) -> tuple[str, str, str]:
     return package, kind or "msg", name
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def share_directory(package: str) -> Path:
     """``<prefix>/share/<package>`` of an installed ROS package (see the module docstring for the search)."""
     try:
@@ -100,7 +100,7 @@ def _interface_file(type_name: str, suffix: str) -> Path:
     return path
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _msg_text(type_name: str) -> str:
     # newline="" keeps the file's bytes as they are (rosbag2 reads the file in binary-equivalent mode).
     with open(_interface_file(type_name, ".msg"), encoding="utf-8", newline="") as f:
@@ -136,7 +136,7 @@ def _with_dependencies(text: str, package: str, what: str) -> str:
     return append(text, package, _MAX_DEPTH)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def message_definition(type_name: str) -> str:
     """The ``ros2msg`` concatenated definition of ``type_name`` (rosbag2's schema data)."""
     return _with_dependencies(_msg_text(type_name), normalize_type_name(type_name)[0], type_name)
@@ -145,7 +145,7 @@ def message_definition(type_name: str) -> str:
 _SRV_SEPARATOR = re.compile(r"^---[ \t]*(?:\r?\n|$)", re.MULTILINE)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def service_definitions(type_name: str) -> tuple[str, str]:
     """The ``ros2msg`` concatenated definitions of a service's request and response (``pkg/srv/Type``).
 
@@ -165,7 +165,7 @@ def service_definitions(type_name: str) -> tuple[str, str]:
             _with_dependencies(response, package, f"{type_name}_Response"))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def type_hash(type_name: str) -> str:
     """``RIHS01_<sha256>`` of the type, from its installed type description (``<Type>.json``)."""
     package, kind, name = normalize_type_name(type_name)
