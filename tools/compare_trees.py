@@ -298,11 +298,11 @@ def _probe(probes: list[dict]) -> str:
             f"{np.median([p['python_ms'] for p in probes]):.1f}")
 
 
-def compare_speed(old: Path, new: Path, rounds: int) -> dict:
-    table: dict = {case: {"old": [], "new": [], "probe_old": [], "probe_new": []} for case in SPEED_CASES}
+def compare_speed(old: Path, new: Path, rounds: int, cases: list[str]) -> dict:
+    table: dict = {case: {"old": [], "new": [], "probe_old": [], "probe_new": []} for case in cases}
     for r in range(rounds):
         order = (("old", old), ("new", new)) if r % 2 == 0 else (("new", new), ("old", old))
-        for case in SPEED_CASES:
+        for case in cases:
             for label, tree in order:
                 result = json.loads(child(tree, ["_speed", case]).stdout.strip().splitlines()[-1])
                 table[case][label].append(result["median_ms"])
@@ -355,7 +355,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--old", default="ee7b2f6", help="git revision or tree directory (default ee7b2f6)")
     parser.add_argument("--new", default=str(HERE), help="tree directory (default: this checkout)")
     parser.add_argument("--ticks", type=int, default=300)
-    parser.add_argument("--cases", nargs="*", default=None, help=f"bits: a subset of {', '.join(CASES)}")
+    parser.add_argument("--cases", nargs="*", default=None,
+                        help=f"bits: a subset of {', '.join(CASES)}; speed: of {', '.join(SPEED_CASES)}")
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--scratch", default=None, help="where the exported tree and the results go (default: a "
                                                         "temporary directory, removed afterwards)")
@@ -368,7 +369,7 @@ def main(argv: list[str]) -> int:
         if args.what == "bits":
             return 0 if compare_bits(old, new, args.cases or list(CASES), args.ticks, scratch) else 1
         if args.what == "speed":
-            compare_speed(old, new, args.rounds)
+            compare_speed(old, new, args.rounds, args.cases or list(SPEED_CASES))
         else:
             compare_compile(old, new, args.rounds)
         return 0
