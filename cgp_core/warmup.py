@@ -111,10 +111,12 @@ class CompilePart:
 #: scene: the solver ~16 s; contact detection and the integrators ~14 s; the flock ~9 s (``make setup`` also
 #: compiles issue 14's rules and the parallel twins there: ~15 s more)
 PARTS: tuple[CompilePart, ...] = (
-    CompilePart("solver", ("cgp_core.solver", "cgp_core.rotation"),
+    CompilePart("solver", ("cgp_core.solver", "cgp_core.rotation", "cgp_core.bodies"),
                 ("cgp_core.solver.sequential_impulse:solve_step",
                  "cgp_core.solver.sequential_impulse:recover_penetration_kernel"), steps_flocks=False),
-    CompilePart("contacts", ("cgp_core.collision", "cgp_core.integrators", "cgp_core.dynamics", "cgp_core.sleep"),
+    # (rotation's and bodies' few small kernels are compiled by both rigid-body parts: each part's kernels call them)
+    CompilePart("contacts", ("cgp_core.collision", "cgp_core.integrators", "cgp_core.dynamics", "cgp_core.sleep",
+                             "cgp_core.rotation", "cgp_core.bodies"),
                 ("cgp_core.collision.detector:narrow_phase", "cgp_core.integrators.implicit_midpoint:_step_kernel",
                  "cgp_core.dynamics:coming_velocities"), steps_flocks=False),
     CompilePart("flock", ("cgp_core.boids",),

@@ -85,7 +85,7 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from ..bodies import BodyModel, BodyState
+from ..bodies import BodyModel, BodyState, tensor_times
 from ..collision import CollisionDetector, ContactSet
 from ..collision.detector import FEATURE_SLOTS
 from ..jit import StageProfile, clock, lap, njit
@@ -241,14 +241,10 @@ def prepare_bodies(bodies, h):
         for k in range(3):
             V[i, k] = (P[i, k] + h * F[i, k]) * inv_mass[i]
             V_before[i, k] = P[i, k] * inv_mass[i]
-        for r in range(3):
-            acc = 0.0
-            acc_before = 0.0
-            for c in range(3):
-                acc += inv_inertia[i, r, c] * (L[i, c] + h * T[i, c])
-                acc_before += inv_inertia[i, r, c] * L[i, c]
-            V[i, 3 + r] = acc
-            V_before[i, 3 + r] = acc_before
+        # ω = I_world⁻¹ L (bodies.tensor_times), with and without this sub-step's torque
+        V[i, 3], V[i, 4], V[i, 5] = tensor_times(inv_inertia[i], L[i, 0] + h * T[i, 0], L[i, 1] + h * T[i, 1],
+                                                 L[i, 2] + h * T[i, 2])
+        V_before[i, 3], V_before[i, 4], V_before[i, 5] = tensor_times(inv_inertia[i], L[i, 0], L[i, 1], L[i, 2])
     return SolverBodies(inv_mass, inv_inertia, pos, dynamic, V, V_before)
 
 

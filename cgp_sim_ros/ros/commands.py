@@ -30,7 +30,7 @@ from geometry_msgs.msg import WrenchStamped
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.serialization import deserialize_message
 
-from cgp_core.wrenches import MAX_NAME_LENGTH, WrenchError, make_command
+from cgp_core.wrenches import MAX_NAME_LENGTH, CommandLimits, WrenchError, make_command
 
 from .. import interface as itf
 from .qos import COMMAND_QOS
@@ -125,7 +125,7 @@ class CommandInputs:
                 torque=(msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z),
                 point=(msg.point.x, msg.point.y, msg.point.z), frame=msg.header.frame_id,
                 duration=msg.duration.sec + 1e-9 * msg.duration.nanosec,
-                max_force=params["max_force"], max_torque=params["max_torque"],
+                limits=CommandLimits(max_force=params["max_force"], max_torque=params["max_torque"]),
                 fixed=world.body_model.fixed, positions=world.body_state.position)
         except WrenchError as exc:
             self.reject("apply_wrench", exc)
@@ -145,7 +145,7 @@ class CommandInputs:
                 force=(msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z),
                 torque=(msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z),
                 point=None, frame=msg.header.frame_id, duration=0.0,
-                max_force=params["max_force"], max_torque=params["max_torque"])
+                limits=CommandLimits(max_force=params["max_force"], max_torque=params["max_torque"]))
         except WrenchError as exc:
             self.reject(source, exc)
             return
