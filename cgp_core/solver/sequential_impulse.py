@@ -27,7 +27,7 @@ solve, so a resting body gets exactly the impulse that cancels it — and the ro
   (velocity from the momentum alone) and whose gap closes within it asks instead for
   J V ≥ −e · (J V)_before (Box2D v2's velocity bias; the threshold keeps resting contacts from
   micro-bouncing).  A bounce off the static world from a speculative contact is also put at its time of
-  impact (see :func:`solve_contacts`).
+  impact (see :func:`apply_restitution`).
 
 The accumulated impulses are added to P and L at the start of the sub-step: ΔP = Σ J_linᵀ λ, ΔL = Σ J_angᵀ λ
 (= Σ r × impulse), equal and opposite on the two bodies at the same point, so momentum is conserved to
@@ -793,6 +793,17 @@ def _recover_penetration(manifolds, rows, targets, bodies, settings):
 
 # ---- the solver object ----------------------------------------------------------------------------------------
 
+class PendingRecovery(NamedTuple):
+    """What :meth:`SequentialImpulseSolver.recover_penetration` needs from the last ``solve_velocities``."""
+
+    model: BodyModel                # the model the contacts index (a new model: nothing to recover)
+    solved: Solved                  # the velocity stage's manifolds, rows, targets
+    position_before: np.ndarray     # (n, 3) x̄ when the contacts were found
+    orientation_before: np.ndarray  # (n, 4) q then
+    dynamic: np.ndarray             # (n,) bool: the bodies the stage may move
+    settings: tuple                 # the StepSettings, as the plain tuple the kernels take
+
+
 class SequentialImpulseSolver:
     """Sequential impulses, one manifold at a time; see the module docstring.
 
@@ -834,7 +845,7 @@ class SequentialImpulseSolver:
         self._memory = WarmStart.empty()  # sorted by key (store_impulses keeps it so): none yet
         self._warm_model = None  # the model the warm-start keys refer to (they index its primitives)
         self._warm_count = -1
-        self._pending = None  # what recover_penetration needs from the last solve
+        self._pending: PendingRecovery | None = None
 
     def _settings_for(self, h: float) -> tuple:
         """The :class:`StepSettings` of sub-step ``h``, as the plain tuple the kernels take (kept while neither
@@ -871,19 +882,19 @@ class SequentialImpulseSolver:
         self.stats = {"contacts": contacts.count, "manifolds": len(solved.manifolds.group_start) - 1,
                       "sweeps": solved.sweeps, "max_penetration": solved.deepest}
         if len(solved.manifolds.a):
-            self._pending = (model, solved, state.position.copy(), state.orientation.copy(), movable, settings)
+            self._pending = PendingRecovery(model, solved, state.position.copy(), state.orientation.copy(), movable,
+                                            settings)
 
     def recover_penetration(self, model: BodyModel, state: BodyState, h: float) -> None:
         """Move penetrating bodies apart (positions / orientations only) for the contacts of the last
         :meth:`solve_velocities`, after the integrator has moved the bodies."""
         p, self._pending = self._pending, None
-        if p is None or self.settings.position_iterations == 0 or p[0] is not model:
+        if p is None or self.settings.position_iterations == 0 or p.model is not model:
             return
-        _, solved, position_before, orientation_before, dynamic, settings = p
-        bodies = (position_before, orientation_before, state.position, state.orientation, state.angular_momentum,
-                  dynamic)  # a RecoveryBodies, as a plain tuple
-        turn, deepest = recover_penetration_kernel(tuple(solved.manifolds), tuple(solved.rows),
-                                                   tuple(solved.targets), bodies, settings, self.profile.seconds)
+        bodies = (p.position_before, p.orientation_before, state.position, state.orientation, state.angular_momentum,
+                  p.dynamic)  # a RecoveryBodies, as a plain tuple
+        turn, deepest = recover_penetration_kernel(tuple(p.solved.manifolds), tuple(p.solved.rows),
+                                                   tuple(p.solved.targets), bodies, p.settings, self.profile.seconds)
         self.stats["max_penetration_after_step"] = float(max(deepest, 0.0))
         if state.rotation is not None:  # an integrator that keeps its own matrix (explicit Euler)
-            state.rotation[dynamic] = quat_to_matrix(turn[dynamic]) @ state.rotation[dynamic]
+            state.rotation[p.dynamic] = quat_to_matrix(turn[p.dynamic]) @ state.rotation[p.dynamic]
