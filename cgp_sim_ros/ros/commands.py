@@ -123,7 +123,7 @@ class CommandInputs:
                 world.body_model.names, msg.body,
                 force=(msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z),
                 torque=(msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z),
-                point=(msg.point.x, msg.point.y, msg.point.z), frame=msg.header.frame_id,
+                point=(msg.point.x, msg.point.y, msg.point.z), frame=self._node.frames.to_core(msg.header.frame_id),
                 duration=msg.duration.sec + 1e-9 * msg.duration.nanosec,
                 max_force=params["max_force"], max_torque=params["max_torque"],
                 fixed=world.body_model.fixed, positions=world.body_state.position)
@@ -144,7 +144,7 @@ class CommandInputs:
                 self._node.world.body_model.names, body,
                 force=(msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z),
                 torque=(msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z),
-                point=None, frame=msg.header.frame_id, duration=0.0,
+                point=None, frame=self._node.frames.to_core(msg.header.frame_id), duration=0.0,
                 max_force=params["max_force"], max_torque=params["max_torque"])
         except WrenchError as exc:
             self.reject(source, exc)

@@ -80,6 +80,8 @@ class SimNode(Node):
         super().__init__(node_name, parameter_overrides=parameter_overrides)
         #: the parameters' values by name (checked; updated by the parameter callback)
         self.params = read_parameters(self, self._parameter_overrides)
+        #: the TF frame ids it writes and reads (parameter `frame_prefix`)
+        self.frames = itf.Frames(self.params["frame_prefix"])
         #: the bag directory (resolved and checked once, before anything is built), or None: no recording
         self.bag_path = self._bag_path()
         self.world = self._load_world()

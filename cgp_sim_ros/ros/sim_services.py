@@ -267,7 +267,7 @@ class SimulationInterfaces:
         state = self.node.world.entity_state(name)
         msg = EntityState()
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(self.node.world.time_ns, 1_000_000_000)
-        msg.header.frame_id = itf.WORLD_FRAME
+        msg.header.frame_id = self.node.frames.world
         p, q = msg.pose.position, msg.pose.orientation
         p.x, p.y, p.z = map(float, state.position)
         q.x, q.y, q.z, q.w = map(float, state.orientation)
@@ -339,8 +339,9 @@ class SimulationInterfaces:
             return UNSUPPORTED, (f"entity_namespace {request.entity_namespace!r}: not supported; an entity's "
                                  "topics are the node's (~/bodies/<name>/...)"), ""
         frame = request.initial_pose.header.frame_id
-        if frame not in WORLD_FRAMES:
-            return R.INVALID_POSE, f"initial_pose.header.frame_id {frame!r}: poses are given in 'world' (or '')", ""
+        if self.node.frames.to_core(frame) not in WORLD_FRAMES:
+            return R.INVALID_POSE, (f"initial_pose.header.frame_id {frame!r}: poses are given in "
+                                    f"{self.node.frames.world!r} (or '')"), ""
         try:
             data = parse_yaml(text, source)
         except SceneError as exc:
@@ -405,9 +406,9 @@ class SimulationInterfaces:
         kind = world.entity_kind(name)
         if kind is None:
             return NOT_FOUND, _unknown(world, name)
-        if state.header.frame_id not in WORLD_FRAMES:
-            return R.INVALID_POSE, f"state.header.frame_id {state.header.frame_id!r}: states are given in " \
-                                   "'world' (or '')"
+        if self.node.frames.to_core(state.header.frame_id) not in WORLD_FRAMES:
+            return R.INVALID_POSE, (f"state.header.frame_id {state.header.frame_id!r}: states are given in "
+                                    f"{self.node.frames.world!r} (or '')")
         p, q = state.pose.position, state.pose.orientation
         position, orientation = (p.x, p.y, p.z), (q.x, q.y, q.z, q.w)
         linear, angular = _xyz(state.twist.linear), _xyz(state.twist.angular)
