@@ -16,8 +16,11 @@ GRAVITY = (0.0, 0.0, -G)
 NO_GRAVITY = (0.0, 0.0, 0.0)
 
 
-def simulate(model, state, steps, h=1 / 240, *, gravity=GRAVITY, ground=None, solver=None, each=None):
-    ground = ground or Ground()
+#: the ground plane z = 0 of every simulate() call that does not pass its own (``ground=None``: no ground)
+DEFAULT_GROUND = Ground()
+
+
+def simulate(model, state, steps, h=1 / 240, *, gravity=GRAVITY, ground=DEFAULT_GROUND, solver=None, each=None):
     integrator = make_integrator("symplectic_euler")
     solver = solver or make_solver()
     for k in range(steps):
