@@ -269,7 +269,7 @@ class MeshMassError(ValueError):
     """A triangle mesh whose mass properties are undefined (open, inverted, degenerate); names why."""
 
 
-def _closed_surface_problem(triangles: np.ndarray) -> str | None:
+def closed_surface_problem(triangles: np.ndarray) -> str | None:
     """Why ``triangles (t, 3)`` is not a closed, consistently oriented surface, or None.  Closed and oriented:
     every directed edge (u, v) occurs exactly once and its reverse (v, u) exactly once."""
     if len(triangles) < 4:
@@ -319,7 +319,7 @@ def polyhedron_mass_properties(vertices, triangles, *, mass=None, density=None,
         raise MeshMassError(f"{what}: a triangle indexes a vertex that does not exist")
     if (mass is None) == (density is None):
         raise MeshMassError(f"{what}: give exactly one of mass and density")
-    problem = _closed_surface_problem(triangles)
+    problem = closed_surface_problem(triangles)
     if problem:
         raise MeshMassError(f"{what}: not a closed surface, so it bounds no solid: {problem}")
     # About a reference point inside the vertices' bounding box, not the file's origin: the second moments

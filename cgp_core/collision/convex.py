@@ -26,7 +26,7 @@ method's argument), so a warm start from the previous query's vertex costs a few
 
 Limits (stated, checked): at most :data:`MAX_INPUT_POINTS` input points, at most :data:`MAX_HULL_VERTICES` hull
 vertices, at most :data:`MAX_FACE_VERTICES` vertices on one face; degenerate input (fewer than 4 points,
-non-finite, all coplanar or collinear, a volume below :data:`MIN_RELATIVE_VOLUME` of its bounding box) is refused
+non-finite, all coplanar or collinear, a volume below :data:`MIN_RELATIVE_VOLUME` of its extent cubed) is refused
 with :class:`HullError` naming the reason.
 """
 
@@ -44,7 +44,7 @@ MAX_INPUT_POINTS = 100_000
 MAX_HULL_VERTICES = 1024
 #: vertices on one (merged) face: the manifold's feature ids reserve 8 bits for a face vertex
 MAX_FACE_VERTICES = 255
-#: a hull whose volume is below this fraction of its bounding box's volume is refused as flat
+#: a hull whose volume is below this fraction of the cube of its largest extent is refused as flat
 MIN_RELATIVE_VOLUME = 1e-9
 #: support queries on hulls of at most this many vertices take the brute-force maximum (cheaper than climbing)
 BRUTE_FORCE_SUPPORT_VERTICES = 32
@@ -130,10 +130,9 @@ def convex_hull(points, *, what: str = "points") -> ConvexPolyhedron:
         first = str(error).strip().splitlines()[0] if str(error).strip() else "qhull failed"
         raise HullError(f"{what}: the points are coplanar or collinear (no volume): qhull says {first!r}") \
             from None
-    box_volume = float(np.prod(np.maximum(hi - lo, 1e-300)))
-    if qhull.volume <= MIN_RELATIVE_VOLUME * box_volume or qhull.volume <= (1e-12 * size) ** 3:
+    if qhull.volume <= MIN_RELATIVE_VOLUME * size**3:
         raise HullError(f"{what}: the points are (nearly) coplanar: hull volume {qhull.volume:.3g} m³ is below "
-                        f"{MIN_RELATIVE_VOLUME:g} of their bounding box's {box_volume:.3g} m³")
+                        f"{MIN_RELATIVE_VOLUME:g} of the cube of their extent ({size:.3g} m)")
     used = np.unique(qhull.simplices)
     if len(used) > MAX_HULL_VERTICES:
         raise HullError(f"{what}: the hull has {len(used)} vertices, more than the {MAX_HULL_VERTICES} allowed "

@@ -207,17 +207,17 @@ def closest_on_simplex(simplex_a, simplex_b, simplex_ia, simplex_ib, count, weig
         best = np.inf
         inside = True
         for f in range(4):
-            # face (i, j, k) opposite vertex l
+            # face (i, j, k) opposite vertex o
             if f == 0:
-                i, j, k, l = 0, 1, 2, 3
+                i, j, k, o = 0, 1, 2, 3
             elif f == 1:
-                i, j, k, l = 0, 2, 3, 1
+                i, j, k, o = 0, 2, 3, 1
             elif f == 2:
-                i, j, k, l = 0, 3, 1, 2
+                i, j, k, o = 0, 3, 1, 2
             else:
-                i, j, k, l = 1, 3, 2, 0
+                i, j, k, o = 1, 3, 2, 0
             if _origin_outside(w[i, 0], w[i, 1], w[i, 2], w[j, 0], w[j, 1], w[j, 2], w[k, 0], w[k, 1], w[k, 2],
-                               w[l, 0], w[l, 1], w[l, 2]):
+                               w[o, 0], w[o, 1], w[o, 2]):
                 inside = False
                 u, v, s = closest_on_triangle(w[i, 0], w[i, 1], w[i, 2], w[j, 0], w[j, 1], w[j, 2],
                                               w[k, 0], w[k, 1], w[k, 2])

@@ -438,8 +438,8 @@ def triangle_hull_contacts(triangle, active_edges, two_sided,
                            vertices, adjacency_start, adjacency, face_plane, face_vertex_start, face_vertices,
                            position, rotation, margin, normal, separation, point, feature, m):
     """A static mesh's triangle (A: ``triangle (3, 3)`` world vertices, counter-clockwise seen from its front) vs
-    hull B.  The triangle is a flat hull with two faces (front and back) and the contact is :func:`hull_hull_contacts`'s,
-    except for internal edges ("ghost" collisions: a hull sliding across a flat mesh catching on the edge between
+    hull B.  The triangle is a flat hull with two faces (front and back) and the contact is
+    :func:`hull_hull_contacts`'s, except for internal edges ("ghost" collisions: a hull sliding across a flat mesh catching on the edge between
     two coplanar triangles, whose own normal is tilted): when the contact is an edge contact whose triangle
     feature is an *inactive* edge or vertex (``active_edges``: bit e for edge (v_e, v_e+1), from
     :func:`cgp_core.collision.bvh.active_edges`, computed at load), or whose normal is within
