@@ -439,10 +439,10 @@ def triangle_hull_contacts(triangle, active_edges, two_sided,
                            position, rotation, margin, normal, separation, point, feature, m):
     """A static mesh's triangle (A: ``triangle (3, 3)`` world vertices, counter-clockwise seen from its front) vs
     hull B.  The triangle is a flat hull with two faces (front and back) and the contact is
-    :func:`hull_hull_contacts`'s, except for internal edges ("ghost" collisions: a hull sliding across a flat mesh catching on the edge between
-    two coplanar triangles, whose own normal is tilted): when the contact is an edge contact whose triangle
-    feature is an *inactive* edge or vertex (``active_edges``: bit e for edge (v_e, v_e+1), from
-    :func:`cgp_core.collision.bvh.active_edges`, computed at load), or whose normal is within
+    :func:`hull_hull_contacts`'s, except for internal edges ("ghost" collisions: a hull sliding across a flat
+    mesh catching on the edge between two coplanar triangles, whose own normal is tilted): when the contact is
+    an edge contact whose triangle feature is an *inactive* edge or vertex (``active_edges``: bit e for edge
+    (v_e, v_e+1), from :func:`cgp_core.collision.bvh.active_edges`, computed at load), or whose normal is within
     :data:`GHOST_NORMAL_ANGLE` of the triangle's face normal, the contact becomes a face contact with the
     triangle's face as reference (Jolt's "active edges"; Bullet's internal-edge utility does the same with the
     normal).  A one-sided triangle (``two_sided`` False: a closed mesh or a terrain) always pushes towards its
