@@ -184,6 +184,7 @@ def test_a_spinning_plank_is_caught_where_a_start_of_step_contact_misses_it():
     t, sep, n, hit, iterations = toi(*args, target=1e-3, tolerance=1e-4)
     assert hit and 0.3 < t < 0.5
     # dense sampling: apart before t, touching (within target + tolerance) at t, overlapping a little later
+
     def gap(s):
         R = rotated(EYE, *spin, duration * s)
         return penetration(*plank, np.zeros(3), R, 0.0, *wall, wall_at, EYE, 0.0)[0]
@@ -229,7 +230,8 @@ def test_ascii_and_binary_stl_give_the_same_mesh(tmp_path):
     tri = hull.vertices[hull.triangles]
     ascii_lines = ["solid box"]
     for a, b, c in tri:
-        ascii_lines += ["facet normal 0 0 0", "outer loop"] + [f"vertex {x:.17g} {y:.17g} {z:.17g}" for x, y, z in (a, b, c)]
+        ascii_lines += ["facet normal 0 0 0", "outer loop"]
+        ascii_lines += [f"vertex {x:.17g} {y:.17g} {z:.17g}" for x, y, z in (a, b, c)]
         ascii_lines += ["endloop", "endfacet"]
     (tmp_path / "box_ascii.stl").write_text("\n".join(ascii_lines + ["endsolid box"]) + "\n")
     with open(tmp_path / "box_binary.stl", "wb") as out:
