@@ -11,6 +11,12 @@ This module is the one home of the lecture's equations
 
 All tensors are about the centre of mass, in body axes, in kg m².  Solid shapes are homogeneous; their body
 axes are the shape's own axes (box edges; capsule and cylinder axis = body z), so their tensors are diagonal.
+
+Beyond the particles and the closed forms: a homogeneous polyhedron bounded by a closed triangle mesh (a convex
+hull, a mesh file), exactly, by the divergence theorem (:func:`polyhedron_mass_properties`: Mirtich 1996,
+Eberly's *Polyhedral Mass Properties*; its axes are the mesh's, so its tensor is full in general), and a body
+made of parts (:func:`compound_mass_properties`): the lecture's J = Σ Jᵢ with each part's own tensor turned into
+the body's axes and moved to the body's COM by the parallel-axis theorem.
 """
 
 from __future__ import annotations
