@@ -1,6 +1,6 @@
-"""Issue 25's kernels — GJK, EPA, the hull manifolds, the BVH build and queries, time of impact — compiled and as
-plain Python (NUMBA_DISABLE_JIT=1) give the same results bit for bit, on fixed cases, in two processes (as
-tests/test_jit_parity.py does for the step)."""
+"""Issue 25's kernels — GJK, EPA, the hull and mesh manifolds, the BVH build and queries, time of impact —
+compiled and as plain Python (NUMBA_DISABLE_JIT=1) give the same results bit for bit, on fixed cases, in two
+processes (as tests/test_jit_parity.py does for the step)."""
 
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ from cgp_core.collision.epa import penetration
 from cgp_core.collision.gjk import gjk_distance
 from cgp_core.collision.manifold import (hull_capsule_contacts, hull_hull_contacts, plane_hull_contacts,
                                          triangle_hull_contacts)
+from cgp_core.collision.mesh_contacts import mesh_capsule_contacts, mesh_hull_contacts
 from cgp_core.collision.toi import time_of_impact
 
 assert JIT_DISABLED == (sys.argv[2] == "plain"), "NUMBA_DISABLE_JIT did not reach the child"
@@ -77,6 +78,17 @@ for k in range(50):
     out.append(found[:cnt].astype(float).tolist())
     out.append(list(bvh_closest_point(*mesh.bvh, mesh.vertices, mesh.triangles, c, np.inf)))
     out.append(list(bvh_raycast(*mesh.bvh, mesh.vertices, mesh.triangles, c + [0, 0, 1], rng.normal(size=3), 5.0)))
+margs = (mesh.vertices, mesh.triangles, mesh.active_edges, mesh.node_lo, mesh.node_hi, mesh.node_child_or_first,
+         mesh.node_count, mesh.triangle_order, mesh.triangle_lo, mesh.triangle_hi)
+Rm = Rotation.from_euler("xyz", [0.1, 0.2, 0.3]).as_matrix()
+pm = np.array([0.3, -0.2, 0.1])
+for i, h in enumerate(hulls):
+    pos = pm + Rm @ np.array([rng.uniform(-1, 1), rng.uniform(-1, 1), 0.12])
+    m, ok = mesh_hull_contacts(*margs, pm, Rm, False, *faces(h), pos, rotations[i], 0.05, found, n, s, q, f, 0)
+    out += [[*n[k], s[k], *q[k], float(f[k]), float(ok)] for k in range(m)]
+    m, ok = mesh_capsule_contacts(*margs, pm, Rm, False, np.array([pos, pos + [0.3, 0.1, 0.05]]), 0.1, 0.05, found,
+                                  n, s, q, f, 0)
+    out += [[*n[k], s[k], *q[k], float(f[k]), float(ok)] for k in range(m)]
 flat = np.concatenate([np.asarray(row, dtype=float).ravel() for row in out])
 np.save(sys.argv[1], flat)
 """

@@ -197,3 +197,58 @@ def test_an_active_ridge_edge_gives_a_tilted_normal():
     assert len(s) >= 1
     np.testing.assert_allclose(n[0], [0, 0, 1], atol=1e-9)  # edge on edge: the normal bisects the roof
     assert s.min() == pytest.approx(-0.001, abs=1e-9)
+
+
+# ---- static meshes: the BVH's triangles as contact pieces --------------------------------------------------
+
+def flat_grid(cells=4, size=2.0):
+    xs = np.linspace(-size / 2, size / 2, cells + 1)
+    x, y = np.meshgrid(xs, xs, indexing="ij")
+    vertices = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    index = np.arange((cells + 1) ** 2).reshape(cells + 1, cells + 1)
+    a, b, c, d = index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(), index[:-1, 1:].ravel()
+    return vertices, np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+
+
+def mesh_args(mesh):
+    return (mesh.vertices, mesh.triangles, mesh.active_edges, mesh.node_lo, mesh.node_hi, mesh.node_child_or_first,
+            mesh.node_count, mesh.triangle_order, mesh.triangle_lo, mesh.triangle_hi)
+
+
+def test_hulls_and_spheres_on_a_posed_flat_mesh_feel_only_its_up_direction():
+    """A flat grid mesh (32 triangles, every internal edge inactive) turned and moved in the world; a box, a
+    hexagonal prism and a sphere resting on it anywhere — across edges and vertices — get contacts whose normal
+    is the mesh's up direction, whose deepest separation is the depth, and whose points lie on the mesh."""
+    from cgp_core.collision.bvh import StaticMesh
+    from cgp_core.collision.mesh_contacts import mesh_capsule_contacts, mesh_hull_contacts
+
+    mesh = StaticMesh.build(*flat_grid())
+    assert not mesh.active_edges[np.isin(mesh.triangles, [6, 7, 8, 11, 12, 13, 16, 17, 18]).all(axis=1)].any()
+    Rm = Rotation.from_euler("xyz", [0.3, -0.2, 0.9]).as_matrix()
+    pm = np.array([1.0, -2.0, 0.5])
+    up = Rm[:, 2]
+    rng = np.random.default_rng(7)
+    candidates = np.empty(64, np.int64)
+    depth = 2e-3
+    for hull in (box_hull([0.12, 0.08, 0.05]), prism(radius=0.15)):
+        for _ in range(20):
+            local_R = Rotation.from_euler("z", rng.uniform(0, 2 * np.pi)).as_matrix()
+            lowest = (hull.vertices @ local_R.T)[:, 2].min()
+            local_p = np.array([*rng.uniform(-0.6, 0.6, 2), -lowest - depth])
+            n, s, p, f = buffers()
+            m, complete = mesh_hull_contacts(*mesh_args(mesh), pm, Rm, False, *hull_args(hull), pm + Rm @ local_p,
+                                             Rm @ local_R, 0.01, candidates, n, s, p, f, 0)
+            assert complete and m >= 3
+            np.testing.assert_allclose(n[:m], np.tile(up, (m, 1)), atol=1e-12)
+            assert s[:m].min() == pytest.approx(-depth, abs=1e-12)
+            np.testing.assert_allclose((p[:m] - pm) @ up, -depth / 2, atol=1e-12)  # midway, under the mesh plane
+    for _ in range(40):  # a sphere anywhere, including over edges and vertices: exactly one contact
+        local_c = np.array([*rng.uniform(-0.7, 0.7, 2), 0.1 - depth])
+        local_c[:2] = np.round(local_c[:2] * 2) / 2 if _ % 4 == 0 else local_c[:2]  # right over a grid vertex
+        c = pm + Rm @ local_c
+        n, s, p, f = buffers()
+        m, complete = mesh_capsule_contacts(*mesh_args(mesh), pm, Rm, False, np.array([c, c]), 0.1, 0.01,
+                                            candidates, n, s, p, f, 0)
+        assert complete and m == 1, local_c
+        np.testing.assert_allclose(n[0], up, atol=1e-12)
+        assert s[0] == pytest.approx(-depth, abs=1e-12)

@@ -434,6 +434,28 @@ def hull_capsule_contacts(vertices, adjacency_start, adjacency, face_plane, face
 # ---- hull–triangle ---------------------------------------------------------------------------------------
 
 @njit
+def on_active_feature(triangle, active_edges, x, y, z):
+    """Is the point (x, y, z) of ``triangle (3, 3)`` on one of its active edges (or a vertex of one)?  Barycentric
+    weights (Ericson 3.4): edge e = (v_e, v_(e+1)%3) is where the third vertex's weight is 0; bit e of
+    ``active_edges`` marks it active.  Interior points are on no edge."""
+    ex, ey, ez = triangle[1, 0] - triangle[0, 0], triangle[1, 1] - triangle[0, 1], triangle[1, 2] - triangle[0, 2]
+    fx, fy, fz = triangle[2, 0] - triangle[0, 0], triangle[2, 1] - triangle[0, 1], triangle[2, 2] - triangle[0, 2]
+    px, py, pz = x - triangle[0, 0], y - triangle[0, 1], z - triangle[0, 2]
+    d00 = ex * ex + ey * ey + ez * ez
+    d01 = ex * fx + ey * fy + ez * fz
+    d11 = fx * fx + fy * fy + fz * fz
+    d20 = px * ex + py * ey + pz * ez
+    d21 = px * fx + py * fy + pz * fz
+    denom = d00 * d11 - d01 * d01
+    w1 = (d11 * d20 - d01 * d21) / denom
+    w2 = (d00 * d21 - d01 * d20) / denom
+    w0 = 1.0 - w1 - w2
+    eps = 1e-6
+    return (w2 <= eps and (active_edges & 1) != 0) or (w0 <= eps and (active_edges & 2) != 0) \
+        or (w1 <= eps and (active_edges & 4) != 0)
+
+
+@njit
 def triangle_hull_contacts(triangle, active_edges, two_sided,
                            vertices, adjacency_start, adjacency, face_plane, face_vertex_start, face_vertices,
                            position, rotation, margin, normal, separation, point, feature, m):
@@ -446,7 +468,8 @@ def triangle_hull_contacts(triangle, active_edges, two_sided,
     :data:`GHOST_NORMAL_ANGLE` of the triangle's face normal, the contact becomes a face contact with the
     triangle's face as reference (Jolt's "active edges"; Bullet's internal-edge utility does the same with the
     normal).  A one-sided triangle (``two_sided`` False: a closed mesh or a terrain) always pushes towards its
-    front; a two-sided one towards the side the hull's centre is on."""
+    front (an edge contact whose normal points behind it becomes a face contact too); a two-sided one towards the
+    side the hull's centre is on."""
     ex, ey, ez = triangle[1, 0] - triangle[0, 0], triangle[1, 1] - triangle[0, 1], triangle[1, 2] - triangle[0, 2]
     fx, fy, fz = triangle[2, 0] - triangle[0, 0], triangle[2, 1] - triangle[0, 1], triangle[2, 2] - triangle[0, 2]
     nx, ny, nz = ey * fz - ez * fy, ez * fx - ex * fz, ex * fy - ey * fx
@@ -485,27 +508,21 @@ def triangle_hull_contacts(triangle, active_edges, two_sided,
     use_b = best_b > front_sep + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(front_sep)
     face_sep = best_b if use_b else front_sep
     edge = sep > face_sep + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(face_sep)
+    if edge or use_b:
+        # the contact normal (A to B) and how far it is from the triangle's face normal
+        if not edge:
+            cx, cy, cz, _ = _world_plane(face_plane, fb, position, rotation)
+            cx, cy, cz = -cx, -cy, -cz
+        along = cx * planes[front, 0] + cy * planes[front, 1] + cz * planes[front, 2]
+        if along < math.cos(GHOST_NORMAL_ANGLE) or (not two_sided and along <= 0.0):
+            # the triangle's feature in the contact (EPA / GJK witness a): a ghost unless an active edge
+            if not two_sided and along <= 0.0 or not on_active_feature(triangle, active_edges, ax, ay, az):
+                edge = use_b = False  # the triangle's face instead
+        elif edge:
+            edge = False  # nearly the face normal: the face contact
     if edge:
-        # which triangle feature is the witness on? barycentric weights of a (Ericson 3.4)
-        px, py, pz = ax - triangle[0, 0], ay - triangle[0, 1], az - triangle[0, 2]
-        d00 = ex * ex + ey * ey + ez * ez
-        d01 = ex * fx + ey * fy + ez * fz
-        d11 = fx * fx + fy * fy + fz * fz
-        d20 = px * ex + py * ey + pz * ez
-        d21 = px * fx + py * fy + pz * fz
-        denom = d00 * d11 - d01 * d01
-        w1 = (d11 * d20 - d01 * d21) / denom
-        w2 = (d00 * d21 - d01 * d20) / denom
-        w0 = 1.0 - w1 - w2
-        eps = 1e-6
-        on_edge0, on_edge1, on_edge2 = w2 <= eps, w0 <= eps, w1 <= eps  # edge e = (v_e, v_e+1)
-        active = (on_edge0 and (active_edges & 1) != 0) or (on_edge1 and (active_edges & 2) != 0) \
-            or (on_edge2 and (active_edges & 4) != 0)
-        fn0, fn1, fn2 = planes[front, 0], planes[front, 1], planes[front, 2]
-        if active and cx * fn0 + cy * fn1 + cz * fn2 < math.cos(GHOST_NORMAL_ANGLE):
-            return write_point(normal, separation, point, feature, m, cx, cy, cz, sep, 0.5 * (ax + bx),
-                               0.5 * (ay + by), 0.5 * (az + bz), edge_feature)
-        use_b = False  # a ghost: the triangle's face instead
+        return write_point(normal, separation, point, feature, m, cx, cy, cz, sep, 0.5 * (ax + bx), 0.5 * (ay + by),
+                           0.5 * (az + bz), edge_feature)
     if use_b:
         return face_contact(vertices, face_plane, face_vertex_start, face_vertices, position, rotation, fb,
                             triangle, planes, loop_start, loops, origin, identity, True, best_b, margin, normal,
