@@ -22,10 +22,10 @@ EPA keeps that polytope as triangles with outward normals and, repeatedly:
 
 The witness points are the barycentric combination, over the face's three vertices, of their A and B support
 points at the origin's projection d n on the face.  Capacity: :data:`MAX_VERTICES` vertices and
-:data:`MAX_FACES` faces (a polytope pair needs a few more iterations than the Minkowski face has vertices; the
-result when the cap is hit is the best face so far, flagged not converged).  A Minkowski difference without
-volume (a point or segment core against a triangle, two coplanar triangles) has depth 0: EPA returns 0 and that
-flat set's normal.
+:data:`MAX_FACES` faces, the slots of removed faces reused (a polytope pair needs a few more iterations than the
+Minkowski face has vertices; the result when the cap is hit is the best face so far, flagged not converged).  A
+Minkowski difference without volume (a point or segment core against a triangle, two coplanar triangles) has
+depth 0: EPA returns 0 and that flat set's normal.
 
 Arrays as in :mod:`.gjk`.  Sign conventions: ``normal`` points from A to B; ``point_a`` (on A) lies ``depth``
 beyond ``point_b`` (on B) along the normal: ``point_a − point_b = depth · normal``.
@@ -41,8 +41,9 @@ from ..jit import njit
 from .gjk import gjk, support_point, witness_points
 
 #: polytope capacity
-MAX_VERTICES = 128
-MAX_FACES = 1024
+MAX_VERTICES = 96
+#: a closed triangulated polytope of V vertices has 2V − 4 faces; removed faces' slots are reused
+MAX_FACES = 2 * MAX_VERTICES + 8
 #: step 3: a support point no further than TOLERANCE × (the polytope's size) beyond the closest face stops EPA
 TOLERANCE = 1e-11
 
@@ -258,13 +259,17 @@ def epa(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
                 if not shared:
                     horizon[nhorizon, 0], horizon[nhorizon, 1] = u, v
                     nhorizon += 1
-        if nfaces + nhorizon > MAX_FACES:
+        if nfaces + max(nhorizon - nremoved, 0) > MAX_FACES:
             for r in range(nremoved):  # no room: undo and stop with the best face so far
                 alive[removed[r]] = True
             break
-        for e in range(nhorizon):
-            _face(pa, pb, horizon[e, 0], horizon[e, 1], nverts, face, normal, distance, alive, nfaces)
-            nfaces += 1
+        for e in range(nhorizon):  # the new faces, in the removed faces' slots first
+            if e < nremoved:
+                slot = removed[e]
+            else:
+                slot = nfaces
+                nfaces += 1
+            _face(pa, pb, horizon[e, 0], horizon[e, 1], nverts, face, normal, distance, alive, slot)
         scale = max(scale, abs(wx) + abs(wy) + abs(wz))
         nverts += 1
 

@@ -183,15 +183,15 @@ def _origin_outside(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
 
 
 @njit
-def closest_on_simplex(simplex_a, simplex_b, simplex_ia, simplex_ib, count, weights):
+def closest_on_simplex(simplex_a, simplex_b, simplex_ia, simplex_ib, count, weights, w, lam):
     """Reduce the simplex W = {a_i − b_i, i < count} to the smallest sub-simplex whose hull holds the point of
     W's hull closest to the origin, in place (kept entries first, ``weights`` their barycentric weights), and
-    return the new count; 4 means the tetrahedron contains the origin (the shapes overlap)."""
-    w = np.empty((4, 3))
+    return the new count; 4 means the tetrahedron contains the origin (the shapes overlap).  ``w (4, 3)`` and
+    ``lam (4,)`` are scratch (the caller's, so that a GJK iteration allocates nothing)."""
     for i in range(count):
         for r in range(3):
             w[i, r] = simplex_a[i, r] - simplex_b[i, r]
-    lam = np.zeros(4)
+    lam[:] = 0.0
     if count == 1:
         lam[0] = 1.0
     elif count == 2:  # Ericson 5.1.2 (closest point on a segment), p = 0
@@ -278,6 +278,7 @@ def gjk(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
     max_w2 = _dot(vx, vy, vz, vx, vy, vz)
     keep_a, keep_b = np.empty((4, 3)), np.empty((4, 3))
     keep_ia, keep_ib, keep_w = np.empty(4, np.int64), np.empty(4, np.int64), np.empty(4)
+    scratch_w, scratch_lam = np.empty((4, 3)), np.empty(4)
     iterations = 0
     while iterations < MAX_ITERATIONS:
         iterations += 1
@@ -309,7 +310,8 @@ def gjk(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
         simplex_ia[count], simplex_ib[count] = ia, ib
         count += 1
         max_w2 = max(max_w2, _dot(wx, wy, wz, wx, wy, wz))
-        count = closest_on_simplex(simplex_a, simplex_b, simplex_ia, simplex_ib, count, weights)
+        count = closest_on_simplex(simplex_a, simplex_b, simplex_ia, simplex_ib, count, weights, scratch_w,
+                                   scratch_lam)
         if count == 4:
             return count, True, iterations  # criterion 4: the origin is inside the tetrahedron
         nx = ny = nz = 0.0

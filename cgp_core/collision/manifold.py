@@ -57,7 +57,7 @@ import numpy as np
 
 from ..jit import njit
 from .box_box import AXIS_ABSOLUTE_TOLERANCE, AXIS_RELATIVE_TOLERANCE
-from .convex import MAX_FACE_VERTICES
+from .convex import BRUTE_FORCE_SUPPORT_VERTICES
 from .epa import epa
 from .gjk import gjk, support_point
 from .narrowphase import CAPSULE_PARALLEL_SINE, write_point
@@ -66,8 +66,6 @@ FACE_FEATURE = np.int64(1) << np.int64(62)
 EDGE_FEATURE = np.int64(1) << np.int64(61)
 #: a reference-side label in the clip codes (incident edges are 0..254)
 _REFERENCE_SIDE = 256
-#: clip buffer rows: the incident polygon grows by at most one vertex per reference side
-_CLIP_CAPACITY = 2 * MAX_FACE_VERTICES + 2
 
 #: hull–triangle: a contact normal within this angle of the triangle's face normal is replaced by it (rad)
 GHOST_NORMAL_ANGLE = math.radians(20.0)
@@ -126,18 +124,52 @@ def _world_vertex(vertices, i, position, rotation):
 
 
 @njit
-def best_face(face_plane, position, rotation, vertices_o, adjacency_start_o, adjacency_o, position_o, rotation_o):
+def best_face(face_plane, position, rotation, vertices_o, adjacency_start_o, adjacency_o, position_o, rotation_o,
+              stop):
     """SAT over one hull's faces (Ericson 4.4): the face whose plane the other hull (``_o``) is farthest beyond,
-    ``(face, separation)``; separation = n · support_other(−n) − d (negative: overlap along n)."""
+    ``(face, separation)``; separation = n · support_other(−n) − d (negative: overlap along n).  Returns at the
+    first face whose separation exceeds ``stop`` (a separating axis: the caller needs no more).
+
+    Computed in this hull's frame: the other's vertices are turned into it once (Rᵀ (R_o v + p_o − p)), so a face
+    costs one dot product per vertex; an other hull of more than
+    :data:`.convex.BRUTE_FORCE_SUPPORT_VERTICES` vertices is asked for its support point by hill climbing."""
+    k = len(vertices_o)
     best_f, best = np.int64(0), -np.inf
-    start = np.int64(0)
+    if k > BRUTE_FORCE_SUPPORT_VERTICES and len(adjacency_o) > 0:
+        start = np.int64(0)
+        for f in range(len(face_plane)):
+            nx, ny, nz, d = _world_plane(face_plane, f, position, rotation)
+            start, sx, sy, sz = support_point(vertices_o, adjacency_start_o, adjacency_o, position_o, rotation_o,
+                                              -nx, -ny, -nz, start)
+            s = nx * sx + ny * sy + nz * sz - d
+            if s > best:
+                best_f, best = f, s
+                if s > stop:
+                    return best_f, best
+        return best_f, best
+    # the relative pose: M = Rᵀ R_o, t = Rᵀ (p_o − p)
+    M = np.empty((3, 3))
+    t = np.empty(3)
+    for i in range(3):
+        t[i] = rotation[0, i] * (position_o[0] - position[0]) + rotation[1, i] * (position_o[1] - position[1]) \
+            + rotation[2, i] * (position_o[2] - position[2])
+        for j in range(3):
+            M[i, j] = rotation[0, i] * rotation_o[0, j] + rotation[1, i] * rotation_o[1, j] \
+                + rotation[2, i] * rotation_o[2, j]
+    local = np.empty((k, 3))
+    for v in range(k):
+        for i in range(3):
+            local[v, i] = t[i] + M[i, 0] * vertices_o[v, 0] + M[i, 1] * vertices_o[v, 1] + M[i, 2] * vertices_o[v, 2]
     for f in range(len(face_plane)):
-        nx, ny, nz, d = _world_plane(face_plane, f, position, rotation)
-        start, sx, sy, sz = support_point(vertices_o, adjacency_start_o, adjacency_o, position_o, rotation_o,
-                                          -nx, -ny, -nz, start)
-        s = nx * sx + ny * sy + nz * sz - d
+        nx, ny, nz, d = face_plane[f, 0], face_plane[f, 1], face_plane[f, 2], face_plane[f, 3]
+        low = np.inf
+        for v in range(k):
+            low = min(low, nx * local[v, 0] + ny * local[v, 1] + nz * local[v, 2])
+        s = low - d
         if s > best:
             best_f, best = f, s
+            if s > stop:
+                return best_f, best
     return best_f, best
 
 
@@ -158,13 +190,16 @@ def face_contact(vertices_r, face_plane_r, face_vertex_start_r, face_vertices_r,
         dot = a * nx + b * ny + c * nz
         if dot < most:
             face_i, most = f, dot
-    # the incident polygon in world, with its clip labels (in-edge, out-edge)
-    px, py, pz = np.empty(_CLIP_CAPACITY), np.empty(_CLIP_CAPACITY), np.empty(_CLIP_CAPACITY)
-    lin, lout = np.empty(_CLIP_CAPACITY, np.int64), np.empty(_CLIP_CAPACITY, np.int64)
-    qx, qy, qz = np.empty(_CLIP_CAPACITY), np.empty(_CLIP_CAPACITY), np.empty(_CLIP_CAPACITY)
-    qin, qout = np.empty(_CLIP_CAPACITY, np.int64), np.empty(_CLIP_CAPACITY, np.int64)
+    # the incident polygon in world, with its clip labels (in-edge, out-edge); clipping a convex polygon by a
+    # plane adds at most one vertex, so the loop plus one per reference side fits — twice that, and a check
+    # below, for a polygon that round-off has made slightly non-convex
     i0, i1 = face_vertex_start_i[face_i], face_vertex_start_i[face_i + 1]
     k = i1 - i0
+    capacity = 2 * (k + face_vertex_start_r[face_r + 1] - face_vertex_start_r[face_r]) + 4
+    px, py, pz = np.empty(capacity), np.empty(capacity), np.empty(capacity)
+    lin, lout = np.empty(capacity, np.int64), np.empty(capacity, np.int64)
+    qx, qy, qz = np.empty(capacity), np.empty(capacity), np.empty(capacity)
+    qin, qout = np.empty(capacity, np.int64), np.empty(capacity, np.int64)
     for s in range(k):
         px[s], py[s], pz[s] = _world_vertex(vertices_i, face_vertices_i[i0 + s], position_i, rotation_i)
         lin[s], lout[s] = (s - 1) % k, s
@@ -184,6 +219,8 @@ def face_contact(vertices_r, face_plane_r, face_vertex_start_r, face_vertices_r,
         offset = sx * rx[side] + sy * ry[side] + sz * rz[side]
         out = 0
         for s in range(k):
+            if out + 2 > capacity:
+                break  # never for a convex polygon (see above)
             t = (s + 1) % k
             ds = sx * px[s] + sy * py[s] + sz * pz[s] - offset
             dt = sx * px[t] + sy * py[t] + sz * pz[t] - offset
@@ -317,11 +354,11 @@ def hull_hull_contacts(vertices_a, adjacency_start_a, adjacency_a, face_plane_a,
     """Hull A vs hull B: up to 4 points (see the module docstring), normal from A to B; returns the next free
     row."""
     fa, best_a = best_face(face_plane_a, position_a, rotation_a, vertices_b, adjacency_start_b, adjacency_b,
-                           position_b, rotation_b)
+                           position_b, rotation_b, margin)
     if not best_a < margin:
         return m
     fb, best_b = best_face(face_plane_b, position_b, rotation_b, vertices_a, adjacency_start_a, adjacency_a,
-                           position_a, rotation_a)
+                           position_a, rotation_a, margin)
     if not best_b < margin:
         return m
     sep, nx, ny, nz, ax, ay, az, bx, by, bz, edge_feature = signed_distance(
@@ -497,7 +534,7 @@ def triangle_hull_contacts(triangle, active_edges, two_sided,
     if not front_sep < margin:
         return m
     fb, best_b = best_face(face_plane, position, rotation, triangle, no_adjacency, no_adjacency[:0], origin,
-                           identity)
+                           identity, margin)
     if not best_b < margin:
         return m
     sep, cx, cy, cz, ax, ay, az, bx, by, bz, edge_feature = signed_distance(
