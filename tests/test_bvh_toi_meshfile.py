@@ -205,6 +205,19 @@ def test_a_fast_hull_against_a_thin_wall_hits_at_the_closed_form_time():
     assert hit and t == pytest.approx((1.0 - 0.0025 - reach_x - 1e-3) / 5.0, abs=1e-5 / 5.0)
 
 
+def test_a_fast_hull_meets_a_single_triangle_wall():
+    """The bullet scene's one-triangle mesh wall: a hull at 300 m/s (5 m per 60 Hz step) starting 1 m before a
+    triangle across its path meets it at the closed-form time (the triangle is a 3-vertex core)."""
+    rock = convex_hull(np.random.default_rng(4).normal(size=(20, 3)) * 0.1)
+    triangle = np.array([[0.0, -2.0, -2.0], [0.0, 2.0, -2.0], [0.0, 0.0, 2.0]])
+    t, sep, n, hit, _ = time_of_impact(rock.vertices, rock.adjacency_start, rock.adjacency, np.array([-1.0, 0, 0]),
+                                       EYE, np.array([300.0, 0, 0]), np.zeros(3), 0.0, *core(triangle), np.zeros(3),
+                                       EYE, np.zeros(3), np.zeros(3), 0.0, 1 / 60, 1e-3, 1e-5)
+    reach_x = rock.vertices[:, 0].max()
+    assert hit and t == pytest.approx((1.0 - reach_x - 1e-3) / 5.0, abs=1e-5 / 5.0)
+    np.testing.assert_allclose(n, [1, 0, 0], atol=1e-9)
+
+
 # ---- mesh files -----------------------------------------------------------------------------------------
 
 def test_shipped_meshes_read_back():

@@ -13,6 +13,7 @@ from cgp_core.collision.convex import (
     HullError,
     HullSet,
     box_hull,
+    centred_hull,
     convex_hull,
     support_index,
 )
@@ -228,3 +229,18 @@ def test_a_turned_part_contributes_its_turned_tensor():
     M, com, J = compound_mass_properties([2.0], [[0.3, 0.0, 0.0]], [R], [Jc])
     np.testing.assert_allclose(com, [0.3, 0, 0])
     np.testing.assert_allclose(J, np.diag([Jc[2, 2], Jc[0, 0], Jc[0, 0]]), atol=1e-15)
+
+
+def test_centred_hull_is_about_its_centre_of_mass():
+    rng = np.random.default_rng(8)
+    hull = convex_hull(random_points(rng, 30) + [1.0, 2.0, 3.0])
+    centred, mass, com, inertia = centred_hull(hull, density=1000.0)
+    np.testing.assert_allclose(centred.vertices + com, hull.vertices, atol=1e-15)
+    # about the new origin: the first moments vanish, the tensor is the same
+    m2, com2, inertia2, _ = polyhedron_mass_properties(centred.vertices, centred.triangles, density=1000.0)
+    assert m2 == pytest.approx(mass, rel=1e-12)
+    np.testing.assert_allclose(com2, 0.0, atol=1e-14)
+    np.testing.assert_allclose(inertia2, inertia, rtol=1e-10, atol=1e-14)
+    # the planes moved with the vertices
+    on = np.abs(centred.vertices @ centred.face_plane[:, :3].T - centred.face_plane[:, 3]) <= 1e-12
+    assert (on.sum(axis=1) >= 3).all()

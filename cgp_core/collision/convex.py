@@ -307,3 +307,19 @@ def support_index(vertices, adjacency_start, adjacency, dx, dy, dz, start):
             if s > best:
                 current, best, moved = j, s, True
     return current
+
+
+def centred_hull(hull: ConvexPolyhedron, *, mass=None, density=None,
+                 what: str = "points") -> tuple[ConvexPolyhedron, float, np.ndarray, np.ndarray]:
+    """A hull as a body's collision shape: its exact mass properties (:func:`cgp_core.inertia.
+    polyhedron_mass_properties`, over qhull's outward triangles) and the hull shifted so that its COM is the
+    frame's origin (the body frame: COM-centred, the input's axes — not principal axes).
+
+    Returns ``(hull about its COM, mass, com (3,) in the input frame, inertia (3, 3) about the COM)``; give
+    exactly one of ``mass`` [kg] and ``density`` [kg/m³].
+    """
+    from ..inertia import polyhedron_mass_properties
+
+    body_mass, com, inertia, _ = polyhedron_mass_properties(hull.vertices, hull.triangles, mass=mass,
+                                                            density=density, what=what)
+    return hull.shifted(com), body_mass, com, inertia
