@@ -36,7 +36,7 @@ TF2_MSGS_SRC := $(shell find msgs_config/upstream/tf2_msgs -type f) tools/build_
 SIMULATION_INTERFACES_SRC := $(shell find msgs_config/upstream/simulation_interfaces -type f) tools/build_msgs.py
 PROJECT_SRC := setup.py setup.cfg package.xml README.md resource/cgp_sim_ros scripts/sim_node \
 	$(shell find cgp_core cgp_sim_ros msgs_config -type f \( -name '*.py' -o -name '*.yaml' -o -name '*.stl' \
-	-o -name '*.dae' -o -name '*.json' \) -not -path '*/__pycache__/*' -not -path 'msgs_config/cgp_sim_msgs/*' \
+	-o -name '*.obj' -o -name '*.dae' -o -name '*.json' \) -not -path '*/__pycache__/*' -not -path 'msgs_config/cgp_sim_msgs/*' \
 	-not -path 'msgs_config/upstream/*')
 REQUIREMENTS := $(ROS_REQUIREMENTS) requirements/python.txt requirements/dev.txt
 
