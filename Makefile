@@ -85,11 +85,16 @@ $(STAMPS)/project: $(STAMPS)/msgs $(STAMPS)/msgs-tf2_msgs $(STAMPS)/msgs-simulat
 run: setup
 	@$(VENV)/bin/cgp-sim --bag "$(BAG_DIR)" --foxglove true $(ARGS)
 
+# The in-process tests import the checkout (pytest.ini: pythonpath = .), whose numba cache is not the installed
+# copy's that `make setup` fills: it is compiled first, in parallel worker processes (a second or two when nothing
+# changed), so that no test compiles the kernels one by one inside its own time limit.
 # Two pytest-xdist workers (TEST_WORKERS=1 for one process): most of the suite's wall time is tests waiting on
 # node processes, which two workers overlap; each worker's nodes live in a ROS domain of their own
 # (tests/conftest.py).  Files are the unit of distribution, so a module's shared node starts once.
 TEST_WORKERS ?= 2
 test: setup
+	@echo "test: compiling the checkout's kernels (in-process tests import the checkout, not the installed copy)"
+	@$(VPY) -m cgp_sim_ros.warmup
 	@$(VPY) -m pytest tests $(if $(filter-out 1,$(TEST_WORKERS)),-n $(TEST_WORKERS) --dist loadfile)
 
 # The soak test (tests/test_soak.py) runs CGP_SIM_SOAK_SECONDS of wall time (default 900); it is read from the
