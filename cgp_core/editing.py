@@ -23,6 +23,7 @@ import numpy as np
 
 from .bodies import BodyModel, BodyState, Shape
 from .geometry import box_distance, capsule_distance, sphere_distance
+from .limits import MAX_COORDINATE
 from .rotation import quat_to_matrix
 
 __all__ = ["EditError", "EntityState", "WORLD_FRAMES", "concatenate_bodies", "select_bodies", "name_filter",
@@ -126,8 +127,14 @@ def check_pose(position, orientation, what: str = "pose") -> tuple[np.ndarray, n
     q = np.asarray(orientation, dtype=float).reshape(4)
     if not np.isfinite(p).all():
         raise EditError("invalid_pose", f"{what}.position must be finite, got {p.tolist()}")
+    if not (np.abs(p) <= MAX_COORDINATE).all():
+        raise EditError("invalid_pose", f"{what}.position must be within ±{MAX_COORDINATE:g} m on every axis (what "
+                        f"cgp_sim simulates: cgp_core.limits), got {p.tolist()}")
     if not np.isfinite(q).all():
         raise EditError("invalid_pose", f"{what}.orientation must be finite, got {q.tolist()}")
+    scale = float(np.abs(q).max())
+    if scale > 1.0:  # |q| of huge components would overflow to inf (and q / inf is a zero quaternion)
+        q = q / scale
     norm = float(np.linalg.norm(q))
     if norm < 1e-9:
         raise EditError("invalid_pose", f"{what}.orientation is a zero quaternion (x, y, z, w); the identity is "
@@ -135,10 +142,17 @@ def check_pose(position, orientation, what: str = "pose") -> tuple[np.ndarray, n
     return p, q / norm
 
 
-def check_vector(value, what: str) -> np.ndarray:
+def check_vector(value, what: str, max_norm: float | None = None, unit: str = "") -> np.ndarray:
+    """A finite (3,) vector, of magnitude at most ``max_norm`` if given; :class:`EditError` ``invalid_pose``."""
     v = np.asarray(value, dtype=float).reshape(3)
     if not np.isfinite(v).all():
         raise EditError("invalid_pose", f"{what} must be finite, got {v.tolist()}")
+    if max_norm is not None:
+        with np.errstate(over="ignore"):
+            norm = float(np.linalg.norm(v))
+        if not norm <= max_norm:
+            raise EditError("invalid_pose", f"{what}: its magnitude must be at most {max_norm:g} {unit} (what cgp_sim "
+                            f"simulates: cgp_core.limits), got {norm:g}")
     return v
 
 
