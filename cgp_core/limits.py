@@ -34,7 +34,16 @@ MAX_YAML_NODES = 1_000_000
 #: body / flock names become parts of topic names (``~/bodies/<body>/odom``), which DDS limits in length
 MAX_NAME_LENGTH = 64
 MAX_BODIES = 10_000
-MAX_BOIDS_PER_FLOCK = 1_000_000
+#: boids of one flock, and of all flocks of a world together.  Issue 27 measured a million-boid flock (at a density
+#: within MAX_EXPECTED_NEIGHBORS) at ~1.8 s per step in-process on 2 cores, before its 56 MB of poses per tick
+#: are published and recorded: the node answers requests only between ticks.  100,000 boids step in ~0.2 s.
+MAX_BOIDS_PER_FLOCK = 100_000
+MAX_BOIDS = 200_000
+#: the brute-force neighbour search (neighbor_search: brute, the O(N²) reference) is for small flocks only:
+#: 40,000 boids took 8-20 s a step
+MAX_BOIDS_BRUTE = 5_000
+#: particles of one particle body: 100,000 step in ~0.2 s (on the ground or in the air) since the broad phase
+#: skips a body's own particles (cgp_core.collision.broadphase.sweep_and_prune_kernel)
 MAX_PARTICLES_PER_BODY = 100_000
 #: a flock's expected neighbours per boid, N · (4/3)π r³ / V, at its spawn density (V: the spawn box, each side
 #: at least 2 r) and, with walls (soft / wrap bounds), at the density of its bounds box: the work of a flock

@@ -78,6 +78,8 @@ from .integrators import DEFAULT_INTEGRATOR, INTEGRATORS
 from .limits import (
     MAX_ACCELERATION,
     MAX_BODIES,
+    MAX_BOIDS,
+    MAX_BOIDS_BRUTE,
     MAX_BOIDS_PER_FLOCK,
     MAX_COORDINATE,
     MAX_DAMPING,
@@ -292,6 +294,9 @@ def scene_from_dict(data: Any, source: str = "<dict>") -> Scene:
     world = _parse_world(v, data.get("world", {}))
     bodies = _parse_bodies(v, data.get("bodies", []))
     flocks = _parse_flocks(v, data.get("flocks", []), reserved={b.name for b in bodies})
+    total = sum(f.count for f in flocks)
+    if total > MAX_BOIDS:
+        v.fail("flocks", f"{total} boids in all; a world holds at most {MAX_BOIDS} (cgp_core.limits)")
     v.raise_if_any()
     return Scene(source=source, world=world, bodies=bodies, flocks=flocks)
 
@@ -827,6 +832,10 @@ def _parse_flock(v: _Validator, raw: Any, key: str, seen: set[str]):
         params = FlockParams(**kwargs)
     except ValueError as exc:
         v.fail(key, str(exc).split(": ", 1)[-1])
+        return None
+    if params.neighbor_search == "brute" and params.count > MAX_BOIDS_BRUTE:
+        v.fail(f"{key}.neighbor_search", f"brute (the O(N²) reference search) is for flocks of at most "
+               f"{MAX_BOIDS_BRUTE} boids (cgp_core.limits), this one has {params.count}: use grid or kdtree")
         return None
     crowding = flock_crowding(params)
     if crowding is not None:

@@ -63,7 +63,7 @@ from .editing import (
     select_bodies,
 )
 from .integrators import make_integrator
-from .limits import BLOWUP_SPEED, BLOWUP_SPIN, MAX_COORDINATE, MAX_SPEED, MAX_SPIN
+from .limits import BLOWUP_SPEED, BLOWUP_SPIN, MAX_BOIDS, MAX_COORDINATE, MAX_SPEED, MAX_SPIN
 from .rotation import quat_conjugate, quat_rotate, quat_to_matrix
 from .scene import MAX_BODIES, MAX_NAME_LENGTH, ROS_SAFE_NAME, Scene, load_scene, spawn_entry
 from .sleep import SLEEP_SPEED, SLEEP_TIME, Islands
@@ -436,6 +436,10 @@ class World:
         limit are checked again (the world may have changed meanwhile).  Returns the kind."""
         self.check_new_name(prepared.name)
         if prepared.kind == "flock":
+            boids = sum(len(f.positions) for f in self.flocks)
+            if boids + len(prepared.flock.positions) > MAX_BOIDS:
+                raise EditError("not_possible", f"the world has {boids} boids; with {len(prepared.flock.positions)} "
+                                f"more it would pass the most it holds ({MAX_BOIDS}: cgp_core.limits)")
             self.flocks = [*self.flocks, prepared.flock]
             self._flock_mean_velocity_start.append(self.flocks[-1].mean_velocity())
         else:
