@@ -147,8 +147,8 @@ def check_vector(value, what: str, max_norm: float | None = None, unit: str = ""
     if not np.isfinite(v).all():
         raise EditError("invalid_pose", f"{what} must be finite, got {v.tolist()}")
     if max_norm is not None:
-        with np.errstate(over="ignore"):
-            norm = float(np.linalg.norm(v))
+        scale = float(np.abs(v).max())
+        norm = scale * float(np.linalg.norm(v / scale)) if scale > 0.0 else 0.0  # no overflow to inf
         if not norm <= max_norm:
             raise EditError("invalid_pose", f"{what}: its magnitude must be at most {max_norm:g} {unit} (what cgp_sim "
                             f"simulates: cgp_core.limits), got {norm:g}")
