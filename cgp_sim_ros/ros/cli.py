@@ -18,12 +18,12 @@ existing bag directory), with the reason on stderr and nothing published.
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import socket
 import sys
 import threading
 import time
+from os import _exit as exit_now  # the process ends at once: no atexit, no DDS teardown (see StopWatchdog)
 
 from .. import interface as itf
 
@@ -69,14 +69,14 @@ class StopWatchdog:
                 return
             _say("the shutdown took longer than its deadline: exiting now (the bag may lack its summary: "
                  "cgp-sim-render and mcap read it anyway)")
-            os._exit(0)
+            exit_now(0)
         from .recorder import OPEN_RECORDERS
 
         _say(f"the current tick is still running {STOP_GRACE_S:g} s after the signal: stopping without it")
         for recorder in list(OPEN_RECORDERS):
             recorder.close(timeout=max(0.05, STOP_DEADLINE_S - 0.05 - (time.monotonic() - signalled)))
             _say(recorder.summary_text().removeprefix("cgp-sim: "))
-        os._exit(0)
+        exit_now(0)
 
 
 def _say(text: str) -> None:
