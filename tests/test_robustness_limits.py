@@ -20,7 +20,7 @@ import pytest
 
 from cgp_core import limits
 from cgp_core.editing import EditError, name_filter
-from cgp_core.scene import SceneError, load_scene, parse_scene, spawn_entry
+from cgp_core.scene import SceneError, load_scene, parse_scene, scene_from_dict, spawn_entry
 from cgp_core.world import World
 from cgp_sim_ros.wire import cdr
 
@@ -88,8 +88,10 @@ def test_yaml_is_bounded_in_bytes_depth_and_nodes_before_it_is_built():
 
     with pytest.raises(UserInputError, match=f"at most {limits.MAX_YAML_BYTES} are parsed"):
         load_yaml("a" * (limits.MAX_YAML_BYTES + 1))
-    with pytest.raises(UserInputError, match=f"more than {limits.MAX_YAML_NODES} YAML nodes"):
-        load_yaml("[" + "0," * (limits.MAX_YAML_NODES + 1) + "]")
+    with pytest.raises(UserInputError, match="line 1, column 2000: more than 1000 YAML nodes"):
+        load_yaml("[" + "0," * 2000 + "]", max_nodes=1000)  # (the bound is a parameter: the default 1e6 is slow)
+    with pytest.raises(UserInputError, match="line 1, column 41: YAML nested deeper than 40 levels"):
+        load_yaml("[" * 41 + "]" * 41, max_depth=40)
 
 
 # ---- finding 5: deep nesting ------------------------------------------------------------------------------
@@ -180,8 +182,8 @@ def test_a_particle_body_costs_nothing_among_its_own_particles():
     # and a 100,000-particle body steps (on the ground) and stays finite
     particles = np.column_stack([rng.uniform(-1, 1, (limits.MAX_PARTICLES_PER_BODY, 3)),
                                  np.full(limits.MAX_PARTICLES_PER_BODY, 0.01)]).tolist()
-    world = World(parse_scene(json.dumps({"bodies": [{"name": "p", "shape": "particles", "radius": 0.05,
-                                                       "particles": particles, "position": [0, 0, 0.9]}]})))
+    world = World(scene_from_dict({"bodies": [{"name": "p", "shape": "particles", "radius": 0.05,
+                                               "particles": particles, "position": [0, 0, 0.9]}]}))
     for _ in range(2):
         world.step()
     assert np.isfinite(world.body_state.position).all() and world.take_events() == []

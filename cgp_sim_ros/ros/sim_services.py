@@ -12,7 +12,11 @@ an edit the node makes its per-body endpoints follow (:meth:`SimNode.world_edite
 - Every call is a line on ``~/events`` (and so in the bag): service, request summary, result code and message.
 - Nothing blocks the executor for long: ``step_simulation`` and the ``simulate_steps`` action are coroutines
   that wait for the node's timer to tick the paused world ``steps`` times (at ``rate_hz``, or back to back
-  with ``realtime: false``) and reply when the last tick is done.
+  with ``realtime: false``) and reply when the last tick is done.  ``spawn_entity`` is a coroutine too: reading the
+  ``uri`` (a regular file only, size-capped: :mod:`cgp_core.user_input`), parsing the YAML (bounded in bytes,
+  depth and nodes), validating it and building the entity (a big flock's initial state) run on the spawn worker
+  thread while the node ticks; the entity is added between two ticks (issue 27: one request must never stop the
+  world).  User regexes are matched in linear time (:func:`cgp_core.editing.name_filter`).
 
 Simulation states (``SimulationState``): PLAYING (ticking), PAUSED (time stopped), STOPPED (paused and reset
 to the scene as loaded; the state a paused world is in until it ticks or is set PAUSED / PLAYING), QUITTING
@@ -23,9 +27,11 @@ reset or STOPPED keeps the clock running (no ``SCOPE_TIME``), so TF buffers and 
 from __future__ import annotations
 
 import inspect
+import queue
+import threading
 import time
 import traceback
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future as ThreadFuture
 from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import unquote, urlparse
@@ -135,7 +141,7 @@ class SimulationInterfaces:
         self._quit_at: float | None = None
         self._job: _SteppingJob | None = None
         #: the spawn worker: reads, parses, validates and builds spawned entities off the tick's thread
-        self._spawn_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cgp-sim-spawn")
+        self._spawn_worker = _Worker("cgp-sim-spawn")
         self._spawn_running = False
         self._spawns_waiting = 0
         services = (
@@ -172,7 +178,7 @@ class SimulationInterfaces:
         if self.action_server is not None:
             self.action_server.destroy()
             self.action_server = None
-        self._spawn_worker.shutdown(wait=False, cancel_futures=True)
+        self._spawn_worker.shutdown()
 
     def _guarded(self, name: str, callback):
         """``callback`` that answers OPERATION_FAILED (and logs the traceback) instead of raising: a bug in one
@@ -607,6 +613,33 @@ def _read_uri(uri: str) -> tuple[str, str]:
 def _brief(text: str, limit: int = 200) -> str:
     """repr of a request's string field, cut to ``limit`` characters (a field may be megabytes long)."""
     return repr(text) if len(text) <= limit else repr(text[:limit]) + f"... ({len(text)} characters)"
+
+
+class _Worker:
+    """One daemon thread running submitted calls in order (``submit`` returns a concurrent.futures Future).  Not a
+    ThreadPoolExecutor: the interpreter joins those at exit, and a shutdown would wait for a spawn being parsed."""
+
+    def __init__(self, name: str):
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        threading.Thread(target=self._run, name=name, daemon=True).start()
+
+    def submit(self, fn, *args) -> ThreadFuture:
+        future: ThreadFuture = ThreadFuture()
+        self._jobs.put((future, fn, args))
+        return future
+
+    def shutdown(self) -> None:
+        self._jobs.put(None)
+
+    def _run(self) -> None:
+        while (job := self._jobs.get()) is not None:
+            future, fn, args = job
+            if not future.set_running_or_notify_cancel():
+                continue
+            try:
+                future.set_result(fn(*args))
+            except BaseException as exc:  # noqa: BLE001 - handed to the coroutine that waits for it
+                future.set_exception(exc)
 
 
 class _NextTurn:
