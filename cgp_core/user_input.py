@@ -48,7 +48,7 @@ def read_user_file(path: str | Path, *, max_bytes: int = MAX_FILE_BYTES) -> byte
     try:
         resolved = given.resolve(strict=True)
     except FileNotFoundError:
-        raise UserInputError("no such file") from None
+        raise UserInputError("cannot read: no such file") from None
     except (OSError, RuntimeError) as exc:  # a link loop is a RuntimeError before 3.13
         raise UserInputError(f"cannot resolve the path: {getattr(exc, 'strerror', None) or exc}") from None
     try:

@@ -225,7 +225,7 @@ def test_a_big_particle_body_keeps_the_node_ticking_and_a_too_big_flock_is_refus
         "cloud", f"body: {{shape: particles, radius: 0.05, particles: [{rows}]}}", position=(0, 0, 20)))
     assert response.result.result == OK, response.result.error_message
     try:
-        assert_ticks_on(node, 60, timeout=30)
+        assert_ticks_on(node, 30, timeout=30)
     finally:
         assert sim.delete("cloud").result.result == OK
     refused(sim.spawn("many", "flock: {count: 1000000}"), R.RESOURCE_PARSE_ERROR,
@@ -300,7 +300,7 @@ def test_sigint_in_the_middle_of_a_long_tick_stops_the_node_within_2_s_with_the_
     bag = tmp_path / "bag"
     ticks = probe.subscribe("/long/cgp_sim/bodies/poses", PoseArray, raw=True)  # its own ticks (see above)
     process = start_node("--scene", str(path), "--bag", str(bag), "--ros-args", "-r", "__ns:=/long")
-    probe.spin_until(lambda: len(ticks.messages) >= 3 or not process.alive(), 180, "three ticks")
+    probe.spin_until(lambda: len(ticks.messages) >= 2 or not process.alive(), 180, "two ticks")
     assert process.alive(), process.log()
     gaps = np.diff(ticks.times)
     assert gaps.max() > 2.5, f"the ticks are not long enough to test this: {gaps}\n{process.log()[-2000:]}"

@@ -72,7 +72,7 @@ BAD_SCENES = {
     "integer beyond float": ("bodies: [{name: a, shape: sphere, radius: 1, mass: 1" + "0" * 400 + "}]",
                              "bodies[0] (a).mass", "must be finite"),
     "count above the bound": ("flocks: [{name: f, count: 100000000}]", "flocks[0] (f).count",
-                              "must be <= 1000000"),
+                              "must be <= 100000"),
     # negative / zero mass and sizes
     "negative mass": ("bodies: [{name: a, shape: sphere, radius: 1, mass: -2}]", "bodies[0] (a).mass",
                       "must be > 0, got -2"),
