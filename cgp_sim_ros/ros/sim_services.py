@@ -367,6 +367,11 @@ class SimulationInterfaces:
                                    "(or '')", ""
         if not request.name and not request.allow_renaming:
             return R.NAME_INVALID, "name is empty (and allow_renaming is false)", ""
+        if not request.allow_renaming:  # a name already taken is refused before anything is read
+            try:
+                self.node.world.check_new_name(request.name)
+            except EditError as exc:
+                return (R.NAME_NOT_UNIQUE if exc.kind == "name_taken" else R.NAME_INVALID), str(exc), ""
         if self._spawns_waiting >= MAX_WAITING_SPAWNS:
             return FAILED, f"busy: {self._spawns_waiting} spawn requests are waiting (at most " \
                            f"{MAX_WAITING_SPAWNS}); try again", ""
