@@ -85,5 +85,9 @@ MAX_DAMPING = 1e2
 MAX_FRICTION = 10.0
 #: rolling resistance c_rr
 MAX_ROLLING_RESISTANCE = 1.0
+#: the smallest principal moment of inertia of a body over its largest: a 1 cm x 10 m pole has ~2e-6.  Found by
+#: issue 27's fuzzing: a 1 mm x 1 mm x 10 km box (ratio ~1e-14) spinning at 8,700 rad/s blew up in its first
+#: tick (ω = I⁻¹ L loses every digit of the thin axis).  Particle bodies also keep inertia.SINGULAR_INERTIA_RTOL.
+MIN_INERTIA_RATIO = 1e-6
 #: any other number of a scene (rule weights, gains, time constants) in magnitude
 MAX_MAGNITUDE = 1e6

@@ -97,6 +97,7 @@ from .limits import (
     MAX_SPEED,
     MAX_SPIN,
     MIN_DENSITY,
+    MIN_INERTIA_RATIO,
     MIN_LENGTH,
     MIN_MASS,
 )
@@ -624,6 +625,11 @@ def _parse_body(v: _Validator, raw: Any, key: str, seen: set[str]) -> BodySpec |
             except ValueError as exc:
                 v.fail(f"{key}.particles", str(exc))
             else:
+                moments = np.linalg.eigvalsh(inertia)
+                if not moments.min() >= MIN_INERTIA_RATIO * moments.max():
+                    v.fail(f"{key}.particles", f"principal moments of inertia {moments.min():.3g} .. "
+                           f"{moments.max():.3g} kg m²: a body this thin cannot be simulated (their ratio must be "
+                           f"at least {MIN_INERTIA_RATIO:g}: cgp_core.limits)")
                 spec.mass, spec.inertia_body = total, inertia
                 spec.particles = particles.copy()
                 spec.particles[:, :3] -= com
@@ -636,6 +642,11 @@ def _parse_body(v: _Validator, raw: Any, key: str, seen: set[str]) -> BodySpec |
         except ValueError as exc:
             v.fail(key, str(exc))
         else:
+            moments = np.linalg.eigvalsh(spec.inertia_body)
+            if not moments.min() >= MIN_INERTIA_RATIO * moments.max():
+                v.fail(key, f"principal moments of inertia {moments.min():.3g} .. {moments.max():.3g} kg m²: a body "
+                       f"this thin cannot be simulated (their ratio must be at least {MIN_INERTIA_RATIO:g}: "
+                       "cgp_core.limits; a 1 cm x 10 m pole has 2e-6)")
             if not MIN_MASS <= spec.mass <= MAX_MASS:
                 v.fail(f"{key}.density", f"gives a mass of {spec.mass:g} kg; masses must be in [{MIN_MASS:g}, "
                        f"{MAX_MASS:g}] kg (what cgp_sim simulates: cgp_core.limits)")
@@ -656,6 +667,11 @@ def _parse_body(v: _Validator, raw: Any, key: str, seen: set[str]) -> BodySpec |
                                     max_norm=MAX_SPEED, unit="m/s")
     spec.angular_velocity = v.vector(raw.get("angular_velocity", [0, 0, 0]), f"{key}.angular_velocity", 3,
                                      max_norm=MAX_SPIN, unit="rad/s")
+    rim_speed = float(np.linalg.norm(spec.linear_velocity) + np.linalg.norm(spec.angular_velocity) * body_reach(
+        spec.shape, spec.radius, spec.half_extents))
+    if rim_speed > MAX_SPEED:
+        v.fail(f"{key}.angular_velocity", f"its surface would move at up to {rim_speed:.4g} m/s (|v| + |ω| times "
+               f"its reach); at most {MAX_SPEED:g} m/s (what cgp_sim simulates: cgp_core.limits)")
     spec.restitution = v.number(raw.get("restitution", 0.3), f"{key}.restitution", minimum=0.0, maximum=1.0)
     spec.friction = v.number(raw.get("friction", 0.5), f"{key}.friction", minimum=0.0, default=0.5,
                              within=(0.0, MAX_FRICTION))
@@ -666,6 +682,16 @@ def _parse_body(v: _Validator, raw: Any, key: str, seen: set[str]) -> BodySpec |
         if np.any(spec.color > 1.0):
             v.fail(f"{key}.color", "RGBA components must be in [0, 1]")
     return spec if len(v.problems) == before else None
+
+
+def body_reach(shape, radius: float, half_extents) -> float:
+    """The farthest a body's surface is from its COM [m] (a particle body: a bound, from its half extents)."""
+    half = np.asarray(half_extents, dtype=float)
+    if shape == Shape.SPHERE:
+        return float(radius)
+    if shape == Shape.CAPSULE:
+        return float(half[2] + radius)
+    return float(np.linalg.norm(half))
 
 
 def _parse_particles(v: _Validator, raw: Any, key: str) -> np.ndarray | None:

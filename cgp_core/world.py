@@ -65,7 +65,7 @@ from .editing import (
 from .integrators import make_integrator
 from .limits import BLOWUP_SPEED, BLOWUP_SPIN, MAX_BOIDS, MAX_COORDINATE, MAX_SPEED, MAX_SPIN
 from .rotation import quat_conjugate, quat_rotate, quat_to_matrix
-from .scene import MAX_BODIES, MAX_NAME_LENGTH, ROS_SAFE_NAME, Scene, load_scene, spawn_entry
+from .scene import MAX_BODIES, MAX_NAME_LENGTH, ROS_SAFE_NAME, Scene, body_reach, load_scene, spawn_entry
 from .sleep import SLEEP_SPEED, SLEEP_TIME, Islands
 from .solver import make_solver
 from .wrenches import WrenchCommand, WrenchSchedule, make_command
@@ -475,6 +475,12 @@ class World:
         v = check_vector(linear_velocity, "twist.linear", MAX_SPEED, "m/s")
         w = check_vector(angular_velocity, "twist.angular", MAX_SPIN, "rad/s")
         model, state = self.body_model, self.body_state
+        rim_speed = float(np.linalg.norm(v) + np.linalg.norm(w) * body_reach(
+            model.shape[i], model.radius[i], model.half_extents[i]))
+        if rim_speed > MAX_SPEED:
+            raise EditError("invalid_pose", f"twist: {name}'s surface would move at up to {rim_speed:.4g} m/s "
+                            f"(|v| + |ω| times its reach); at most {MAX_SPEED:g} m/s (what cgp_sim simulates: "
+                            "cgp_core.limits)")
         if model.fixed[i] and (v.any() or w.any()):
             raise EditError("not_possible", f"{name} is fixed: it takes a pose, not a twist (got linear "
                             f"{v.tolist()}, angular {w.tolist()})")
