@@ -60,7 +60,10 @@ SAMPLE_S = 2.0  # RSS sampling period
 #: try-out shorter than 4 min: its first quarter).  Numpy's temporaries, the flock's neighbour grid, Fast DDS'
 #: pools and the bag writer's buffers reach their working size in it (measured: ~15 s of simulated time for
 #: the flock alone, in-process).
-WARMUP_S = max(0.1 * SOAK_SECONDS, min(60.0, 0.25 * SOAK_SECONDS))
+#: Issue 27's hour: the heap (RssAnon) reached its working size ~5 min in (150.9 -> 157.0 -> 152.6 MB, then
+#: 152.6..153.9 for the rest of the hour; RssFile and RssShmem never moved): a 90 s warm-up ended on the way
+#: there, which is what the 15-minute soak's +3.5 % was.  Hence at least 5 min (a quarter of a shorter run).
+WARMUP_S = max(0.1 * SOAK_SECONDS, min(300.0, 0.25 * SOAK_SECONDS))
 RSS_TOLERANCE = 0.02
 CHECK_EVERY = 30  # decode every 30th message of the pose arrays
 BAG_SPLIT_BYTES = 2_000_000_000
