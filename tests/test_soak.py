@@ -56,8 +56,8 @@ SOAK_SECONDS = float(os.environ.get("CGP_SIM_SOAK_SECONDS", "900"))
 RATE_HZ = 60.0
 DT_NS = round(1e9 / RATE_HZ)
 SAMPLE_S = 2.0  # RSS sampling period
-#: warm-up, after which the RSS must stay flat: the first 60 s or 10 % of the run, whichever is longer (a
-#: try-out shorter than 4 min: its first quarter).  Numpy's temporaries, the flock's neighbour grid, Fast DDS'
+#: warm-up, after which the RSS must stay flat: the first 5 min or 10 % of the run, whichever is longer (a
+#: try-out shorter than 20 min: its first quarter).  Numpy's temporaries, the flock's neighbour grid, Fast DDS'
 #: pools and the bag writer's buffers reach their working size in it (measured: ~15 s of simulated time for
 #: the flock alone, in-process).
 #: Issue 27's hour: the heap (RssAnon) reached its working size ~5 min in (150.9 -> 157.0 -> 152.6 MB, then
