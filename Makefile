@@ -36,11 +36,11 @@ TF2_MSGS_SRC := $(shell find msgs_config/upstream/tf2_msgs -type f) tools/build_
 SIMULATION_INTERFACES_SRC := $(shell find msgs_config/upstream/simulation_interfaces -type f) tools/build_msgs.py
 PROJECT_SRC := setup.py setup.cfg package.xml README.md resource/cgp_sim_ros scripts/sim_node \
 	$(shell find cgp_core cgp_sim_ros msgs_config -type f \( -name '*.py' -o -name '*.yaml' -o -name '*.stl' \
-	-o -name '*.dae' -o -name '*.json' \) -not -path '*/__pycache__/*' -not -path 'msgs_config/cgp_sim_msgs/*' \
+	-o -name '*.obj' -o -name '*.dae' -o -name '*.json' \) -not -path '*/__pycache__/*' -not -path 'msgs_config/cgp_sim_msgs/*' \
 	-not -path 'msgs_config/upstream/*')
 REQUIREMENTS := $(ROS_REQUIREMENTS) requirements/python.txt requirements/dev.txt
 
-.PHONY: setup run test soak bench figures lock clean distclean
+.PHONY: setup run test soak fuzz bench figures lock clean distclean
 
 setup: $(STAMPS)/project
 
@@ -85,13 +85,32 @@ $(STAMPS)/project: $(STAMPS)/msgs $(STAMPS)/msgs-tf2_msgs $(STAMPS)/msgs-simulat
 run: setup
 	@$(VENV)/bin/cgp-sim --bag "$(BAG_DIR)" --foxglove true $(ARGS)
 
+# The in-process tests import the checkout (pytest.ini: pythonpath = .), whose numba cache is not the installed
+# copy's that `make setup` fills: it is compiled first, in parallel worker processes (a second or two when nothing
+# changed), so that no test compiles the kernels one by one inside its own time limit.
+# Two pytest-xdist workers (TEST_WORKERS=1 for one process): most of the suite's wall time is tests waiting on
+# node processes, which two workers overlap; each worker's nodes live in a ROS domain of their own
+# (tests/conftest.py).  Files are the unit of distribution, so a module's shared node starts once.
+TEST_WORKERS ?= 2
 test: setup
-	@$(VPY) -m pytest tests
+	@echo "test: compiling the checkout's kernels (in-process tests import the checkout, not the installed copy)"
+	@$(VPY) -m cgp_sim_ros.warmup
+	@$(VPY) -m pytest tests $(if $(filter-out 1,$(TEST_WORKERS)),-n $(TEST_WORKERS) --dist loadfile)
 
 # The soak test (tests/test_soak.py) runs CGP_SIM_SOAK_SECONDS of wall time (default 900); it is read from the
-# environment: `CGP_SIM_SOAK_SECONDS=60 make soak` or `make soak CGP_SIM_SOAK_SECONDS=60`.
+# environment: `CGP_SIM_SOAK_SECONDS=60 make soak` or `make soak CGP_SIM_SOAK_SECONDS=60` (issue 27's one-hour
+# run: `make soak CGP_SIM_SOAK_SECONDS=3600`).
 soak: setup
 	@$(VPY) -m pytest tests -m soak --run-soak -rA  # -rA: show the figures the soak test prints
+
+# Issue 27's fuzzing (tests/test_fuzz_inputs.py: the scene/spawn parser, the command decoders, the Foxglove
+# client-message path, the renderer's marker reader) with FUZZ_EXAMPLES fresh random examples per property
+# (`make test` runs a few dozen fixed ones): `make fuzz FUZZ_EXAMPLES=5000`.  A failure prints the smallest
+# input it found and the blob to reproduce it (@reproduce_failure).
+FUZZ_EXAMPLES ?= 2000
+fuzz: setup
+	@FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(VPY) -m pytest tests/test_fuzz_inputs.py -p no:cacheprovider --timeout=0 -q \
+		--hypothesis-show-statistics
 
 # Re-resolve the requirement files (and the benchmark peers) into the lock; commit the result.
 lock: | $(STAMPS)/venv

@@ -11,6 +11,12 @@ This module is the one home of the lecture's equations
 
 All tensors are about the centre of mass, in body axes, in kg m².  Solid shapes are homogeneous; their body
 axes are the shape's own axes (box edges; capsule and cylinder axis = body z), so their tensors are diagonal.
+
+Beyond the particles and the closed forms: a homogeneous polyhedron bounded by a closed triangle mesh (a convex
+hull, a mesh file), exactly, by the divergence theorem (:func:`polyhedron_mass_properties`: Mirtich 1996,
+Eberly's *Polyhedral Mass Properties*; its axes are the mesh's, so its tensor is full in general), and a body
+made of parts (:func:`compound_mass_properties`): the lecture's J = Σ Jᵢ with each part's own tensor turned into
+the body's axes and moved to the body's COM by the parallel-axis theorem.
 """
 
 from __future__ import annotations
@@ -261,3 +267,157 @@ def shape_mass_properties(shape, *, radius=None, size=None, half_length=None, ma
     if name == "capsule":
         return body_mass, capsule_inertia(body_mass, radius, half_length)
     return body_mass, cylinder_inertia(body_mass, radius, half_length)
+
+
+# ---- polyhedra (closed triangle meshes): Mirtich 1996 / Eberly, "Polyhedral Mass Properties" -------------
+
+class MeshMassError(ValueError):
+    """A triangle mesh whose mass properties are undefined (open, inverted, degenerate); names why."""
+
+
+def closed_surface_problem(triangles: np.ndarray) -> str | None:
+    """Why ``triangles (t, 3)`` is not a closed, consistently oriented surface, or None.  Closed and oriented:
+    every directed edge (u, v) occurs exactly once and its reverse (v, u) exactly once."""
+    if len(triangles) < 4:
+        return f"a closed surface needs at least 4 triangles, got {len(triangles)}"
+    if (triangles[:, 0] == triangles[:, 1]).any() or (triangles[:, 1] == triangles[:, 2]).any() \
+            or (triangles[:, 0] == triangles[:, 2]).any():
+        return "a triangle repeats a vertex"
+    directed = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    key = directed[:, 0].astype(np.int64) * (int(directed.max()) + 1) + directed[:, 1]
+    unique, counts = np.unique(key, return_counts=True)
+    if (counts > 1).any():
+        return "an edge is used twice in the same direction (triangles oriented inconsistently, or non-manifold)"
+    reverse = directed[:, 1].astype(np.int64) * (int(directed.max()) + 1) + directed[:, 0]
+    if not np.isin(reverse, unique).all():
+        return f"{int((~np.isin(reverse, unique)).sum())} edge(s) border only one triangle (the mesh has holes)"
+    return None
+
+
+def polyhedron_mass_properties(vertices, triangles, *, mass=None, density=None,
+                               what: str = "mesh") -> tuple[float, np.ndarray, np.ndarray, float]:
+    """Mass, centre of mass, inertia tensor about the COM and volume of a homogeneous solid bounded by a closed
+    triangle mesh, exactly, by the divergence theorem (Mirtich 1996; Eberly, *Game Physics*, "Polyhedral Mass
+    Properties"): each volume integral ∫ 1, ∫ x, ∫ x², ∫ xy ... over the solid becomes a sum over the
+    triangles of a surface integral, which is a polynomial in the triangle's vertex coordinates.
+
+    Args:
+        vertices: (V, 3) positions.
+        triangles: (T, 3) vertex indices, counter-clockwise seen from outside (outward normals).
+        mass, density: give exactly one (kg, kg/m³).
+        what: names the mesh in errors.
+
+    Returns:
+        ``(mass, com (3,), inertia (3, 3) about the COM in the mesh's axes, volume)``.
+
+    Raises:
+        MeshMassError: the mesh is not closed and consistently oriented, or is inverted (negative volume:
+        normals inward), or has no volume.
+    """
+    vertices = np.asarray(vertices, dtype=float)
+    triangles = np.asarray(triangles)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or triangles.ndim != 2 or triangles.shape[1] != 3:
+        raise MeshMassError(f"{what}: vertices must be (V, 3) and triangles (T, 3), got {vertices.shape} and "
+                            f"{triangles.shape}")
+    if not np.isfinite(vertices).all():
+        raise MeshMassError(f"{what}: vertex coordinates must be finite numbers")
+    if len(triangles) and (triangles.min() < 0 or triangles.max() >= len(vertices)):
+        raise MeshMassError(f"{what}: a triangle indexes a vertex that does not exist")
+    if (mass is None) == (density is None):
+        raise MeshMassError(f"{what}: give exactly one of mass and density")
+    problem = closed_surface_problem(triangles)
+    if problem:
+        raise MeshMassError(f"{what}: not a closed surface, so it bounds no solid: {problem}")
+    # About a reference point inside the vertices' bounding box, not the file's origin: the second moments
+    # about a far origin would cancel catastrophically in the parallel-axis shift to the COM.
+    reference = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+    p = vertices - reference
+    x0, x1, x2 = (p[triangles[:, k]] for k in range(3))
+    # d = (p1 − p0) × (p2 − p0): twice the area times the outward normal
+    d = np.cross(x1 - x0, x2 - x0)
+    # Eberly's subexpressions per coordinate w (columns x, y, z): f1 = Σw, f2 = Σ w², f3 = Σ w³ over the
+    # triangle's polynomial basis, g_i = f2 + w_i (f1 + w_i)
+    w0, w1, w2 = x0, x1, x2
+    temp0 = w0 + w1
+    f1 = temp0 + w2
+    temp1 = w0 * w0
+    temp2 = temp1 + w1 * temp0
+    f2 = temp2 + w2 * f1
+    f3 = w0 * temp1 + w1 * temp2 + w2 * f2
+    g0 = f2 + w0 * (f1 + w0)
+    g1 = f2 + w1 * (f1 + w1)
+    g2 = f2 + w2 * (f1 + w2)
+    X, Y, Z = 0, 1, 2
+    volume = float(np.sum(d[:, X] * f1[:, X])) / 6.0                        # ∫ 1
+    first = np.array([np.sum(d[:, X] * f2[:, X]), np.sum(d[:, Y] * f2[:, Y]),
+                      np.sum(d[:, Z] * f2[:, Z])]) / 24.0                     # ∫ x, ∫ y, ∫ z
+    square = np.array([np.sum(d[:, X] * f3[:, X]), np.sum(d[:, Y] * f3[:, Y]),
+                       np.sum(d[:, Z] * f3[:, Z])]) / 60.0                    # ∫ x², ∫ y², ∫ z²
+    xy = np.sum(d[:, X] * (w0[:, Y] * g0[:, X] + w1[:, Y] * g1[:, X] + w2[:, Y] * g2[:, X])) / 120.0
+    yz = np.sum(d[:, Y] * (w0[:, Z] * g0[:, Y] + w1[:, Z] * g1[:, Y] + w2[:, Z] * g2[:, Y])) / 120.0
+    zx = np.sum(d[:, Z] * (w0[:, X] * g0[:, Z] + w1[:, X] * g1[:, Z] + w2[:, X] * g2[:, Z])) / 120.0
+    extent = float(np.max(vertices.max(axis=0) - vertices.min(axis=0)))
+    if volume < 0.0 and abs(volume) > 1e-12 * extent**3:
+        raise MeshMassError(f"{what}: the mesh is inverted (its triangles face inward: volume {volume:.6g} m³ < 0); "
+                            "reverse the triangles' vertex order")
+    if volume <= 1e-12 * extent**3:
+        raise MeshMassError(f"{what}: the closed surface encloses no volume ({volume:.3g} m³)")
+    com_local = first / volume
+    body_mass = positive(mass, "mass") if mass is not None else positive(density, "density") * volume
+    rho = body_mass / volume
+    # second moments about the COM (per unit density): ∫ x² − V c_x² ...
+    sxx = square[0] - volume * com_local[0] ** 2
+    syy = square[1] - volume * com_local[1] ** 2
+    szz = square[2] - volume * com_local[2] ** 2
+    sxy = xy - volume * com_local[0] * com_local[1]
+    syz = yz - volume * com_local[1] * com_local[2]
+    szx = zx - volume * com_local[2] * com_local[0]
+    inertia = rho * np.array([[syy + szz, -sxy, -szx],
+                              [-sxy, sxx + szz, -syz],
+                              [-szx, -syz, sxx + syy]])
+    return body_mass, com_local + reference, inertia, volume
+
+
+# ---- compound bodies: J = Σ Jᵢ generalised from particles to parts ------------------------------------------
+
+def compound_mass_properties(masses, coms, rotations, inertias) -> tuple[float, np.ndarray, np.ndarray]:
+    """Mass, COM and inertia tensor about the COM of a rigid body made of ``k`` parts.
+
+    The lecture's J = Σ Jᵢ for point masses, generalised to parts with their own inertia: part i (mass mᵢ, COM
+    xᵢ, inertia Jᵢ about its own COM in its own axes, axes turned by Rᵢ relative to the body's) contributes its
+    own tensor turned into the body's axes, Rᵢ Jᵢ Rᵢᵀ, plus the particle term of its mass at its COM, mᵢ (|dᵢ|² 1
+    − dᵢ dᵢᵀ) with dᵢ = xᵢ − x̄ (the parallel-axis theorem, :func:`parallel_axis`):
+
+        M = Σ mᵢ,   x̄ = Σ mᵢ xᵢ / M,   J = Σ (Rᵢ Jᵢ Rᵢᵀ + mᵢ (|dᵢ|² 1 − dᵢ dᵢᵀ)).
+
+    Args:
+        masses: (k,) part masses > 0.
+        coms: (k, 3) part COMs in the body's reference frame.
+        rotations: (k, 3, 3) part axes in the body's axes (columns).
+        inertias: (k, 3, 3) part inertia tensors about their COMs in their own axes (e.g. from
+            :func:`shape_mass_properties` or :func:`polyhedron_mass_properties`).
+
+    Returns:
+        ``(M, com (3,), J (3, 3))``.
+    """
+    masses = np.asarray(masses, dtype=float)
+    coms = np.asarray(coms, dtype=float)
+    rotations = np.asarray(rotations, dtype=float)
+    inertias = np.asarray(inertias, dtype=float)
+    k = len(masses)
+    if k == 0:
+        raise ValueError("a compound body needs at least one part")
+    if masses.shape != (k,) or coms.shape != (k, 3) or rotations.shape != (k, 3, 3) or inertias.shape != (k, 3, 3):
+        raise ValueError(f"compound parts: masses (k,), coms (k, 3), rotations and inertias (k, 3, 3) with the same "
+                         f"k; got {masses.shape}, {coms.shape}, {rotations.shape}, {inertias.shape}")
+    if not (np.isfinite(masses).all() and np.isfinite(coms).all() and np.isfinite(rotations).all()
+            and np.isfinite(inertias).all()):
+        raise ValueError("compound parts: masses, COMs, rotations and inertias must be finite numbers")
+    if (masses <= 0.0).any():
+        raise ValueError(f"compound parts: every part's mass must be > 0, part {int(np.argmax(masses <= 0.0))} has "
+                         f"{masses[masses <= 0.0][0]:g}")
+    total = float(masses.sum())
+    com = masses @ coms / total
+    turned = rotations @ inertias @ np.swapaxes(rotations, -1, -2)
+    inertia = parallel_axis(turned, masses, coms - com).sum(axis=0)
+    return total, com, 0.5 * (inertia + inertia.T)

@@ -67,6 +67,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 import sys
 import threading
 import time
@@ -79,7 +80,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
-from numba.core import cgutils  # noqa: E402
+from numba.core import caching, cgutils  # noqa: E402
 from numba.extending import intrinsic, overload  # noqa: E402
 
 #: numba's own switch: with NUMBA_DISABLE_JIT=1 every kernel runs as plain Python
@@ -90,6 +91,101 @@ JIT_DISABLED = os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")
 JIT_ONLY = tuple(prefix for prefix in os.environ.get("CGP_SIM_JIT_ONLY", "").split(",") if prefix)
 
 _DEFAULTS = {"cache": True, "nogil": True, "error_model": "numpy"}
+
+
+# ---- the on-disk cache: a kernel's compiled code is valid only with the code it calls ---------------------
+#
+# numba's cache checks a kernel against the hash of its own source file only.  A kernel that calls (and so
+# inlines) a kernel of another module keeps its cached machine code when only that other module changes: after
+# an edit of epa.py, manifold.py's cached contact kernels still ran the old EPA (seen while developing: the
+# parity test failed by one ulp until the caches were deleted).  So the stamp of a cgp_core / cgp_sim_ros kernel
+# is the hashes of its own file *and* of every module of these packages that file imports, directly or through
+# others (read from the files' import lines): an edit anywhere a kernel can reach recompiles it, and nothing
+# else.  numba's other locators (user-provided NUMBA_CACHE_DIR, in-tree __pycache__) are kept, only the stamp
+# is wider.
+
+_PACKAGES = ("cgp_core", "cgp_sim_ros")
+_IMPORT_LINE = re.compile(r"^\s*(?:from\s+(\.*)([\w.]*)\s+import\s+(\([^)]*\)|[\w ,*]+)|import\s+([\w.]+))", re.M)
+
+
+def _package_root(path: str) -> str | None:
+    """The directory holding our package that ``path`` belongs to (the checkout or site-packages), or None."""
+    parts = os.path.normpath(path).split(os.sep)
+    for i in range(len(parts) - 1, -1, -1):
+        if parts[i] in _PACKAGES:
+            return os.sep.join(parts[:i]) or os.sep
+    return None
+
+
+def _module_file(root: str, dotted: str) -> str | None:
+    base = os.path.join(root, *dotted.split("."))
+    for candidate in (base + ".py", os.path.join(base, "__init__.py")):
+        if os.path.isfile(candidate):
+            return candidate
+    return None
+
+
+@functools.cache
+def _direct_imports(path: str, stamp: tuple) -> tuple[str, ...]:
+    """The files of our packages that the module at ``path`` imports (``stamp``: its mtime and size, so that an
+    edit while the process runs is read again)."""
+    root = _package_root(path)
+    here = os.path.relpath(os.path.dirname(path), root).split(os.sep)
+    with open(path, encoding="utf-8") as f:
+        text = f.read()
+    found = []
+    for dots, module, names, plain in _IMPORT_LINE.findall(text):
+        if plain:
+            targets = [plain]
+        else:
+            package = here[:len(here) - (len(dots) - 1)] if dots else []
+            base = ".".join(package + ([module] if module else []))
+            targets = [base] + [f"{base}.{name}" for name in re.findall(r"\w+", names)]
+        for dotted in targets:
+            if dotted.split(".")[0] in _PACKAGES and (file := _module_file(root, dotted)) and file != path:
+                found.append(file)
+    return tuple(sorted(set(found)))
+
+
+def dependency_stamp(path: str) -> tuple:
+    """The hashes of ``path`` and of every module of our packages it imports, transitively (sorted by file)."""
+    seen, todo = set(), [path]
+    while todo:
+        file = todo.pop()
+        if file in seen:
+            continue
+        seen.add(file)
+        st = os.stat(file)
+        todo.extend(_direct_imports(file, (st.st_mtime_ns, st.st_size)))
+    stamps = []
+    for file in sorted(seen):
+        st = os.stat(file)
+        stamps.append(caching._hash_source_file(file, st.st_mtime, st.st_size))
+    return tuple(stamps)
+
+
+class _DependencyStamp:
+    """Mixin for numba's source-file locators: the stamp covers the modules the kernel's module imports."""
+
+    def get_source_stamp(self):
+        return dependency_stamp(self._py_file)
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        if _package_root(py_file) is None:
+            return None  # not ours: numba's own locators decide
+        return super().from_function(py_func, py_file)
+
+
+class _UserDirLocator(_DependencyStamp, caching.UserProvidedCacheLocator):
+    pass
+
+
+class _InTreeLocator(_DependencyStamp, caching.InTreeCacheLocator):
+    pass
+
+
+caching.CacheImpl._locator_classes[:0] = [_UserDirLocator, _InTreeLocator]
 
 
 def njit(*args, **options):

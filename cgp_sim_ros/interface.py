@@ -9,7 +9,8 @@ without rclpy; the QoS profile each topic is offered with is in
 All names are relative (``~/`` = the node's name, default ``cgp_sim``), so ``--ros-args -r __ns:=/robot1``
 and ``-r __node:=sim`` and per-topic remaps work.  ``/clock`` is absolute by convention.
 
-Published (frame ``world`` unless said otherwise; all stamps are simulation time):
+Published (frame ``world`` unless said otherwise — every frame id with ``frame_prefix`` in front; all stamps are
+simulation time):
 
 ==============================  ===============================  ===================================================
 ``~/bodies/poses``              geometry_msgs/PoseArray          every body's COM pose, in scene order
@@ -69,9 +70,45 @@ With ``foxglove:=true`` all of the above is also served over a Foxglove WebSocke
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 WORLD_FRAME = "world"
+#: what `frame_prefix` may be: TF frame characters, no leading '/' (tf2 frame ids are relative), at most 64 long
+FRAME_PREFIX_PATTERN = re.compile(r"[A-Za-z0-9_./-]{0,64}")
+
+
+@dataclass(frozen=True)
+class Frames:
+    """The TF frame ids the node writes and reads, with the ``frame_prefix`` parameter applied as
+    robot_state_publisher applies its own (prepended verbatim: ``sim1/`` gives ``sim1/world`` and ``sim1/ball``),
+    so that several simulators on one graph share ``/tf`` without their frames colliding.
+
+    Outgoing: every header's ``frame_id`` is :attr:`world`; a body's frame (``/tf``'s and the odometry's
+    ``child_frame_id``) is :meth:`body`.  Incoming (wrench commands, spawn and state requests): a frame id is
+    read as cgp_core names it (:meth:`to_core`): the world is ``""``, ``world`` or the prefixed world, a body
+    its name with or without the prefix."""
+
+    prefix: str = ""
+
+    @property
+    def world(self) -> str:
+        return self.prefix + WORLD_FRAME
+
+    def body(self, name: str) -> str:
+        return self.prefix + name
+
+    def to_core(self, frame_id: str) -> str:
+        """``frame_id`` as cgp_core's wrench and state checks name frames (the prefix removed); other ids are
+        returned as they are, for those checks to refuse by their own rules."""
+        if self.prefix and frame_id.startswith(self.prefix) and len(frame_id) > len(self.prefix):
+            return frame_id[len(self.prefix):]
+        return frame_id
+
+
+#: the frames without a prefix (the default)
+UNPREFIXED = Frames()
+
 #: how model:fish flocks may be drawn: "auto" (cgp_sim_ros/drawing/detail.py chooses) or a detail of
 #: drawing.shapes.FISH_DETAILS
 FISH_DETAIL_CHOICES = ("auto", "full", "low")
@@ -117,6 +154,8 @@ class ParameterSpec:
     maximum: float | None = None
     flag: str | None = None  # the `cgp-sim` command-line flag, if any
     choices: tuple | None = None  # the values a string parameter may take
+    pattern: re.Pattern | None = None  # what a string parameter must match (whole), said in `pattern_text`
+    pattern_text: str = ""
 
 
 PARAMETERS: tuple[ParameterSpec, ...] = (
@@ -163,6 +202,13 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "on the others (Linux, 2 CPUs or more; cgp_core/jit.py ThreadPlacement: on 2 cores it cut the "
                   "15k-fish real-time tick's p99 from ~13 to ~10 ms). false: the OS places every thread. Logged "
                   "when it changes.", flag="--pin-threads"),
+    ParameterSpec("frame_prefix", "", "Prepended to every TF frame id the node publishes (world, the bodies' "
+                  "frames; headers and child_frame_id) and accepted in front of the frame ids it is sent, as "
+                  "robot_state_publisher's frame_prefix: several simulators on one ROS graph (one /tf) keep their "
+                  "frames apart, e.g. `sim1/` gives `sim1/world` -> `sim1/ball`. Letters, digits, _ . / -, no "
+                  "leading /, at most 64 characters.", read_only=True, flag="--frame-prefix",
+                  pattern=FRAME_PREFIX_PATTERN,
+                  pattern_text="letters, digits, _ . / - (no leading /), at most 64 characters"),
     ParameterSpec("foxglove", False, "Serve a live view to the Foxglove app over WebSocket (Foxglove SDK): "
                   "every topic as the same CDR bytes, the simulation time, wrench commands and the services "
                   "(cgp_sim_ros/ros/foxglove_server.py).", read_only=True, flag="--foxglove"),
@@ -174,6 +220,21 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   maximum=65535, flag="--foxglove-port"),
 )
 PARAMETER_BY_NAME = {p.name: p for p in PARAMETERS}
+
+#: rclpy's own parameter (every node has it; declared by rclpy, described by this node).  Issue 27, finding 9:
+#: with use_sim_time true a node's timers run on /clock; this node publishes /clock from its timer, so it would
+#: wait forever for its own first tick.  Gazebo's behaviour is the reference: the simulator is the time source,
+#: its stepping is paced by the wall clock whatever use_sim_time says, and with it true its ROS clock (what
+#: rclpy's get_clock() returns) follows the /clock it publishes, as every other node's on the graph does.  Not
+#: refused: launch files pass use_sim_time:=true to every node of a simulation, the simulator included.
+USE_SIM_TIME = ParameterSpec(
+    "use_sim_time", False, "rclpy's own: with true, this node's ROS clock follows /clock, which this node "
+    "publishes itself (one message per tick); its stepping is paced by the wall clock either way (the tick "
+    "timer runs on steady time), so true or false, at start-up or at run time, the simulation runs as before "
+    "(Gazebo's behaviour: the simulator is the time source). Every message is stamped with simulation time "
+    "regardless.")
+USE_SIM_TIME_NOTE = ("use_sim_time is true: this node's ROS clock follows the /clock it publishes; its ticks are "
+                     "paced by the wall clock as before (the simulator is the time source, as in Gazebo)")
 
 # ---- limits on what the node accepts (the command path: cgp_sim_ros/ros/commands.py; the Foxglove live view's
 # client input: cgp_sim_ros/ros/foxglove_server.py)

@@ -24,9 +24,14 @@ VENV_BIN = Path(sys.executable).parent
 
 # One domain per session, chosen before anything imports rclpy.  0..101 are valid with Fast DDS' default port
 # mapping; avoid 0 (the default other tools use).
+# With pytest-xdist (`make test` runs two workers), the controller picks the session's domain and every worker
+# takes its own next to it: worker gwK uses domain + K (wrapping within 1..101), so two workers' nodes never see
+# each other.
 if "CGP_SIM_TEST_DOMAIN" not in os.environ:
     os.environ["CGP_SIM_TEST_DOMAIN"] = str(random.Random(os.getpid() ^ time.time_ns()).randint(1, 101))
-os.environ["ROS_DOMAIN_ID"] = os.environ["CGP_SIM_TEST_DOMAIN"]
+_WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
+_OFFSET = int(_WORKER[2:]) if _WORKER.startswith("gw") and _WORKER[2:].isdigit() else 0
+os.environ["ROS_DOMAIN_ID"] = str((int(os.environ["CGP_SIM_TEST_DOMAIN"]) - 1 + _OFFSET) % 101 + 1)
 os.environ.setdefault("RCUTILS_LOGGING_BUFFERED_STREAM", "0")
 os.environ["PYTHONUNBUFFERED"] = "1"
 

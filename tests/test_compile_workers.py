@@ -8,11 +8,14 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from cgp_core.jit import JIT_DISABLED
+
+REPO = Path(__file__).resolve().parents[1]
 
 pytestmark = pytest.mark.skipif(JIT_DISABLED, reason="the JIT is disabled: nothing is compiled")
 
@@ -48,6 +51,7 @@ def test_a_compile_worker_compiles_only_the_modules_it_is_given():
 
 TWINS = r"""
 import sys
+from pathlib import Path
 import numpy as np
 from cgp_core.jit import njit, prange, threads_for
 
@@ -117,6 +121,7 @@ def test_big_parallel_loops_are_handed_out_in_chunks_and_the_settings_come_back(
 
 UNSPLITTABLE = r"""
 import sys
+from pathlib import Path
 import numpy as np
 from cgp_core.jit import njit, prange, refuse_unparallelized_kernels, threads_for
 
@@ -251,6 +256,7 @@ def test_ctrl_c_while_a_worker_is_being_started_leaves_no_worker_running(tmp_pat
 
 LOADED_DURING_TICKS = r"""
 import sys
+from pathlib import Path
 import rclpy
 from numba.core.registry import CPUDispatcher
 from rclpy.parameter import Parameter
@@ -294,3 +300,35 @@ def test_the_default_scenes_ticks_load_no_kernel():
     line = next(li for li in out.stdout.splitlines() if li.startswith("kernels"))
     assert int(line.split()[1]) > 20, line  # the scan sees the kernels at all
     assert line.endswith("loaded during the ticks: []"), line
+
+
+CALLER = """
+import sys
+from pathlib import Path
+sys.path.insert(0, sys.argv[1])
+from cgp_core.caller import twice_plus_one
+print(twice_plus_one(20))
+"""
+
+
+def test_a_cached_kernel_is_recompiled_when_a_module_it_calls_changes(tmp_path):
+    """numba's cache checks a kernel against its own file only; cgp_core.jit's stamp also covers the modules that
+    file imports.  A kernel in caller.py calls one in callee.py; after an edit of callee.py alone, the next process
+    must run the new callee (numba's own stamp would load caller's stale machine code and print 41 again)."""
+    package = tmp_path / "pkg" / "cgp_core"
+    package.mkdir(parents=True)
+    (package / "__init__.py").write_text("")
+    (package / "jit.py").write_text((REPO / "cgp_core" / "jit.py").read_text())
+    (package / "caller.py").write_text("from .callee import twice\nfrom .jit import njit\n\n\n@njit\n"
+                                       "def twice_plus_one(x):\n    return twice(x) + 1\n")
+
+    def run_with_callee(body: str) -> str:
+        (package / "callee.py").write_text(f"from .jit import njit\n\n\n@njit\ndef twice(x):\n    return {body}\n")
+        out = subprocess.run([sys.executable, "-c", CALLER, str(tmp_path / "pkg")], capture_output=True, text=True,
+                             env={k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}, timeout=120)
+        assert out.returncode == 0, out.stderr
+        return out.stdout.strip()
+
+    assert run_with_callee("2 * x") == "41"
+    assert list((package / "__pycache__").glob("caller.twice_plus_one-*.nbi")), "caller's kernel was not cached"
+    assert run_with_callee("3 * x") == "61"

@@ -16,7 +16,7 @@ GRAVITY = (0.0, 0.0, -G)
 NO_GRAVITY = (0.0, 0.0, 0.0)
 
 
-#: the ground simulate() puts under the bodies unless told otherwise (ground=None: no ground)
+#: the ground plane z = 0 of every simulate() call that does not pass its own (``ground=None``: no ground)
 DEFAULT_GROUND = Ground()
 
 

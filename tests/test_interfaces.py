@@ -115,3 +115,19 @@ def test_build_msgs_uses_an_installed_package_instead_of_our_copy(tmp_path):
     assert build_msgs.installed_elsewhere("tf2_msgs", venv, {"AMENT_PREFIX_PATH": str(ros)}) == ros
     install(venv, "simulation_interfaces", ours=False)  # e.g. a future wheel, installed into the venv
     assert build_msgs.installed_elsewhere("simulation_interfaces", venv, {}) == venv
+
+
+def test_frame_prefix_names_the_frames_and_is_checked():
+    from cgp_sim_ros import interface as itf
+    from cgp_sim_ros.ros.parameters import check_parameter
+
+    frames = itf.Frames("sim2/")
+    assert (frames.world, frames.body("ball")) == ("sim2/world", "sim2/ball")
+    # what the node is sent: with or without the prefix, as cgp_core names the frames
+    assert [frames.to_core(f) for f in ("", "world", "sim2/world", "ball", "sim2/ball", "sim1/world", "sim2/")] \
+        == ["", "world", "world", "ball", "ball", "sim1/world", "sim2/"]
+    assert itf.UNPREFIXED.world == "world" and itf.UNPREFIXED.to_core("world") == "world"
+    spec = itf.PARAMETER_BY_NAME["frame_prefix"]
+    assert check_parameter(spec, "sim2/") is None and check_parameter(spec, "") is None
+    for bad in ("/sim2/", "sim 2/", "x" * 65, "sim2/\n"):
+        assert check_parameter(spec, bad).startswith("frame_prefix must be letters, digits"), bad

@@ -251,7 +251,7 @@ def test_a_reset_redraws_every_part_after_its_deleteall():
     from cgp_sim_ros.ros.messages import TickMessages
 
     world = World(parse_scene(SCENE))
-    messages = TickMessages(world, "world", detail.plan([f.params for f in world.flocks], 60.0, markers_every=4))
+    messages = TickMessages(world, itf.UNPREFIXED, detail.plan([f.params for f in world.flocks], 60.0, markers_every=4))
 
     def fish_markers(data):
         return [m for m in deserialize_message(data, MarkerArray).markers if m.ns == "flocks/school"]

@@ -27,4 +27,4 @@ def test_the_linter_reads_the_projects_configuration():
     fits = ruff("--stdin-filename", "cgp_core/_probe.py", "-", text=line + "a" * (120 - len(line)) + "\n")
     assert fits.returncode == 0, fits.stdout + fits.stderr
     too_long = ruff("--stdin-filename", "cgp_core/_probe.py", "-", text=line + "a" * (121 - len(line)) + "\n")
-    assert "E501" in too_long.stdout, too_long.stdout + too_long.stderr
+    assert too_long.returncode == 1 and "line-too-long" in too_long.stdout, too_long.stdout + too_long.stderr

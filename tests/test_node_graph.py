@@ -186,3 +186,116 @@ def test_the_node_leaves_the_dds_domain_before_the_process_exits(start_node, tmp
     assert after["code"] == 0, after
     assert [name for name in after["os_threads"] if name.startswith("dds.") and name != "dds.shm.wdog"] == [], after
     assert after["python_threads"] == ["MainThread"], after
+
+
+# ---- several simulators on one graph (issue 26) -----------------------------------------------------------------
+
+def test_three_simulators_share_one_graph_and_stay_apart(start_node, probe, tmp_path):
+    """Three `cgp-sim` nodes in one domain under /sim1, /sim2, /sim3 (docs/interface.md, "Several simulators on one
+    graph"): each one's topics, services, TF frames, clock and bag are its own.  sim1 and sim2 run the same scene,
+    so their bodies have the same names: only the namespace and the frame prefix keep them apart."""
+    from cgp_sim_msgs.msg import ApplyWrench
+    from geometry_msgs.msg import Pose
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+    from sim_client import OK, SimClient
+    from simulation_interfaces.srv import SpawnEntity
+    from test_node_bag import read_bag
+    from tf2_msgs.msg import TFMessage
+
+    scenes = {"sim1": "ramp", "sim2": "ramp", "sim3": "box_stack"}
+    nodes = {}
+    for sim, scene in scenes.items():
+        clock = [] if sim == "sim1" else ["-r", f"/clock:=/{sim}/clock"]  # one /clock on the graph: sim1's
+        nodes[sim] = start_node("--scene", scene, "--start-paused", "true", "--bag", str(tmp_path / sim),
+                                "--frame-prefix", f"{sim}/", "--ros-args", "-r", f"__ns:=/{sim}", *clock)
+    tf_static_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                               durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    poses = {sim: probe.subscribe(f"/{sim}/cgp_sim/bodies/poses", PoseArray) for sim in scenes}
+    clocks = {topic: probe.subscribe(topic, Clock) for topic in ("/clock", "/sim2/clock", "/sim3/clock")}
+    tf = probe.subscribe("/tf", TFMessage)
+    tf_static = probe.subscribe("/tf_static", TFMessage, tf_static_qos)
+    probe.wait_until_matched(*(f"/{sim}/cgp_sim/bodies/poses" for sim in scenes), *clocks, timeout=60)
+    probe.spin_until(lambda: probe.subscriptions["/tf"].get_publisher_count() >= 3, 60, "three /tf publishers")
+    # /clock: one publisher on the graph, sim1's; the others' clocks are in their namespaces
+    # (the graph learns a publisher's node namespace after the publisher itself: waited for, with a deadline)
+    for topic, owner in (("/clock", "/sim1"), ("/sim2/clock", "/sim2"), ("/sim3/clock", "/sim3")):
+        probe.spin_until(lambda topic=topic, owner=owner: [
+            p.node_namespace for p in probe.node.get_publishers_info_by_topic(topic)] == [owner], 20,
+            f"{topic} published by {owner}/cgp_sim alone")
+
+    sims = {sim: SimClient(probe, node=f"/{sim}/cgp_sim") for sim in scenes}
+    for sim in scenes:
+        assert sims[sim].step(3).result.result == OK, sim
+    for sim in scenes:
+        probe.wait_for_messages(f"/{sim}/cgp_sim/bodies/poses", 3)
+    for topic in clocks:
+        probe.wait_for_messages(topic, 3)
+    probe.spin_until(lambda: {t.header.frame_id for m in tf.messages for t in m.transforms}
+                     >= {"sim1/world", "sim2/world", "sim3/world"}, 20, "/tf from the three simulators")
+    probe.spin_until(lambda: len(tf_static.messages) >= 2, 20, "/tf_static from the two ramp scenes")
+
+    # topics: each simulator's own bodies, in its own prefixed world
+    for sim, count in (("sim1", 5), ("sim2", 5), ("sim3", 10)):
+        assert {m.header.frame_id for m in poses[sim].messages} == {f"{sim}/world"}
+        assert {len(m.poses) for m in poses[sim].messages} == {count}
+    # each clock counts its own three ticks (dt = 1/60 s, whole nanoseconds)
+    for topic in clocks:
+        assert [m.clock.nanosec for m in clocks[topic].messages[:3]] == [16_666_667 * k for k in (1, 2, 3)]
+    # TF: one tree per simulator, every frame prefixed; the same body name in sim1 and sim2 is two frames
+    dynamic = {(t.header.frame_id, t.child_frame_id) for m in tf.messages for t in m.transforms}
+    assert dynamic == ({(f"{s}/world", f"{s}/{b}") for s in ("sim1", "sim2") for b in ("sticky", "slippery", "ball")}
+                       | {("sim3/world", f"sim3/box_{k}") for k in range(10)})
+    static = {(t.header.frame_id, t.child_frame_id) for m in tf_static.messages for t in m.transforms}
+    assert static == {(f"{s}/world", f"{s}/{b}") for s in ("sim1", "sim2") for b in ("ramp", "catch_wall")}
+
+    # services: each simulator answers for itself; a spawn in sim2's world lands in sim2 only
+    assert sims["sim3"].names() == [f"box_{k}" for k in range(10)]
+    pose = Pose()
+    pose.position.z = 5.0
+    spawned = sims["sim2"].call(SpawnEntity, SpawnEntity.Request(
+        name="visitor", resource_string="body: {shape: sphere, radius: 0.1, mass: 1.0}",
+        initial_pose=_pose_stamped("sim2/world", pose)))
+    assert spawned.result.result == OK, spawned.result.error_message
+    other_world = sims["sim2"].call(SpawnEntity, SpawnEntity.Request(
+        name="stray", resource_string="body: {shape: sphere, radius: 0.1, mass: 1.0}",
+        initial_pose=_pose_stamped("sim1/world", pose)))
+    assert other_world.result.result == SpawnEntity.Response.INVALID_POSE, other_world.result
+    assert "'sim2/world'" in other_world.result.error_message
+    assert "visitor" in sims["sim2"].names() and "visitor" not in sims["sim1"].names()
+
+    # a wrench in sim2's prefixed body frame is taken (sim2's ball is pushed, sim1's is not)
+    push = probe.publisher("/sim2/cgp_sim/apply_wrench", ApplyWrench)
+    probe.wait_for_subscriber(push)
+    command = ApplyWrench(body="ball")
+    command.header.frame_id = "sim2/ball"
+    command.wrench.force.y = 500.0
+    probe.publish_acked(push, command)
+    before = {sim: len(poses[sim].messages) for sim in ("sim1", "sim2")}
+    for sim in ("sim1", "sim2"):
+        assert sims[sim].step(1).result.result == OK
+        probe.wait_for_messages(f"/{sim}/cgp_sim/bodies/poses", before[sim] + 1)
+    ball = 3  # ramp's bodies: ramp, sticky, slippery, ball, catch_wall
+    moved = {sim: poses[sim].messages[-1].poses[ball].position.y - poses[sim].messages[-2].poses[ball].position.y
+             for sim in ("sim1", "sim2")}
+    assert abs(moved["sim1"]) < 1e-9 and moved["sim2"] > 1e-3, moved
+
+    # bags: each node recorded its own topics, its own clock, and only its own frames on /tf
+    for sim in scenes:
+        assert nodes[sim].stop() == 0, nodes[sim].log()
+    for sim in scenes:
+        types, messages = read_bag(tmp_path / sim)
+        clock = "/clock" if sim == "sim1" else f"/{sim}/clock"
+        assert clock in types and all(not t.startswith("/sim") or t.startswith(f"/{sim}/") for t in types), types
+        assert len(messages[f"/{sim}/cgp_sim/bodies/poses"]) == len(messages[clock]) >= 3
+        frames = {t.header.frame_id for _, m in messages["/tf"] for t in m.transforms}
+        assert frames == {f"{sim}/world"}, frames
+
+
+def _pose_stamped(frame_id: str, pose):
+    from geometry_msgs.msg import PoseStamped
+
+    stamped = PoseStamped()
+    stamped.header.frame_id = frame_id
+    stamped.pose = pose
+    return stamped

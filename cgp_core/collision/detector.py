@@ -168,7 +168,8 @@ class CollisionDetector:
         if cm.count <= SMALL_SCENE:
             i, j = small_scene_pairs(lo, hi, cm.body, active)
         elif self.broad_phase is sweep_and_prune_pairs:
-            i, j = sweep_and_prune_kernel(lo, hi)  # one compiled call; the pair order does not matter here
+            i, j = sweep_and_prune_kernel(lo, hi, cm.body)  # one compiled call, no same-body pair; the order
+            # of the pairs does not matter here
         else:
             sane = np.flatnonzero(np.isfinite(lo).all(1) & np.isfinite(hi).all(1))
             if sane.size == cm.count:

@@ -34,6 +34,7 @@ from cgp_core.rotation import quat_rotate
 
 from ..drawing.detail import DetailPlan
 from ..drawing.shapes import FISH_DETAILS, fish_triangles, quantized_points
+from ..interface import UNPREFIXED, Frames
 from ..wire import cdr
 
 GROUND_SIZE = 60.0  # m, edge of the drawn ground tile
@@ -50,12 +51,12 @@ class TickMessages:
     MarkerArray = MarkerArray
     FlockStats = FlockStats
 
-    def __init__(self, world, frame_id: str = "world", plan: DetailPlan | None = None):
+    def __init__(self, world, frames: Frames = UNPREFIXED, plan: DetailPlan | None = None):
         self.world = world
-        self.frame_id = frame_id
+        self.frame_id = frame_id = frames.world
         model = world.body_model
         self._body_poses = cdr.PoseArraySerializer(frame_id)
-        self._odometry = cdr.OdometryBatchSerializer(frame_id, model.names)
+        self._odometry = cdr.OdometryBatchSerializer(frame_id, [frames.body(name) for name in model.names])
         self._flock_poses = [cdr.PoseArraySerializer(frame_id) for _ in world.flocks]
         self._flock_stats = [cdr.FlockStatsSerializer(frame_id) for _ in world.flocks]
         #: the fish drawing per flock name ('full' | 'low') and the parts K each flock's marker is split into

@@ -108,6 +108,8 @@ def check_parameter(spec: itf.ParameterSpec, value) -> str | None:
         return f"{spec.name} must be finite, got {value}"
     if spec.choices is not None and value not in spec.choices:
         return f"{spec.name} must be one of {', '.join(spec.choices)}, got {_brief(value)}"
+    if spec.pattern is not None and (not spec.pattern.fullmatch(value) or value.startswith("/")):
+        return f"{spec.name} must be {spec.pattern_text}, got {_brief(value)}"
     if spec.minimum is not None and value < spec.minimum:
         return f"{spec.name} must be >= {spec.minimum:g}, got {value}"
     if spec.maximum is not None and value > spec.maximum:

@@ -41,8 +41,8 @@ class TickPublisher:
         self._node = node
         self.world = node.world
         #: the per-tick serializers (rebuilt by :meth:`rebuild` after the world's entities changed)
-        self.messages = TickMessages(self.world, itf.WORLD_FRAME)
-        self.tf = BodyTransforms(self.world, itf.WORLD_FRAME)
+        self.messages = TickMessages(self.world, node.frames)
+        self.tf = BodyTransforms(self.world, node.frames)
         self.pub_clock = node.create_publisher(TickMessages.Clock, itf.TOPIC_CLOCK, CLOCK_QOS)
         self.pub_body_poses = node.create_publisher(TickMessages.PoseArray, itf.TOPIC_BODY_POSES, STATE_QOS)
         self.pub_markers = node.create_publisher(TickMessages.MarkerArray, itf.TOPIC_MARKERS, STATE_QOS)
@@ -88,7 +88,7 @@ class TickPublisher:
     def rebuild(self) -> None:
         """New per-tick serializers for the world's bodies and flocks now (the plan is set again by the
         caller: :meth:`set_plan`)."""
-        self.messages = TickMessages(self.world, itf.WORLD_FRAME)
+        self.messages = TickMessages(self.world, self._node.frames)
 
     def set_plan(self, plan) -> None:
         """Draw as the level-of-detail ``plan`` (:class:`~cgp_sim_ros.drawing.detail.DetailPlan`) says (what is
@@ -107,7 +107,8 @@ class TickPublisher:
         if stale and not self._delete_all_markers:  # a pending DELETEALL (after a reset) removes them anyway
             t = self.world.time_ns
             deletes = [cdr.marker(cdr.MarkerFields(marker_type=cdr.ARROW, action=cdr.DELETE, stamp_ns=t,
-                                                   frame_id=itf.WORLD_FRAME, ns=ns, id=i)) for ns, i in stale]
+                                                   frame_id=self._node.frames.world, ns=ns, id=i))
+                       for ns, i in stale]
             self.publish(self.pub_markers, cdr.marker_array(deletes), t)
         self._marker_ids = drawn
 
@@ -174,6 +175,7 @@ class TickPublisher:
     def build_throwaway(self, world) -> None:
         """Build (and drop: nothing is published) everything a tick of ``world`` — a copy of the node's —
         publishes, every marker part included: what the first real tick will run, run once before it."""
-        for _ in self.tick_messages(world, TickMessages(world, itf.WORLD_FRAME, self._node.detail),
-                                    BodyTransforms(world, itf.WORLD_FRAME), delete_all_markers=True):
+        frames = self._node.frames
+        for _ in self.tick_messages(world, TickMessages(world, frames, self._node.detail),
+                                    BodyTransforms(world, frames), delete_all_markers=True):
             pass

@@ -1,5 +1,8 @@
 """TF for the bodies: what a tf2 listener (RViz, ``tf2_echo``, your node's ``tf2_ros.Buffer``) needs.
 
+Frame ids carry the node's ``frame_prefix`` (:class:`cgp_sim_ros.interface.Frames`): ``sim1/world`` →
+``sim1/<body>`` with ``frame_prefix:=sim1/``, so several simulators share one ``/tf``.
+
 - ``/tf`` (:data:`~cgp_sim_ros.ros.qos.TF_QOS`), every tick: ``world`` → ``<body>`` for every *movable* body,
   stamped with the simulation time of the tick, in one ``tf2_msgs/TFMessage`` (numpy-built CDR,
   :class:`cgp_sim_ros.wire.cdr.TFMessageSerializer`).  The transform is the body frame: origin at the centre of
@@ -30,16 +33,17 @@ class BodyTransforms:
 
     TFMessage = TFMessage
 
-    def __init__(self, world, frame_id: str = itf.WORLD_FRAME):
+    def __init__(self, world, frames: itf.Frames = itf.UNPREFIXED):
         self.world = world
-        self.frame_id = frame_id
+        self.frames = frames
+        self.frame_id = frames.world
         self._static_sent = None  # (names, poses) of the last /tf_static message
         self.rebuild()
 
     def rebuild(self) -> None:
         model = self.world.body_model
         self._movable = np.flatnonzero(~np.asarray(model.fixed, dtype=bool))
-        self._serializer = TFMessageSerializer(self.frame_id, [model.names[i] for i in self._movable])
+        self._serializer = TFMessageSerializer(self.frame_id, [self.frames.body(model.names[i]) for i in self._movable])
 
     def dynamic(self, stamp_ns: int) -> bytes | None:
         """``/tf`` for this tick (None when there is no movable body)."""
@@ -63,7 +67,7 @@ class BodyTransforms:
             t = TransformStamped()
             t.header.stamp.sec, t.header.stamp.nanosec = sec, nanosec
             t.header.frame_id = self.frame_id
-            t.child_frame_id = name
+            t.child_frame_id = self.frames.body(name)
             t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = p
             t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z, t.transform.rotation.w = q
             msg.transforms.append(t)

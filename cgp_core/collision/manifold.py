@@ -1,0 +1,569 @@
+"""Contact manifolds of convex hulls: hull–hull, hull–ground plane, hull–sphere / capsule, hull–triangle (a static
+mesh's triangle).  Compiled kernels writing into the narrow phase's output buffers, as :mod:`.narrowphase` and
+:mod:`.box_box` do (``normal (cap, 3)``, ``separation (cap,)``, ``point (cap, 3)``, ``feature (cap,)`` from row
+``m`` on; each returns the next free row; normal from A to B; the point midway between the surfaces; a point is
+kept only if its separation is below ``margin``).
+
+**Hull–hull** (:func:`hull_hull_contacts`) — the box–box kernel's scheme (:mod:`.box_box`) for any two hulls, with
+GJK/EPA in place of the 9 edge axes:
+
+1. *Face axes* (SAT, Ericson 4.4 / Gregorius, GDC 2013): for every face of A, the separation of B from its plane,
+   n · support_B(−n) − d; the best face of A, and likewise of B.  If one exceeds the margin, there is no contact.
+2. *The true separation*: GJK's distance (:mod:`.gjk`) when the hulls are apart, minus EPA's penetration depth
+   (:mod:`.epa`) when they overlap.  It is the maximum of the separation over all directions, so it is at least
+   every face's; an edge–edge (or, apart, a vertex / edge) contact is one where it beats the best face.  This
+   replaces the enumeration of all edge pairs (O(E_A E_B)), which is what makes SAT slow for hulls.
+3. The choice, as in box–box: B's face only if it beats A's by :data:`.box_box.AXIS_RELATIVE_TOLERANCE` (relative)
+   + :data:`.box_box.AXIS_ABSOLUTE_TOLERANCE`; an edge only if the true separation beats the chosen face by the
+   same — so a resting hull keeps its reference face and features from step to step.
+4. *Face contact*: the chosen face is the reference face, the *incident* face is the other hull's face most
+   anti-parallel to it; the incident polygon is clipped against the reference face's side planes
+   (Sutherland–Hodgman, Ericson 8.3.4), each clipped point's separation is its height above the reference plane,
+   points at or above the margin are dropped, and more than 4 are reduced to 4 by :func:`reduce_to_four`.  When
+   apart, the points are lowered together until the nearest reports the chosen face's separation (box–box's
+   ``_lower_to``: a lower bound of the gap, so a fast approach is never let through).
+5. *Edge contact*: one point midway between GJK's (apart) or EPA's (overlapping) witness points.
+
+Reduction to 4 points — the box kernel's rule, not Bullet's "deepest point, then largest area": the 4 points
+extreme along the reference face's diagonal directions (in units of the face's half spans).  Box–box measured
+the deepest-first rule flipping between equally deep points of an octagonal contact region from step to step
+(a stack of turned boxes jittered); the extremes do not flip, and they span nearly the largest quadrilateral.
+With the same rule a box given as an 8-point hull gets the manifold of the box kernel (tested).
+
+Features (stable while the contact persists): a face contact's point is ``FACE_FEATURE | flip << 60 |
+reference face << 40 | incident face << 20 | clip code`` where the clip code names the two polygon edges the
+point lies between (incident edge k → k, reference side k → 256 + k; code = in · 512 + out): an incident vertex,
+an incident edge crossing a reference side, or a reference corner.  An edge contact's is ``EDGE_FEATURE`` with
+the two hull vertex pairs of the witness features.
+
+**Hull–plane** (the ground z = 0, A): every hull vertex below the margin, reduced to 4 by the same rule (in the
+world's x, y).  **Hull–sphere / capsule** (a point or segment core with a radius): GJK (EPA when the core is
+inside) gives one point; a capsule lying along a face (its axis within ``CAPSULE_PARALLEL_SINE`` of the face's
+plane, the contact normal that face's) gives two, its segment clipped to the face.  **Hull–triangle**: the
+triangle is a flat hull with two faces; see :func:`triangle_hull_contacts` for the internal-edge ("ghost")
+treatment.
+
+Hull arrays (per hull, as :meth:`.convex.HullSet.hull` slices them): ``vertices (k, 3)`` in the hull's frame,
+``adjacency_start (k + 1,)`` / ``adjacency (a,)``, ``face_plane (f, 4)`` in the hull's frame,
+``face_vertex_start (f + 1,)`` / ``face_vertices (fv,)`` (local vertex indices); posed by ``position (3,)``,
+``rotation (3, 3)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..jit import njit
+from .box_box import AXIS_ABSOLUTE_TOLERANCE, AXIS_RELATIVE_TOLERANCE
+from .convex import BRUTE_FORCE_SUPPORT_VERTICES
+from .epa import epa
+from .gjk import gjk, support_point
+from .narrowphase import CAPSULE_PARALLEL_SINE, write_point
+
+FACE_FEATURE = np.int64(1) << np.int64(62)
+EDGE_FEATURE = np.int64(1) << np.int64(61)
+#: a reference-side label in the clip codes (incident edges are 0..254)
+_REFERENCE_SIDE = 256
+
+#: hull–triangle: a contact normal within this angle of the triangle's face normal is replaced by it (rad)
+GHOST_NORMAL_ANGLE = math.radians(20.0)
+#: a mesh edge whose two triangles' normals differ by less than this is *inactive* (flat or concave enough that
+#: nothing can touch the edge itself): contacts on it use the triangle's face normal (rad)
+ACTIVE_EDGE_ANGLE = math.radians(5.0)
+#: hull–triangle edge flags: bit e set = edge (v_e, v_(e+1)%3) is active
+ALL_EDGES_ACTIVE = np.uint8(7)
+
+
+# ---- the reduction to 4 points ---------------------------------------------------------------------------
+
+@njit
+def reduce_to_four(X, Y, hu, hv, valid):
+    """Keep at most 4 of the ``valid`` candidates (in place): those extreme along the diagonal directions
+    (±1, ±1) in units of the half spans ``hu``, ``hv`` (see the module docstring; box–box's rule)."""
+    count = 0
+    for s in range(len(valid)):
+        if valid[s]:
+            count += 1
+    if count <= 4:
+        return
+    keep = np.zeros(len(valid), np.bool_)
+    for c in range(4):
+        dx = 1.0 if c == 0 or c == 3 else -1.0
+        dy = 1.0 if c < 2 else -1.0
+        best, best_s = -np.inf, -1
+        for s in range(len(valid)):
+            if valid[s]:
+                score = dx * (X[s] / hu) + dy * (Y[s] / hv)
+                if score > best:
+                    best, best_s = score, s
+        keep[best_s] = True
+    for s in range(len(valid)):
+        valid[s] = keep[s]
+
+
+# ---- pieces --------------------------------------------------------------------------------------------
+
+@njit
+def _world_plane(face_plane, f, position, rotation):
+    """Face f's plane in world: unit normal (nx, ny, nz) and offset d (n · x = d on the face)."""
+    a, b, c = face_plane[f, 0], face_plane[f, 1], face_plane[f, 2]
+    nx = rotation[0, 0] * a + rotation[0, 1] * b + rotation[0, 2] * c
+    ny = rotation[1, 0] * a + rotation[1, 1] * b + rotation[1, 2] * c
+    nz = rotation[2, 0] * a + rotation[2, 1] * b + rotation[2, 2] * c
+    return nx, ny, nz, face_plane[f, 3] + nx * position[0] + ny * position[1] + nz * position[2]
+
+
+@njit
+def _world_vertex(vertices, i, position, rotation):
+    v0, v1, v2 = vertices[i, 0], vertices[i, 1], vertices[i, 2]
+    return (position[0] + rotation[0, 0] * v0 + rotation[0, 1] * v1 + rotation[0, 2] * v2,
+            position[1] + rotation[1, 0] * v0 + rotation[1, 1] * v1 + rotation[1, 2] * v2,
+            position[2] + rotation[2, 0] * v0 + rotation[2, 1] * v1 + rotation[2, 2] * v2)
+
+
+@njit
+def best_face(face_plane, position, rotation, vertices_o, adjacency_start_o, adjacency_o, position_o, rotation_o,
+              stop):
+    """SAT over one hull's faces (Ericson 4.4): the face whose plane the other hull (``_o``) is farthest beyond,
+    ``(face, separation)``; separation = n · support_other(−n) − d (negative: overlap along n).  Returns at the
+    first face whose separation exceeds ``stop`` (a separating axis: the caller needs no more).
+
+    Computed in this hull's frame: the other's vertices are turned into it once (Rᵀ (R_o v + p_o − p)), so a face
+    costs one dot product per vertex; an other hull of more than
+    :data:`.convex.BRUTE_FORCE_SUPPORT_VERTICES` vertices is asked for its support point by hill climbing."""
+    k = len(vertices_o)
+    best_f, best = np.int64(0), -np.inf
+    if k > BRUTE_FORCE_SUPPORT_VERTICES and len(adjacency_o) > 0:
+        start = np.int64(0)
+        for f in range(len(face_plane)):
+            nx, ny, nz, d = _world_plane(face_plane, f, position, rotation)
+            start, sx, sy, sz = support_point(vertices_o, adjacency_start_o, adjacency_o, position_o, rotation_o,
+                                              -nx, -ny, -nz, start)
+            s = nx * sx + ny * sy + nz * sz - d
+            if s > best:
+                best_f, best = f, s
+                if s > stop:
+                    return best_f, best
+        return best_f, best
+    # the relative pose: M = Rᵀ R_o, t = Rᵀ (p_o − p)
+    M = np.empty((3, 3))
+    t = np.empty(3)
+    for i in range(3):
+        t[i] = rotation[0, i] * (position_o[0] - position[0]) + rotation[1, i] * (position_o[1] - position[1]) \
+            + rotation[2, i] * (position_o[2] - position[2])
+        for j in range(3):
+            M[i, j] = rotation[0, i] * rotation_o[0, j] + rotation[1, i] * rotation_o[1, j] \
+                + rotation[2, i] * rotation_o[2, j]
+    local = np.empty((k, 3))
+    for v in range(k):
+        for i in range(3):
+            local[v, i] = t[i] + M[i, 0] * vertices_o[v, 0] + M[i, 1] * vertices_o[v, 1] + M[i, 2] * vertices_o[v, 2]
+    for f in range(len(face_plane)):
+        nx, ny, nz, d = face_plane[f, 0], face_plane[f, 1], face_plane[f, 2], face_plane[f, 3]
+        low = np.inf
+        for v in range(k):
+            low = min(low, nx * local[v, 0] + ny * local[v, 1] + nz * local[v, 2])
+        s = low - d
+        if s > best:
+            best_f, best = f, s
+            if s > stop:
+                return best_f, best
+    return best_f, best
+
+
+@njit
+def face_contact(vertices_r, face_plane_r, face_vertex_start_r, face_vertices_r, position_r, rotation_r, face_r,
+                 vertices_i, face_plane_i, face_vertex_start_i, face_vertices_i, position_i, rotation_i,
+                 flip, best, margin, normal, separation, point, feature, m):
+    """Face contact: face ``face_r`` of hull R is the reference face, hull I's face most anti-parallel to it the
+    incident face; Sutherland–Hodgman clipping of the incident polygon by the reference face's side planes
+    (Ericson 8.3.4), points below ``margin`` kept, at most 4 (:func:`reduce_to_four`).  ``flip``: R is B (the
+    normal written is reversed so that it still points from A to B).  ``best``: the reference face's SAT
+    separation (the points are lowered to it when apart)."""
+    nx, ny, nz, d_ref = _world_plane(face_plane_r, face_r, position_r, rotation_r)
+    # incident face: the most anti-parallel
+    face_i, most = np.int64(0), np.inf
+    for f in range(len(face_plane_i)):
+        a, b, c, _ = _world_plane(face_plane_i, f, position_i, rotation_i)
+        dot = a * nx + b * ny + c * nz
+        if dot < most:
+            face_i, most = f, dot
+    # the incident polygon in world, with its clip labels (in-edge, out-edge); clipping a convex polygon by a
+    # plane adds at most one vertex, so the loop plus one per reference side fits — twice that, and a check
+    # below, for a polygon that round-off has made slightly non-convex
+    i0, i1 = face_vertex_start_i[face_i], face_vertex_start_i[face_i + 1]
+    k = i1 - i0
+    capacity = 2 * (k + face_vertex_start_r[face_r + 1] - face_vertex_start_r[face_r]) + 4
+    px, py, pz = np.empty(capacity), np.empty(capacity), np.empty(capacity)
+    lin, lout = np.empty(capacity, np.int64), np.empty(capacity, np.int64)
+    qx, qy, qz = np.empty(capacity), np.empty(capacity), np.empty(capacity)
+    qin, qout = np.empty(capacity, np.int64), np.empty(capacity, np.int64)
+    for s in range(k):
+        px[s], py[s], pz[s] = _world_vertex(vertices_i, face_vertices_i[i0 + s], position_i, rotation_i)
+        lin[s], lout[s] = (s - 1) % k, s
+    # the reference face's loop in world
+    r0, r1 = face_vertex_start_r[face_r], face_vertex_start_r[face_r + 1]
+    nref = r1 - r0
+    rx, ry, rz = np.empty(nref), np.empty(nref), np.empty(nref)
+    for s in range(nref):
+        rx[s], ry[s], rz[s] = _world_vertex(vertices_r, face_vertices_r[r0 + s], position_r, rotation_r)
+    # clip by each side plane: inward normal n × (edge), through the edge's start
+    for side in range(nref):
+        if k == 0:
+            break
+        e = (side + 1) % nref
+        ex, ey, ez = rx[e] - rx[side], ry[e] - ry[side], rz[e] - rz[side]
+        sx, sy, sz = ny * ez - nz * ey, nz * ex - nx * ez, nx * ey - ny * ex
+        offset = sx * rx[side] + sy * ry[side] + sz * rz[side]
+        out = 0
+        for s in range(k):
+            if out + 2 > capacity:
+                break  # never for a convex polygon (see above)
+            t = (s + 1) % k
+            ds = sx * px[s] + sy * py[s] + sz * pz[s] - offset
+            dt = sx * px[t] + sy * py[t] + sz * pz[t] - offset
+            if ds >= 0.0 and dt >= 0.0:  # both inside: keep the edge's end
+                qx[out], qy[out], qz[out], qin[out], qout[out] = px[t], py[t], pz[t], lin[t], lout[t]
+                out += 1
+            elif ds >= 0.0 or dt >= 0.0:  # crossing: the crossing point, then the end if it is inside
+                u = ds / (ds - dt)
+                qx[out] = px[s] + u * (px[t] - px[s])
+                qy[out] = py[s] + u * (py[t] - py[s])
+                qz[out] = pz[s] + u * (pz[t] - pz[s])
+                if ds >= 0.0:  # leaving through this side
+                    qin[out], qout[out] = lout[s], _REFERENCE_SIDE + side
+                else:  # entering
+                    qin[out], qout[out] = _REFERENCE_SIDE + side, lin[t]
+                out += 1
+                if dt >= 0.0:
+                    qx[out], qy[out], qz[out], qin[out], qout[out] = px[t], py[t], pz[t], lin[t], lout[t]
+                    out += 1
+        for s in range(out):
+            px[s], py[s], pz[s], lin[s], lout[s] = qx[s], qy[s], qz[s], qin[s], qout[s]
+        k = out
+    if k == 0:
+        return m
+    # the reference face's 2-D frame: u along its first edge, v = n × u; half spans hu, hv of the face
+    ux, uy, uz = rx[1] - rx[0], ry[1] - ry[0], rz[1] - rz[0]
+    lu = math.sqrt(ux * ux + uy * uy + uz * uz)
+    ux, uy, uz = ux / lu, uy / lu, uz / lu
+    vx, vy, vz = ny * uz - nz * uy, nz * ux - nx * uz, nx * uy - ny * ux
+    umin = vmin = np.inf
+    umax = vmax = -np.inf
+    for s in range(nref):
+        a = ux * rx[s] + uy * ry[s] + uz * rz[s]
+        b = vx * rx[s] + vy * ry[s] + vz * rz[s]
+        umin, umax, vmin, vmax = min(umin, a), max(umax, a), min(vmin, b), max(vmax, b)
+    hu, hv = 0.5 * (umax - umin), 0.5 * (vmax - vmin)
+    X, Y, Z, Zg = np.empty(k), np.empty(k), np.empty(k), np.empty(k)
+    valid = np.ones(k, np.bool_)
+    for s in range(k):
+        X[s] = ux * px[s] + uy * py[s] + uz * pz[s]
+        Y[s] = vx * px[s] + vy * py[s] + vz * pz[s]
+        Z[s] = nx * px[s] + ny * py[s] + nz * pz[s] - d_ref
+        Zg[s] = Z[s]
+    # merge (near) duplicates, as box–box does: a point coinciding with an earlier one is dropped
+    close = (1e-4 * (hu + hv)) ** 2
+    for j in range(k):
+        for i in range(j):
+            if valid[i] and (X[j] - X[i]) ** 2 + (Y[j] - Y[i]) ** 2 <= close:
+                valid[j] = False
+                break
+    apart = best > 0.0
+    _lower_to(Z, valid, best, apart)
+    for s in range(k):
+        valid[s] = valid[s] and Z[s] < margin
+    reduce_to_four(X, Y, hu, hv, valid)
+    _lower_to(Z, valid, best, apart)
+    sign = -1.0 if flip else 1.0
+    base = FACE_FEATURE | (np.int64(1 if flip else 0) << np.int64(60)) | (np.int64(face_r) << np.int64(40)) \
+        | (np.int64(face_i) << np.int64(20))
+    for s in range(k):
+        if valid[s]:
+            half = 0.5 * Zg[s]
+            m = write_point(normal, separation, point, feature, m, sign * nx, sign * ny, sign * nz, Z[s],
+                            px[s] - half * nx, py[s] - half * ny, pz[s] - half * nz,
+                            base | (lin[s] * 512 + lout[s]))
+    return m
+
+
+@njit
+def _lower_to(Z, valid, best, apart):
+    """If ``apart``, shift ``Z`` down (in place) so its smallest valid entry is at most ``best`` (box–box)."""
+    if not apart:
+        return
+    nearest = np.inf
+    for s in range(len(Z)):
+        if valid[s] and Z[s] < nearest:
+            nearest = Z[s]
+    if nearest < np.inf:
+        shift = max(nearest - best, 0.0)
+        for s in range(len(Z)):
+            Z[s] -= shift
+
+
+@njit
+def signed_distance(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
+                    vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b):
+    """GJK, and EPA if the cores overlap: ``(separation, nx, ny, nz, ax, ay, az, bx, by, bz, feature)`` with the
+    witness points a (on A), b (on B), the normal from A to B and an edge-contact feature id built from the
+    witness features' vertex indices."""
+    simplex_a, simplex_b = np.empty((4, 3)), np.empty((4, 3))
+    simplex_ia, simplex_ib, weights = np.empty(4, np.int64), np.empty(4, np.int64), np.empty(4)
+    count, intersecting, _ = gjk(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
+                                 vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b, 0, 0,
+                                 simplex_a, simplex_b, simplex_ia, simplex_ib, weights)
+    ax = ay = az = bx = by = bz = 0.0
+    for i in range(count):
+        ax += weights[i] * simplex_a[i, 0]
+        ay += weights[i] * simplex_a[i, 1]
+        az += weights[i] * simplex_a[i, 2]
+        bx += weights[i] * simplex_b[i, 0]
+        by += weights[i] * simplex_b[i, 1]
+        bz += weights[i] * simplex_b[i, 2]
+    dist = math.sqrt((bx - ax) ** 2 + (by - ay) ** 2 + (bz - az) ** 2)
+    a_lo, a_hi, b_lo, b_hi = simplex_ia[0], simplex_ia[0], simplex_ib[0], simplex_ib[0]
+    for i in range(count):
+        a_lo, a_hi = min(a_lo, simplex_ia[i]), max(a_hi, simplex_ia[i])
+        b_lo, b_hi = min(b_lo, simplex_ib[i]), max(b_hi, simplex_ib[i])
+    if not intersecting and dist > 0.0:
+        sep = dist
+        nx, ny, nz = (bx - ax) / dist, (by - ay) / dist, (bz - az) / dist
+    else:
+        depth, n, pa, pb, _ = epa(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
+                                  vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b,
+                                  simplex_a, simplex_b, simplex_ia, simplex_ib, count)
+        sep = -depth
+        nx, ny, nz = n[0], n[1], n[2]
+        ax, ay, az, bx, by, bz = pa[0], pa[1], pa[2], pb[0], pb[1], pb[2]
+    feature = EDGE_FEATURE | (np.int64(a_lo) << np.int64(45)) | (np.int64(a_hi) << np.int64(30)) \
+        | (np.int64(b_lo) << np.int64(15)) | np.int64(b_hi)
+    return sep, nx, ny, nz, ax, ay, az, bx, by, bz, feature
+
+
+# ---- hull–hull ------------------------------------------------------------------------------------------
+
+@njit
+def hull_hull_contacts(vertices_a, adjacency_start_a, adjacency_a, face_plane_a, face_vertex_start_a,
+                       face_vertices_a, position_a, rotation_a,
+                       vertices_b, adjacency_start_b, adjacency_b, face_plane_b, face_vertex_start_b,
+                       face_vertices_b, position_b, rotation_b,
+                       margin, normal, separation, point, feature, m):
+    """Hull A vs hull B: up to 4 points (see the module docstring), normal from A to B; returns the next free
+    row."""
+    fa, best_a = best_face(face_plane_a, position_a, rotation_a, vertices_b, adjacency_start_b, adjacency_b,
+                           position_b, rotation_b, margin)
+    if not best_a < margin:
+        return m
+    fb, best_b = best_face(face_plane_b, position_b, rotation_b, vertices_a, adjacency_start_a, adjacency_a,
+                           position_a, rotation_a, margin)
+    if not best_b < margin:
+        return m
+    sep, nx, ny, nz, ax, ay, az, bx, by, bz, edge_feature = signed_distance(
+        vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
+        vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b)
+    if not sep < margin:
+        return m
+    use_b = best_b > best_a + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(best_a)
+    face_sep = best_b if use_b else best_a
+    if sep > face_sep + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(face_sep):
+        return write_point(normal, separation, point, feature, m, nx, ny, nz, sep, 0.5 * (ax + bx),
+                           0.5 * (ay + by), 0.5 * (az + bz), edge_feature)
+    if use_b:
+        return face_contact(vertices_b, face_plane_b, face_vertex_start_b, face_vertices_b, position_b, rotation_b,
+                            fb, vertices_a, face_plane_a, face_vertex_start_a, face_vertices_a, position_a,
+                            rotation_a, True, best_b, margin, normal, separation, point, feature, m)
+    return face_contact(vertices_a, face_plane_a, face_vertex_start_a, face_vertices_a, position_a, rotation_a,
+                        fa, vertices_b, face_plane_b, face_vertex_start_b, face_vertices_b, position_b, rotation_b,
+                        False, best_a, margin, normal, separation, point, feature, m)
+
+
+# ---- hull–plane --------------------------------------------------------------------------------------------
+
+@njit
+def plane_hull_contacts(vertices, position, rotation, margin, normal, separation, point, feature, m):
+    """Ground z = 0 (A) vs hull (B): the hull's vertices below ``margin``, at most 4 (:func:`reduce_to_four` in the
+    world's x, y over the candidates' half spans); normal +z, feature = vertex index."""
+    k = len(vertices)
+    X, Y, Z = np.empty(k), np.empty(k), np.empty(k)
+    valid = np.zeros(k, np.bool_)
+    xmin = ymin = np.inf
+    xmax = ymax = -np.inf
+    for i in range(k):
+        X[i], Y[i], Z[i] = _world_vertex(vertices, i, position, rotation)
+        if Z[i] < margin:
+            valid[i] = True
+            xmin, xmax, ymin, ymax = min(xmin, X[i]), max(xmax, X[i]), min(ymin, Y[i]), max(ymax, Y[i])
+    hu = max(0.5 * (xmax - xmin), 1e-12)
+    hv = max(0.5 * (ymax - ymin), 1e-12)
+    reduce_to_four(X, Y, hu, hv, valid)
+    for i in range(k):
+        if valid[i]:
+            m = write_point(normal, separation, point, feature, m, 0.0, 0.0, 1.0, Z[i], X[i], Y[i], 0.5 * Z[i], i)
+    return m
+
+
+# ---- hull–sphere / capsule ------------------------------------------------------------------------------
+
+@njit
+def hull_capsule_contacts(vertices, adjacency_start, adjacency, face_plane, face_vertex_start, face_vertices,
+                          position, rotation, segment, radius, margin, normal, separation, point, feature, m):
+    """Hull A vs capsule or sphere B: ``segment (2, 3)`` the core's ends in world (equal for a sphere) and its
+    ``radius``.  One point (feature 2) from GJK / EPA; two (features 0, 1: the ends of the segment clipped to the
+    face) when the capsule lies along the hull face the contact normal is."""
+    identity = np.eye(3)
+    origin = np.zeros(3)
+    none = np.zeros(3, np.int64)
+    sep, nx, ny, nz, ax, ay, az, bx, by, bz, _ = signed_distance(
+        vertices, adjacency_start, adjacency, position, rotation, segment, none, none[:0], origin, identity)
+    sep -= radius
+    if not sep < margin:
+        return m
+    ex, ey, ez = segment[1, 0] - segment[0, 0], segment[1, 1] - segment[0, 1], segment[1, 2] - segment[0, 2]
+    length = math.sqrt(ex * ex + ey * ey + ez * ez)
+    if length > 0.0:
+        # the face whose normal the contact normal is (if any), and is the segment along it?
+        f_best, along = np.int64(-1), -np.inf
+        for f in range(len(face_plane)):
+            a, b, c, _ = _world_plane(face_plane, f, position, rotation)
+            dot = a * nx + b * ny + c * nz
+            if dot > along:
+                f_best, along = f, dot
+        fx, fy, fz, d = _world_plane(face_plane, f_best, position, rotation)
+        if along > 1.0 - 1e-6 and abs(fx * ex + fy * ey + fz * ez) < CAPSULE_PARALLEL_SINE * length:
+            # clip the segment [0, 1] by the face's side planes
+            t0, t1 = 0.0, 1.0
+            f0, f1 = face_vertex_start[f_best], face_vertex_start[f_best + 1]
+            count = f1 - f0
+            for s in range(count):
+                p0x, p0y, p0z = _world_vertex(vertices, face_vertices[f0 + s], position, rotation)
+                p1x, p1y, p1z = _world_vertex(vertices, face_vertices[f0 + (s + 1) % count], position, rotation)
+                qx, qy, qz = p1x - p0x, p1y - p0y, p1z - p0z
+                sx, sy, sz = fy * qz - fz * qy, fz * qx - fx * qz, fx * qy - fy * qx  # inward
+                d0 = sx * (segment[0, 0] - p0x) + sy * (segment[0, 1] - p0y) + sz * (segment[0, 2] - p0z)
+                de = sx * ex + sy * ey + sz * ez
+                if de != 0.0:
+                    t = -d0 / de
+                    if de > 0.0:
+                        t0 = max(t0, t)
+                    else:
+                        t1 = min(t1, t)
+                elif d0 < 0.0:
+                    t1 = -1.0
+            if t1 - t0 > 1e-3:
+                for end in range(2):
+                    t = t0 if end == 0 else t1
+                    cx, cy, cz = segment[0, 0] + t * ex, segment[0, 1] + t * ey, segment[0, 2] + t * ez
+                    s_end = fx * cx + fy * cy + fz * cz - d - radius
+                    if s_end < margin:
+                        reach = radius + 0.5 * s_end
+                        m = write_point(normal, separation, point, feature, m, fx, fy, fz, s_end,
+                                        cx - reach * fx, cy - reach * fy, cz - reach * fz, end)
+                return m
+    # one point: midway between the hull's surface point and the rounded core's
+    bx, by, bz = bx - radius * nx, by - radius * ny, bz - radius * nz
+    return write_point(normal, separation, point, feature, m, nx, ny, nz, sep, 0.5 * (ax + bx), 0.5 * (ay + by),
+                       0.5 * (az + bz), 2)
+
+
+# ---- hull–triangle ---------------------------------------------------------------------------------------
+
+@njit
+def on_active_feature(triangle, active_edges, x, y, z):
+    """Is the point (x, y, z) of ``triangle (3, 3)`` on one of its active edges (or a vertex of one)?  Barycentric
+    weights (Ericson 3.4): edge e = (v_e, v_(e+1)%3) is where the third vertex's weight is 0; bit e of
+    ``active_edges`` marks it active.  Interior points are on no edge."""
+    ex, ey, ez = triangle[1, 0] - triangle[0, 0], triangle[1, 1] - triangle[0, 1], triangle[1, 2] - triangle[0, 2]
+    fx, fy, fz = triangle[2, 0] - triangle[0, 0], triangle[2, 1] - triangle[0, 1], triangle[2, 2] - triangle[0, 2]
+    px, py, pz = x - triangle[0, 0], y - triangle[0, 1], z - triangle[0, 2]
+    d00 = ex * ex + ey * ey + ez * ez
+    d01 = ex * fx + ey * fy + ez * fz
+    d11 = fx * fx + fy * fy + fz * fz
+    d20 = px * ex + py * ey + pz * ez
+    d21 = px * fx + py * fy + pz * fz
+    denom = d00 * d11 - d01 * d01
+    w1 = (d11 * d20 - d01 * d21) / denom
+    w2 = (d00 * d21 - d01 * d20) / denom
+    w0 = 1.0 - w1 - w2
+    eps = 1e-6
+    return (w2 <= eps and (active_edges & 1) != 0) or (w0 <= eps and (active_edges & 2) != 0) \
+        or (w1 <= eps and (active_edges & 4) != 0)
+
+
+@njit
+def triangle_hull_contacts(triangle, active_edges, two_sided,
+                           vertices, adjacency_start, adjacency, face_plane, face_vertex_start, face_vertices,
+                           position, rotation, margin, normal, separation, point, feature, m):
+    """A static mesh's triangle (A: ``triangle (3, 3)`` world vertices, counter-clockwise seen from its front) vs
+    hull B.  The triangle is a flat hull with two faces (front and back) and the contact is
+    :func:`hull_hull_contacts`'s, except for internal edges ("ghost" collisions: a hull sliding across a flat
+    mesh catching on the edge between two coplanar triangles, whose own normal is tilted): when the contact is
+    an edge contact whose triangle feature is an *inactive* edge or vertex (``active_edges``: bit e for edge
+    (v_e, v_e+1), from :func:`cgp_core.collision.bvh.active_edges`, computed at load), or whose normal is within
+    :data:`GHOST_NORMAL_ANGLE` of the triangle's face normal, the contact becomes a face contact with the
+    triangle's face as reference (Jolt's "active edges"; Bullet's internal-edge utility does the same with the
+    normal).  A one-sided triangle (``two_sided`` False: a closed mesh or a terrain) always pushes towards its
+    front (an edge contact whose normal points behind it becomes a face contact too); a two-sided one towards the
+    side the hull's centre is on."""
+    ex, ey, ez = triangle[1, 0] - triangle[0, 0], triangle[1, 1] - triangle[0, 1], triangle[1, 2] - triangle[0, 2]
+    fx, fy, fz = triangle[2, 0] - triangle[0, 0], triangle[2, 1] - triangle[0, 1], triangle[2, 2] - triangle[0, 2]
+    nx, ny, nz = ey * fz - ez * fy, ez * fx - ex * fz, ex * fy - ey * fx
+    area2 = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if area2 == 0.0:
+        return m
+    nx, ny, nz = nx / area2, ny / area2, nz / area2
+    d = nx * triangle[0, 0] + ny * triangle[0, 1] + nz * triangle[0, 2]
+    front = 0
+    if two_sided and nx * position[0] + ny * position[1] + nz * position[2] < d:
+        front = 1
+    # the triangle as a flat hull in world coordinates: face 0 = front, face 1 = back
+    planes = np.empty((2, 4))
+    planes[0, 0], planes[0, 1], planes[0, 2], planes[0, 3] = nx, ny, nz, d
+    planes[1, 0], planes[1, 1], planes[1, 2], planes[1, 3] = -nx, -ny, -nz, -d
+    loop_start = np.array([0, 3, 6], np.int64)
+    loops = np.array([0, 1, 2, 0, 2, 1], np.int64)
+    identity = np.eye(3)
+    origin = np.zeros(3)
+    no_adjacency = np.zeros(4, np.int64)
+    # the front face's SAT separation (one-sided: the only face of the triangle that counts)
+    _, sx, sy, sz = support_point(vertices, adjacency_start, adjacency, position, rotation,
+                                  -planes[front, 0], -planes[front, 1], -planes[front, 2], 0)
+    front_sep = planes[front, 0] * sx + planes[front, 1] * sy + planes[front, 2] * sz - planes[front, 3]
+    if not front_sep < margin:
+        return m
+    fb, best_b = best_face(face_plane, position, rotation, triangle, no_adjacency, no_adjacency[:0], origin,
+                           identity, margin)
+    if not best_b < margin:
+        return m
+    sep, cx, cy, cz, ax, ay, az, bx, by, bz, edge_feature = signed_distance(
+        triangle, no_adjacency, no_adjacency[:0], origin, identity, vertices, adjacency_start, adjacency, position,
+        rotation)
+    if not sep < margin:
+        return m
+    use_b = best_b > front_sep + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(front_sep)
+    face_sep = best_b if use_b else front_sep
+    edge = sep > face_sep + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(face_sep)
+    if edge or use_b:
+        # the contact normal (A to B) and how far it is from the triangle's face normal
+        if not edge:
+            cx, cy, cz, _ = _world_plane(face_plane, fb, position, rotation)
+            cx, cy, cz = -cx, -cy, -cz
+        along = cx * planes[front, 0] + cy * planes[front, 1] + cz * planes[front, 2]
+        if along < math.cos(GHOST_NORMAL_ANGLE) or (not two_sided and along <= 0.0):
+            # the triangle's feature in the contact (EPA / GJK witness a): a ghost unless an active edge
+            if not two_sided and along <= 0.0 or not on_active_feature(triangle, active_edges, ax, ay, az):
+                edge = use_b = False  # the triangle's face instead
+        elif edge:
+            edge = False  # nearly the face normal: the face contact
+    if edge:
+        return write_point(normal, separation, point, feature, m, cx, cy, cz, sep, 0.5 * (ax + bx), 0.5 * (ay + by),
+                           0.5 * (az + bz), edge_feature)
+    if use_b:
+        return face_contact(vertices, face_plane, face_vertex_start, face_vertices, position, rotation, fb,
+                            triangle, planes, loop_start, loops, origin, identity, True, best_b, margin, normal,
+                            separation, point, feature, m)
+    return face_contact(triangle, planes, loop_start, loops, origin, identity, front, vertices, face_plane,
+                        face_vertex_start, face_vertices, position, rotation, False, front_sep, margin, normal,
+                        separation, point, feature, m)
