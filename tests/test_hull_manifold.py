@@ -21,6 +21,7 @@ from cgp_core.collision.manifold import (
     plane_hull_contacts,
     triangle_hull_contacts,
 )
+from cgp_core.collision.narrowphase import Box, ContactBuffer
 
 EYE = np.eye(3)
 CAP = 64
@@ -58,7 +59,7 @@ def test_box_as_hull_gives_the_box_kernels_manifold_on_random_poses():
         pb = pa + d / np.linalg.norm(d) * rng.uniform(0.2, 1.0)
         margin = 0.02
         n, s, p, f = buffers()
-        m = box_box_contacts(pa, Ra, ha, pb, Rb, hb, margin, n, s, p, f, 0)
+        m = box_box_contacts(Box(pa, Ra, ha), Box(pb, Rb, hb), margin, ContactBuffer(n, s, p, f), 0)
         box = n[:m], s[:m], p[:m]
         hull = hull_hull(box_hull(ha), pa, Ra, box_hull(hb), pb, Rb, margin)
         assert len(hull[0]) == m, trial

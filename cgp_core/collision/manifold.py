@@ -60,12 +60,19 @@ from .box_box import AXIS_ABSOLUTE_TOLERANCE, AXIS_RELATIVE_TOLERANCE
 from .convex import BRUTE_FORCE_SUPPORT_VERTICES
 from .epa import epa
 from .gjk import gjk, support_point
-from .narrowphase import CAPSULE_PARALLEL_SINE, write_point
+from .narrowphase import CAPSULE_PARALLEL_SINE, ContactBuffer, write_point
 
 FACE_FEATURE = np.int64(1) << np.int64(62)
 EDGE_FEATURE = np.int64(1) << np.int64(61)
 #: a reference-side label in the clip codes (incident edges are 0..254)
 _REFERENCE_SIDE = 256
+
+
+@njit
+def _write_point(normal, separation, point, feature, m, nx, ny, nz, sep, px, py, pz, feat):
+    """narrowphase.write_point on this module's loose output arrays (until they travel as one ContactBuffer)."""
+    return write_point(ContactBuffer(normal, separation, point, feature), m, nx, ny, nz, sep, px, py, pz, feat)
+
 
 #: hull–triangle: a contact normal within this angle of the triangle's face normal is replaced by it (rad)
 GHOST_NORMAL_ANGLE = math.radians(20.0)
@@ -283,7 +290,7 @@ def face_contact(vertices_r, face_plane_r, face_vertex_start_r, face_vertices_r,
     for s in range(k):
         if valid[s]:
             half = 0.5 * Zg[s]
-            m = write_point(normal, separation, point, feature, m, sign * nx, sign * ny, sign * nz, Z[s],
+            m = _write_point(normal, separation, point, feature, m, sign * nx, sign * ny, sign * nz, Z[s],
                             px[s] - half * nx, py[s] - half * ny, pz[s] - half * nz,
                             base | (lin[s] * 512 + lout[s]))
     return m
@@ -369,7 +376,7 @@ def hull_hull_contacts(vertices_a, adjacency_start_a, adjacency_a, face_plane_a,
     use_b = best_b > best_a + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(best_a)
     face_sep = best_b if use_b else best_a
     if sep > face_sep + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(face_sep):
-        return write_point(normal, separation, point, feature, m, nx, ny, nz, sep, 0.5 * (ax + bx),
+        return _write_point(normal, separation, point, feature, m, nx, ny, nz, sep, 0.5 * (ax + bx),
                            0.5 * (ay + by), 0.5 * (az + bz), edge_feature)
     if use_b:
         return face_contact(vertices_b, face_plane_b, face_vertex_start_b, face_vertices_b, position_b, rotation_b,
@@ -401,7 +408,7 @@ def plane_hull_contacts(vertices, position, rotation, margin, normal, separation
     reduce_to_four(X, Y, hu, hv, valid)
     for i in range(k):
         if valid[i]:
-            m = write_point(normal, separation, point, feature, m, 0.0, 0.0, 1.0, Z[i], X[i], Y[i], 0.5 * Z[i], i)
+            m = _write_point(normal, separation, point, feature, m, 0.0, 0.0, 1.0, Z[i], X[i], Y[i], 0.5 * Z[i], i)
     return m
 
 
@@ -459,12 +466,12 @@ def hull_capsule_contacts(vertices, adjacency_start, adjacency, face_plane, face
                     s_end = fx * cx + fy * cy + fz * cz - d - radius
                     if s_end < margin:
                         reach = radius + 0.5 * s_end
-                        m = write_point(normal, separation, point, feature, m, fx, fy, fz, s_end,
+                        m = _write_point(normal, separation, point, feature, m, fx, fy, fz, s_end,
                                         cx - reach * fx, cy - reach * fy, cz - reach * fz, end)
                 return m
     # one point: midway between the hull's surface point and the rounded core's
     bx, by, bz = bx - radius * nx, by - radius * ny, bz - radius * nz
-    return write_point(normal, separation, point, feature, m, nx, ny, nz, sep, 0.5 * (ax + bx), 0.5 * (ay + by),
+    return _write_point(normal, separation, point, feature, m, nx, ny, nz, sep, 0.5 * (ax + bx), 0.5 * (ay + by),
                        0.5 * (az + bz), 2)
 
 
@@ -558,7 +565,7 @@ def triangle_hull_contacts(triangle, active_edges, two_sided,
         elif edge:
             edge = False  # nearly the face normal: the face contact
     if edge:
-        return write_point(normal, separation, point, feature, m, cx, cy, cz, sep, 0.5 * (ax + bx), 0.5 * (ay + by),
+        return _write_point(normal, separation, point, feature, m, cx, cy, cz, sep, 0.5 * (ax + bx), 0.5 * (ay + by),
                            0.5 * (az + bz), edge_feature)
     if use_b:
         return face_contact(vertices, face_plane, face_vertex_start, face_vertices, position, rotation, fb,
