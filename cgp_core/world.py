@@ -84,7 +84,7 @@ class WorldEvent:
     """Something the world did on its own that a user should hear about (the node logs these)."""
 
     time: float
-    level: str  # "warn" | "error"
+    level: str  # "info" | "warn" | "error"
     text: str
 
 
@@ -129,7 +129,12 @@ class World:
         self.events: list[WorldEvent] = []
         self.spawned: list[str] = []
         self.model_version = 0
+        for body in scene.bodies:  # what loading the bodies had to say (a hull of non-convex points, a BVH built)
+            self._report_notes(body)
         self.remember_tick_start()
+
+    def _report_notes(self, spec) -> None:
+        self.events.extend(WorldEvent(self.time, level, text) for level, text in getattr(spec, "notes", ()))
 
     @classmethod
     def from_scene(cls, scene: str | Scene, **kwargs) -> World:
@@ -406,6 +411,7 @@ class World:
             _, self._initial_body_state = concatenate_bodies(old_model, self._initial_body_state, model,
                                                              state.copy())
             self._bodies_changed()
+            self._report_notes(spec)
         self.spawned.append(name)
         self.model_version += 1
         return kind

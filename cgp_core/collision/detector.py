@@ -30,7 +30,17 @@ from ..bodies import BodyModel, BodyState, Shape
 from ..jit import njit
 from .box_box import box_box_contacts
 from .broadphase import DEFAULT_BROAD_PHASE, get_broad_phase, sweep_and_prune_kernel, sweep_and_prune_pairs
-from .contacts import GROUND, ContactSet
+from .contacts import FEATURE_SLOTS, GROUND, ContactSet
+from .convex_phase import (
+    TOI_TARGET,
+    TOI_TOLERANCE,
+    ShapeModel,
+    build_shape_model,
+    convex_phase,
+    fast_turn_pairs,
+    pose_shapes,
+    sweep_times,
+)
 from .materials import Ground, combine_friction, combine_restitution
 from .narrowphase import (
     box_capsule_contacts,
@@ -48,10 +58,6 @@ from .primitives import CollisionModel, build_collision_model, primitive_bounds
 #: default speculative distance [m]: contacts within this gap are kept even at rest, so a resting contact
 #: does not flicker in and out (and lose its warm-start impulse) with the solver's tiny residual motion
 DEFAULT_SPECULATIVE_DISTANCE = 0.002
-
-#: features per primitive pair in a contact key (box–box uses up to 296): ``key // FEATURE_SLOTS`` is the
-#: primitive pair, which the solver uses to match contacts across sub-steps
-FEATURE_SLOTS = 512
 
 #: up to this many primitives the broad phase tests every pair (compiled) whatever is configured
 SMALL_SCENE = 64
@@ -75,20 +81,31 @@ class CollisionDetector:
     """
 
     def __init__(self, broad_phase: str = DEFAULT_BROAD_PHASE,
-                 speculative_distance: float = DEFAULT_SPECULATIVE_DISTANCE):
+                 speculative_distance: float = DEFAULT_SPECULATIVE_DISTANCE, *, continuous: bool = True):
         self.broad_phase_name = broad_phase
         self.broad_phase = get_broad_phase(broad_phase)
         if not (isinstance(speculative_distance, (int, float)) and 0.0 <= speculative_distance < np.inf):
             raise ValueError(f"speculative_distance must be a finite length >= 0 [m], got {speculative_distance!r}")
         self.speculative_distance = float(speculative_distance)
+        #: grow the margins by the motion over the sub-step and sweep fast-turning bodies (see the module
+        #: docstring and :mod:`.convex_phase`); False only to show, in tests, what they prevent
+        self.continuous = bool(continuous)
         self._model: BodyModel | None = None
         self._cmodel: CollisionModel | None = None
+        self._shapes: ShapeModel | None = None
+        self._sweeps = None  # what sweep_fast_rotation needs from the last detect (convex_phase.FastTurns)
 
     def collision_model(self, model: BodyModel) -> CollisionModel:
         if model is not self._model or self._cmodel is None or len(self._cmodel.body_reach) != model.count:
             self._cmodel = build_collision_model(model)
+            self._shapes = build_shape_model(model, self._cmodel) if model.has_convex_phase_shapes else None
             self._model = model
         return self._cmodel
+
+    def shape_model(self, model: BodyModel) -> ShapeModel | None:
+        """The primitives of the convex stage (:mod:`.convex_phase`), None for a model without its shapes."""
+        self.collision_model(model)
+        return self._shapes
 
     def detect(self, model: BodyModel, state: BodyState, h: float, *, ground: Ground | None,
                velocity: np.ndarray | None = None, angular_velocity: np.ndarray | None = None,
@@ -104,42 +121,128 @@ class CollisionDetector:
         caller wakes it: see :mod:`cgp_core.sleep`).
         """
         cm = self.collision_model(model)
+        shapes = self._shapes
         self.touched_sleeping = np.zeros(0, np.intp)
-        if cm.count == 0:
+        self._sweeps = None
+        if cm.count == 0 and shapes is None:
             return ContactSet.empty()
         if velocity is None:
             velocity = state.linear_velocity(model)
         if angular_velocity is None:
             angular_velocity = state.angular_velocity(model)
         R = state.rotation_matrices() if rotation is None else rotation
+        R = np.ascontiguousarray(R)
         movable = ~cm.fixed_body
         active = movable if active is None else active & movable
+        h_motion = float(h) if self.continuous else 0.0  # (only the margins: h (|v| + |ω| reach))
         centre, lo, hi, margin = primitive_bounds(cm.body, cm.offset, cm.radius, cm.half_extents, cm.body_reach,
-                                                  state.position, np.ascontiguousarray(R), velocity,
-                                                  angular_velocity, float(h), self.speculative_distance)
+                                                  state.position, R, velocity, angular_velocity, h_motion,
+                                                  self.speculative_distance)
         # a primitive whose body's state went non-finite (a numerical blow-up, which World contains after the
         # tick) takes no part in collisions rather than stopping everyone else's step: its bounds are NaN (see
         # primitive_bounds), so no overlap test passes
-        if cm.count <= SMALL_SCENE:
-            i, j = small_scene_pairs(lo, hi, cm.body, active)
-        elif self.broad_phase is sweep_and_prune_pairs:
-            i, j = sweep_and_prune_kernel(lo, hi)  # one compiled call; the pair order does not matter here
-        else:
-            sane = np.flatnonzero(np.isfinite(lo).all(1) & np.isfinite(hi).all(1))
-            if sane.size == cm.count:
-                i, j = self.broad_phase(lo, hi)
-            else:
-                i, j = self.broad_phase(lo[sane], hi[sane])
-                i, j = sane[i], sane[j]
-            i, j = np.ascontiguousarray(i, np.int64), np.ascontiguousarray(j, np.int64)
+        if shapes is not None:
+            return self._detect_with_shapes(model, state, shapes, cm, ground, velocity, angular_velocity, R, active,
+                                            movable, h_motion, centre, lo, hi, margin)
+        i, j = self._candidate_pairs(lo, hi, cm.body, active)
         contacts = narrow_phase(cm.body, cm.shape, cm.radius, cm.half_extents, model.friction, model.restitution,
-                                active, movable, centre, np.ascontiguousarray(R), lo, margin, i, j,
+                                active, movable, centre, R, lo, margin, i, j,
                                 ground is not None, ground.friction if ground is not None else 0.0,
                                 ground.restitution if ground is not None else 0.0)
         body_a, body_b, normal, separation, point, key, friction, restitution, touched = contacts
         if touched.any():
             self.touched_sleeping = np.flatnonzero(touched)
         return ContactSet(body_a, body_b, normal, separation, point, key, friction, restitution)
+
+    def _candidate_pairs(self, lo, hi, prim_body, active):
+        """The broad phase: primitive pairs ``i, j`` whose AABBs overlap."""
+        count = len(lo)
+        if count <= SMALL_SCENE:
+            return small_scene_pairs(lo, hi, prim_body, active)
+        if self.broad_phase is sweep_and_prune_pairs:
+            return sweep_and_prune_kernel(lo, hi)  # one compiled call; the pair order does not matter here
+        sane = np.flatnonzero(np.isfinite(lo).all(1) & np.isfinite(hi).all(1))
+        if sane.size == count:
+            i, j = self.broad_phase(lo, hi)
+        else:
+            i, j = self.broad_phase(lo[sane], hi[sane])
+            i, j = sane[i], sane[j]
+        return np.ascontiguousarray(i, np.int64), np.ascontiguousarray(j, np.int64)
+
+    def _detect_with_shapes(self, model, state, shapes, cm, ground, velocity, angular_velocity, R, active, movable,
+                            h_motion, centre_old, lo_old, hi_old, margin_old) -> ContactSet:
+        """:meth:`detect` for a model with convex hulls, compound bodies or static meshes: every primitive into
+        one broad phase; the pairs of two of :class:`CollisionModel`'s primitives to :func:`narrow_phase`
+        (unchanged), every other pair and this stage's ground contacts to :func:`.convex_phase.convex_phase`;
+        its contacts appended."""
+        p, P = cm.count, shapes.count
+        centre, lo, hi = np.empty((P, 3)), np.empty((P, 3)), np.empty((P, 3))
+        margin, rotation = np.empty(P), np.empty((P, 3, 3))
+        centre[:p], lo[:p], hi[:p], margin[:p] = centre_old, lo_old, hi_old, margin_old
+        pose_shapes(shapes.primitives, shapes.hulls, shapes.meshes, shapes.body_reach, state.position, R, velocity,
+                    angular_velocity, h_motion, self.speculative_distance, centre, rotation, lo, hi, margin)
+        i, j = self._candidate_pairs(lo, hi, shapes.primitives.body, active)
+        has_ground = ground is not None
+        mu, e = (ground.friction, ground.restitution) if has_ground else (0.0, 0.0)
+        parts = []
+        touched = np.zeros(model.count, bool)
+        if p:
+            old = (i < p) & (j < p)
+            (body_a, body_b, normal, separation, point, key, friction, restitution, touched_old) = narrow_phase(
+                cm.body, cm.shape, cm.radius, cm.half_extents, model.friction, model.restitution, active, movable,
+                centre_old, R, lo_old, margin_old, np.ascontiguousarray(i[old]), np.ascontiguousarray(j[old]),
+                has_ground, mu, e)
+            parts.append(ContactSet(body_a, body_b, normal, separation, point, key, friction, restitution))
+            touched |= touched_old
+        (body_a, body_b, normal, separation, point, key, friction, restitution, touched_new) = convex_phase(
+            shapes.primitives, shapes.hulls, shapes.meshes, model.friction, model.restitution, active, movable,
+            centre, rotation, lo, margin, i, j, has_ground, mu, e, np.int64((p + 1) ** 2))
+        parts.append(ContactSet(body_a, body_b, normal, separation, point, key, friction, restitution))
+        touched |= touched_new
+        if touched.any():
+            self.touched_sleeping = np.flatnonzero(touched)
+        if self.continuous:
+            moving, static = fast_turn_pairs(shapes.primitives, active, movable, angular_velocity, float(h_motion), i,
+                                             j)
+            if len(moving):
+                self._sweeps = (model, moving, static, state.position.copy(), R.copy(), centre, rotation)
+        return ContactSet.concatenate(parts)
+
+    def sweep_fast_rotation(self, model: BodyModel, state: BodyState, h: float) -> None:
+        """Continuous collision for fast rotation (pipeline stage 4, right after the integrator; see
+        :mod:`.convex_phase`): every body that the last :meth:`detect` found turning by more than
+        :data:`.convex_phase.TOI_ANGLE` next to a fixed hull, box or mesh is swept from its pose then to its pose
+        now (constant velocity and angular velocity, :func:`.convex_phase.sweep_times`: conservative advancement);
+        if it touched within the sub-step it is put back at its pose at that time of impact.  Its momenta are
+        kept: the next sub-step's contact, made at that pose, stops it.  A no-op when nothing turned that fast."""
+        sweeps, self._sweeps = self._sweeps, None
+        if sweeps is None or sweeps[0] is not model or self._shapes is None:
+            return
+        from ..rotation import matrix_to_quat, quat_from_rotvec, quat_multiply, quat_to_rotvec
+        from .toi import rotated
+
+        _, moving, static, position0, rotation0, centre, prim_rotation = sweeps
+        prims = self._shapes.primitives
+        bodies = np.unique(prims.body[moving])
+        R1 = state.rotation_matrices()
+        velocity = np.zeros((model.count, 3))
+        angular_velocity = np.zeros((model.count, 3))
+        velocity[bodies] = (state.position[bodies] - position0[bodies]) / h
+        turn = matrix_to_quat(R1[bodies] @ np.swapaxes(rotation0[bodies], -1, -2))  # R1 R0ᵀ
+        angular_velocity[bodies] = quat_to_rotvec(turn) / h
+        times = sweep_times(prims, self._shapes.hulls, self._shapes.meshes, moving, static, centre, prim_rotation,
+                            position0, rotation0, velocity, angular_velocity, float(h), TOI_TARGET, TOI_TOLERANCE)
+        first = np.ones(model.count)
+        np.minimum.at(first, prims.body[moving], times)
+        for b in np.flatnonzero(first < 1.0):
+            t = first[b]
+            state.position[b] = position0[b] + velocity[b] * h * t
+            R = rotated(rotation0[b], *angular_velocity[b], h * t)
+            q0 = matrix_to_quat(rotation0[b][None])[0]
+            q = quat_multiply(quat_from_rotvec(angular_velocity[b] * h * t), q0)
+            state.orientation[b] = q / np.linalg.norm(q)
+            if state.rotation is not None:
+                state.rotation[b] = R
 
 
 @njit
