@@ -133,9 +133,9 @@ class Obstacles:
             radii.append(np.full(len(local), model.radius[b]))
         boxes = np.flatnonzero(shape == Shape.BOX)
         capsules = np.flatnonzero(shape == Shape.CAPSULE)
-        box = [state.position[boxes], rotations[boxes], model.half_extents[boxes]]
-        capsule = [state.position[capsules], rotations[capsules][:, :, 2], model.half_extents[capsules, 2],
-                   model.radius[capsules]]
+        box = [[state.position[boxes]], [rotations[boxes]], [model.half_extents[boxes]]]  # columns: lists of arrays
+        capsule = [[state.position[capsules]], [rotations[capsules][:, :, 2]], [model.half_extents[capsules, 2]],
+                   [model.radius[capsules]]]
         hulls = []  # (centre, rotation, hull)
         for b in np.flatnonzero(shape == Shape.CONVEX):
             hulls.append((state.position[b], rotations[b], model.hulls[b]))
