@@ -49,7 +49,7 @@ def prism(sides=6, radius=0.2, half_height=0.05):
 
 def test_box_as_hull_gives_the_box_kernels_manifold_on_random_poses():
     rng = np.random.default_rng(0)
-    compared = multi = 0
+    compared = multi = wider = 0
     for trial in range(150):
         ha, hb = rng.uniform(0.1, 0.5, 3), rng.uniform(0.1, 0.5, 3)
         Ra, Rb = Rotation.random(2, random_state=trial).as_matrix()
@@ -61,7 +61,14 @@ def test_box_as_hull_gives_the_box_kernels_manifold_on_random_poses():
         m = box_box_contacts(pa, Ra, ha, pb, Rb, hb, margin, n, s, p, f, 0)
         box = n[:m], s[:m], p[:m]
         hull = hull_hull(box_hull(ha), pa, Ra, box_hull(hb), pb, Rb, margin)
-        assert len(hull[0]) == m, trial
+        if len(hull[0]) != m:
+            # the one departure, on purpose: where box–box's reduction (in the reference face's units) keeps only
+            # 2 or 3 of more candidates, the hull kernel reduces in the contact polygon's own units and keeps 4
+            assert len(hull[0]) == 4 > m >= 2, trial
+            np.testing.assert_allclose(hull[0], np.tile(box[0][0], (4, 1)), atol=1e-9)
+            assert hull[1].min() <= box[1].min() + 1e-9  # not shallower (box–box may drop the deepest candidate)
+            wider += 1
+            continue
         if m == 0:
             continue
         compared += 1
@@ -70,7 +77,7 @@ def test_box_as_hull_gives_the_box_kernels_manifold_on_random_poses():
         order_box, order_hull = np.lexsort(box[2].T), np.lexsort(hull[2].T)
         np.testing.assert_allclose(hull[2][order_hull], box[2][order_box], atol=1e-9)
         np.testing.assert_allclose(hull[1][order_hull], box[1][order_box], atol=1e-9)
-    assert compared >= 80 and multi >= 30
+    assert compared >= 80 and multi >= 30 and wider <= 5
 
 
 def test_a_hull_resting_on_a_face_gets_equal_separations_at_the_face_corners():

@@ -275,7 +275,28 @@ def face_contact(vertices_r, face_plane_r, face_vertex_start_r, face_vertices_r,
     _lower_to(Z, valid, best, apart)
     for s in range(k):
         valid[s] = valid[s] and Z[s] < margin
+    # the reduction, in the reference face's units (box–box's rule, which this then reproduces for boxes); where
+    # that keeps fewer than 4 of more candidates — a small hull on a big face, whose diagonal extremes in the
+    # face's units fall on the same two points: a line of support, on which it would rock — in the units of the
+    # contact polygon's own half spans, if that keeps more
+    before = valid.copy()
     reduce_to_four(X, Y, hu, hv, valid)
+    candidates = kept = 0
+    cu_lo = cv_lo = np.inf
+    cu_hi = cv_hi = -np.inf
+    for s in range(k):
+        if before[s]:
+            candidates += 1
+            cu_lo, cu_hi, cv_lo, cv_hi = min(cu_lo, X[s]), max(cu_hi, X[s]), min(cv_lo, Y[s]), max(cv_hi, Y[s])
+        kept += valid[s]
+    if kept < min(candidates, 4):
+        first = valid.copy()
+        for s in range(k):
+            valid[s] = before[s]
+        reduce_to_four(X, Y, max(0.5 * (cu_hi - cu_lo), 1e-12), max(0.5 * (cv_hi - cv_lo), 1e-12), valid)
+        if valid.sum() <= kept:  # no better: the first
+            for s in range(k):
+                valid[s] = first[s]
     _lower_to(Z, valid, best, apart)
     sign = -1.0 if flip else 1.0
     base = FACE_FEATURE | (np.int64(1 if flip else 0) << np.int64(60)) | (np.int64(face_r) << np.int64(40)) \

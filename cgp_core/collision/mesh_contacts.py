@@ -132,8 +132,9 @@ def mesh_capsule_contacts(mesh_vertices, mesh_triangles, active_edges, node_lo, 
                           two_sided, segment, radius, margin, candidates, normal, separation, point, feature, m):
     """Static mesh (A) vs capsule or sphere (B: ``segment (2, 3)`` the core's ends in world, equal for a sphere).
     Per nearby triangle :func:`.manifold.hull_capsule_contacts` with the triangle as a two-faced flat hull; a
-    point whose triangle feature is an inactive edge or vertex is dropped (the neighbouring triangle's face gives
-    that contact, without the ghost normal), and so is one that pushes towards a one-sided triangle's back."""
+    point whose triangle feature is an inactive edge or vertex becomes a face contact (the triangle's normal, the
+    core's height over its plane: no ghost normal), and one that pushes towards a one-sided triangle's back is
+    dropped."""
     local = np.empty((2, 3))
     for k in range(2):
         for i in range(3):
@@ -175,18 +176,35 @@ def mesh_capsule_contacts(mesh_vertices, mesh_triangles, active_edges, node_lo, 
         first = m
         m = hull_capsule_contacts(triangle, no_adjacency, no_adjacency[:0], planes, loop_start, loops, origin,
                                   identity, local, radius, margin, normal, separation, point, feature, m)
-        # drop the ghosts (inactive features) and, one-sided, the back-facing points
+        # ghosts (a point on an inactive edge or vertex, its normal tilted from the face's) become face contacts:
+        # the triangle's face normal (towards the core's side) and the core's height over the face's plane — what
+        # the neighbouring triangle's face would give, so a ball rolling over a flat or gently convex edge feels
+        # no bump and, right over it, is still held (dropping both triangles' edge points would let it sink);
+        # one-sided, the back-facing points are dropped
         kept = first
         for k in range(first, m):
             half = 0.5 * separation[k]
             on_triangle_x = point[k, 0] - half * normal[k, 0]
             on_triangle_y = point[k, 1] - half * normal[k, 1]
             on_triangle_z = point[k, 2] - half * normal[k, 2]
-            back = not two_sided and normal[k, 0] * nx + normal[k, 1] * ny + normal[k, 2] * nz <= 0.0
             tilted = normal[k, 0] * nx + normal[k, 1] * ny + normal[k, 2] * nz
-            ghost = abs(tilted) < 1.0 - 1e-9 and not on_active_feature(triangle, active_edges[t], on_triangle_x,
-                                                                        on_triangle_y, on_triangle_z)
-            if back or ghost:
+            if abs(tilted) < 1.0 - 1e-9 and not on_active_feature(triangle, active_edges[t], on_triangle_x,
+                                                                   on_triangle_y, on_triangle_z):
+                reach = radius + half  # from the midway point back to the core
+                cx = point[k, 0] + reach * normal[k, 0]
+                cy = point[k, 1] + reach * normal[k, 1]
+                cz = point[k, 2] + reach * normal[k, 2]
+                side = 1.0 if tilted >= 0.0 else -1.0
+                fx, fy, fz = side * nx, side * ny, side * nz
+                height = side * (nx * cx + ny * cy + nz * cz - d)
+                separation[k] = height - radius
+                normal[k, 0], normal[k, 1], normal[k, 2] = fx, fy, fz
+                back_to = radius + 0.5 * separation[k]
+                point[k, 0], point[k, 1], point[k, 2] = cx - back_to * fx, cy - back_to * fy, cz - back_to * fz
+                if not separation[k] < margin:
+                    continue
+            back = not two_sided and normal[k, 0] * nx + normal[k, 1] * ny + normal[k, 2] * nz <= 0.0
+            if back:
                 continue
             if kept != k:
                 for r in range(3):
