@@ -375,10 +375,64 @@ def _grown(normal, separation, point, feature, owner_a, owner_b, m, need):
 
 
 @njit
+def _copy_row(normal, separation, point, feature, to, row):
+    for r in range(3):
+        normal[to, r] = normal[row, r]
+        point[to, r] = point[row, r]
+    separation[to] = separation[row]
+    feature[to] = feature[row]
+
+
+@njit
+def merge_close_rows(normal, separation, point, feature, start, m):
+    """Rows ``start .. m − 1`` without near-duplicates: a hull vertex over a mesh vertex or edge is reported by each
+    triangle around it, at (almost) the same point with (slightly) different normals and separations — two such
+    rows make the solver's block singular with inconsistent targets.  Rows whose points are within 1e-3 of their
+    span (+ 10 µm) of an earlier row's are merged into it, the deeper of the two kept (the points are the
+    geometric midway points: a separation may be lowered to a face's SAT value, the point is not).  Returns the new
+    end row."""
+    k = m - start
+    if k < 2:
+        return m
+    at = np.empty((k, 3))
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for s in range(k):
+        for r in range(3):
+            at[s, r] = point[start + s, r]
+            lo[r] = min(lo[r], at[s, r])
+            hi[r] = max(hi[r], at[s, r])
+    span = max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2])
+    close = (1e-3 * span + 1e-5) ** 2
+    kept = start
+    kept_at = np.empty((k, 3))
+    for s in range(start, m):
+        twin = -1
+        q = s - start
+        for t in range(start, kept):
+            u = t - start
+            d2 = (at[q, 0] - kept_at[u, 0]) ** 2 + (at[q, 1] - kept_at[u, 1]) ** 2 \
+                + (at[q, 2] - kept_at[u, 2]) ** 2
+            if d2 <= close:
+                twin = t
+                break
+        if twin < 0:
+            if kept != s:
+                _copy_row(normal, separation, point, feature, kept, s)
+            kept_at[kept - start] = at[q]
+            kept += 1
+        elif separation[s] < separation[twin]:
+            _copy_row(normal, separation, point, feature, twin, s)
+    return kept
+
+
+@njit
 def reduce_mesh_rows(normal, separation, point, feature, start, m):
-    """At most 4 of the rows ``start .. m − 1`` (one mesh–shape pair's points, from several triangles): those
-    extreme along the diagonals of the plane across their mean normal (:func:`.manifold.reduce_to_four`, the box
-    kernel's rule), and the deepest point always; each keeps its own normal.  Returns the new end row."""
+    """At most 4 of the rows ``start .. m − 1`` (one mesh–shape pair's points, from several triangles), near-
+    duplicates merged first (:func:`merge_close_rows`): those extreme along the diagonals of the plane across
+    their mean normal (:func:`.manifold.reduce_to_four`, the box kernel's rule), and the deepest point always;
+    each keeps its own normal.  Returns the new end row."""
+    m = merge_close_rows(normal, separation, point, feature, start, m)
     k = m - start
     if k <= 4:
         return m
@@ -423,13 +477,8 @@ def reduce_mesh_rows(normal, separation, point, feature, start, m):
     kept = start
     for s in range(k):
         if valid[s]:
-            row = start + s
-            if row != kept:
-                for r in range(3):
-                    normal[kept, r] = normal[row, r]
-                    point[kept, r] = point[row, r]
-                separation[kept] = separation[row]
-                feature[kept] = feature[row]
+            if start + s != kept:
+                _copy_row(normal, separation, point, feature, kept, start + s)
             kept += 1
     return kept
 
