@@ -28,7 +28,7 @@ def test_convex_pile_settles_on_the_terrain_and_sleeps():
     world = World.from_scene("convex_pile")
     model = world.body_model
     terrain = model.meshes[model.names.index("terrain")]
-    for tick in range(300):
+    for _ in range(300):
         world.step()
         if world.bodies_asleep:
             break

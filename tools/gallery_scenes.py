@@ -137,16 +137,17 @@ def bullet() -> str:
              "  - {name: thin_wall, shape: convex, fixed: true, color: [0.6, 0.6, 0.7, 1.0],\n"
              "     points: [[0, -1, 0], [0.005, -1, 0], [0, 1, 0], [0.005, 1, 0], [0, -1, 2], [0.005, -1, 2], "
              "[0, 1, 2], [0.005, 1, 2]], restitution: 0.0}\n",
-             "  - {name: mesh_wall, shape: mesh, mesh: triangle.obj, fixed: true, two_sided: true, position: [0, 6, 0], "
-             "restitution: 0.0, color: [0.7, 0.6, 0.5, 1.0]}\n"]
+             "  - {name: mesh_wall, shape: mesh, mesh: triangle.obj, fixed: true, two_sided: true, "
+             "position: [0, 6, 0], restitution: 0.0, color: [0.7, 0.6, 0.5, 1.0]}\n"]
     rng = np.random.default_rng(3)
     hull = random_hull_points(rng, 20, 0.04)
     for lane, y in (("wall", 0.0), ("mesh", 6.0)):
         lines.append(f"  - {{name: ball_{lane}, shape: sphere, radius: 0.02, mass: 0.05, "
                      f"position: {_vec((-BULLET_RUN, y - 0.3, 1.0))}, linear_velocity: [{BULLET_SPEED:g}, 0, 0], "
                      "restitution: 0.0, color: [0.9, 0.3, 0.2, 1.0]}\n")
-        lines.append(f"  - {{name: hull_{lane}, shape: convex, mass: 0.05, position: {_vec((-BULLET_RUN, y + 0.3, 1.2))}, "
-                     f"linear_velocity: [{BULLET_SPEED:g}, 0, 0], restitution: 0.0, color: [0.2, 0.5, 0.9, 1.0],\n"
+        lines.append(f"  - {{name: hull_{lane}, shape: convex, mass: 0.05, "
+                     f"position: {_vec((-BULLET_RUN, y + 0.3, 1.2))}, linear_velocity: [{BULLET_SPEED:g}, 0, 0], "
+                     "restitution: 0.0, color: [0.2, 0.5, 0.9, 1.0],\n"
                      f"     points: [{', '.join(_vec(p) for p in hull)}]}}\n")
     return "".join(lines)
 

@@ -764,7 +764,7 @@ def sweep_times(prims, hulls, meshes, moving, static, centre, prim_rotation, pos
                     + Rm[2, r] * (x0[2] + v[2] * h - pm[2])
                 lo[r] = min(a, e) - reach
                 hi[r] = max(a, e) + reach
-            v0, v1 = meshes.vertex_start[mk], meshes.vertex_start[mk + 1]
+            v0 = meshes.vertex_start[mk]
             t0, t1 = meshes.triangle_start[mk], meshes.triangle_start[mk + 1]
             n0, n1 = meshes.node_start[mk], meshes.node_start[mk + 1]
             found = candidates.shape[0] + 1

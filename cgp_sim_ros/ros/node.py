@@ -322,7 +322,13 @@ class SimNode(Node):
         self.commands.apply_pending(self.world)
         self.world.step()
         for event in self.world.take_events():
-            (self.get_logger().error if event.level == "error" else self.get_logger().warn)(event.text)
+            # one call per severity: rclpy's logger refuses a call site whose severity changes between calls
+            if event.level == "error":
+                self.get_logger().error(event.text)
+            elif event.level == "info":
+                self.get_logger().info(event.text)
+            else:
+                self.get_logger().warn(event.text)
             self.emit_event({"event": "world", "level": event.level, "text": event.text})
         self.outputs.publish_tick()
         if self.recorder is not None:

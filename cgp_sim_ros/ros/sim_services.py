@@ -74,11 +74,13 @@ FEATURES = (
     SimulatorFeatures.STEP_SIMULATION_SINGLE, SimulatorFeatures.STEP_SIMULATION_MULTIPLE,
     SimulatorFeatures.STEP_SIMULATION_ACTION,
 )
-SPAWN_FORMATS = ("yaml",)
+SPAWN_FORMATS = ("yaml", "stl", "obj")
 CUSTOM_INFO = (
     "cgp_sim: spawn_entity takes YAML (resource_string, or a .yaml file as uri: a path or file:// URI) with "
     "exactly one key, body or flock, whose value is a scene-file entry without name (the request's) and, for a "
-    "body, without position/orientation (initial_pose; for a flock initial_pose.position is the spawn centre). "
+    "body, without position/orientation (initial_pose; for a flock initial_pose.position is the spawn centre); "
+    "a mesh: in it is read from the .yaml file's directory (else the built-in meshes) or a file:// URI. An .stl / "
+    ".obj file as uri spawns a convex body, the hull of the mesh (density 1000 kg/m3). "
     "Entity states: a body's COM pose, twist in world axes, last tick's acceleration; a flock's centroid and "
     "mean velocity (set moves it rigidly). Reset scopes STATE, SPAWNED, ALL; time keeps running (no "
     "SCOPE_TIME). get_entities filters: POSIX ERE on names, TYPE_SPHERE bounds. See docs/simulation-interfaces.md."
@@ -326,7 +328,11 @@ class SimulationInterfaces:
     def _spawn(self, request) -> tuple[int, str, str]:
         R = SpawnEntity.Response
         world = self.node.world
-        if request.uri:
+        data = None
+        if request.uri and _mesh_uri(request.uri) is not None:  # a mesh file: a convex body, its hull
+            mesh = _mesh_uri(request.uri)
+            data, source = {"body": {"shape": "convex", "mesh": str(mesh)}}, str(mesh)
+        elif request.uri:
             try:
                 text, source = _read_uri(request.uri)
             except _Refused as refusal:
@@ -343,7 +349,7 @@ class SimulationInterfaces:
             return R.INVALID_POSE, (f"initial_pose.header.frame_id {frame!r}: poses are given in "
                                     f"{self.node.frames.world!r} (or '')"), ""
         try:
-            data = parse_yaml(text, source)
+            data = parse_yaml(text, source) if data is None else data
         except SceneError as exc:
             return R.RESOURCE_PARSE_ERROR, str(exc), ""
         kind = next(iter(data)) if isinstance(data, dict) and len(data) == 1 and next(iter(data)) in SPAWN_KINDS \
@@ -536,6 +542,17 @@ class _Refused(Exception):
     def __init__(self, code: int, message: str):
         super().__init__(message)
         self.code = code
+
+
+def _mesh_uri(uri: str) -> Path | None:
+    """The mesh file a ``uri`` names (a path or ``file://`` URI ending in .stl / .obj), or None.  It is read by the
+    scene loader, bounded (:func:`cgp_core.collision.meshfile.load_mesh`: regular files only, size and count caps,
+    errors naming the file and the reason)."""
+    parsed = urlparse(uri)
+    if parsed.scheme not in ("", "file"):
+        return None
+    path = Path(unquote(parsed.path) if parsed.scheme == "file" else uri).expanduser()
+    return path if path.suffix.lower() in (".stl", ".obj") else None
 
 
 def _read_uri(uri: str) -> tuple[str, str]:
