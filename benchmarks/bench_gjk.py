@@ -159,7 +159,10 @@ def main(argv=None) -> int:
     parser.add_argument("--pairs", type=int, default=2000)
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--hulls", type=int, default=100)
+    parser.add_argument("--quick", action="store_true", help="fewer rounds (benchmarks/run.py --quick)")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.rounds = min(args.rounds, 2)
     out = Results("gjk", options=vars(args))
     hulls = pile_hulls(args.hulls)
     hs = HullSet.from_hulls(hulls)
