@@ -33,7 +33,6 @@ sys.path.insert(0, str(HERE))
 from common import Results, speed_probe  # noqa: E402
 
 from cgp_core import World, parse_scene  # noqa: E402
-from cgp_core.rotation import quat_to_matrix  # noqa: E402
 
 H = 1.0 / 240.0
 SUBSTEPS = 4
