@@ -12,6 +12,7 @@ import pytest
 
 from cgp_core import World, parse_scene
 from cgp_core.collision.bvh import bvh_raycast
+from cgp_core.collision.contacts import FEATURE_SLOTS
 from cgp_core.collision.epa import penetration
 from cgp_core.collision.gjk import NO_ADJACENCY, no_adjacency
 from cgp_core.rotation import quat_to_matrix
@@ -28,8 +29,12 @@ def test_convex_pile_settles_on_the_terrain_and_sleeps():
     world = World.from_scene("convex_pile")
     model = world.body_model
     terrain = model.meshes[model.names.index("terrain")]
-    for _ in range(300):
+    for tick in range(300):
         world.step()
+        if tick == 60:  # piling up: the contacts' keys are unique, their features small (below FEATURE_SLOTS)
+            contacts = world.solver.detector.detect(model, world.body_state, world.dt / 4, ground=world.ground)
+            assert contacts.count > 30 and len(np.unique(contacts.key)) == contacts.count
+            assert (contacts.key % FEATURE_SLOTS).max() < 4  # a pair gives at most 4 points, ranked 0 .. 3
         if world.bodies_asleep:
             break
     assert world.bodies_asleep, f"still awake after {world.time:.1f} s"
