@@ -89,22 +89,45 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from .bodies import BodyModel, BodyState, CompoundParts, Shape
 from .inertia import compound_mass_properties, particle_mass_properties, shape_mass_properties
 from .integrators import DEFAULT_INTEGRATOR, INTEGRATORS
+from .limits import (
+    MAX_ACCELERATION,
+    MAX_BODIES,
+    MAX_BOIDS,
+    MAX_BOIDS_BRUTE,
+    MAX_BOIDS_PER_FLOCK,
+    MAX_COORDINATE,
+    MAX_DAMPING,
+    MAX_DENSITY,
+    MAX_EXPECTED_NEIGHBORS,
+    MAX_FILE_BYTES,
+    MAX_FRICTION,
+    MAX_GRAVITY,
+    MAX_LENGTH,
+    MAX_MAGNITUDE,
+    MAX_MASS,
+    MAX_NAME_LENGTH,
+    MAX_PARTICLES_PER_BODY,
+    MAX_PARTS_PER_BODY,
+    MAX_ROLLING_RESISTANCE,
+    MAX_SPEED,
+    MAX_SPIN,
+    MIN_DENSITY,
+    MIN_INERTIA_RATIO,
+    MIN_LENGTH,
+    MIN_MASS,
+)
 from .rotation import quat_normalize, quat_rotate
+from .user_input import YAML12_FLOAT, SceneLoader, UserInputError, load_yaml, read_user_text
 
 ROS_SAFE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
-#: body / flock names become parts of topic names (``~/bodies/<body>/odom``), which DDS limits in length
-MAX_NAME_LENGTH = 64
-MAX_BODIES = 10_000
-MAX_BOIDS_PER_FLOCK = 1_000_000
-MAX_PARTICLES_PER_BODY = 100_000
-MAX_SCENE_BYTES = 16 * 1024 * 1024
-#: parts of one compound body (each is a collision primitive of its own)
-MAX_PARTS_PER_BODY = 256
+#: the largest scene file (cgp_core.limits.MAX_FILE_BYTES); every other limit is in cgp_core.limits too
+MAX_SCENE_BYTES = MAX_FILE_BYTES
+#: the scene loader (PyYAML's safe loader, duplicate keys refused, YAML 1.2 floats): cgp_core.user_input
+_SceneLoader = SceneLoader
 #: a SceneError message lists at most this many problems (all of them are in ``SceneError.problems``)
 MAX_REPORTED_PROBLEMS = 50
 
@@ -239,8 +262,8 @@ def scene_description(name_or_path: str | Path) -> str:
     """The ``description:`` of a scene file or built-in scene (whitespace collapsed; "" when it has none)."""
     path = resolve_scene(str(name_or_path))
     try:
-        data = yaml.load(path.read_text(encoding="utf-8"), Loader=_SceneLoader)
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        data = load_yaml(read_user_text(path))
+    except UserInputError as exc:
         raise SceneError(str(path), [f"cannot read the description: {exc}"]) from None
     text = data.get("description", "") if isinstance(data, dict) else ""
     return " ".join(str(text).split())
@@ -255,9 +278,9 @@ def resolve_scene(name_or_path: str) -> Path:
     if path.suffix in (".yaml", ".yml") or "/" in text:
         if path.is_dir():
             raise SceneError(text, ["is a directory, not a scene file"])
-        if not path.is_file():
+        if not path.exists():
             raise SceneError(text, ["no such scene file"])
-        return path
+        return path  # read_user_file refuses what is not a regular file (a FIFO, a device), naming it
     candidate = builtin_scene_dir() / f"{text}.yaml"
     if candidate.is_file():
         return candidate
@@ -270,69 +293,21 @@ def load_scene(name_or_path: str | Path) -> Scene:
     """Read, parse (safe_load) and validate a scene file or built-in scene name."""
     path = resolve_scene(str(name_or_path))
     source = str(path)
-    try:
-        size = path.stat().st_size
-        if size > MAX_SCENE_BYTES:
-            raise SceneError(source, [f"file is {size} bytes; scenes are limited to {MAX_SCENE_BYTES}"])
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise SceneError(source, [f"not UTF-8 text ({exc.reason})"]) from None
-    except OSError as exc:
-        raise SceneError(source, [f"cannot read: {exc.strerror}"]) from None
+    try:  # a regular file only (no FIFO, no device), size-capped before and while reading
+        text = read_user_text(path, max_bytes=MAX_SCENE_BYTES)
+    except UserInputError as exc:
+        raise SceneError(source, [str(exc).replace("files are limited", "scenes are limited")]) from None
     return parse_scene(text, source)
 
 
-#: A float of YAML 1.2's core schema (section 10.3.2): ``1e3``, ``1.0e3``, ``-2E-4``, ``+1.5``, ``.5``, ``-.5``.
-#: PyYAML resolves plain scalars by YAML 1.1, whose floats need a decimal point and a signed exponent
-#: (``1.0e+3``): ``mass: 1e3`` would otherwise be the text "1e3".
-YAML12_FLOAT = re.compile(r"^[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?$")
-
-
-class _SceneLoader(yaml.SafeLoader):
-    """``yaml.SafeLoader`` (plain data only) with two changes:
-
-    - a key given twice in one mapping is an error: PyYAML keeps the last value silently, so
-      ``{mass: 1, mass: 2}`` would drop a value the author wrote.  Keys merged in with ``<<`` may still be
-      overridden, as YAML's merge semantics say.
-    - plain scalars that are YAML 1.2 floats (:data:`YAML12_FLOAT`) are floats, as users write them.  The
-      resolver is added after SafeLoader's own (first match wins), so everything YAML 1.1 already read as a
-      number (``1_000``, ``.inf``, ``.nan``) is read as before; the constructor is SafeLoader's float
-      constructor; quoted scalars stay strings.
-    """
-
-    def construct_mapping(self, node, deep=False):
-        if isinstance(node, yaml.MappingNode):
-            first_seen: dict = {}
-            for key_node, _ in node.value:
-                if key_node.tag == "tag:yaml.org,2002:merge":
-                    continue
-                key = self.construct_object(key_node, deep=True)
-                try:
-                    earlier = first_seen.setdefault(key, key_node.start_mark)
-                except TypeError:  # an unhashable key: the base class reports it
-                    continue
-                if earlier is not key_node.start_mark:
-                    raise yaml.constructor.ConstructorError(
-                        "while constructing a mapping", node.start_mark,
-                        f"duplicate key {_show(key)} (first given at line {earlier.line + 1}, column "
-                        f"{earlier.column + 1})", key_node.start_mark)
-        return super().construct_mapping(node, deep=deep)
-
-
-# add_implicit_resolver copies the inherited resolver table into _SceneLoader first: SafeLoader is unchanged.
-_SceneLoader.add_implicit_resolver("tag:yaml.org,2002:float", YAML12_FLOAT, list("-+.0123456789"))
-
-
 def parse_yaml(text: str, source: str = "<string>") -> Any:
-    """YAML text as plain data, read as scenes are (safe subset, YAML 1.2 floats, duplicate keys rejected);
-    ``SceneError`` with the line and column of malformed YAML."""
+    """YAML text as plain data, read as scenes are (:func:`cgp_core.user_input.load_yaml`: safe subset, YAML 1.2
+    floats, duplicate keys rejected, bounded in bytes, depth and nodes); ``SceneError`` with the line and
+    column of malformed YAML (never quoting the text)."""
     try:
-        return yaml.load(text, Loader=_SceneLoader)  # a SafeLoader: never constructs Python objects
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise SceneError(source, [f"malformed YAML: {where}{problem}"]) from None
+        return load_yaml(text)
+    except UserInputError as exc:
+        raise SceneError(source, [str(exc)]) from None
 
 
 def parse_scene(text: str, source: str = "<string>") -> Scene:
@@ -350,6 +325,9 @@ def scene_from_dict(data: Any, source: str = "<dict>") -> Scene:
     world = _parse_world(v, data.get("world", {}))
     bodies = _parse_bodies(v, data.get("bodies", []))
     flocks = _parse_flocks(v, data.get("flocks", []), reserved={b.name for b in bodies})
+    total = sum(f.count for f in flocks)
+    if total > MAX_BOIDS:
+        v.fail("flocks", f"{total} boids in all; a world holds at most {MAX_BOIDS} (cgp_core.limits)")
     v.raise_if_any()
     return Scene(source=source, world=world, bodies=bodies, flocks=flocks)
 
@@ -369,7 +347,12 @@ def spawn_entry(data: Any, source: str, *, name: str, taken: set[str] = frozense
     texts as a scene file, key paths starting at ``body`` / ``flock`` (``body (box1).size[1]: must be > 0``)."""
     v = _Validator(source)
     if not isinstance(data, dict) or len(data) != 1 or next(iter(data)) not in SPAWN_KINDS:
-        keys = f"keys {', '.join(map(_show, data))}" if isinstance(data, dict) and data else _kind(data)
+        # not an entry of ours: its keys are not quoted (a uri may name any readable file, /etc/shadow)
+        keys = _kind(data)
+        if isinstance(data, dict) and data:
+            ours = [k for k in SPAWN_KINDS if k in data]
+            keys = f"a mapping of {len(data)} keys" + (f" ({' and '.join(ours)} among them)" if ours
+                                                       else ", none of them body or flock")
         raise SceneError(source, [f"must be a mapping with exactly one key, body or flock (a scene file's "
                                   f"bodies / flocks entry), got {keys}"])
     kind, raw = next(iter(data.items()))
@@ -401,6 +384,10 @@ def spawn_entry(data: Any, source: str, *, name: str, taken: set[str] = frozense
 # Validation helpers: each returns a clean value or records a problem and returns a harmless default, so one
 # pass reports every problem in the file.
 
+
+#: the ranges of lengths and coordinates (cgp_core.limits)
+LENGTHS = (MIN_LENGTH, MAX_LENGTH)
+COORDINATES = (-MAX_COORDINATE, MAX_COORDINATE)
 
 _REPR = reprlib.Repr()
 _REPR.maxstring = _REPR.maxother = 60
@@ -446,7 +433,11 @@ class _Validator:
         return value
 
     def number(self, value: Any, key: str, *, minimum: float | None = None, exclusive_min: bool = False,
-               maximum: float | None = None, default: float = 0.0) -> float:
+               maximum: float | None = None, default: float = 0.0, within: tuple[float, float] | None = None,
+               unit: str = "") -> float:
+        """A finite number (bool is not one) >= / > ``minimum``, <= ``maximum``, then in the range ``within``
+        (cgp_core.limits: what the simulation can hold; ``unit`` for the message); without ``maximum`` and
+        ``within``, at most MAX_MAGNITUDE in magnitude."""
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             hint = ""
             if isinstance(value, str) and YAML12_FLOAT.match(value.strip()):
@@ -465,6 +456,13 @@ class _Validator:
             return default
         if maximum is not None and x > maximum:
             self.fail(key, f"must be <= {maximum:g}, got {x:g}")
+            return default
+        if within is not None and not within[0] <= x <= within[1]:
+            self.fail(key, f"must be in [{within[0]:g}, {within[1]:g}]{' ' + unit if unit else ''} (what cgp_sim "
+                      f"simulates: cgp_core.limits), got {x:g}")
+            return default
+        if within is None and maximum is None and abs(x) > MAX_MAGNITUDE:
+            self.fail(key, f"must be within ±{MAX_MAGNITUDE:g} (cgp_core.limits), got {x:g}")
             return default
         return x
 
@@ -501,15 +499,22 @@ class _Validator:
         return s
 
     def vector(self, value: Any, key: str, length: int, *, minimum: float | None = None,
-               exclusive_min: bool = False, default: np.ndarray | None = None) -> np.ndarray:
+               exclusive_min: bool = False, default: np.ndarray | None = None,
+               within: tuple[float, float] | None = None, unit: str = "", max_norm: float | None = None) -> np.ndarray:
         fallback = np.zeros(length) if default is None else np.asarray(default, dtype=float)
         if not isinstance(value, (list, tuple)) or len(value) != length:
             self.fail(key, f"must be a list of {length} numbers, got {_kind(value)} {_show(value)}")
             return fallback
         before = len(self.problems)
-        out = np.array([self.number(x, f"{key}[{i}]", minimum=minimum, exclusive_min=exclusive_min)
-                        for i, x in enumerate(value)])
-        return fallback if len(self.problems) > before else out
+        out = np.array([self.number(x, f"{key}[{i}]", minimum=minimum, exclusive_min=exclusive_min, within=within,
+                                    unit=unit) for i, x in enumerate(value)])
+        if len(self.problems) > before:
+            return fallback
+        if max_norm is not None and float(np.linalg.norm(out)) > max_norm:
+            self.fail(key, f"its magnitude must be at most {max_norm:g}{' ' + unit if unit else ''} (what cgp_sim "
+                      f"simulates: cgp_core.limits), got {float(np.linalg.norm(out)):g}")
+            return fallback
+        return out
 
     def name(self, value: Any, key: str, seen: set[str]) -> str:
         if not isinstance(value, str):
@@ -531,13 +536,15 @@ def _parse_world(v: _Validator, raw: Any) -> WorldSpec:
     spec = WorldSpec()
     v.no_unknown_keys(d, {f.name for f in fields(WorldSpec)}, "world")
     if "gravity" in d:
-        spec.gravity = v.vector(d["gravity"], "world.gravity", 3)
+        spec.gravity = v.vector(d["gravity"], "world.gravity", 3, max_norm=MAX_GRAVITY, unit="m/s²",
+                                within=(-MAX_GRAVITY, MAX_GRAVITY))
     if "ground" in d:
         spec.ground = v.boolean(d["ground"], "world.ground", True)
     if "sleep" in d:
         spec.sleep = v.boolean(d["sleep"], "world.sleep", True)
     if "ground_friction" in d:
-        spec.ground_friction = v.number(d["ground_friction"], "world.ground_friction", minimum=0.0, default=0.6)
+        spec.ground_friction = v.number(d["ground_friction"], "world.ground_friction", minimum=0.0, default=0.6,
+                                        within=(0.0, MAX_FRICTION))
     if "ground_restitution" in d:
         spec.ground_restitution = v.number(d["ground_restitution"], "world.ground_restitution", minimum=0.0,
                                            maximum=1.0)
@@ -545,9 +552,10 @@ def _parse_world(v: _Validator, raw: Any) -> WorldSpec:
         spec.integrator = v.choice(d["integrator"], "world.integrator", sorted(INTEGRATORS), DEFAULT_INTEGRATOR)
     if "substeps" in d:
         spec.substeps = v.integer(d["substeps"], "world.substeps", minimum=1, maximum=1000, default=4)
-    for key in ("linear_damping", "angular_damping", "rolling_resistance"):
+    for key, top, unit in (("linear_damping", MAX_DAMPING, "1/s"), ("angular_damping", MAX_DAMPING, "1/s"),
+                           ("rolling_resistance", MAX_ROLLING_RESISTANCE, "")):
         if key in d:
-            setattr(spec, key, v.number(d[key], f"world.{key}", minimum=0.0))
+            setattr(spec, key, v.number(d[key], f"world.{key}", minimum=0.0, within=(0.0, top), unit=unit))
     return spec
 
 
@@ -619,9 +627,11 @@ def _parse_body(v: _Validator, raw: Any, key: str, seen: set[str]) -> BodySpec |
     elif has_mass and has_density:
         v.fail(key, "give mass or density, not both")
     elif has_mass:
-        mass = v.number(raw["mass"], f"{key}.mass", minimum=0.0, exclusive_min=True, default=1.0)
+        mass = v.number(raw["mass"], f"{key}.mass", minimum=0.0, exclusive_min=True, default=1.0,
+                        within=(MIN_MASS, MAX_MASS), unit="kg")
     elif has_density:
-        density = v.number(raw["density"], f"{key}.density", minimum=0.0, exclusive_min=True, default=1000.0)
+        density = v.number(raw["density"], f"{key}.density", minimum=0.0, exclusive_min=True, default=1000.0,
+                           within=(MIN_DENSITY, MAX_DENSITY), unit="kg/m³")
     else:
         density = 1000.0  # water: a sensible default for a body given only its size
 
@@ -632,21 +642,24 @@ def _parse_body(v: _Validator, raw: Any, key: str, seen: set[str]) -> BodySpec |
         if "radius" not in raw:
             v.fail(f"{key}.radius", "missing")
         else:
-            radius = v.number(raw["radius"], f"{key}.radius", minimum=0.0, exclusive_min=True, default=0.1)
+            radius = v.number(raw["radius"], f"{key}.radius", minimum=0.0, exclusive_min=True, default=0.1,
+                              within=LENGTHS, unit="m")
     if shape_name == "capsule":
         if "length" not in raw:
             v.fail(f"{key}.length", "missing (length of the axis segment, without the caps)")
         else:
-            half_length = 0.5 * v.number(raw["length"], f"{key}.length", minimum=0.0, exclusive_min=True)
+            half_length = 0.5 * v.number(raw["length"], f"{key}.length", minimum=0.0, exclusive_min=True,
+                                         default=1.0, within=LENGTHS, unit="m")
     if shape_name == "box":
         if "size" not in raw:
             v.fail(f"{key}.size", "missing (full extents [x, y, z])")
         else:
-            size = v.vector(raw["size"], f"{key}.size", 3, minimum=0.0, exclusive_min=True, default=np.ones(3))
+            size = v.vector(raw["size"], f"{key}.size", 3, minimum=0.0, exclusive_min=True, default=np.ones(3),
+                            within=LENGTHS, unit="m")
 
     if shape_name == "particles":
         spec.radius = v.number(raw.get("radius", 0.05), f"{key}.radius", minimum=0.0, exclusive_min=True,
-                               default=0.05)
+                               default=0.05, within=LENGTHS, unit="m")
         particles = _parse_particles(v, raw.get("particles"), f"{key}.particles")
         if particles is not None:
             try:
@@ -654,6 +667,11 @@ def _parse_body(v: _Validator, raw: Any, key: str, seen: set[str]) -> BodySpec |
             except ValueError as exc:
                 v.fail(f"{key}.particles", str(exc))
             else:
+                moments = np.linalg.eigvalsh(inertia)
+                if not moments.min() >= MIN_INERTIA_RATIO * moments.max():
+                    v.fail(f"{key}.particles", f"principal moments of inertia {moments.min():.3g} .. "
+                           f"{moments.max():.3g} kg m²: a body this thin cannot be simulated (their ratio must be "
+                           f"at least {MIN_INERTIA_RATIO:g}: cgp_core.limits)")
                 spec.mass, spec.inertia_body = total, inertia
                 spec.particles = particles.copy()
                 spec.particles[:, :3] -= com
@@ -662,29 +680,55 @@ def _parse_body(v: _Validator, raw: Any, key: str, seen: set[str]) -> BodySpec |
     elif shape_name in ("convex", "compound", "mesh"):
         if len(v.problems) == before:
             _parse_issue25_shape(v, raw, key, shape_name, spec, mass, density)
+        if len(v.problems) == before and shape_name != "mesh":  # the ranges every solid body is held to
+            moments = np.linalg.eigvalsh(spec.inertia_body)
+            if not moments.min() >= MIN_INERTIA_RATIO * moments.max():
+                v.fail(key, f"principal moments of inertia {moments.min():.3g} .. {moments.max():.3g} kg m²: a body "
+                       f"this thin cannot be simulated (their ratio must be at least {MIN_INERTIA_RATIO:g}: "
+                       "cgp_core.limits)")
+            if not MIN_MASS <= spec.mass <= MAX_MASS:
+                v.fail(f"{key}.density", f"gives a mass of {spec.mass:g} kg; masses must be in [{MIN_MASS:g}, "
+                       f"{MAX_MASS:g}] kg (what cgp_sim simulates: cgp_core.limits)")
     elif len(v.problems) == before:
         try:
             spec.mass, spec.inertia_body = shape_mass_properties(
                 shape_name, radius=radius, size=size, half_length=half_length, mass=mass, density=density)
         except ValueError as exc:
             v.fail(key, str(exc))
+        else:
+            moments = np.linalg.eigvalsh(spec.inertia_body)
+            if not moments.min() >= MIN_INERTIA_RATIO * moments.max():
+                v.fail(key, f"principal moments of inertia {moments.min():.3g} .. {moments.max():.3g} kg m²: a body "
+                       f"this thin cannot be simulated (their ratio must be at least {MIN_INERTIA_RATIO:g}: "
+                       "cgp_core.limits; a 1 cm x 10 m pole has 2e-6)")
+            if not MIN_MASS <= spec.mass <= MAX_MASS:
+                v.fail(f"{key}.density", f"gives a mass of {spec.mass:g} kg; masses must be in [{MIN_MASS:g}, "
+                       f"{MAX_MASS:g}] kg (what cgp_sim simulates: cgp_core.limits)")
         spec.radius = radius or 0.0
         if shape_name == "box":
             spec.half_extents = 0.5 * size
         elif shape_name == "capsule":
             spec.half_extents = np.array([0.0, 0.0, half_length])
 
-    origin = v.vector(raw.get("position", [0, 0, 0]), f"{key}.position", 3)
+    origin = v.vector(raw.get("position", [0, 0, 0]), f"{key}.position", 3, within=COORDINATES, unit="m")
     q = v.vector(raw.get("orientation", [0, 0, 0, 1]), f"{key}.orientation", 4, default=np.array([0, 0, 0, 1.0]))
     if np.linalg.norm(q) < 1e-9:
         v.fail(f"{key}.orientation", "zero quaternion (x, y, z, w); identity is [0, 0, 0, 1]")
         q = np.array([0.0, 0.0, 0.0, 1.0])
     spec.orientation = quat_normalize(q)
     spec.position = origin + quat_rotate(spec.orientation, spec.position)  # COM in world
-    spec.linear_velocity = v.vector(raw.get("linear_velocity", [0, 0, 0]), f"{key}.linear_velocity", 3)
-    spec.angular_velocity = v.vector(raw.get("angular_velocity", [0, 0, 0]), f"{key}.angular_velocity", 3)
+    spec.linear_velocity = v.vector(raw.get("linear_velocity", [0, 0, 0]), f"{key}.linear_velocity", 3,
+                                    max_norm=MAX_SPEED, unit="m/s")
+    spec.angular_velocity = v.vector(raw.get("angular_velocity", [0, 0, 0]), f"{key}.angular_velocity", 3,
+                                     max_norm=MAX_SPIN, unit="rad/s")
+    rim_speed = float(np.linalg.norm(spec.linear_velocity) + np.linalg.norm(spec.angular_velocity) * body_reach(
+        spec.shape, spec.radius, spec.half_extents))
+    if rim_speed > MAX_SPEED:
+        v.fail(f"{key}.angular_velocity", f"its surface would move at up to {rim_speed:.4g} m/s (|v| + |ω| times "
+               f"its reach); at most {MAX_SPEED:g} m/s (what cgp_sim simulates: cgp_core.limits)")
     spec.restitution = v.number(raw.get("restitution", 0.3), f"{key}.restitution", minimum=0.0, maximum=1.0)
-    spec.friction = v.number(raw.get("friction", 0.5), f"{key}.friction", minimum=0.0, default=0.5)
+    spec.friction = v.number(raw.get("friction", 0.5), f"{key}.friction", minimum=0.0, default=0.5,
+                             within=(0.0, MAX_FRICTION))
     spec.fixed = fixed
     spec.predator = v.boolean(raw.get("predator", False), f"{key}.predator")
     if "color" in raw:
@@ -692,6 +736,16 @@ def _parse_body(v: _Validator, raw: Any, key: str, seen: set[str]) -> BodySpec |
         if np.any(spec.color > 1.0):
             v.fail(f"{key}.color", "RGBA components must be in [0, 1]")
     return spec if len(v.problems) == before else None
+
+
+def body_reach(shape, radius: float, half_extents) -> float:
+    """The farthest a body's surface is from its COM [m] (a particle body: a bound, from its half extents)."""
+    half = np.asarray(half_extents, dtype=float)
+    if shape == Shape.SPHERE:
+        return float(radius)
+    if shape == Shape.CAPSULE:
+        return float(half[2] + radius)
+    return float(np.linalg.norm(half))
 
 
 # ---- issue 25's shapes: convex hulls, compound bodies, static meshes -------------------------------------------
@@ -830,7 +884,7 @@ def _convex_hull_of(v: _Validator, raw: dict, key: str, name: str, notes: list):
             v.fail(f"{key}.points", f"{len(points)} points; at most {MAX_INPUT_POINTS}")
             return None
         before = len(v.problems)
-        rows = [v.vector(p, f"{key}.points[{i}]", 3) for i, p in enumerate(points)]
+        rows = [v.vector(p, f"{key}.points[{i}]", 3, within=COORDINATES, unit="m") for i, p in enumerate(points)]
         if len(v.problems) > before or scale is None:
             return None
         points = np.array(rows, dtype=float).reshape(-1, 3) * scale
@@ -898,7 +952,7 @@ def _parse_compound(v: _Validator, raw: Any, key: str, spec: BodySpec, mass, den
             for k in _SHAPE_KEYS[other] - _SHAPE_KEYS[shape_name]:
                 if k in part:
                     v.fail(f"{where}.{k}", f"does not apply to shape {shape_name} (it is for {other})")
-        position = v.vector(part.get("position", [0, 0, 0]), f"{where}.position", 3)
+        position = v.vector(part.get("position", [0, 0, 0]), f"{where}.position", 3, within=COORDINATES, unit="m")
         q = v.vector(part.get("orientation", [0, 0, 0, 1]), f"{where}.orientation", 4,
                      default=np.array([0, 0, 0, 1.0]))
         if np.linalg.norm(q) < 1e-9:
@@ -919,19 +973,21 @@ def _parse_compound(v: _Validator, raw: Any, key: str, spec: BodySpec, mass, den
                     v.fail(f"{where}.size", "missing (full extents [x, y, z])")
                     continue
                 size = v.vector(part["size"], f"{where}.size", 3, minimum=0.0, exclusive_min=True,
-                                default=np.ones(3))
+                                default=np.ones(3), within=LENGTHS, unit="m")
                 half = 0.5 * size
                 volume, inertia = shape_mass_properties("box", size=size, density=1.0)
             else:
                 if "radius" not in part:
                     v.fail(f"{where}.radius", "missing")
                     continue
-                radius = v.number(part["radius"], f"{where}.radius", minimum=0.0, exclusive_min=True, default=0.1)
+                radius = v.number(part["radius"], f"{where}.radius", minimum=0.0, exclusive_min=True, default=0.1,
+                                  within=LENGTHS, unit="m")
                 if shape_name == "capsule":
                     if "length" not in part:
                         v.fail(f"{where}.length", "missing (length of the axis segment, without the caps)")
                         continue
-                    half[2] = 0.5 * v.number(part["length"], f"{where}.length", minimum=0.0, exclusive_min=True)
+                    half[2] = 0.5 * v.number(part["length"], f"{where}.length", minimum=0.0, exclusive_min=True,
+                                             default=1.0, within=LENGTHS, unit="m")
                     volume, inertia = shape_mass_properties("capsule", radius=radius, half_length=half[2],
                                                             density=1.0)
                 else:
@@ -979,6 +1035,9 @@ def compound_half_extents(parts: CompoundParts) -> np.ndarray:
 
 
 def _parse_particles(v: _Validator, raw: Any, key: str) -> np.ndarray | None:
+    """The (k, 4) rows [x, y, z, mass]: body-frame offsets within ±MAX_LENGTH m, masses in [MIN_MASS, MAX_MASS]
+    kg, the total too.  The count is checked before anything is built; the rows are checked as one array (a
+    100,000-particle body in ~0.1 s), and one by one, for the messages, only if that finds a problem."""
     if raw is None:
         v.fail(key, "missing (a list of [x, y, z, mass])")
         return None
@@ -988,14 +1047,39 @@ def _parse_particles(v: _Validator, raw: Any, key: str) -> np.ndarray | None:
     if len(raw) > MAX_PARTICLES_PER_BODY:
         v.fail(key, f"{len(raw)} particles; at most {MAX_PARTICLES_PER_BODY}")
         return None
+    numbers = (int, float)
+    if all(type(p) is list and len(p) == 4 and all(type(x) in numbers for x in p) for p in raw):
+        try:
+            arr = np.array(raw, dtype=float)
+        except OverflowError:  # an integer beyond float64
+            arr = None
+        if arr is not None and np.isfinite(arr).all() and (np.abs(arr[:, :3]) <= MAX_LENGTH).all() \
+                and ((arr[:, 3] >= MIN_MASS) & (arr[:, 3] <= MAX_MASS)).all():
+            return _particle_total(v, arr, key)
     before = len(v.problems)
-    rows = [v.vector(p, f"{key}[{i}]", 4) for i, p in enumerate(raw)]
+    rows = []
+    for i, p in enumerate(raw):
+        row = v.vector(p, f"{key}[{i}]", 4)
+        if len(v.problems) == before:
+            if not (np.abs(row[:3]) <= MAX_LENGTH).all():
+                v.fail(f"{key}[{i}]", f"offsets must be within ±{MAX_LENGTH:g} m of the origin (what cgp_sim "
+                       f"simulates: cgp_core.limits), got {row[:3].tolist()}")
+            elif not row[3] > 0.0:
+                v.fail(f"{key}[{i}]", f"particle mass must be > 0, got {row[3]:g}")
+            elif not MIN_MASS <= row[3] <= MAX_MASS:
+                v.fail(f"{key}[{i}]", f"particle mass must be in [{MIN_MASS:g}, {MAX_MASS:g}] kg (what cgp_sim "
+                       f"simulates: cgp_core.limits), got {row[3]:g}")
+        rows.append(row)
     if len(v.problems) > before:
         return None
-    arr = np.array(rows)
-    bad = np.flatnonzero(arr[:, 3] <= 0.0)
-    if bad.size:
-        v.fail(f"{key}[{bad[0]}]", f"particle mass must be > 0, got {arr[bad[0], 3]:g}")
+    return _particle_total(v, np.array(rows), key)
+
+
+def _particle_total(v: _Validator, arr: np.ndarray, key: str) -> np.ndarray | None:
+    total = float(arr[:, 3].sum())
+    if total > MAX_MASS:
+        v.fail(key, f"total mass {total:g} kg; masses must be in [{MIN_MASS:g}, {MAX_MASS:g}] kg (what cgp_sim "
+               "simulates: cgp_core.limits)")
         return None
     return arr
 
@@ -1027,6 +1111,14 @@ _FLOCK_NUMBERS = {
 }
 _FLOCK_KEYS = {"name", "count", "seed", "spawn", "weights", "bounds", "goal", "avoid_bodies", "model",
                "neighbor_search", "rules", "couzin", "neighbors", *_FLOCK_NUMBERS}
+#: the upper ends of the flat flock numbers (cgp_core.limits; the others: MAX_MAGNITUDE): YAML key -> (max, unit)
+_FLOCK_RANGES = {
+    "radius": (MAX_LENGTH, "m"), "separation_radius": (MAX_LENGTH, "m"), "boid_size": (MAX_LENGTH, "m"),
+    "obstacle_margin": (MAX_LENGTH, "m"), "fright_radius": (MAX_LENGTH, "m"),
+    "min_speed": (MAX_SPEED, "m/s"), "max_speed": (MAX_SPEED, "m/s"),
+    "max_acceleration": (MAX_ACCELERATION, "m/s²"), "goal_weight": (MAX_ACCELERATION, "m/s²"),
+    "fov_deg": (360.0, "degrees"),
+}
 #: issue 14: keys of Reynolds' rules, which a Couzin flock does not use (its zones, speed and field of
 #: perception are in its `couzin` block)
 _REYNOLDS_ONLY_KEYS = ("radius", "separation_radius", "weights", "min_speed", "max_speed", "fov_deg", "goal",
@@ -1063,14 +1155,16 @@ def _parse_flock(v: _Validator, raw: Any, key: str, seen: set[str]):
         kwargs["seed"] = v.integer(raw["seed"], f"{key}.seed", minimum=0, maximum=2**63 - 1)
     for yaml_key, (field_name, strictly_positive) in _FLOCK_NUMBERS.items():
         if yaml_key in raw:
+            top, unit = _FLOCK_RANGES.get(yaml_key, (MAX_MAGNITUDE, ""))
             kwargs[field_name] = v.number(raw[yaml_key], f"{key}.{yaml_key}", minimum=0.0,
-                                          exclusive_min=strictly_positive, default=1.0)
+                                          exclusive_min=strictly_positive, default=1.0, within=(0.0, top), unit=unit)
     spawn = v.mapping(raw.get("spawn"), f"{key}.spawn")
     v.no_unknown_keys(spawn, {"center", "extent"}, f"{key}.spawn")
     if "center" in spawn:
-        kwargs["spawn_center"] = v.vector(spawn["center"], f"{key}.spawn.center", 3)
+        kwargs["spawn_center"] = v.vector(spawn["center"], f"{key}.spawn.center", 3, within=COORDINATES, unit="m")
     if "extent" in spawn:
-        kwargs["spawn_extent"] = v.vector(spawn["extent"], f"{key}.spawn.extent", 3, minimum=0.0)
+        kwargs["spawn_extent"] = v.vector(spawn["extent"], f"{key}.spawn.extent", 3, minimum=0.0,
+                                          within=(0.0, MAX_COORDINATE), unit="m")
     weights = v.mapping(raw.get("weights"), f"{key}.weights")
     v.no_unknown_keys(weights, {"cohesion", "separation", "alignment"}, f"{key}.weights")
     for rule in ("cohesion", "separation", "alignment"):
@@ -1079,16 +1173,17 @@ def _parse_flock(v: _Validator, raw: Any, key: str, seen: set[str]):
     bounds = v.mapping(raw.get("bounds"), f"{key}.bounds")
     v.no_unknown_keys(bounds, {"min", "max", "mode", "margin", "strength"}, f"{key}.bounds")
     if "min" in bounds:
-        kwargs["bounds_min"] = v.vector(bounds["min"], f"{key}.bounds.min", 3)
+        kwargs["bounds_min"] = v.vector(bounds["min"], f"{key}.bounds.min", 3, within=COORDINATES, unit="m")
     if "max" in bounds:
-        kwargs["bounds_max"] = v.vector(bounds["max"], f"{key}.bounds.max", 3)
+        kwargs["bounds_max"] = v.vector(bounds["max"], f"{key}.bounds.max", 3, within=COORDINATES, unit="m")
     if "mode" in bounds:
         kwargs["bounds_mode"] = v.choice(bounds["mode"], f"{key}.bounds.mode", list(BOUNDS_MODES), "soft")
     for sub in ("margin", "strength"):
         if sub in bounds:
-            kwargs[f"bounds_{sub}"] = v.number(bounds[sub], f"{key}.bounds.{sub}", minimum=0.0)
+            kwargs[f"bounds_{sub}"] = v.number(bounds[sub], f"{key}.bounds.{sub}", minimum=0.0, within=(
+                0.0, MAX_LENGTH if sub == "margin" else MAX_ACCELERATION), unit="m" if sub == "margin" else "m/s²")
     if raw.get("goal") is not None:
-        kwargs["goal"] = v.vector(raw["goal"], f"{key}.goal", 3)
+        kwargs["goal"] = v.vector(raw["goal"], f"{key}.goal", 3, within=COORDINATES, unit="m")
     if "avoid_bodies" in raw:
         kwargs["avoid_bodies"] = v.boolean(raw["avoid_bodies"], f"{key}.avoid_bodies", True)
     if "model" in raw:
@@ -1100,10 +1195,39 @@ def _parse_flock(v: _Validator, raw: Any, key: str, seen: set[str]):
     if len(v.problems) > before:
         return None
     try:  # relations between fields (separation < radius, spawn box inside bounds, ...)
-        return FlockParams(**kwargs)
+        params = FlockParams(**kwargs)
     except ValueError as exc:
         v.fail(key, str(exc).split(": ", 1)[-1])
         return None
+    if params.neighbor_search == "brute" and params.count > MAX_BOIDS_BRUTE:
+        v.fail(f"{key}.neighbor_search", f"brute (the O(N²) reference search) is for flocks of at most "
+               f"{MAX_BOIDS_BRUTE} boids (cgp_core.limits), this one has {params.count}: use grid or kdtree")
+        return None
+    crowding = flock_crowding(params)
+    if crowding is not None:
+        v.fail(f"{key}.count", crowding)
+        return None
+    return params
+
+
+def flock_crowding(params) -> str | None:
+    """Why a flock is too dense to step in bounded time (None if it is not): its expected neighbours per boid,
+    N (4/3)π r³ / V, at its spawn density (V: the spawn box, each side taken as at least 2 r) and, with walls
+    (soft / wrap bounds), at the density of its bounds box, must be at most MAX_EXPECTED_NEIGHBORS (a step
+    costs N times that: :mod:`cgp_core.limits`)."""
+    r = float(params.radius)
+    ball = 4.0 / 3.0 * math.pi * r ** 3
+    boxes = [("its spawn box", np.maximum(params.spawn_extent, 2.0 * r))]
+    if params.bounds_mode != "none":
+        boxes.append(("its bounds", np.maximum(params.bounds_max - params.bounds_min, 2.0 * r)))
+    for where, size in boxes:
+        expected = params.count * min(1.0, ball / float(np.prod(size)))
+        if expected > MAX_EXPECTED_NEIGHBORS:
+            return (f"{params.count} boids with a neighbourhood radius of {r:g} m would have ~{expected:.0f} "
+                    f"neighbours each at the density of {where} ({' x '.join(f'{x:g}' for x in size)} m); at most "
+                    f"{MAX_EXPECTED_NEIGHBORS} (a step costs N times that: cgp_core.limits): fewer boids, a larger "
+                    "box or a smaller radius")
+    return None
 
 
 def _parse_flock_rules(v: _Validator, raw: dict, key: str, kwargs: dict) -> None:
@@ -1123,8 +1247,10 @@ def _parse_flock_rules(v: _Validator, raw: dict, key: str, kwargs: dict) -> None
         values = {}
         for name, (minimum, strict) in _COUZIN_NUMBERS.items():
             if name in block:
+                top, unit = {"speed": (MAX_SPEED, "m/s"), "field_of_view_deg": (360.0, "degrees")}.get(
+                    name, (MAX_LENGTH, "m") if name.endswith(("_radius", "_width")) else (MAX_MAGNITUDE, ""))
                 values[name] = v.number(block[name], f"{key}.couzin.{name}", minimum=minimum,
-                                        exclusive_min=strict, default=1.0)
+                                        exclusive_min=strict, default=1.0, within=(0.0, top), unit=unit)
         if "field_of_view_deg" in values and values["field_of_view_deg"] > 360.0:
             v.fail(f"{key}.couzin.field_of_view_deg", f"must be <= 360, got {values['field_of_view_deg']:g}")
             values.pop("field_of_view_deg")

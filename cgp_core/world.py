@@ -45,7 +45,7 @@ Changing the bodies between ticks (spawn, delete, teleport) — the contract the
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -63,20 +63,55 @@ from .editing import (
     select_bodies,
 )
 from .integrators import make_integrator
+from .limits import BLOWUP_SPEED, BLOWUP_SPIN, MAX_BOIDS, MAX_COORDINATE, MAX_SPEED, MAX_SPIN
 from .rotation import quat_conjugate, quat_rotate, quat_to_matrix
-from .scene import MAX_BODIES, MAX_NAME_LENGTH, ROS_SAFE_NAME, Scene, load_scene, spawn_entry
+from .scene import MAX_BODIES, MAX_NAME_LENGTH, ROS_SAFE_NAME, Scene, body_reach, load_scene, spawn_entry
 from .sleep import SLEEP_SPEED, SLEEP_TIME, Islands
 from .solver import make_solver
 from .wrenches import WrenchCommand, WrenchSchedule, make_command
 
-#: a body moving faster than this [m/s] or spinning faster than this [rad/s] has blown up numerically
-BLOWUP_SPEED = 1e4
-BLOWUP_SPIN = 1e5
+#: a body moving faster than BLOWUP_SPEED [m/s] or spinning faster than BLOWUP_SPIN [rad/s] has blown up
+#: numerically (the values live with the other limits, in cgp_core.limits)
 
 #: Sleeping per island, as Box2D does it (SLEEP_SPEED [m/s], SLEEP_TIME [s]: see :mod:`cgp_core.sleep`).
 #: Boids steer around bodies but never push them, so they never wake one.  ``world.sleep: false`` in a scene
 #: turns sleeping off.
 __all__ = ["World", "WorldEvent", "SLEEP_SPEED", "SLEEP_TIME", "BLOWUP_SPEED", "BLOWUP_SPIN"]
+
+
+@dataclass
+class PreparedSpawn:
+    """A validated entity, built and ready to add (:meth:`World.prepare_spawn`): a body's model and state rows
+    (one body) or a flock with its initial state."""
+
+    kind: str  # "body" | "flock"
+    name: str
+    model: object = None  # BodyModel of the one body
+    state: object = None  # its BodyState
+    flock: object = None  # Flock
+    #: what loading it had to say (BodySpec.notes: a hull of non-convex points, a BVH built), reported as events
+    #: when it is added
+    notes: list = field(default_factory=list)
+
+
+def check_name(name) -> None:
+    """:class:`EditError` ``name_invalid`` unless ``name`` is ROS-safe and at most MAX_NAME_LENGTH characters."""
+    if not isinstance(name, str) or len(name) > MAX_NAME_LENGTH or not ROS_SAFE_NAME.match(name):
+        shown = name if not isinstance(name, str) or len(name) <= MAX_NAME_LENGTH else name[:MAX_NAME_LENGTH] + "..."
+        raise EditError("name_invalid", f"name {shown!r} is not usable: names are ROS-safe (letters, digits, _; "
+                        f"starting with a letter) and at most {MAX_NAME_LENGTH} characters (they become parts of "
+                        "topic names)")
+
+
+def unique_name(base: str, taken: set[str]) -> str:
+    """``base`` if not in ``taken``, else ``base_2``, ``base_3``, ... (the first free one)."""
+    base = base[:MAX_NAME_LENGTH - 8]
+    if base not in taken:
+        return base
+    k = 2
+    while f"{base}_{k}" in taken:
+        k += 1
+    return f"{base}_{k}"
 
 
 @dataclass
@@ -357,21 +392,11 @@ class World:
 
     def unique_name(self, base: str) -> str:
         """``base`` if no entity has it, else ``base_2``, ``base_3``, ... (the first free one)."""
-        taken = set(self.entity_names())
-        base = base[:MAX_NAME_LENGTH - 8]
-        if base not in taken:
-            return base
-        k = 2
-        while f"{base}_{k}" in taken:
-            k += 1
-        return f"{base}_{k}"
+        return unique_name(base, set(self.entity_names()))
 
     def check_new_name(self, name: str) -> None:
         """:class:`EditError` (``name_invalid`` / ``name_taken``) unless ``name`` can name a new entity."""
-        if not isinstance(name, str) or not ROS_SAFE_NAME.match(name) or len(name) > MAX_NAME_LENGTH:
-            raise EditError("name_invalid", f"name {name!r} is not usable: names are ROS-safe (letters, digits, "
-                            f"_; starting with a letter) and at most {MAX_NAME_LENGTH} characters (they become "
-                            "parts of topic names)")
+        check_name(name)
         kind = self.entity_kind(name)
         if kind is not None:
             raise EditError("name_taken", f"name {name!r} is taken by a {kind}")
@@ -388,22 +413,48 @@ class World:
         refusals are :class:`~cgp_core.editing.EditError`.  A refused spawn changes nothing.
 
         A body comes last in the model, at rest unless the entry gives velocities; the bodies are woken (it
-        may land on sleeping ones).  A flock starts from its seeded initial state around the centre."""
-        self.check_new_name(name)
+        may land on sleeping ones).  A flock starts from its seeded initial state around the centre.
+
+        It is :meth:`prepare_spawn` (the costly part: validation, a flock's initial state) followed by
+        :meth:`add_spawned`; a caller that must not wait for the first (the node) runs it on another thread."""
+        return self.add_spawned(self.prepare_spawn(entry, name=name, position=position, orientation=orientation,
+                                                   source=source, taken=set(self.entity_names())))
+
+    def prepare_spawn(self, entry, *, name: str, taken: set[str], position=(0.0, 0.0, 0.0),
+                      orientation=(0.0, 0.0, 0.0, 1.0), source: str = "<spawn>") -> PreparedSpawn:
+        """Validate ``entry`` (see :meth:`spawn`) and build what the world will hold: a body's model and state
+        rows, or a flock with its initial state.  Reads nothing of the world but its scene settings, so it may
+        run on any thread while the world steps; ``taken``: the names in use (a snapshot).  Raises as
+        :meth:`spawn` does; :meth:`add_spawned` adds the result."""
+        check_name(name)
+        if name in taken:
+            raise EditError("name_taken", f"name {name!r} is taken")
         position, orientation = check_pose(position, orientation, "initial_pose")
-        kind, spec = spawn_entry(entry, source, name=name, taken=set(self.entity_names()), position=position,
-                                 orientation=orientation)
+        kind, spec = spawn_entry(entry, source, name=name, taken=taken, position=position, orientation=orientation)
         if kind == "flock":
             if abs(abs(float(orientation[3])) - 1.0) > 1e-9:
                 raise EditError("invalid_pose", "initial_pose.orientation: a flock has no orientation (the boids "
                                 "have their own); give the identity (0, 0, 0, 1)")
-            self.flocks = [*self.flocks, Flock(spec)]
+            return PreparedSpawn(kind, name, flock=Flock(spec))
+        model, state = Scene(source, self.scene.world, [spec], []).build_bodies()
+        return PreparedSpawn(kind, name, model=model, state=state, notes=list(spec.notes))
+
+    def add_spawned(self, prepared: PreparedSpawn) -> str:
+        """Add what :meth:`prepare_spawn` built (between ticks, on the thread that steps); the name and the body
+        limit are checked again (the world may have changed meanwhile).  Returns the kind."""
+        self.check_new_name(prepared.name)
+        if prepared.kind == "flock":
+            boids = sum(len(f.positions) for f in self.flocks)
+            if boids + len(prepared.flock.positions) > MAX_BOIDS:
+                raise EditError("not_possible", f"the world has {boids} boids; with {len(prepared.flock.positions)} "
+                                f"more it would pass the most it holds ({MAX_BOIDS}: cgp_core.limits)")
+            self.flocks = [*self.flocks, prepared.flock]
             self._flock_mean_velocity_start.append(self.flocks[-1].mean_velocity())
         else:
             if self.body_model.count + 1 > MAX_BODIES:
                 raise EditError("not_possible", f"the world has {self.body_model.count} bodies, the most it "
                                 f"holds ({MAX_BODIES})")
-            model, state = Scene(source, self.scene.world, [spec], []).build_bodies()
+            model, state = prepared.model, prepared.state.copy()
             if self.body_state.rotation is not None:  # the integrator keeps R: the new body needs one too
                 state.rotation = state.rotation_matrices()
             old_model = self.body_model
@@ -411,10 +462,10 @@ class World:
             _, self._initial_body_state = concatenate_bodies(old_model, self._initial_body_state, model,
                                                              state.copy())
             self._bodies_changed()
-            self._report_notes(spec)
-        self.spawned.append(name)
+            self._report_notes(prepared)
+        self.spawned.append(prepared.name)
         self.model_version += 1
-        return kind
+        return prepared.kind
 
     def delete(self, name: str) -> str:
         """Remove a body or a flock (from the scene or spawned); returns its kind.  A body's wrench commands go
@@ -430,9 +481,15 @@ class World:
         only (a non-zero twist is refused, as ``simulation_interfaces`` says for static objects)."""
         i = self._body_index(name)
         position, orientation = check_pose(position, orientation)
-        v = check_vector(linear_velocity, "twist.linear")
-        w = check_vector(angular_velocity, "twist.angular")
+        v = check_vector(linear_velocity, "twist.linear", MAX_SPEED, "m/s")
+        w = check_vector(angular_velocity, "twist.angular", MAX_SPIN, "rad/s")
         model, state = self.body_model, self.body_state
+        rim_speed = float(np.linalg.norm(v) + np.linalg.norm(w) * body_reach(
+            model.shape[i], model.radius[i], model.half_extents[i]))
+        if rim_speed > MAX_SPEED:
+            raise EditError("invalid_pose", f"twist: {name}'s surface would move at up to {rim_speed:.4g} m/s "
+                            f"(|v| + |ω| times its reach); at most {MAX_SPEED:g} m/s (what cgp_sim simulates: "
+                            "cgp_core.limits)")
         if model.fixed[i] and (v.any() or w.any()):
             raise EditError("not_possible", f"{name} is fixed: it takes a pose, not a twist (got linear "
                             f"{v.tolist()}, angular {w.tolist()})")
@@ -454,6 +511,9 @@ class World:
         inside them (:class:`EditError` ``not_possible`` otherwise)."""
         flock = self._flock(name)
         target = check_vector(position, "pose.position")
+        if not (np.abs(target) <= MAX_COORDINATE).all():
+            raise EditError("invalid_pose", f"pose.position must be within ±{MAX_COORDINATE:g} m on every axis "
+                            f"(what cgp_sim simulates: cgp_core.limits), got {target.tolist()}")
         offset = target - flock.centroid()
         p = flock.params
         if p.bounds_mode != "none":

@@ -221,6 +221,21 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
 )
 PARAMETER_BY_NAME = {p.name: p for p in PARAMETERS}
 
+#: rclpy's own parameter (every node has it; declared by rclpy, described by this node).  Issue 27, finding 9:
+#: with use_sim_time true a node's timers run on /clock; this node publishes /clock from its timer, so it would
+#: wait forever for its own first tick.  Gazebo's behaviour is the reference: the simulator is the time source,
+#: its stepping is paced by the wall clock whatever use_sim_time says, and with it true its ROS clock (what
+#: rclpy's get_clock() returns) follows the /clock it publishes, as every other node's on the graph does.  Not
+#: refused: launch files pass use_sim_time:=true to every node of a simulation, the simulator included.
+USE_SIM_TIME = ParameterSpec(
+    "use_sim_time", False, "rclpy's own: with true, this node's ROS clock follows /clock, which this node "
+    "publishes itself (one message per tick); its stepping is paced by the wall clock either way (the tick "
+    "timer runs on steady time), so true or false, at start-up or at run time, the simulation runs as before "
+    "(Gazebo's behaviour: the simulator is the time source). Every message is stamped with simulation time "
+    "regardless.")
+USE_SIM_TIME_NOTE = ("use_sim_time is true: this node's ROS clock follows the /clock it publishes; its ticks are "
+                     "paced by the wall clock as before (the simulator is the time source, as in Gazebo)")
+
 # ---- limits on what the node accepts (the command path: cgp_sim_ros/ros/commands.py; the Foxglove live view's
 # client input: cgp_sim_ros/ros/foxglove_server.py)
 

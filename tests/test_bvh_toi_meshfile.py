@@ -262,7 +262,7 @@ def test_bad_mesh_files_are_refused_naming_the_file_and_reason(tmp_path):
     with pytest.raises(MeshFileError, match="nothere.stl: cannot read: no such file"):
         load_mesh(tmp_path / "nothere.stl")
     (tmp_path / "dir.obj").mkdir()
-    with pytest.raises(MeshFileError, match="dir.obj: cannot read: not a regular file"):
+    with pytest.raises(MeshFileError, match="dir.obj: cannot read: is a directory, not a regular file"):
         load_mesh(tmp_path / "dir.obj")
     (tmp_path / "empty.stl").write_bytes(b"")
     with pytest.raises(MeshFileError, match="empty.stl: empty"):

@@ -1,6 +1,9 @@
 """Issue 8, long run: the default scene plus a 10,000-boid flock, recorded to a bag, for
 ``CGP_SIM_SOAK_SECONDS`` (default 900 = 15 min) of wall time at real time.  Marked ``soak``: skipped by
-``make test``, run by ``make soak`` (``CGP_SIM_SOAK_SECONDS=60 make soak`` for a short one).
+``make test``, run by ``make soak`` (``CGP_SIM_SOAK_SECONDS=60 make soak`` for a short one).  Issue 27 added two
+clients in other processes for the whole run: one spawns a body (``visitor``, a sphere far from the scene's
+bodies and flocks) every second and deletes it half a second later (simulation_interfaces), the other sends
+``~/apply_wrench`` commands on it at 20 Hz (rejected, and summarized, while it does not exist).
 
 What must hold for the whole run, observed from this process over DDS and from the node's /proc entry:
 
@@ -10,8 +13,11 @@ What must hold for the whole run, observed from this process over DDS and from t
   of both flocks' poses, decoded straight from the CDR bytes with numpy so that a 10k-pose message costs
   this process almost nothing);
 - the rigid bodies' energy stays bounded (see :func:`test_soak_default_scene_and_10k_boids`);
-- memory is flat: after the warm-up, the node's RSS stays within 5 % of what it was at the end of the
-  warm-up (median of the last samples against the median of the warm-up's last samples);
+- memory is flat: after the warm-up, the node's RSS stays within 2 % of what it was at the end of the
+  warm-up (median of the last samples against the median of the warm-up's last samples); its parts
+  (/proc/<pid>/status: RssAnon, RssFile, RssShmem) are printed at both ends, so a drift says where it is;
+- the clients: every spawn and delete answered OK (but for the first seconds of discovery), the wrench
+  commands taken;
 - the bag is readable at the end: every file finished (summary), metadata.yaml's counts are what the files
   hold, /clock has one message per tick from the first (nothing lost), rosbags opens the directory and
   deserializes its last second of /clock.
@@ -28,6 +34,7 @@ import os
 import shutil
 import signal
 import statistics
+import textwrap
 import time
 
 import numpy as np
@@ -39,6 +46,7 @@ from mcap.reader import make_reader
 from nav_msgs.msg import Odometry
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
+from ros_probe import PeerProcess
 from rosbags.highlevel import AnyReader
 from rosgraph_msgs.msg import Clock
 
@@ -48,15 +56,21 @@ SOAK_SECONDS = float(os.environ.get("CGP_SIM_SOAK_SECONDS", "900"))
 RATE_HZ = 60.0
 DT_NS = round(1e9 / RATE_HZ)
 SAMPLE_S = 2.0  # RSS sampling period
-#: warm-up, after which the RSS must stay flat: the first 60 s or 10 % of the run, whichever is longer (a
-#: try-out shorter than 4 min: its first quarter).  Numpy's temporaries, the flock's neighbour grid, Fast DDS'
+#: warm-up, after which the RSS must stay flat: the first 5 min or 10 % of the run, whichever is longer (a
+#: try-out shorter than 20 min: its first quarter).  Numpy's temporaries, the flock's neighbour grid, Fast DDS'
 #: pools and the bag writer's buffers reach their working size in it (measured: ~15 s of simulated time for
 #: the flock alone, in-process).
-WARMUP_S = max(0.1 * SOAK_SECONDS, min(60.0, 0.25 * SOAK_SECONDS))
-RSS_TOLERANCE = 0.05
+#: Issue 27's hour: the heap (RssAnon) reached its working size ~5 min in (150.9 -> 157.0 -> 152.6 MB, then
+#: 152.6..153.9 for the rest of the hour; RssFile and RssShmem never moved): a 90 s warm-up ended on the way
+#: there, which is what the 15-minute soak's +3.5 % was.  Hence at least 5 min (a quarter of a shorter run).
+WARMUP_S = max(0.1 * SOAK_SECONDS, min(300.0, 0.25 * SOAK_SECONDS))
+RSS_TOLERANCE = 0.02
 CHECK_EVERY = 30  # decode every 30th message of the pose arrays
 BAG_SPLIT_BYTES = 2_000_000_000
 BAG_BYTES_PER_S = 36e6  # what the disk must hold per second of run (measured: 33-35 MB/s)
+#: of which the 10k flock's poses (560 kB every tick); a run too long for the disk records them every N ticks
+#: (the node's bag_flock_poses_every, its level of detail for the bag), the smallest N that fits
+FLOCK_POSES_BYTES_PER_S = 33.6e6
 
 #: the 10k flock: spawned at the density of the default flock's steady state (~0.52 boids/m³, as
 #: benchmarks/scenes/tick_15k.yaml: 10,000 boids in 34 x 34 x 17 m), so that it does not spend the first
@@ -109,6 +123,74 @@ def stamp_ns(t) -> int:
     return t.sec * 1_000_000_000 + t.nanosec
 
 
+def rss_parts(pid: int) -> dict[str, int]:
+    """RssAnon, RssFile, RssShmem of a process [kB] (/proc/<pid>/status): where its resident memory is."""
+    with open(f"/proc/{pid}/status") as f:
+        return {k: int(v.split()[0]) for k, v in (line.split(":", 1) for line in f) if k in ("RssAnon", "RssFile",
+                                                                                                   "RssShmem")}
+
+
+#: issue 27's clients: spawn a visitor body every second and delete it half a second later ...
+SPAWNER = textwrap.dedent("""
+    import sys, time
+    import rclpy
+    from simulation_interfaces.msg import Result
+    from simulation_interfaces.srv import DeleteEntity, SpawnEntity
+
+    rclpy.init()
+    node = rclpy.create_node("soak_spawner")
+    spawn = node.create_client(SpawnEntity, "/cgp_sim/spawn_entity")
+    delete = node.create_client(DeleteEntity, "/cgp_sim/delete_entity")
+    spawn.wait_for_service(timeout_sec=60)
+    delete.wait_for_service(timeout_sec=60)
+
+    def call(client, request):
+        future = client.call_async(request)
+        rclpy.spin_until_future_complete(node, future, timeout_sec=10)
+        return future.result()
+
+    ok = failed = 0
+    end = time.monotonic() + float(sys.argv[1])
+    while time.monotonic() < end:
+        started = time.monotonic()
+        request = SpawnEntity.Request(name="visitor", resource_string="body: {shape: sphere, radius: 0.3, mass: 2}")
+        request.initial_pose.pose.position.x, request.initial_pose.pose.position.y = 50.0, 50.0
+        request.initial_pose.pose.position.z = 3.0
+        spawned = call(spawn, request)
+        time.sleep(0.5)
+        deleted = call(delete, DeleteEntity.Request(entity="visitor"))
+        good = spawned is not None and spawned.result.result == Result.RESULT_OK and deleted is not None \
+            and deleted.result.result == Result.RESULT_OK
+        ok, failed = ok + good, failed + (not good)
+        if not good:
+            print("FAILED", spawned and spawned.result.error_message, deleted and deleted.result.error_message,
+                  flush=True)
+        time.sleep(max(0.0, 1.0 - (time.monotonic() - started)))
+    print(f"SPAWNER ok {ok} failed {failed}", flush=True)
+""")
+
+#: ... and push it with wrench commands at 20 Hz
+WRENCHER = textwrap.dedent("""
+    import sys, time
+    import rclpy
+    from cgp_sim_msgs.msg import ApplyWrench
+
+    rclpy.init()
+    node = rclpy.create_node("soak_wrencher")
+    publisher = node.create_publisher(ApplyWrench, "/cgp_sim/apply_wrench", 10)
+    sent = 0
+    end = time.monotonic() + float(sys.argv[1])
+    while time.monotonic() < end:
+        msg = ApplyWrench(body="visitor")
+        msg.wrench.force.z = 30.0
+        msg.wrench.torque.x = 0.5
+        publisher.publish(msg)
+        sent += 1
+        time.sleep(0.05)
+    print(f"WRENCHER sent {sent}", flush=True)
+""")
+
+
 @pytest.mark.soak
 @pytest.mark.timeout(SOAK_SECONDS + 600)
 def test_soak_default_scene_and_10k_boids(start_node, probe, tmp_path):
@@ -124,8 +206,13 @@ def test_soak_default_scene_and_10k_boids(start_node, probe, tmp_path):
     warm-up), never above the settled energy + margin (no slow creep of energy into resting bodies).
     """
     free = shutil.disk_usage(tmp_path).free
-    if free < BAG_BYTES_PER_S * SOAK_SECONDS * 1.1:
-        pytest.fail(f"the soak's bag needs ~{BAG_BYTES_PER_S * SOAK_SECONDS / 1e9:.0f} GB; {free / 1e9:.0f} GB "
+    flock_every = next((n for n in range(1, 31) if (BAG_BYTES_PER_S - FLOCK_POSES_BYTES_PER_S * (1 - 1 / n))
+                        * SOAK_SECONDS * 1.1 < free), 30)
+    if flock_every > 1:
+        print(f"\nsoak: recording the flocks' poses every {flock_every} ticks (the disk has {free / 1e9:.0f} GB)")
+    needed = (BAG_BYTES_PER_S - FLOCK_POSES_BYTES_PER_S * (1 - 1 / flock_every)) * SOAK_SECONDS
+    if free < needed * 1.1:
+        pytest.fail(f"the soak's bag needs ~{needed / 1e9:.0f} GB; {free / 1e9:.0f} GB "
                     f"free in {tmp_path}")
     scene_data = yaml.safe_load((builtin_scene_dir() / "default.yaml").read_text())
     scene_data["description"] = "the default scene plus a 10,000-boid flock of spheres (tests/test_soak.py)"
@@ -194,17 +281,29 @@ def test_soak_default_scene_and_10k_boids(start_node, probe, tmp_path):
     # ---- the run
     bag = tmp_path / "bag"
     node = start_node("--scene", str(scene_path), "--bag", str(bag), "--markers-every", "30",
+                      "--bag-flock-poses-every", str(flock_every),
                       "--bag-max-size", str(BAG_SPLIT_BYTES))
     try:
         probe.spin_until(lambda: len(ticks) >= 60 and len(totals) > 0, 60, "the node's first second")
         process = psutil.Process(node.proc.pid)
+        clients = [PeerProcess(code, [SOAK_SECONDS], tmp_path / f"{name}.log")
+                   for name, code in (("spawner", SPAWNER), ("wrencher", WRENCHER))]
         start = time.monotonic()
+        parts: dict[str, dict] = {}
         rss: list[tuple[float, int]] = []  # (seconds into the run, bytes)
         while (elapsed := time.monotonic() - start) < SOAK_SECONDS:
             probe.spin_for(min(SAMPLE_S, SOAK_SECONDS - elapsed))
             assert node.alive(), f"the node died after {elapsed:.0f} s:\n{node.log()[-4000:]}"
             rss.append((time.monotonic() - start, process.memory_info().rss))
+            if "warm" not in parts and rss[-1][0] > WARMUP_S:
+                parts["warm"] = rss_parts(node.proc.pid)
             assert not non_finite, non_finite[:10]
+        parts["end"] = rss_parts(node.proc.pid)
+        outputs = [client.proc.wait(60) == 0 and client.stop() for client in clients]
+        assert all(outputs), [client.output()[-2000:] for client in clients]
+        spawner = next(line for line in outputs[0].splitlines() if line.startswith("SPAWNER")).split()
+        wrencher = next(line for line in outputs[1].splitlines() if line.startswith("WRENCHER")).split()
+        spawned_ok, spawned_failed, wrenches_sent = int(spawner[2]), int(spawner[4]), int(wrencher[2])
         last_tick_seen = ticks[-1][1]
         probe.spin_until(lambda: ticks[-1][1] > last_tick_seen, 10, "the node to be still ticking")
 
@@ -231,10 +330,16 @@ def test_soak_default_scene_and_10k_boids(start_node, probe, tmp_path):
               f"{counts['pose arrays checked']} of them ({counts['poses checked']} poses) checked: all finite\n"
               f"soak: node RSS {rss[0][1] / 2**20:.1f} MB at {rss[0][0]:.0f} s, {warm_mb:.1f} MB at the end of the "
               f"{WARMUP_S:g} s warm-up (median), {end_mb:.1f} MB at the end (median of the last 5 samples), "
+              f"parts [kB] at the warm-up's end {parts.get('warm')} and at the end {parts['end']}, "
               f"{min(after):.1f}..{max(after):.1f} MB after the warm-up ({len(rss)} samples; every "
               f"{10 * SAMPLE_S:g} s: {' '.join(str(b >> 20) for _, b in rss[::10])})\n"
               f"soak: energy E0 {e0:.1f} J, max {max(e for _, _, e in totals):.1f} J, settled {settled:.1f} J, "
               f"max after the warm-up {max(late):.1f} J (margin {margin:.1f} J)")
+        print(f"soak: clients: {spawned_ok} spawn+delete cycles OK, {spawned_failed} failed; {wrenches_sent} "
+              "wrench commands sent")
+        # a cycle is 1 s when the machine is idle; under load its two round trips take longer (the 1-hour run of
+        # issue 27, at load ~5 on 2 cores: 2,363 cycles, 1.5 s each): what must hold is that none failed
+        assert spawned_ok >= SOAK_SECONDS / 4 and spawned_failed <= 2, (spawned_ok, spawned_failed)
         assert abs(end_mb - warm_mb) <= RSS_TOLERANCE * warm_mb, \
             f"RSS {warm_mb:.1f} MB -> {end_mb:.1f} MB: {[(round(t), b >> 20) for t, b in rss]}"
         assert max(e for _, _, e in totals) <= e0 + margin

@@ -351,14 +351,16 @@ def test_resume_runs_only_what_is_missing_and_a_failing_run_is_a_row(client, tmp
         record: {every: 10}
     """))
     sweep = load_sweep(path)
-    assert [r.params["bodies[ball].mass"] for r in sweep.refused] == [0, 0, 0]
+    # gravity 1e300 m/s² is refused by the scene loader since issue 27 (cgp_core.limits), as mass 0 is
+    assert [r.params["bodies[ball].mass"] for r in sweep.refused] == [0, 2.0, 0, 0]
     out = tmp_path / "out"
     first = run_sweep(sweep, out, client=client, quiet=True)
     assert (first.ran, first.failed, first.exit_code) == (6, 4, 1)
     runs = pq.read_table(out / "runs.parquet").to_pylist()
     by = {(json.loads(r["world.gravity"])[2], r["bodies[ball].mass"]): r for r in runs}
     assert len(runs) == 6 and len(by) == 6
-    assert by[(-1e300, 2.0)]["status"] == "failed" and "numerical blow-up" in by[(-1e300, 2.0)]["error"]
+    assert by[(-1e300, 2.0)]["status"] == "failed" and "world.gravity[2]: must be in [-1000, 1000] m/s²" in \
+        by[(-1e300, 2.0)]["error"]
     assert "bodies[0] (ball).mass: must be > 0, got 0" in by[(-9.81, 0)]["error"]
     assert by[(-9.81, 2.0)]["status"] == by[(-3.7, 2.0)]["status"] == "done"
     assert by[(-3.7, 2.0)]["polarization"] is not None and by[(-1e300, 2.0)]["polarization"] is None

@@ -95,7 +95,7 @@ def test_spawn_errors_are_the_scene_file_errors_with_the_key_path():
         ({"flock": {"count": 10, "spawn": {"center": [0, 0, 1]}}},
          "spawn_entity: flock.spawn.center: given by the request's initial_pose (the spawn centre); leave it out"),
         ({"robot": {}}, "spawn_entity: must be a mapping with exactly one key, body or flock (a scene file's "
-                        "bodies / flocks entry), got keys 'robot'"),
+                        "bodies / flocks entry), got a mapping of 1 keys, none of them body or flock"),
         ({"body": {"shape": "cube"}}, "spawn_entity: body (box1).shape: must be one of sphere, box, capsule, "
                                       "particles, convex, compound, mesh, got 'cube'\n"
                                       "spawn_entity: body (box1).radius: missing"),

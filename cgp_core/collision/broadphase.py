@@ -98,17 +98,23 @@ def sweep_and_prune_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, n
     lo, hi = _check(lo, hi)
     if len(lo) < 2:
         return _EMPTY
-    i, j = sweep_and_prune_kernel(np.ascontiguousarray(lo), np.ascontiguousarray(hi))
+    i, j = sweep_and_prune_kernel(np.ascontiguousarray(lo), np.ascontiguousarray(hi), np.arange(len(lo)))
     return _sorted_pairs(i, j)
 
 
 @njit
-def sweep_and_prune_kernel(lo, hi):
-    """Every overlapping pair of AABBs ``lo, hi (p, 3)`` once, as ``(i, j)`` with ``i < j``, in sweep order
-    (Ericson 7.5.2, single axis): sort the boxes by their lower bound along the axis of largest spread of the
-    centres, and pair each box with those that start before it ends.  A box with a non-finite bound overlaps
-    nothing.  Good for sparse scenes and piles alike at a few thousand boxes; its candidate count grows as
-    p² · (box size / world size)."""
+def sweep_and_prune_kernel(lo, hi, group):
+    """Every overlapping pair of AABBs ``lo, hi (p, 3)`` of different ``group`` (p,) once (the collision
+    detector's groups are the bodies: a body's primitives never collide with each other), as ``(i, j)`` with
+    ``i < j``, in sweep order (Ericson 7.5.2, single axis): sort the boxes by their lower bound along the axis of
+    largest spread of the centres, and pair each box with those that start before it ends.  A box with a
+    non-finite bound overlaps nothing.  Good for sparse scenes and piles alike at a few thousand boxes; its
+    candidate count grows as p² · (box size / world size).
+
+    Boxes of the box's own group are skipped a run at a time (``next_other``: the next position in sweep order
+    of another group), so a particle body's particles, which overlap each other, cost nothing among
+    themselves: issue 27 measured a particle body's tick growing as N^2.2 (5,000 particles 0.46 s, 20,000 6.5 s,
+    100,000 never) when every same-body pair was found here and rejected only in the narrow phase."""
     p = len(lo)
     mean = np.zeros(3)
     spread = np.zeros(3)
@@ -126,6 +132,12 @@ def sweep_and_prune_kernel(lo, hi):
         if spread[d] > spread[axis]:
             axis = d
     order = np.argsort(lo[:, axis], kind="mergesort")
+    next_other = np.empty(p, np.int64)  # position -> the first later position holding another group
+    for a in range(p - 1, -1, -1):
+        if a + 1 < p and group[order[a + 1]] == group[order[a]]:
+            next_other[a] = next_other[a + 1]
+        else:
+            next_other[a] = a + 1
     cap = 8 * p + 16
     pi = np.empty(cap, np.int64)
     pj = np.empty(cap, np.int64)
@@ -133,10 +145,14 @@ def sweep_and_prune_kernel(lo, hi):
     for a in range(p):
         i = order[a]
         end = hi[i, axis]
-        for b in range(a + 1, p):
+        b = a + 1
+        while b < p:
             j = order[b]
             if not lo[j, axis] <= end:
                 break  # sorted by lower bound: no later box starts before this one ends (or a bound is NaN)
+            if group[j] == group[i]:
+                b = next_other[b]  # the rest of this run of i's own group
+                continue
             if lo[i, 0] <= hi[j, 0] and lo[j, 0] <= hi[i, 0] and lo[i, 1] <= hi[j, 1] and lo[j, 1] <= hi[i, 1] \
                     and lo[i, 2] <= hi[j, 2] and lo[j, 2] <= hi[i, 2]:
                 if count == cap:
@@ -146,6 +162,7 @@ def sweep_and_prune_kernel(lo, hi):
                 pi[count] = min(i, j)
                 pj[count] = max(i, j)
                 count += 1
+            b += 1
     return pi[:count], pj[:count]
 
 

@@ -37,11 +37,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..jit import njit
+from ..limits import MAX_HULL_POINTS, MAX_HULL_VERTICES
 
-#: input points accepted by :func:`convex_hull` (qhull is O(n log n); a scene's hull needs far fewer)
-MAX_INPUT_POINTS = 100_000
-#: hull vertices accepted (a collision hull of more vertices is slow in every query; simplify the mesh first)
-MAX_HULL_VERTICES = 1024
+#: input points accepted by :func:`convex_hull`, and hull vertices (:mod:`cgp_core.limits`, the one place of the
+#: limits on what users give)
+MAX_INPUT_POINTS = MAX_HULL_POINTS
 #: vertices on one (merged) face: the manifold's feature ids reserve 8 bits for a face vertex
 MAX_FACE_VERTICES = 255
 #: a hull whose volume is below this fraction of the cube of its largest extent is refused as flat

@@ -160,7 +160,8 @@ class CollisionDetector:
         if count <= SMALL_SCENE:
             return small_scene_pairs(lo, hi, prim_body, active)
         if self.broad_phase is sweep_and_prune_pairs:
-            return sweep_and_prune_kernel(lo, hi)  # one compiled call; the pair order does not matter here
+            # one compiled call, no same-body pair; the order of the pairs does not matter here
+            return sweep_and_prune_kernel(lo, hi, prim_body)
         sane = np.flatnonzero(np.isfinite(lo).all(1) & np.isfinite(hi).all(1))
         if sane.size == count:
             i, j = self.broad_phase(lo, hi)

@@ -4,6 +4,12 @@ A bag is a rosbag2 directory (``metadata.yaml`` + ``<name>_0.mcap``, ``<name>_1.
 it) or one ``.mcap`` file.  The files of a directory are read in the order ``metadata.yaml`` lists them (or,
 without it, by their split index), each in log-time order; a file without summary (a recording killed by
 SIGKILL) is read sequentially by mcap's fallback reader.
+
+A damaged file — cut in the middle of a write (a crash, a full disk, a copy interrupted), a corrupt chunk — is
+read record by record with mcap's stream reader up to the damage, and what comes before it is rendered
+(:attr:`MarkerStream.damaged` says which files and how many messages were recovered; the command prints it).
+A file with nothing readable is an error naming it.  (Issue 27: the first half of a good bag used to be refused
+as "not a readable MCAP file" although 2,642 of its messages were readable.)
 """
 
 from __future__ import annotations
@@ -15,6 +21,8 @@ from pathlib import Path
 
 import yaml
 from mcap.reader import make_reader
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
 
 MARKER_ARRAY_SCHEMA = "visualization_msgs/msg/MarkerArray"
 #: the topic the node publishes its markers on (``~/markers`` of a node named cgp_sim)
@@ -35,17 +43,31 @@ class MarkerStream:
     message_count: int
     start_ns: int  # log time of the first marker message (what "0 s" means for --from / --to)
     end_ns: int  # log time of the bag's last message
+    #: damaged files (read up to the damage): path -> what was recovered and why it stopped
+    damaged: dict = None
 
     def messages(self, start_ns: int | None = None, end_ns: int | None = None) -> Iterator[tuple[int, bytes]]:
         """``(log_time_ns, CDR bytes)`` of the marker messages logged in [start_ns, end_ns] (default: all), in
         log-time order (mcap seeks to the chunks that overlap the span)."""
         for path in self.files:
+            if self.damaged and path in self.damaged:
+                for log_time, _topic, _schema, data in _stream_messages(path):
+                    if _topic == self.topic and (start_ns is None or log_time >= start_ns) \
+                            and (end_ns is None or log_time <= end_ns):
+                        yield log_time, data
+                continue
             with open(path, "rb") as stream:
                 reader = make_reader(stream)
-                for _schema, _channel, message in reader.iter_messages(
-                        topics=[self.topic], start_time=start_ns, end_time=None if end_ns is None else end_ns + 1,
-                        log_time_order=True):
-                    yield message.log_time, message.data
+                try:
+                    for _schema, _channel, message in reader.iter_messages(
+                            topics=[self.topic], start_time=start_ns, end_time=None if end_ns is None else end_ns + 1,
+                            log_time_order=True):
+                        yield message.log_time, message.data
+                except Exception as exc:  # noqa: BLE001 - a damaged chunk in a file with a summary: stop there
+                    if self.damaged is None:
+                        self.damaged = {}
+                    self.damaged.setdefault(path, f"{path.name} is damaged ({type(exc).__name__}: "
+                                                  f"{str(exc)[:120]}): rendered up to the damage")
 
 
 def bag_files(bag: str | Path) -> list[Path]:
@@ -80,6 +102,7 @@ def open_marker_stream(bag: str | Path, topic: str | None = None) -> MarkerStrea
     scanned)."""
     files = bag_files(bag)
     candidates: dict[str, int] = {}
+    damaged: dict[Path, str] = {}
     start = end = None
     for path in files:
         try:
@@ -95,8 +118,9 @@ def open_marker_stream(bag: str | Path, topic: str | None = None) -> MarkerStrea
                         if schema is not None and schema.name == MARKER_ARRAY_SCHEMA:
                             counts[channel.topic] = stats.channel_message_counts.get(channel_id, 0)
                     span = (stats.message_start_time, stats.message_end_time) if stats.message_count else None
-        except Exception as exc:  # mcap raises its own exception types (and struct / EOF errors) on bad files
-            raise BagError(f"{path}: not a readable MCAP file ({type(exc).__name__}: {exc})") from None
+        except Exception as exc:  # noqa: BLE001 - mcap raises its own types (and struct / EOF errors) on bad files
+            counts, span, note = _recover(path, exc)
+            damaged[path] = note
         for name, count in counts.items():
             candidates[name] = candidates.get(name, 0) + count
         if span is not None:
@@ -116,11 +140,50 @@ def open_marker_stream(bag: str | Path, topic: str | None = None) -> MarkerStrea
     elif not candidates.get(topic):
         raise BagError(f"{bag}: no {MARKER_ARRAY_SCHEMA} messages on {topic} (MarkerArray topics: "
                        f"{', '.join(sorted(candidates)) or 'none'})")
-    stream = MarkerStream(files, topic, candidates[topic], start, end)
+    stream = MarkerStream(files, topic, candidates[topic], start, end, damaged)
     # time 0 is the first picture there is: the first marker message (a bag may start with other topics, e.g. a
     # cgp-sim bag's start-up event on ~/events at t = 0, one tick before the first markers)
     stream.start_ns = next(stream.messages())[0]
     return stream
+
+
+def _stream_messages(path: Path):
+    """``(log_time, topic, schema name, data)`` of every message of ``path`` read record by record (mcap's stream
+    reader, chunk CRCs checked), up to the first damaged or missing record."""
+    schemas: dict[int, str] = {}
+    channels: dict[int, tuple[str, int]] = {}
+    with open(path, "rb") as f:
+        try:
+            for record in StreamReader(f, validate_crcs=True, record_size_limit=1 << 30).records:
+                if isinstance(record, Schema):
+                    schemas[record.id] = record.name
+                elif isinstance(record, Channel):
+                    channels[record.id] = (record.topic, record.schema_id)
+                elif isinstance(record, Message) and record.channel_id in channels:
+                    topic, schema_id = channels[record.channel_id]
+                    yield record.log_time, topic, schemas.get(schema_id, ""), record.data
+        except Exception:  # noqa: BLE001 - the damage (EOF, a bad CRC, a torn record): stop there
+            return
+
+
+def _recover(path: Path, error: Exception) -> tuple[dict[str, int], tuple[int, int] | None, str]:
+    """Marker topic counts and time span of a damaged file, read up to the damage; BagError if nothing of it is
+    readable."""
+    counts: dict[str, int] = {}
+    start = end = None
+    total = 0
+    for log_time, topic, schema, _data in _stream_messages(path):
+        total += 1
+        start = log_time if start is None else min(start, log_time)
+        end = log_time if end is None else max(end, log_time)
+        if schema == MARKER_ARRAY_SCHEMA:
+            counts[topic] = counts.get(topic, 0) + 1
+    if total == 0:
+        raise BagError(f"{path}: not a readable MCAP file ({type(error).__name__}: {error}), and no message of it "
+                       "could be recovered") from None
+    note = (f"{path.name} is damaged ({type(error).__name__}: {str(error)[:120]}): {total} messages recovered from "
+            "before the damage")
+    return counts, (None if start is None else (start, end)), note
 
 
 def _scan(path: Path) -> tuple[dict[str, int], tuple[int, int] | None]:

@@ -140,13 +140,34 @@ def frame_times(stream: MarkerStream, start_s: float, end_s: float | None, fps: 
     return stream.start_ns + np.round((start_s + step * np.arange(count)) * _NS).astype(np.int64)
 
 
+class Undecodable:
+    """Marker messages that are not a MarkerArray's CDR (a damaged or foreign bag): skipped, counted, the first
+    reason kept for the summary line."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.decoded = 0
+        self.first = ""
+
+    def decode(self, data: bytes):
+        try:
+            markers = cdr.read_marker_array(data)
+        except cdr.CdrError as exc:
+            self.count += 1
+            self.first = self.first or str(exc)
+            return None
+        self.decoded += 1
+        return markers
+
+
 class FrameSource:
     """Marker sets at increasing times, from one pass over the bag."""
 
-    def __init__(self, stream: MarkerStream) -> None:
+    def __init__(self, stream: MarkerStream, undecodable: Undecodable | None = None) -> None:
         self._messages = stream.messages()
         self._pending: tuple[int, bytes] | None = None
         self.markers = MarkerSet()
+        self.undecodable = undecodable or Undecodable()
 
     def at(self, time_ns: int) -> MarkerSet:
         """Apply every message logged at or before ``time_ns`` (times must not decrease between calls)."""
@@ -158,11 +179,14 @@ class FrameSource:
             stamp, data = self._pending
             if stamp > time_ns:
                 return self.markers
-            self.markers.apply(cdr.read_marker_array(data))
+            markers = self.undecodable.decode(data)
+            if markers is not None:
+                self.markers.apply(markers)
             self._pending = None
 
 
-def default_camera(stream: MarkerStream, times: np.ndarray, aspect: float, args) -> Camera:
+def default_camera(stream: MarkerStream, times: np.ndarray, aspect: float, args,
+                   undecodable: Undecodable | None = None) -> Camera:
     """Frame what is drawn at FRAMING_SAMPLES instants spread over ``times`` (each from the messages of the
     FRAMING_LOOKBACK_NS before it: mcap seeks there, so framing does not read the whole bag)."""
     samples = np.unique(times[np.linspace(0, len(times) - 1, min(FRAMING_SAMPLES, len(times))).round().astype(int)])
@@ -170,7 +194,9 @@ def default_camera(stream: MarkerStream, times: np.ndarray, aspect: float, args)
     for t in samples:
         markers = MarkerSet()
         for _stamp, data in stream.messages(int(t) - FRAMING_LOOKBACK_NS, int(t)):
-            markers.apply(cdr.read_marker_array(data))
+            decoded = (undecodable or Undecodable()).decode(data)
+            if decoded is not None:
+                markers.apply(decoded)
         points.append(extent_points(markers))
     return Camera.framing(np.concatenate(points), aspect, azimuth_deg=args.azimuth,
                           elevation_deg=args.elevation, fov_deg=args.fov)
@@ -269,10 +295,11 @@ def render(args) -> dict:
     eye_target = parse_camera(args.camera) if args.camera else None
 
     stream = open_marker_stream(args.bag, args.topic)
+    undecodable = Undecodable()
     times = frame_times(stream, args.start, args.end, args.fps, args.speed, still=suffix == ".png" and not sequence)
     aspect = width / height
     if eye_target is None:
-        camera = default_camera(stream, times, aspect, args)
+        camera = default_camera(stream, times, aspect, args, undecodable)
     else:
         eye, target = eye_target
         if target is None:
@@ -280,7 +307,7 @@ def render(args) -> dict:
         camera = Camera(eye=eye, target=target, fov_deg=args.fov)
     rasterizer = Rasterizer(width, height, supersample=args.supersample)
     progress = None if args.quiet else ProgressLine(sys.stderr)
-    source = FrameSource(stream)
+    source = FrameSource(stream, undecodable)
     writer = _writer(output, args, (width, height))
     started = time.monotonic()
     skipped: set[str] = set()
@@ -302,8 +329,14 @@ def render(args) -> dict:
         if progress is not None:
             progress.finish()
     elapsed = time.monotonic() - started
+    if undecodable.count and not undecodable.decoded:
+        raise RenderError(f"{args.bag}: none of its marker messages on {stream.topic} could be decoded "
+                          f"({undecodable.count} tried; first: {undecodable.first})")
+    notes = list((stream.damaged or {}).values())
+    if undecodable.count:
+        notes.append(f"{undecodable.count} undecodable marker message(s) skipped (first: {undecodable.first})")
     return {"output": output, "frames": len(times), "seconds": elapsed, "skipped": sorted(skipped),
-            "camera": camera}
+            "camera": camera, "notes": notes}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -322,6 +355,8 @@ def main(argv: list[str] | None = None) -> int:
           f"(camera {','.join(f'{v:g}' for v in eye)}:{','.join(f'{v:g}' for v in target)})"
           + (f"; marker types not drawn: {', '.join(result['skipped'])}" if result["skipped"] else ""),
           file=sys.stderr)
+    for note in result["notes"]:
+        print(f"cgp-sim-render: note: {note}", file=sys.stderr)
     return 0
 
 

@@ -4,7 +4,11 @@ Every node parameter is also a flag (``--rate-hz 120`` ≡ ``--ros-args -p rate_
 ``--ros-args -p``.  Everything after ``--ros-args`` goes to ROS (remaps, namespaces, parameter files).
 
 Shutdown: Ctrl-C (SIGINT) or SIGTERM ends the run cleanly after the current tick — the bag is finished
-(summary, metadata.yaml) and its location printed.  A second Ctrl-C aborts at once.
+(summary, metadata.yaml) and its location printed.  A second Ctrl-C aborts at once.  Within 2 s in every case:
+if the current tick (or the start-up) has not ended :data:`STOP_GRACE_S` after the signal — a long compiled
+kernel holds the main thread, where Python runs its signal handlers only between bytecodes — the stop
+watchdog (:class:`StopWatchdog`, a thread woken by the signal itself through ``signal.set_wakeup_fd``) finishes
+the bag with every tick before the current one, prints its summary and exits with status 0.
 
 Exit status: 0 after a clean shutdown (signal or ``duration`` reached); 2 for a configuration the node cannot
 start with (an invalid flag or parameter value, a scene that does not load, unparsable ROS arguments, an
@@ -15,9 +19,71 @@ from __future__ import annotations
 
 import argparse
 import signal
+import socket
 import sys
+import threading
+import time
+from os import _exit as exit_now  # the process ends at once: no atexit, no DDS teardown (see StopWatchdog)
 
 from .. import interface as itf
+
+#: after SIGINT / SIGTERM, how long the current tick may go on before the watchdog stops the node without it
+STOP_GRACE_S = 1.0
+#: ... and by when the process is gone, whatever it was doing (the bag finished within the difference)
+STOP_DEADLINE_S = 1.9
+
+
+class StopWatchdog:
+    """Stops the node within :data:`STOP_DEADLINE_S` of a SIGINT / SIGTERM even while the main thread is stuck in
+    a tick.  Python runs a signal handler in the main thread between bytecodes only, so during a long compiled
+    (nogil) kernel the handler — and with it the stop — waits for the kernel.  But CPython's C-level handler
+    writes the signal number to the wakeup fd at once; this thread waits on that fd.  If the main loop has not
+    begun its normal shutdown :data:`STOP_GRACE_S` after the signal, the thread finishes every open recording
+    (:data:`cgp_sim_ros.ros.recorder.OPEN_RECORDERS`: the writer thread writes what is queued — the ticks before
+    the current one — the summary and metadata.yaml), prints the summary and ends the process with status 0.
+    If the normal shutdown is under way but not done by the deadline, it ends the process too."""
+
+    def __init__(self):
+        self._read, write = socket.socketpair()
+        write.setblocking(False)
+        self._write = write
+        signal.set_wakeup_fd(write.fileno(), warn_on_full_buffer=False)
+        #: set by the main thread when it leaves its loop (normal shutdown begins) and when it is done
+        self.shutting_down = threading.Event()
+        self.done = threading.Event()
+        threading.Thread(target=self._run, name="cgp-sim-stop-watchdog", daemon=True).start()
+
+    def _run(self) -> None:
+        while True:
+            try:
+                data = self._read.recv(64)
+            except OSError:
+                return
+            if not data:
+                return
+            if signal.SIGINT in data or signal.SIGTERM in data:
+                break
+        signalled = time.monotonic()
+        if self.shutting_down.wait(STOP_GRACE_S):
+            if self.done.wait(max(0.0, STOP_DEADLINE_S - (time.monotonic() - signalled))):
+                return
+            _say("the shutdown took longer than its deadline: exiting now (the bag may lack its summary: "
+                 "cgp-sim-render and mcap read it anyway)")
+            exit_now(0)
+        from .recorder import OPEN_RECORDERS
+
+        _say(f"the current tick is still running {STOP_GRACE_S:g} s after the signal: stopping without it")
+        for recorder in list(OPEN_RECORDERS):
+            recorder.close(timeout=max(0.05, STOP_DEADLINE_S - 0.05 - (time.monotonic() - signalled)))
+            _say(recorder.summary_text().removeprefix("cgp-sim: "))
+        exit_now(0)
+
+
+def _say(text: str) -> None:
+    try:
+        print(f"cgp-sim: {text}", file=sys.stderr, flush=True)
+    except Exception:  # noqa: BLE001 - a closed stderr must not keep the process alive
+        pass
 
 
 def _bool(text: str) -> bool:
@@ -125,6 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGINT, request_stop)
     signal.signal(signal.SIGTERM, request_stop)
+    watchdog = StopWatchdog()
     try:
         node = SimNode(parameter_overrides=overrides)
     except ConfigError as exc:
@@ -139,6 +206,7 @@ def main(argv: list[str] | None = None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        watchdog.shutting_down.set()
         node.close()
         if node.recorder is not None:
             print(node.recorder.summary_text(), flush=True)
@@ -146,6 +214,7 @@ def main(argv: list[str] | None = None) -> int:
         node.destroy_node()  # with it the DDS participant: before the process exits (SimNode.destroy_node)
         executor.shutdown()
         rclpy.try_shutdown()
+        watchdog.done.set()
     return 0
 
 

@@ -114,19 +114,9 @@ class CommandInputs:
         if self._oversized("apply_wrench", data):
             return
         self._record_received(self._apply_wrench.topic_name, data)
-        world, params = self._node.world, self._node.params
         try:
-            msg = _decode(data, ApplyWrench)
-            if msg.duration.nanosec >= 1_000_000_000:
-                raise WrenchError("duration.nanosec", f"must be < 1e9, got {msg.duration.nanosec}", "malformed")
-            command = make_command(
-                world.body_model.names, msg.body,
-                force=(msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z),
-                torque=(msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z),
-                point=(msg.point.x, msg.point.y, msg.point.z), frame=self._node.frames.to_core(msg.header.frame_id),
-                duration=msg.duration.sec + 1e-9 * msg.duration.nanosec,
-                max_force=params["max_force"], max_torque=params["max_torque"],
-                fixed=world.body_model.fixed, positions=world.body_state.position)
+            command = apply_wrench_command(data, self._node.world, self._node.params,
+                                           self._node.frames)
         except WrenchError as exc:
             self.reject("apply_wrench", exc)
             return
@@ -137,15 +127,8 @@ class CommandInputs:
         if self._oversized(source, data):
             return
         self._record_received(self._body_wrench[body].topic_name, data)
-        params = self._node.params
         try:
-            msg = _decode(data, WrenchStamped)
-            command = make_command(
-                self._node.world.body_model.names, body,
-                force=(msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z),
-                torque=(msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z),
-                point=None, frame=self._node.frames.to_core(msg.header.frame_id), duration=0.0,
-                max_force=params["max_force"], max_torque=params["max_torque"])
+            command = body_wrench_command(body, data, self._node.world, self._node.params, self._node.frames)
         except WrenchError as exc:
             self.reject(source, exc)
             return
@@ -221,6 +204,34 @@ class CommandInputs:
             node.emit_event({"event": "rejected", "source": source, "field": field, "kind": kind, "count": count,
                              "reason": reason})
         self._rejections.clear()
+
+
+def apply_wrench_command(data: bytes, world, params, frames: itf.Frames = itf.UNPREFIXED):
+    """The validated command of a ``~/apply_wrench`` message's CDR bytes (``world``: the :class:`World` it is for;
+    ``params``: the node's ``max_force`` / ``max_torque``; ``frames``: the node's frame ids, whose prefix a
+    ``header.frame_id`` may carry); :class:`WrenchError` naming the field otherwise."""
+    msg = _decode(data, ApplyWrench)
+    if msg.duration.nanosec >= 1_000_000_000:
+        raise WrenchError("duration.nanosec", f"must be < 1e9, got {msg.duration.nanosec}", "malformed")
+    return make_command(
+        world.body_model.names, msg.body,
+        force=(msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z),
+        torque=(msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z),
+        point=(msg.point.x, msg.point.y, msg.point.z), frame=frames.to_core(msg.header.frame_id),
+        duration=msg.duration.sec + 1e-9 * msg.duration.nanosec,
+        max_force=params["max_force"], max_torque=params["max_torque"],
+        fixed=world.body_model.fixed, positions=world.body_state.position)
+
+
+def body_wrench_command(body: str, data: bytes, world, params, frames: itf.Frames = itf.UNPREFIXED):
+    """The validated command of a ``~/bodies/<body>/wrench`` WrenchStamped's CDR bytes (as above)."""
+    msg = _decode(data, WrenchStamped)
+    return make_command(
+        world.body_model.names, body,
+        force=(msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z),
+        torque=(msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z),
+        point=None, frame=frames.to_core(msg.header.frame_id), duration=0.0,
+        max_force=params["max_force"], max_torque=params["max_torque"])
 
 
 def _decode(data: bytes, msg_type):

@@ -451,6 +451,8 @@ def _message_from_json(msg_type, data: bytes):
         value = json.loads(data)
     except (ValueError, UnicodeDecodeError) as exc:
         raise WrenchError("message", f"not JSON: {exc}", "undecodable") from None
+    except RecursionError:  # [[[[...: json nests by recursion (found by tests/test_fuzz_inputs.py)
+        raise WrenchError("message", "not JSON of a command: nested too deeply", "undecodable") from None
     if not isinstance(value, dict):
         raise WrenchError("message", f"must be a JSON object, got {type(value).__name__}", "undecodable")
     msg = msg_type()

@@ -34,7 +34,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType, SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from std_srvs.srv import SetBool, Trigger
 
@@ -82,6 +83,7 @@ class SimNode(Node):
         self.params = read_parameters(self, self._parameter_overrides)
         #: the TF frame ids it writes and reads (parameter `frame_prefix`)
         self.frames = itf.Frames(self.params["frame_prefix"])
+        self._describe_use_sim_time()
         #: the bag directory (resolved and checked once, before anything is built), or None: no recording
         self.bag_path = self._bag_path()
         self.world = self._load_world()
@@ -156,15 +158,29 @@ class SimNode(Node):
         except BagExistsError as exc:  # created between the check in __init__ and now
             raise ConfigError(f"bag: {exc}") from None
 
+    def _describe_use_sim_time(self) -> None:
+        """rclpy's own ``use_sim_time``, described (:data:`cgp_sim_ros.interface.USE_SIM_TIME`): this node is
+        the clock; with ``use_sim_time`` true its ROS clock follows the /clock it publishes, and its stepping,
+        paced by the wall clock (:meth:`_start_timers`), goes on as before — Gazebo's behaviour."""
+        self.set_descriptor("use_sim_time", ParameterDescriptor(
+            name="use_sim_time", type=ParameterType.PARAMETER_BOOL, description=itf.USE_SIM_TIME.description))
+        if self.get_parameter("use_sim_time").value:
+            self.get_logger().info(itf.USE_SIM_TIME_NOTE)
+
     def _start_timers(self) -> None:
         #: the rate check: a window opens at the first tick after start-up, a pause or a change of rate
         self._rate = RateCheck(self.get_logger().warn)
-        self._timer = self.create_timer(self._timer_period(), self._on_timer)
+        #: the clock the node's timers run on: steady wall time, whatever use_sim_time says.  This node
+        #: publishes /clock; timers on its ROS clock would, with use_sim_time true, wait for a /clock that
+        #: only their own ticks publish, and never fire (issue 27, finding 9)
+        self._wall_clock = Clock(clock_type=ClockType.STEADY_TIME)
+        self._timer = self.create_timer(self._timer_period(), self._on_timer, clock=self._wall_clock)
         #: batch runs (realtime:=false) show their progress: one updating line on a terminal, log lines otherwise
         self._progress = None if self.params["realtime"] else BatchReport(self.params["duration"],
                                                                           self.get_logger().info)
         # Reports on their own wall-clock timer, so rejected commands are summarized while paused too.
-        self._report_timer = self.create_timer(itf.REPORT_PERIOD_S, self._report)
+        self._report_timer = self.create_timer(itf.REPORT_PERIOD_S, self._report, clock=self._wall_clock)
+        self._world_reports = WorldReports(self.get_logger(), self.emit_event)
 
     def _timer_period(self) -> float:
         # realtime=false: a zero-period timer is always ready, so the executor runs ticks back to back while
@@ -322,14 +338,7 @@ class SimNode(Node):
         self.commands.apply_pending(self.world)
         self.world.step()
         for event in self.world.take_events():
-            # one call per severity: rclpy's logger refuses a call site whose severity changes between calls
-            if event.level == "error":
-                self.get_logger().error(event.text)
-            elif event.level == "info":
-                self.get_logger().info(event.text)
-            else:
-                self.get_logger().warn(event.text)
-            self.emit_event({"event": "world", "level": event.level, "text": event.text})
+            self._world_reports.add(event)
         self.outputs.publish_tick()
         if self.recorder is not None:
             self.recorder.end_tick()  # the bag writer works while this thread waits for the next tick
@@ -354,6 +363,7 @@ class SimNode(Node):
     def _report(self) -> None:
         """Every REPORT_PERIOD_S of wall time: rejected / dropped commands, recording errors."""
         self.commands.report()
+        self._world_reports.report()
         if self.recorder is not None:
             self.recorder.report_errors()
 
@@ -406,6 +416,8 @@ class SimNode(Node):
         if problem:
             return SetParametersResult(successful=False, reason=problem)
         for param in parameters:
+            if param.name == "use_sim_time" and param.value:
+                self.get_logger().info(itf.USE_SIM_TIME_NOTE)
             if param.name not in itf.PARAMETER_BY_NAME:
                 continue
             self.params[param.name] = coerce(itf.PARAMETER_BY_NAME[param.name], param.value)
@@ -414,7 +426,7 @@ class SimNode(Node):
             if param.name in ("rate_hz", "realtime"):
                 self._timer.cancel()
                 self.destroy_timer(self._timer)
-                self._timer = self.create_timer(self._timer_period(), self._on_timer)
+                self._timer = self.create_timer(self._timer_period(), self._on_timer, clock=self._wall_clock)
                 self._rate.restart()  # the rate check starts over at the new rate
         if any(param.name in ("rate_hz", "markers_every", "fish_detail") for param in parameters):
             self._replan_detail()
@@ -446,3 +458,44 @@ class SimNode(Node):
         if hasattr(self, "threads"):
             self.threads.release()
         super().destroy_node()
+
+
+class WorldReports:
+    """The world's own events (a numerical blow-up contained, ...: :class:`cgp_core.world.WorldEvent`), logged and
+    put on ``~/events`` like the rejected commands are: the first of each text at once, repeats counted and
+    summarized every REPORT_PERIOD_S (a body blowing up every tick is one line every two seconds, not 60)."""
+
+    def __init__(self, logger, emit_event):
+        self._logger = logger
+        self._emit = emit_event
+        self._seen: set[tuple[str, str]] = set()
+        self._repeats: dict[tuple[str, str], int] = {}
+
+    def add(self, event) -> None:
+        key = (event.level, event.text)
+        if key in self._seen:
+            self._repeats[key] = self._repeats.get(key, 0) + 1
+            return
+        if len(self._seen) > 1000:  # bounded: many different texts start over
+            self._seen.clear()
+        self._seen.add(key)
+        self._log(event.level, event.text)
+        self._emit({"event": "world", "level": event.level, "text": event.text})
+
+    def report(self) -> None:
+        for (level, text), count in self._repeats.items():
+            self._log(level, f"{text} (again {count} times in the last {itf.REPORT_PERIOD_S:g} s)")
+            self._emit({"event": "world", "level": level, "text": text, "repeated": count})
+        # a text that went quiet is logged at once when it comes back; one that repeats stays summarized
+        self._seen = {key for key in self._seen if key in self._repeats}
+        self._repeats.clear()
+
+    def _log(self, level: str, text: str) -> None:
+        # one call per severity: rclpy's logger refuses a call site whose severity changes between calls
+        # ("Logger severity cannot be changed between calls": an info after a warn from one line stopped the node)
+        if level == "error":
+            self._logger.error(text)
+        elif level == "info":  # e.g. a static mesh's BVH built (issue 25)
+            self._logger.info(text)
+        else:
+            self._logger.warn(text)

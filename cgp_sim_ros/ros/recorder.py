@@ -21,6 +21,10 @@ from .parameters import ConfigError
 
 INFRASTRUCTURE_TOPICS = ("/rosout", "/parameter_events")
 
+#: the recorders not closed yet, for the stop watchdog of ``cgp-sim`` (cgp_sim_ros/ros/cli.py), which finishes
+#: their bags from its own thread when a signal's stop cannot wait for the current tick to end
+OPEN_RECORDERS: list = []
+
 
 def bag_directory(text: str) -> Path | None:
     """The bag directory the parameter ``bag`` names (None for ""), resolved once (``~``, symlinks and ``..``
@@ -62,6 +66,7 @@ class Recorder:
         self.writer = BagWriter(self.directory, BagOptions(max_bytes=max_bytes, max_duration_s=max_duration_s),
                                 custom_data={**self._own_data, **(custom_data or {})})
         self.started = time.monotonic()
+        OPEN_RECORDERS.append(self)
         # Every topic the node itself publishes or subscribes to (not rclpy's own /rosout, /parameter_events).
         self.add_endpoints([*node.publishers, *node.subscriptions])
         self.report_errors()
@@ -111,8 +116,11 @@ class Recorder:
                 pass
         return total
 
-    def close(self) -> None:
-        self.writer.close()
+    def close(self, timeout: float | None = None) -> None:
+        """Finish the bag (BagWriter.close; ``timeout``: give up waiting for the writer after that long)."""
+        self.writer.close(timeout)
+        if self in OPEN_RECORDERS:
+            OPEN_RECORDERS.remove(self)
         self.report_errors()
 
     def summary_text(self) -> str:

@@ -12,7 +12,11 @@ an edit the node makes its per-body endpoints follow (:meth:`SimNode.world_edite
 - Every call is a line on ``~/events`` (and so in the bag): service, request summary, result code and message.
 - Nothing blocks the executor for long: ``step_simulation`` and the ``simulate_steps`` action are coroutines
   that wait for the node's timer to tick the paused world ``steps`` times (at ``rate_hz``, or back to back
-  with ``realtime: false``) and reply when the last tick is done.
+  with ``realtime: false``) and reply when the last tick is done.  ``spawn_entity`` is a coroutine too: reading the
+  ``uri`` (a regular file only, size-capped: :mod:`cgp_core.user_input`), parsing the YAML (bounded in bytes,
+  depth and nodes), validating it and building the entity (a big flock's initial state) run on the spawn worker
+  thread while the node ticks; the entity is added between two ticks (issue 27: one request must never stop the
+  world).  User regexes are matched in linear time (:func:`cgp_core.editing.name_filter`).
 
 Simulation states (``SimulationState``): PLAYING (ticking), PAUSED (time stopped), STOPPED (paused and reset
 to the scene as loaded; the state a paused world is in until it ticks or is set PAUSED / PLAYING), QUITTING
@@ -23,8 +27,11 @@ reset or STOPPED keeps the clock running (no ``SCOPE_TIME``), so TF buffers and 
 from __future__ import annotations
 
 import inspect
+import queue
+import threading
 import time
 import traceback
+from concurrent.futures import Future as ThreadFuture
 from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import unquote, urlparse
@@ -50,7 +57,10 @@ from simulation_interfaces.srv import (
 )
 
 from cgp_core.editing import WORLD_FRAMES, EditError
-from cgp_core.scene import MAX_SCENE_BYTES, SPAWN_KINDS, SceneError, parse_yaml
+from cgp_core.limits import MAX_YAML_BYTES
+from cgp_core.scene import SPAWN_KINDS, SceneError, parse_yaml
+from cgp_core.user_input import UserInputError, read_user_text
+from cgp_core.world import unique_name
 
 from .. import interface as itf
 
@@ -59,6 +69,9 @@ NOT_FOUND = Result.RESULT_NOT_FOUND
 UNSUPPORTED = Result.RESULT_FEATURE_UNSUPPORTED
 INCORRECT_STATE = Result.RESULT_INCORRECT_STATE
 FAILED = Result.RESULT_OPERATION_FAILED
+
+#: spawn requests waiting for the spawn worker (one is prepared at a time); more are refused as busy
+MAX_WAITING_SPAWNS = 8
 
 #: after set_simulation_state QUITTING, the node answers for this long (wall seconds) before shutting down,
 #: so the reply reaches the caller before the service goes away
@@ -129,6 +142,10 @@ class SimulationInterfaces:
         self.quitting = False
         self._quit_at: float | None = None
         self._job: _SteppingJob | None = None
+        #: the spawn worker: reads, parses, validates and builds spawned entities off the tick's thread
+        self._spawn_worker = _Worker("cgp-sim-spawn")
+        self._spawn_running = False
+        self._spawns_waiting = 0
         services = (
             (GetSimulatorFeatures, itf.SERVICE_GET_SIMULATOR_FEATURES, self._get_simulator_features),
             (SpawnEntity, itf.SERVICE_SPAWN_ENTITY, self._spawn_entity),
@@ -147,8 +164,10 @@ class SimulationInterfaces:
         # tick.  Their own reentrant group lets the timer run meanwhile (still one thread: no locks needed), and
         # lets a second stepping request be answered (refused) at once instead of queueing.
         stepping_group = ReentrantCallbackGroup()
+        # spawn_entity is a coroutine too (it waits for the spawn worker)
         self.services = [node.create_service(srv_type, name, self._guarded(name, callback),
-                                             callback_group=stepping_group if srv_type is StepSimulation else None)
+                                             callback_group=stepping_group if srv_type in (StepSimulation, SpawnEntity)
+                                             else None)
                          for srv_type, name, callback in services]
         self.action_server = ActionServer(node, SimulateSteps, itf.ACTION_SIMULATE_STEPS, self._simulate_steps,
                                           callback_group=stepping_group,
@@ -161,6 +180,7 @@ class SimulationInterfaces:
         if self.action_server is not None:
             self.action_server.destroy()
             self.action_server = None
+        self._spawn_worker.shutdown()
 
     def _guarded(self, name: str, callback):
         """``callback`` that answers OPERATION_FAILED (and logs the traceback) instead of raising: a bug in one
@@ -317,61 +337,96 @@ class SimulationInterfaces:
         self.node.emit_event({"event": "service", "name": "get_simulator_features", "result": "OK"})
         return response
 
-    def _spawn_entity(self, request, response):
-        code, message, name = self._spawn(request)
+    async def _spawn_entity(self, request, response):
+        code, message, name = await self._spawn(request)
         response.entity_name = name if code == OK else ""
         summary = {"entity": request.name, "uri": request.uri} if request.uri else {"entity": request.name}
         if code == OK:
             summary["entity_name"] = name
         return self._reply(response, "spawn_entity", code, message, (SpawnEntity.Response,), **summary)
 
-    def _spawn(self, request) -> tuple[int, str, str]:
+    async def _spawn(self, request) -> tuple[int, str, str]:
+        """The spawn: cheap checks here; reading, parsing, validating and building (a big flock's initial state)
+        on the spawn worker thread (:meth:`_prepare_spawn`), so the tick never waits for them; then the entity
+        is added here, between two ticks.  One spawn is prepared at a time; at most MAX_WAITING_SPAWNS wait."""
         R = SpawnEntity.Response
-        world = self.node.world
-        data = None
-        if request.uri and _mesh_uri(request.uri) is not None:  # a mesh file: a convex body, its hull
-            mesh = _mesh_uri(request.uri)
-            data, source = {"body": {"shape": "convex", "mesh": str(mesh)}}, str(mesh)
-        elif request.uri:
-            try:
-                text, source = _read_uri(request.uri)
-            except _Refused as refusal:
-                return refusal.code, str(refusal), ""
+        if request.uri:
+            source = request.uri
         elif request.resource_string:
-            text, source = request.resource_string, "resource_string"
+            size = len(request.resource_string)
+            if size > MAX_YAML_BYTES:  # refused before anything reads it (a character is at least one byte)
+                return R.RESOURCE_PARSE_ERROR, (f"resource_string: {size} characters; at most {MAX_YAML_BYTES} "
+                                                "bytes of YAML are parsed"), ""
+            source = "resource_string"
         else:
             return R.NO_RESOURCE, "uri and resource_string are both empty: give the entity as YAML", ""
         if request.entity_namespace:
-            return UNSUPPORTED, (f"entity_namespace {request.entity_namespace!r}: not supported; an entity's "
+            return UNSUPPORTED, (f"entity_namespace {_brief(request.entity_namespace)}: not supported; an entity's "
                                  "topics are the node's (~/bodies/<name>/...)"), ""
         frame = request.initial_pose.header.frame_id
         if self.node.frames.to_core(frame) not in WORLD_FRAMES:
-            return R.INVALID_POSE, (f"initial_pose.header.frame_id {frame!r}: poses are given in "
+            return R.INVALID_POSE, (f"initial_pose.header.frame_id {_brief(frame)}: poses are given in "
                                     f"{self.node.frames.world!r} (or '')"), ""
+        if not request.name and not request.allow_renaming:
+            return R.NAME_INVALID, "name is empty (and allow_renaming is false)", ""
+        if not request.allow_renaming:  # a name already taken is refused before anything is read
+            try:
+                self.node.world.check_new_name(request.name)
+            except EditError as exc:
+                return (R.NAME_NOT_UNIQUE if exc.kind == "name_taken" else R.NAME_INVALID), str(exc), ""
+        if self._spawns_waiting >= MAX_WAITING_SPAWNS:
+            return FAILED, f"busy: {self._spawns_waiting} spawn requests are waiting (at most " \
+                           f"{MAX_WAITING_SPAWNS}); try again", ""
+        self._spawns_waiting += 1
         try:
-            data = parse_yaml(text, source) if data is None else data
-        except SceneError as exc:
-            return R.RESOURCE_PARSE_ERROR, str(exc), ""
+            while self._spawn_running:
+                await _NextTurn()
+            self._spawn_running = True
+            try:
+                pose = request.initial_pose.pose
+                job = self._spawn_worker.submit(
+                    self._prepare_spawn, request.uri, request.resource_string, source, request.name,
+                    request.allow_renaming, set(self.node.world.entity_names()),
+                    (pose.position.x, pose.position.y, pose.position.z),
+                    (pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w))
+                while not job.done():
+                    await _NextTurn()
+                if self.quitting:
+                    return INCORRECT_STATE, "the simulator is quitting", ""
+                try:
+                    prepared = job.result()
+                    self.node.world.add_spawned(prepared)
+                except _Refused as refusal:
+                    return refusal.code, str(refusal), ""
+                except SceneError as exc:
+                    return R.RESOURCE_PARSE_ERROR, str(exc), ""
+                except EditError as exc:
+                    code = {"name_taken": R.NAME_NOT_UNIQUE, "name_invalid": R.NAME_INVALID,
+                            "invalid_pose": R.INVALID_POSE}.get(exc.kind, FAILED)
+                    return code, str(exc), ""
+            finally:
+                self._spawn_running = False
+        finally:
+            self._spawns_waiting -= 1
+        self.node.world_edited()
+        return OK, "", prepared.name
+
+    def _prepare_spawn(self, uri: str, resource: str, source: str, name: str, allow_renaming: bool,
+                       taken: set[str], position, orientation):
+        """The spawn worker thread: the YAML (read from ``uri`` or ``resource``), parsed and validated, the entity
+        built (:meth:`cgp_core.world.World.prepare_spawn`).  Raises _Refused, SceneError or EditError."""
+        mesh = _mesh_uri(uri) if uri else None
+        if mesh is not None:  # a mesh file: a convex body, its hull (the file read bounded by the scene loader)
+            data, source = {"body": {"shape": "convex", "mesh": str(mesh)}}, str(mesh)
+        else:
+            text, source = _read_uri(uri) if uri else (resource, source)
+            data = parse_yaml(text, source)
         kind = next(iter(data)) if isinstance(data, dict) and len(data) == 1 and next(iter(data)) in SPAWN_KINDS \
             else "entity"
-        name = request.name
-        if request.allow_renaming and (not name or world.entity_kind(name) is not None):
-            name = world.unique_name(name or kind)
-        if not name:
-            return R.NAME_INVALID, "name is empty (and allow_renaming is false)", ""
-        pose = request.initial_pose.pose
-        try:
-            world.spawn(data, name=name, source=source,
-                        position=(pose.position.x, pose.position.y, pose.position.z),
-                        orientation=(pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w))
-        except SceneError as exc:
-            return R.RESOURCE_PARSE_ERROR, str(exc), ""
-        except EditError as exc:
-            code = {"name_taken": R.NAME_NOT_UNIQUE, "name_invalid": R.NAME_INVALID,
-                    "invalid_pose": R.INVALID_POSE}.get(exc.kind, FAILED)
-            return code, str(exc), ""
-        self.node.world_edited()
-        return OK, "", name
+        if allow_renaming and (not name or name in taken):
+            name = unique_name(name or kind, taken)
+        return self.node.world.prepare_spawn(data, name=name, taken=taken, position=position,
+                                             orientation=orientation, source=source)
 
     def _delete_entity(self, request, response):
         try:
@@ -556,23 +611,59 @@ def _mesh_uri(uri: str) -> Path | None:
 
 
 def _read_uri(uri: str) -> tuple[str, str]:
-    """The YAML text and its source name for a ``uri`` (a path or ``file://`` URI of a .yaml file); raises
-    :class:`_Refused` (code, message) otherwise."""
+    """The YAML text and its source name for a ``uri`` (a path or ``file://`` URI of a .yaml file, read as every
+    user file is: :func:`cgp_core.user_input.read_user_text`, a regular file only, size-capped); raises
+    :class:`_Refused` (code, message) otherwise.  The message names the uri, never the file's content."""
     R = SpawnEntity.Response
     parsed = urlparse(uri)
     if parsed.scheme not in ("", "file"):
-        raise _Refused(R.UNSUPPORTED_FORMAT, f"uri {uri!r}: only local YAML files are spawned (a path or file:// "
-                                             f"URI; spawn_formats: {', '.join(SPAWN_FORMATS)})")
+        raise _Refused(R.UNSUPPORTED_FORMAT, f"uri {_brief(uri)}: only local files are spawned (a path or "
+                                             f"file:// URI; spawn_formats: {', '.join(SPAWN_FORMATS)})")
     path = Path(unquote(parsed.path) if parsed.scheme == "file" else uri).expanduser()
     if path.suffix.lower() not in (".yaml", ".yml"):
-        raise _Refused(R.UNSUPPORTED_FORMAT, f"uri {uri!r}: not a .yaml file; cgp_sim spawns YAML "
-                                             f"(spawn_formats: {', '.join(SPAWN_FORMATS)})")
+        raise _Refused(R.UNSUPPORTED_FORMAT, f"uri {_brief(uri)}: not a .yaml, .stl or .obj file; cgp_sim spawns "
+                                             f"YAML, or a mesh as a convex body (spawn_formats: "
+                                             f"{', '.join(SPAWN_FORMATS)})")
     try:
-        if path.stat().st_size > MAX_SCENE_BYTES:
-            raise _Refused(R.RESOURCE_PARSE_ERROR, f"uri {uri!r}: larger than {MAX_SCENE_BYTES} bytes")
-        return path.read_text(encoding="utf-8"), str(path)
-    except UnicodeDecodeError as exc:
-        raise _Refused(R.RESOURCE_PARSE_ERROR, f"uri {uri!r}: not UTF-8 text ({exc.reason})") from None
-    except OSError as exc:
-        raise _Refused(R.RESOURCE_PARSE_ERROR,
-                       f"uri {uri!r}: cannot read {str(path)!r}: {exc.strerror or exc}") from None
+        return read_user_text(path), str(path)
+    except UserInputError as exc:
+        raise _Refused(R.RESOURCE_PARSE_ERROR, f"uri {_brief(uri)}: {exc}") from None
+
+
+def _brief(text: str, limit: int = 200) -> str:
+    """repr of a request's string field, cut to ``limit`` characters (a field may be megabytes long)."""
+    return repr(text) if len(text) <= limit else repr(text[:limit]) + f"... ({len(text)} characters)"
+
+
+class _Worker:
+    """One daemon thread running submitted calls in order (``submit`` returns a concurrent.futures Future).  Not a
+    ThreadPoolExecutor: the interpreter joins those at exit, and a shutdown would wait for a spawn being parsed."""
+
+    def __init__(self, name: str):
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        threading.Thread(target=self._run, name=name, daemon=True).start()
+
+    def submit(self, fn, *args) -> ThreadFuture:
+        future: ThreadFuture = ThreadFuture()
+        self._jobs.put((future, fn, args))
+        return future
+
+    def shutdown(self) -> None:
+        self._jobs.put(None)
+
+    def _run(self) -> None:
+        while (job := self._jobs.get()) is not None:
+            future, fn, args = job
+            if not future.set_running_or_notify_cancel():
+                continue
+            try:
+                future.set_result(fn(*args))
+            except BaseException as exc:  # noqa: BLE001 - handed to the coroutine that waits for it
+                future.set_exception(exc)
+
+
+class _NextTurn:
+    """``await _NextTurn()``: give the executor back for one turn (it resumes the coroutine on its next spin)."""
+
+    def __await__(self):
+        yield

@@ -356,7 +356,7 @@ def parse_sweep(text: str, source: str = "<sweep>", base_dir: Path | None = None
         data = parse_yaml(text, source)
     except SceneError as exc:
         problems = [f"{p} (a key path with [...] inside {{...}} needs quotes, or write the mapping as a block)"
-                    if "but got '['" in p else p for p in exc.problems]
+                    if "but got '['" in p or "did not find expected ',' or '}'" in p else p for p in exc.problems]
         raise SweepError(source, problems) from None
     if seeds is not None and isinstance(data, dict):
         data["seeds"] = seeds

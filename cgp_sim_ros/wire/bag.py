@@ -739,17 +739,33 @@ class BagWriter:
 
     def _store_metadata_yaml(self, text: str, number: int, sync: bool) -> None:
         """Replace metadata.yaml with ``text`` (atomically: a temporary file renamed over it) unless a newer
-        text is on disk already (the writer and the sync thread both store texts)."""
+        text is on disk already (the writer and the sync thread both store texts).
+
+        On a full disk the temporary file cannot be written (issue 27: a split bag's metadata.yaml then kept
+        counting 222 messages where the files held 277, and an empty metadata.yaml.tmp stayed behind): the
+        temporary file is removed and metadata.yaml is overwritten in place instead, in the blocks it already
+        has — which is why every stored text is padded (a YAML comment) to METADATA_SLACK bytes more than it
+        needs: the final text, with a file more and larger counts, still fits."""
         with self._yaml_lock:
             if number < self._yaml_stored:
                 return
+            data = _padded(text)
+            final = self.path / "metadata.yaml"
             tmp = self.path / "metadata.yaml.tmp"
-            with open(tmp, "w", encoding="utf-8") as f:
-                f.write(text)
-                if sync:
-                    f.flush()
-                    os.fsync(f.fileno())
-            os.replace(tmp, self.path / "metadata.yaml")
+            try:
+                with open(tmp, "wb") as f:
+                    f.write(data)
+                    if sync:
+                        f.flush()
+                        os.fsync(f.fileno())
+                os.replace(tmp, final)
+            except OSError:
+                try:
+                    tmp.unlink()
+                except OSError:
+                    pass
+                if not _overwrite_in_place(final, text, sync):
+                    raise
             self._yaml_stored = number
 
     def _sync_in_background(self) -> None:
@@ -937,6 +953,36 @@ class BagWriter:
             self._write_metadata_yaml(sync=False)
         except OSError:
             pass
+
+
+#: bytes of room kept at the end of metadata.yaml (a comment of spaces), for the in-place rewrite on a full disk
+METADATA_SLACK = 4096
+_PADDING_LINE = "# room kept to rewrite this file in place when the disk is full (cgp_sim_ros/wire/bag.py)"
+
+
+def _padded(text: str) -> bytes:
+    """``text`` and a comment line padding it by at least METADATA_SLACK bytes, to a whole number of KiB."""
+    data = text.encode("utf-8") + _PADDING_LINE.encode() + b"\n"
+    size = -(-(len(data) + METADATA_SLACK) // 1024) * 1024
+    return data[:-1] + b" " * (size - len(data)) + b"\n"
+
+
+def _overwrite_in_place(path: Path, text: str, sync: bool) -> bool:
+    """Write ``text`` over ``path``'s existing bytes (no new blocks: it works on a full disk), padded with
+    spaces to the file's size; False if the file is missing or the text does not fit."""
+    data = text.encode("utf-8") + _PADDING_LINE.encode() + b"\n"
+    try:
+        with open(path, "r+b") as f:
+            size = os.fstat(f.fileno()).st_size
+            if len(data) > size:
+                return False
+            f.write(data[:-1] + b" " * (size - len(data)) + b"\n")
+            f.flush()
+            if sync:
+                os.fsync(f.fileno())
+    except OSError:
+        return False
+    return True
 
 
 # ------------------------------------------------------------------------------------------- recovery

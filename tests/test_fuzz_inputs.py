@@ -1,0 +1,295 @@
+"""Issue 27: property-based fuzzing (Hypothesis) of every parser of user input, in-process.
+
+The properties, for any input: the parser either accepts it or refuses it with its own named error (SceneError,
+WrenchError, CdrError: a reason naming a field, a key or a position) — never another exception, never an
+"internal error"; within bounded time (each example has a deadline) and memory (inputs are bounded by the
+limits the parsers enforce first); and what is accepted can be simulated (a spawned body or flock steps and
+stays finite).
+
+`make test` runs each property on a few dozen examples, derandomized (the same examples every run: no flakes);
+`make fuzz FUZZ_EXAMPLES=5000` runs them longer with fresh random examples (its result goes in the notes).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import struct
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import HealthCheck, assume, event, example, given, settings
+from hypothesis import strategies as st
+
+from cgp_core import limits
+from cgp_core.editing import EditError
+from cgp_core.scene import SceneError, parse_scene, parse_yaml
+from cgp_core.world import World
+from cgp_sim_ros.wire import cdr
+
+FUZZ_EXAMPLES = int(os.environ.get("FUZZ_EXAMPLES", "0"))
+settings.register_profile("suite", max_examples=40, derandomize=True, deadline=5000, print_blob=True,
+                          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+settings.register_profile("fuzz", max_examples=max(FUZZ_EXAMPLES, 1), derandomize=False, deadline=20000,
+                          print_blob=True, suppress_health_check=list(HealthCheck))
+settings.load_profile("fuzz" if FUZZ_EXAMPLES else "suite")
+
+#: numbers at float64's edges and the limits' edges, and ordinary ones
+EDGE_FLOATS = st.one_of(
+    st.sampled_from([0.0, -0.0, 1.0, -1.0, 1e-308, -1e-308, 5e-324, 1e308, -1e308, 1.7976931348623157e308,
+                     math.inf, -math.inf, math.nan, limits.MIN_LENGTH, limits.MAX_LENGTH, limits.MIN_MASS,
+                     limits.MAX_MASS, limits.MAX_SPEED, limits.MAX_COORDINATE, 2.0**63, 1e-9]),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.floats(-10, 10),
+    st.integers(-(2**70), 2**70),
+)
+SCALARS = st.one_of(EDGE_FLOATS, st.booleans(), st.none(), st.text(max_size=20),
+                    st.sampled_from(["sphere", "box", "capsule", "particles", "fish", "couzin", "soft", "1e3"]))
+KEYS = st.sampled_from(["name", "shape", "radius", "size", "length", "particles", "mass", "density", "position",
+                        "orientation", "linear_velocity", "angular_velocity", "friction", "restitution", "fixed",
+                        "count", "spawn", "center", "extent", "bounds", "min", "max", "mode", "weights", "rules",
+                        "couzin", "neighbors", "k", "neighbor_search", "goal", "model", "world", "bodies",
+                        "flocks", "gravity", "substeps", "ground", "x"])
+TREES = st.recursive(SCALARS, lambda inner: st.one_of(st.lists(inner, max_size=5),
+                                                        st.dictionaries(KEYS, inner, max_size=6)), max_leaves=30)
+
+
+def vector(n, elements=EDGE_FLOATS):
+    return st.lists(elements, min_size=n, max_size=n)
+
+
+BODIES = st.fixed_dictionaries(
+    {"shape": st.sampled_from(["sphere", "box", "capsule", "particles"])},
+    optional={"radius": EDGE_FLOATS, "size": vector(3), "length": EDGE_FLOATS, "mass": EDGE_FLOATS,
+              "density": EDGE_FLOATS, "linear_velocity": vector(3), "angular_velocity": vector(3),
+              "friction": EDGE_FLOATS, "restitution": EDGE_FLOATS, "fixed": st.booleans(),
+              "particles": st.lists(vector(4, st.one_of(EDGE_FLOATS, st.floats(-1, 1))), min_size=1, max_size=8)})
+
+
+def within(low, high):
+    """Numbers in [low, high] (log-uniform for positive ranges spanning decades), the ends included."""
+    if low > 0 and high / low > 100:
+        inner = st.floats(math.log10(low), math.log10(high)).map(lambda e: min(max(10.0 ** e, low), high))
+    else:
+        inner = st.floats(low, high)
+    return st.one_of(st.sampled_from([low, high]), inner)
+
+
+LENGTH = within(limits.MIN_LENGTH, limits.MAX_LENGTH)
+#: bodies whose every value is inside the limits, the limits' ends included: these must be accepted (or refused
+#: for a relation between values, e.g. a density giving a mass outside the range) and then simulate finitely
+PLAUSIBLE_BODIES = st.one_of(
+    st.fixed_dictionaries({"shape": st.just("sphere"), "radius": LENGTH,
+                           "mass": within(limits.MIN_MASS, limits.MAX_MASS)}),
+    st.fixed_dictionaries({"shape": st.just("box"), "size": st.lists(LENGTH, min_size=3, max_size=3),
+                           "density": within(limits.MIN_DENSITY, limits.MAX_DENSITY)}),
+    st.fixed_dictionaries({"shape": st.just("capsule"), "radius": LENGTH, "length": LENGTH,
+                           "mass": within(limits.MIN_MASS, limits.MAX_MASS)}),
+    st.fixed_dictionaries({"shape": st.just("particles"), "radius": LENGTH,
+                           "particles": st.lists(st.tuples(*[within(-limits.MAX_LENGTH, limits.MAX_LENGTH)] * 3,
+                                                           within(limits.MIN_MASS, limits.MAX_MASS)).map(list),
+                                                 min_size=3, max_size=6)}),
+).flatmap(lambda body: st.fixed_dictionaries(
+    {}, optional={"linear_velocity": st.lists(within(-limits.MAX_SPEED / 2, limits.MAX_SPEED / 2), min_size=3,
+                                              max_size=3),
+                  "angular_velocity": st.lists(within(-limits.MAX_SPIN / 2, limits.MAX_SPIN / 2), min_size=3,
+                                               max_size=3),
+                  "friction": within(0.0, limits.MAX_FRICTION), "restitution": within(0.0, 1.0)}).map(
+    lambda extra: {**body, **extra}))
+FLOCKS = st.fixed_dictionaries(
+    {"count": st.one_of(st.integers(1, 300), st.sampled_from([0, 10**6, 2**63, -1]))},
+    optional={"radius": EDGE_FLOATS, "separation_radius": EDGE_FLOATS, "min_speed": EDGE_FLOATS,
+              "max_speed": EDGE_FLOATS, "max_acceleration": EDGE_FLOATS, "boid_size": EDGE_FLOATS,
+              "spawn": st.fixed_dictionaries({}, optional={"extent": vector(3)}),
+              "bounds": st.fixed_dictionaries({}, optional={"min": vector(3), "max": vector(3),
+                                                             "mode": st.sampled_from(["soft", "wrap", "none"])}),
+              "goal": vector(3), "neighbor_search": st.sampled_from(["grid", "kdtree", "brute"]),
+              "rules": st.sampled_from(["reynolds", "couzin"]),
+              "couzin": st.fixed_dictionaries({}, optional={"repulsion_radius": EDGE_FLOATS,
+                                                            "attraction_width": EDGE_FLOATS,
+                                                            "speed": EDGE_FLOATS, "noise": EDGE_FLOATS})})
+
+
+@pytest.fixture(scope="module")
+def world():
+    return World.from_scene("zero_g")
+
+
+def dump(data) -> str:
+    """YAML text of ``data`` (PyYAML writes inf / nan / big integers as YAML reads them back)."""
+    return yaml.safe_dump(data, default_flow_style=True, width=10**9)
+
+
+# ---- the scene / spawn parser ------------------------------------------------------------------------------
+
+
+@given(TREES)
+@example({"bodies": [[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]})
+@example({"bodies": [{"name": "a", "shape": "box", "size": [1e-308, 1, 1], "mass": 1}]})
+@example({"description": "x" * 1_000_000})
+def test_any_yaml_tree_is_a_scene_or_a_scene_error(data):
+    text = dump(data)
+    try:
+        parse_scene(text, "fuzz.yaml")
+        event("a scene")
+    except SceneError as exc:
+        assert exc.problems and "internal error" not in str(exc)
+        event("refused")
+
+
+@given(st.text(max_size=400), st.integers(0, 12_000))
+@example("", 10_000)
+@example("[", 5_000)
+def test_any_text_is_yaml_or_a_named_yaml_error(text, depth):
+    """Random text, and random text inside a nesting of ``depth`` levels."""
+    for candidate in (text, "body: " + "[" * depth + text + "]" * depth, "{a: " * (depth // 4) + text):
+        try:
+            parse_yaml(candidate, "fuzz")
+        except SceneError as exc:
+            (problem,) = exc.problems
+            assert problem.startswith(("malformed YAML", "line ")), problem
+
+
+@given(st.one_of(st.builds(lambda b: {"body": b}, BODIES), st.builds(lambda b: {"body": b}, PLAUSIBLE_BODIES),
+                 st.builds(lambda f: {"flock": f}, FLOCKS), TREES))
+@example({"body": {"shape": "sphere", "radius": 1e308, "mass": 1}})
+@example({"body": {"shape": "sphere", "radius": 1, "mass": 1e-308}})
+@example({"body": {"shape": "capsule", "radius": 1, "length": 1e308, "mass": 1}})
+@example({"flock": {"count": 1_000_000}})
+def test_any_spawn_request_is_refused_by_name_or_simulates_finitely(world, entry):
+    """Through the node's path (YAML text → parse → World.prepare_spawn → add_spawned), and what is accepted
+    steps and stays finite, and is deleted again."""
+    name = "fuzzed"
+    try:
+        far = (0.0, 0.0, 3.0) if isinstance(entry, dict) and "flock" in entry else (3e4,) * 3  # away from zero_g's
+        prepared = world.prepare_spawn(parse_yaml(dump(entry), "fuzz"), name=name, taken=set(world.entity_names()),
+                                       position=far)
+    except (SceneError, EditError) as exc:
+        assert "internal error" not in str(exc)
+        event("refused")
+        return
+    event(f"accepted: {prepared.kind}")
+    world.add_spawned(prepared)
+    try:
+        with np.errstate(over="raise", invalid="raise", divide="raise", under="ignore"):  # (subnormals are fine)
+            world.step()
+        state = world.entity_state(name)
+        assert all(np.isfinite(getattr(state, f)).all() for f in ("position", "orientation", "linear_velocity",
+                                                                   "angular_velocity"))
+        assert world.take_events() == [], "an accepted entity blew up"
+        assert np.isfinite(world.body_state.position).all()
+    finally:
+        world.delete(name)
+
+
+# ---- the command decoders ----------------------------------------------------------------------------------
+
+
+def _valid_apply_wrench() -> bytes:
+    from cgp_sim_msgs.msg import ApplyWrench
+    from rclpy.serialization import serialize_message
+
+    msg = ApplyWrench(body="box")
+    msg.wrench.force.x = 1.0
+    return serialize_message(msg)
+
+
+@given(st.binary(max_size=1024), st.data())
+def test_random_cdr_bytes_are_a_command_or_a_named_rejection(world, data, draw):
+    """Random bytes, and a valid ApplyWrench / WrenchStamped with random bytes and doubles written over it."""
+    from cgp_core.wrenches import WrenchError
+    from cgp_sim_ros.ros.commands import apply_wrench_command, body_wrench_command
+
+    params = {"max_force": 1e5, "max_torque": 1e5}
+    valid = _valid_apply_wrench()
+    mutated = bytearray(valid)
+    for _ in range(draw.draw(st.integers(0, 6))):
+        at = draw.draw(st.integers(0, len(mutated) - 1))
+        mutated[at:at + 8] = draw.draw(st.one_of(st.binary(min_size=1, max_size=8),
+                                                 st.builds(lambda x: struct.pack("<d", x), EDGE_FLOATS
+                                                           .filter(lambda x: isinstance(x, float)))))
+    for payload in (data, bytes(mutated), cdr.ENCAPSULATION + data):
+        for decode in (lambda p: apply_wrench_command(p, world, params),
+                       lambda p: body_wrench_command("box", p, world, params)):
+            try:
+                command = decode(payload)
+            except WrenchError as exc:
+                assert exc.field and exc.kind and "internal error" not in str(exc)
+                continue
+            assert np.isfinite(command.force).all() and np.linalg.norm(command.force) <= 1e5
+
+
+# ---- the Foxglove client-message path -------------------------------------------------------------------------
+
+JSON_VALUES = st.recursive(st.one_of(st.none(), st.booleans(), EDGE_FLOATS.filter(lambda x: not isinstance(x, int)
+                                                                                  or abs(x) < 2**64),
+                                     st.text(max_size=10)),
+                           lambda inner: st.one_of(st.lists(inner, max_size=4),
+                                                   st.dictionaries(st.sampled_from(
+                                                       ["body", "wrench", "force", "x", "y", "z", "header",
+                                                        "frame_id", "duration", "sec", "nanosec", "point", "q"]),
+                                                       inner, max_size=4)), max_leaves=20)
+
+
+@given(st.one_of(st.binary(max_size=4096), st.builds(lambda v: json.dumps(v).encode(), JSON_VALUES)))
+@example(b"[" * 4096)
+@example(b'{"wrench": ' * 1000 + b"1" + b"}" * 1000)
+def test_foxglove_json_and_requests_are_a_message_or_a_named_rejection(data):
+    """Old code: 4,096 bytes of '[' (within the JSON command limit) escaped as a RecursionError."""
+    from cgp_sim_msgs.msg import ApplyWrench
+    from geometry_msgs.msg import WrenchStamped
+    from std_srvs.srv import SetBool
+
+    from cgp_core.wrenches import WrenchError
+    from cgp_sim_ros.ros.foxglove_server import _decode_request, _message_from_json
+
+    for msg_type in (ApplyWrench, WrenchStamped):
+        try:
+            _message_from_json(msg_type, data)
+        except WrenchError as exc:
+            assert exc.field and exc.kind
+    try:
+        _decode_request(SetBool.Request, data)
+    except Exception as exc:  # noqa: BLE001 - the server turns this into the client's error (see _call)
+        assert not isinstance(exc, (RecursionError, MemoryError, SystemError)), exc
+
+
+# ---- the renderer's marker reader ---------------------------------------------------------------------------
+
+
+def _valid_marker_array() -> bytes:
+    sphere = cdr.marker(cdr.MarkerFields(marker_type=cdr.SPHERE_LIST, ns="flocks/f", id=0, scale=(1, 1, 1),
+                                         color=(1, 0, 0, 1), points=np.zeros((3, 3))))
+    cube = cdr.marker(cdr.MarkerFields(marker_type=cdr.CUBE, ns="bodies/a", id=0, scale=(1, 2, 3),
+                                       color=(0, 1, 0, 1), position=(1, 2, 3)))
+    return cdr.marker_array([sphere, cube])
+
+
+@given(st.binary(max_size=2048), st.data())
+@example(cdr.ENCAPSULATION + (2**31 - 1).to_bytes(4, "little") + bytes(300), None)
+def test_random_marker_bytes_are_markers_or_a_cdr_error_and_draw_without_error(data, draw):
+    from cgp_sim_ros.render.primitives import MarkerSet, extent_points, primitives
+
+    payloads = [data]
+    if draw is not None:
+        mutated = bytearray(_valid_marker_array())
+        for _ in range(draw.draw(st.integers(1, 6))):
+            at = draw.draw(st.integers(0, len(mutated) - 1))
+            mutated[at:at + 8] = draw.draw(st.one_of(
+                st.binary(min_size=1, max_size=8),
+                st.builds(lambda x: struct.pack("<d", x), st.floats(allow_nan=True, allow_infinity=True))))
+        payloads.append(bytes(mutated))
+    for payload in payloads:
+        try:
+            markers = cdr.read_marker_array(payload)
+        except cdr.CdrError as exc:
+            assert str(exc)
+            continue
+        assume(sum(len(m.points) for m in markers) < 100_000)
+        marker_set = MarkerSet()
+        with np.errstate(all="ignore"):
+            marker_set.apply(markers)
+            primitives(marker_set)
+            extent_points(marker_set)
