@@ -36,7 +36,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from common import Results, format_figures  # noqa: E402
+from common import Results, format_figures, format_stage_times, reset_stage_times, stage_times  # noqa: E402
 
 from cgp_core.bodies import BodyModel, BodyState, Shape  # noqa: E402
 from cgp_core.collision import BROAD_PHASES, CollisionDetector, Ground  # noqa: E402
@@ -189,7 +189,14 @@ def run_pile(n: int, seconds: float, rest_steps: int, with_bullet: bool) -> list
     first = int(round(1.0 / H))
     times = {s.name: np.zeros(steps) for s in sims}
     extra = {s.name: {"contacts": [], "manifolds": []} for s in sims}
+    ours = sims[0]
+    stages = {}
+    reset_stage_times(ours.solver)
     for k in range(steps):
+        if k == first:
+            stages["first_second"] = stage_times(ours.solver, first)
+        if k == steps - rest_steps:
+            reset_stage_times(ours.solver)
         for s in sims:  # interleaved, so both see the same machine load
             t0 = time.perf_counter()
             s.step()
@@ -214,6 +221,9 @@ def run_pile(n: int, seconds: float, rest_steps: int, with_bullet: bool) -> list
         if extra[s.name]["contacts"]:
             row["contacts_resting"] = int(np.median(extra[s.name]["contacts"]))
             row["manifolds_resting"] = int(np.median(extra[s.name]["manifolds"]))
+        if s is ours:  # where the step's time goes (mean ms per step, stage by stage; cgp_core.jit.StageProfile)
+            row["stages_first_second_ms"] = stages.get("first_second", {})
+            row["stages_resting_ms"] = stage_times(ours.solver, rest_steps)
         rows.append(row)
     return rows
 
@@ -308,6 +318,11 @@ def main(argv=None) -> int:
               f"{r['max_penetration_mm']:10.3f} {r['max_penetration_pct_radius']:6.2f} "
               f"{r['mean_penetration_mm']:11.3f} {r['escaped']:7d} {r.get('contacts_resting', ''):>8} "
               f"{r.get('manifolds_resting', ''):>9}")
+    for r in results["piles"]:
+        for window in ("first_second", "resting"):
+            if r.get(f"stages_{window}_ms"):
+                print(f"  {r['spheres']} spheres, {window.replace('_', ' ')}: stages, mean ms per step")
+                print(format_stage_times(r[f"stages_{window}_ms"]))
     if results["figures"]:
         print("\nIssue 7 figures")
         print(format_figures(results["figures"]))

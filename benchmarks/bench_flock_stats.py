@@ -118,9 +118,9 @@ def _searched_again(flock) -> np.ndarray:
 
     neighbors, searched, radius = flock._searched
     found = np.empty(flock.count, np.bool_)
-    order_module._nearest_in_rows(neighbors.start, neighbors.count, neighbors.index, neighbors.order,
-                                  flock.positions, searched, flock.period, float(radius), flock._moved_since_search,
-                                  order_module.MAX_JUMPERS, 0, np.empty(flock.count), found)
+    order_module._nearest_in_rows(
+        order_module.Searched(neighbors, searched, float(radius), flock._moved_since_search), flock.positions,
+        flock.period, order_module.Budget(order_module.MAX_JUMPERS, 0), np.empty(flock.count), found)
     return ~found
 
 

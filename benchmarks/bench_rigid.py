@@ -39,7 +39,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
-from common import Results  # noqa: E402
+from common import Results, format_stage_times, reset_stage_times, stage_times  # noqa: E402
 
 from cgp_core import Shape, World, parse_scene  # noqa: E402
 from cgp_core.rotation import quat_to_matrix  # noqa: E402
@@ -153,6 +153,7 @@ def bench_default(seconds: float) -> dict:
     ticks = int(round(seconds * 60))
     times = {"cgp_sim": np.empty(ticks), "mujoco": np.empty(ticks), "pybullet": np.empty(ticks)}
     clock = time.perf_counter
+    reset_stage_times(world.solver)
     for k in range(ticks):
         t0 = clock()
         world.step()
@@ -171,6 +172,7 @@ def bench_default(seconds: float) -> dict:
         out[name] = {"median": float(np.median(t)), "p99": float(np.percentile(t, 99)), "max": float(t.max()),
                      "median_0_2.5s": float(np.median(t[:150])), "median_7.5_17s": float(np.median(t[450:1020]))}
     out["final_positions"] = world.body_state.position.tolist()
+    out["stages_ms"] = stage_times(world.solver, ticks)  # mean ms per tick, stage by stage
     return out
 
 
@@ -215,6 +217,7 @@ def bench_pile(seconds: float) -> dict:
     t_cgp, t_pb = np.empty(ticks), np.empty(ticks)
     contacts = []
     clock = time.perf_counter
+    reset_stage_times(world.solver)
     for k in range(ticks):
         t0 = clock()
         world.step()
@@ -233,7 +236,7 @@ def bench_pile(seconds: float) -> dict:
             "contacts_median": float(np.median(contacts)), "contacts_max": int(max(contacts)),
             "pile_height_max": float(z.max()), "escaped": int(np.count_nonzero(np.abs(
                 world.body_state.position[movable, :2]).max(axis=1) > 1.6)),
-            "lowest": float(z.min())}
+            "lowest": float(z.min()), "stages_ms": stage_times(world.solver, ticks)}
 
 
 # ---- 3. start-up of the compiled kernels -------------------------------------------------------------------
@@ -288,10 +291,12 @@ def main(argv=None) -> int:
         r = default[name]
         print(f"  {name:9s} median {r['median']:7.3f}  p99 {r['p99']:7.3f}  max {r['max']:7.3f}  "
               f"0-2.5 s {r['median_0_2.5s']:7.3f}  7.5-17 s {r['median_7.5_17s']:7.3f}", flush=True)
+    print("  cgp_sim's stages, mean ms per tick:\n" + format_stage_times(default["stages_ms"]), flush=True)
     pile = bench_pile(2.0 if args.quick else 4.0)
     print(f"200-body pile, ms per tick: cgp_sim median {pile['cgp_sim']['median']:.2f} p99 {pile['cgp_sim']['p99']:.2f}"
           f"; pybullet median {pile['pybullet']['median']:.2f} p99 {pile['pybullet']['p99']:.2f}; contacts median "
           f"{pile['contacts_median']:.0f}; escaped {pile['escaped']}", flush=True)
+    print("  cgp_sim's stages, mean ms per tick:\n" + format_stage_times(pile["stages_ms"]), flush=True)
 
     ratio_mj = c["median"] / mj["median"]
     out.figure("rigid_default_tick_median", "default scene's 5 bodies, one tick while they move (core), median",

@@ -108,6 +108,33 @@ def _plain(value):
     return value
 
 
+def reset_stage_times(solver) -> None:
+    """Start the per-stage profiles of a contact solver and its detector over (``cgp_core.jit.StageProfile``)."""
+    solver.profile.reset()
+    solver.detector.profile.reset()
+
+
+def stage_times(solver, steps: int) -> dict[str, float]:
+    """Wall time per stage since :func:`reset_stage_times`, in ms per step (``steps``: the ticks or sub-steps the
+    caller ran): ``{"detect.bounds": ..., "detect.broad_phase": ..., "solve.prepare": ..., ...,
+    "solve.recover_penetration": ...}``, read from ``solver.detector.profile`` and ``solver.profile``."""
+    times = {}
+    for owner, profile in (("detect", solver.detector.profile), ("solve", solver.profile)):
+        for stage, seconds in zip(profile.stages, profile.seconds):
+            times[f"{owner}.{stage}"] = float(seconds) / max(steps, 1) * 1e3
+    return times
+
+
+def format_stage_times(times: dict[str, float]) -> str:
+    """The stage times as two indented lines (detection, then the solver), ms per step, with their sums."""
+    lines = []
+    for owner in ("detect", "solve"):
+        parts = {k.split(".", 1)[1]: v for k, v in times.items() if k.startswith(owner + ".")}
+        lines.append(f"    {owner:6s} {sum(parts.values()):7.3f} ms = "
+                     + " + ".join(f"{name} {ms:.3f}" for name, ms in parts.items()))
+    return "\n".join(lines)
+
+
 def format_figures(figures: list[dict], width: int = 62) -> str:
     """The figures as a plain-text table (value, target, pass / SHORT)."""
     lines = [f"{'figure':{width}} {'value':>10} {'unit':7} {'target':>28}  result"]

@@ -20,6 +20,12 @@ Conventions
   maps ω to L is the world-frame R I_body Rᵀ, not the body-frame J the particles were summed in.
 - Fixed bodies (walls, floors, obstacles) have ``inv_mass = 0`` and ``inv_inertia_body = 0``: every formula
   that divides by mass multiplies by the inverse instead, so they need no special case.
+
+This module is the one home of the world-frame inertia equations, compiled so that the kernels call them too:
+``I_world = R J Rᵀ`` (and ``I_world⁻¹ = R J⁻¹ Rᵀ``): :func:`world_tensor` / :func:`world_tensors`;
+``ω = I_world⁻¹ L`` (and ``L = I_world ω``): :func:`tensor_times` / :func:`tensor_times_rows`.  The integrators
+work in the body frame instead (Π = Rᵀ L: ``rotation.quat_rotate`` by the conjugate, Ω = J⁻¹ Π; see
+:mod:`cgp_core.integrators.base`).
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .jit import njit
 from .rotation import quat_to_matrix
 
 
@@ -237,13 +244,13 @@ class BodyState:
         return self.linear_momentum * model.inv_mass[:, None]
 
     def inv_inertia_world(self, model: BodyModel, R: np.ndarray | None = None) -> np.ndarray:
-        """I_world⁻¹ = R I_body⁻¹ Rᵀ, (n, 3, 3)."""
+        """I_world⁻¹ = R I_body⁻¹ Rᵀ, (n, 3, 3) (:func:`world_tensors`)."""
         R = self.rotation_matrices() if R is None else R
-        return R @ model.inv_inertia_body @ np.swapaxes(R, -1, -2)
+        return world_tensors(np.ascontiguousarray(R, dtype=float), np.ascontiguousarray(model.inv_inertia_body))
 
     def angular_velocity(self, model: BodyModel, R: np.ndarray | None = None) -> np.ndarray:
-        """ω = I_world⁻¹ L, (n, 3), world frame."""
-        return np.einsum("nij,nj->ni", self.inv_inertia_world(model, R), self.angular_momentum)
+        """ω = I_world⁻¹ L, (n, 3), world frame (:func:`tensor_times_rows`)."""
+        return tensor_times_rows(self.inv_inertia_world(model, R), np.ascontiguousarray(self.angular_momentum))
 
     def kinetic_energy(self, model: BodyModel) -> np.ndarray:
         """Per-body kinetic energy ½ P·v + ½ L·ω, (n,)."""
@@ -252,3 +259,54 @@ class BodyState:
         return 0.5 * np.einsum("ni,ni->n", self.linear_momentum, v) + 0.5 * np.einsum(
             "ni,ni->n", self.angular_momentum, w
         )
+
+
+# ---- the world-frame inertia: one home, compiled ------------------------------------------------------------
+
+@njit
+def world_tensor(R, T, out):
+    """``out = R T Rᵀ`` (3, 3): a body-frame tensor ``T`` (3, 3) — the inertia J, or J⁻¹ — in world axes, for a
+    body turned by ``R`` (3, 3): I_world = R J Rᵀ, I_world⁻¹ = R J⁻¹ Rᵀ."""
+    for r in range(3):
+        rt0 = R[r, 0] * T[0, 0] + R[r, 1] * T[1, 0] + R[r, 2] * T[2, 0]  # row r of R T
+        rt1 = R[r, 0] * T[0, 1] + R[r, 1] * T[1, 1] + R[r, 2] * T[2, 1]
+        rt2 = R[r, 0] * T[0, 2] + R[r, 1] * T[1, 2] + R[r, 2] * T[2, 2]
+        for c in range(3):
+            out[r, c] = rt0 * R[c, 0] + rt1 * R[c, 1] + rt2 * R[c, 2]
+
+
+@njit
+def world_tensors(R, T):
+    """:func:`world_tensor` of n bodies: ``R``, ``T`` (n, 3, 3) → (n, 3, 3)."""
+    out = np.empty((len(R), 3, 3))
+    for i in range(len(R)):
+        world_tensor(R[i], T[i], out[i])
+    return out
+
+
+@njit
+def tensor_times(T, x, y, z):
+    """``T v`` for a (3, 3) tensor and v = (x, y, z): ω = I_world⁻¹ L, L = I_world ω.  Returns the three
+    components."""
+    out0 = 0.0
+    out1 = 0.0
+    out2 = 0.0
+    out0 += T[0, 0] * x
+    out0 += T[0, 1] * y
+    out0 += T[0, 2] * z
+    out1 += T[1, 0] * x
+    out1 += T[1, 1] * y
+    out1 += T[1, 2] * z
+    out2 += T[2, 0] * x
+    out2 += T[2, 1] * y
+    out2 += T[2, 2] * z
+    return out0, out1, out2
+
+
+@njit
+def tensor_times_rows(T, v):
+    """:func:`tensor_times` of n bodies: ``T`` (n, 3, 3), ``v`` (n, 3) → (n, 3)."""
+    out = np.empty((len(T), 3))
+    for i in range(len(T)):
+        out[i, 0], out[i, 1], out[i, 2] = tensor_times(T[i], v[i, 0], v[i, 1], v[i, 2])
+    return out

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bodies import BodyModel, BodyState
+from .bodies import BodyModel, BodyState, tensor_times, world_tensor
 from .checks import positive
 from .collision.contacts import ContactSet
 from .collision.materials import Ground
@@ -101,26 +101,18 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
 
 @njit
 def coming_velocities(R, inv_inertia_body, inv_mass, linear_momentum, angular_momentum, force, torque, h):
-    """World-frame I⁻¹ = R I_body⁻¹ Rᵀ ``(n, 3, 3)``, and the velocities the bodies will move with over the sub-step
-    without contacts, v = (P + h F) / m and ω = I⁻¹ (L + h τ) ``(n, 3)`` each."""
+    """World-frame I⁻¹ = R I_body⁻¹ Rᵀ ``(n, 3, 3)`` (:func:`~cgp_core.bodies.world_tensor`), and the velocities
+    the bodies will move with over the sub-step without contacts, v = (P + h F) / m and ω = I⁻¹ (L + h τ)
+    (:func:`~cgp_core.bodies.tensor_times`) ``(n, 3)`` each."""
     n = len(R)
     inv_inertia = np.empty((n, 3, 3))
     velocity = np.empty((n, 3))
     angular_velocity = np.empty((n, 3))
-    RW = np.empty((3, 3))
+    L, T = angular_momentum, torque
     for i in range(n):
-        for r in range(3):
-            for c in range(3):
-                RW[r, c] = R[i, r, 0] * inv_inertia_body[i, 0, c] + R[i, r, 1] * inv_inertia_body[i, 1, c] \
-                    + R[i, r, 2] * inv_inertia_body[i, 2, c]
-        for r in range(3):
-            for c in range(3):
-                inv_inertia[i, r, c] = RW[r, 0] * R[i, c, 0] + RW[r, 1] * R[i, c, 1] + RW[r, 2] * R[i, c, 2]
+        world_tensor(R[i], inv_inertia_body[i], inv_inertia[i])
         for k in range(3):
             velocity[i, k] = (linear_momentum[i, k] + h * force[i, k]) * inv_mass[i]
-        for r in range(3):
-            acc = 0.0
-            for c in range(3):
-                acc += inv_inertia[i, r, c] * (angular_momentum[i, c] + h * torque[i, c])
-            angular_velocity[i, r] = acc
+        angular_velocity[i, 0], angular_velocity[i, 1], angular_velocity[i, 2] = tensor_times(
+            inv_inertia[i], L[i, 0] + h * T[i, 0], L[i, 1] + h * T[i, 1], L[i, 2] + h * T[i, 2])
     return inv_inertia, velocity, angular_velocity

@@ -219,7 +219,7 @@ def body_distances(model: BodyModel, state: BodyState, point) -> np.ndarray:
 
         mesh = model.meshes[i]
         local = (p[0] - state.position[i]) @ R[i]
-        out[i] = bvh_closest_point(*mesh.bvh, mesh.vertices, mesh.triangles, local, np.inf)[1]
+        out[i] = bvh_closest_point(tuple(mesh.arrays), local, np.inf)[1]
     return out
 
 

@@ -2,7 +2,8 @@
 
 This is the one home of the lecture's "force projection": a force F applied at a point p of a body acts
 on the centre of mass with the *whole* force F (linear part) and produces the torque τ = (p − x̄) × F about
-the COM (angular part).
+the COM (angular part): :func:`moment_about`, which :func:`apply_force_at_point` and the tick's wrench commands
+(:class:`cgp_core.wrenches.WrenchSchedule`) both use.
 
 Slide erratum ("Force projection", and "Whole Model" slides): the slides write
 ``F = F_ext (F_ext · (r_f − x̄))`` and ``τ = F_ext × (r_f − x̄)``.  Both are wrong: the linear part is F_ext
@@ -37,6 +38,12 @@ def apply_damping(model: BodyModel, state: BodyState, linear: float, angular: fl
         state.torque -= angular * state.angular_momentum * (model.inv_mass > 0.0)[:, None]
 
 
+def moment_about(point: np.ndarray, centre: np.ndarray, force: np.ndarray) -> np.ndarray:
+    """τ = (p − x̄) × F: the moment about ``centre`` x̄ of ``force`` F acting at ``point`` p, (k, 3) each (rows
+    broadcast) → (k, 3)."""
+    return np.cross(point - centre, force)
+
+
 def apply_force_at_point(state: BodyState, body: np.ndarray, force: np.ndarray, point: np.ndarray) -> None:
     """Accumulate forces ``force (k, 3)`` acting at world points ``point (k, 3)`` on bodies ``body (k,)``.
 
@@ -46,9 +53,8 @@ def apply_force_at_point(state: BodyState, body: np.ndarray, force: np.ndarray, 
     body = np.atleast_1d(np.asarray(body, dtype=np.intp))
     force = np.atleast_2d(np.asarray(force, dtype=float))
     point = np.atleast_2d(np.asarray(point, dtype=float))
-    lever = point - state.position[body]
     np.add.at(state.force, body, force)
-    np.add.at(state.torque, body, np.cross(lever, force))
+    np.add.at(state.torque, body, moment_about(point, state.position[body], force))
 
 
 def apply_torque(state: BodyState, body: np.ndarray, torque: np.ndarray) -> None:

@@ -233,6 +233,11 @@ class Scene:
         from .rotation import quat_to_matrix
 
         R = quat_to_matrix(orientation)
+        # L₀ = I_world ω₀ with numpy's batched matmul, as every scene has been loaded since the first release: the
+        # home of these equations (bodies.world_tensor, tensor_times: compiled loops) rounds differently (BLAS
+        # fuses multiply-adds), and moving this line there changes the default scene's initial L in the last bit,
+        # and every later tick with it (issue 24 kept trajectories bit-identical); move it with the next change
+        # that may change trajectories
         inertia_world = R @ inertia @ np.swapaxes(R, -1, -2)
         lin_vel = np.stack([b.linear_velocity for b in self.bodies])
         ang_vel = np.stack([b.angular_velocity for b in self.bodies])

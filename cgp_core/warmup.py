@@ -176,10 +176,12 @@ _CONVEX_MODULES = ("cgp_core.collision.convex_phase", "cgp_core.collision.convex
 #: scene: the solver ~16 s; contact detection and the integrators ~14 s; the flock ~9 s (``make setup`` also
 #: compiles issue 14's rules and the parallel twins there: ~15 s more)
 PARTS: tuple[CompilePart, ...] = (
-    CompilePart("solver", ("cgp_core.solver", "cgp_core.rotation"),
+    CompilePart("solver", ("cgp_core.solver", "cgp_core.rotation", "cgp_core.bodies"),
                 ("cgp_core.solver.sequential_impulse:solve_step",
                  "cgp_core.solver.sequential_impulse:recover_penetration_kernel"), steps_flocks=False),
-    CompilePart("contacts", _CONTACT_MODULES + ("cgp_core.integrators", "cgp_core.dynamics", "cgp_core.sleep"),
+    # (rotation's and bodies' few small kernels are compiled by both rigid-body parts: each part's kernels call them)
+    CompilePart("contacts", _CONTACT_MODULES + ("cgp_core.integrators", "cgp_core.dynamics", "cgp_core.sleep",
+                                                "cgp_core.rotation", "cgp_core.bodies"),
                 ("cgp_core.collision.detector:narrow_phase", "cgp_core.integrators.implicit_midpoint:_step_kernel",
                  "cgp_core.dynamics:coming_velocities"), steps_flocks=False),
     # (the obstacle query of static meshes calls the BVH's closest point, which calls GJK's closest point on a

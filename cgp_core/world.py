@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .bodies import tensor_times, world_tensor
 from .boids import Flock, Obstacles
 from .boids.predators import Predators
 from .dynamics import Ground, step_bodies
@@ -68,7 +69,7 @@ from .rotation import quat_conjugate, quat_rotate, quat_to_matrix
 from .scene import MAX_BODIES, MAX_NAME_LENGTH, ROS_SAFE_NAME, Scene, body_reach, load_scene, spawn_entry
 from .sleep import SLEEP_SPEED, SLEEP_TIME, Islands
 from .solver import make_solver
-from .wrenches import WrenchCommand, WrenchSchedule, make_command
+from .wrenches import DEFAULT_LIMITS, CommandLimits, WrenchCommand, WrenchSchedule, make_command
 
 #: a body moving faster than BLOWUP_SPEED [m/s] or spinning faster than BLOWUP_SPIN [rad/s] has blown up
 #: numerically (the values live with the other limits, in cgp_core.limits)
@@ -340,17 +341,18 @@ class World:
         self.wake()
 
     def apply_wrench(self, body: str, force=(0.0, 0.0, 0.0), *, point=None, torque=(0.0, 0.0, 0.0),
-                     frame: str = "world", duration: float = 0.0, **limits) -> WrenchCommand:
+                     frame: str = "world", duration: float = 0.0,
+                     limits: CommandLimits = DEFAULT_LIMITS) -> WrenchCommand:
         """Apply ``force`` at ``point`` (None = the COM) plus the pure couple ``torque`` to ``body``.
 
         ``frame``: ``"world"`` (or ``""``) = world axes and world point; the body's name (or ``"body"``) =
         body axes with ``point`` relative to the COM.  ``duration``: 0 = next tick only, > 0 = that long
-        (whole ticks, rounded up), < 0 = until :meth:`clear_wrenches`.  Raises ``WrenchError`` (a ValueError)
-        naming the bad field."""
+        (whole ticks, rounded up), < 0 = until :meth:`clear_wrenches`.  ``limits``: what a command may ask for.
+        Raises ``WrenchError`` (a ValueError) naming the bad field."""
         frame = body if frame == "body" else frame
         command = make_command(self.body_model.names, body, force=force, torque=torque, point=point, frame=frame,
-                               duration=duration, fixed=self.body_model.fixed, positions=self.body_state.position,
-                               **limits)
+                               duration=duration, limits=limits, fixed=self.body_model.fixed,
+                               positions=self.body_state.position)
         self.add_commands([command])
         return command
 
@@ -499,7 +501,9 @@ class World:
         if state.rotation is not None:
             state.rotation[i] = R
         state.linear_momentum[i] = model.mass[i] * v * (not model.fixed[i])
-        state.angular_momentum[i] = (R @ model.inertia_body[i] @ R.T @ w) * (not model.fixed[i])
+        inertia = np.empty((3, 3))
+        world_tensor(R, model.inertia_body[i], inertia)  # L = I_world ω
+        state.angular_momentum[i] = np.array(tensor_times(inertia, w[0], w[1], w[2])) * (not model.fixed[i])
         for start, now in zip(self._body_start, (state.linear_momentum, state.angular_momentum,
                                                  state.orientation)):
             start[i] = now[i]  # a teleport is not an acceleration: this body's last-tick Δv starts from here
@@ -536,8 +540,10 @@ class World:
         i = self._body_index(name)
         model, state = self.body_model, self.body_state
 
-        def velocities(P, L, R):  # v = P / m, ω = R I⁻¹ Rᵀ L of body i alone (a query is O(1), not O(n))
-            return P * model.inv_mass[i], R @ model.inv_inertia_body[i] @ R.T @ L
+        def velocities(P, L, R):  # v = P / m, ω = I_world⁻¹ L of body i alone (a query is O(1), not O(n))
+            inv_inertia = np.empty((3, 3))
+            world_tensor(np.ascontiguousarray(R), model.inv_inertia_body[i], inv_inertia)
+            return P * model.inv_mass[i], np.array(tensor_times(inv_inertia, L[0], L[1], L[2]))
 
         R = state.rotation[i] if state.rotation is not None else quat_to_matrix(state.orientation[i][None])[0]
         v, w = velocities(state.linear_momentum[i], state.angular_momentum[i], R)

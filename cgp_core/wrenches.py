@@ -24,10 +24,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from .bodies import BodyState
+from .forces import moment_about
 from .rotation import quat_rotate
 
 WORLD = "world"
@@ -52,6 +54,18 @@ class WrenchCommand:
     point: tuple[float, float, float] | None = None
     frame: str = WORLD
     duration: float = 0.0
+
+
+class WrenchSums(NamedTuple):
+    """The active rows summed per body (m bodies), at the COMs ``com0`` they had when summed."""
+
+    targets: np.ndarray   # (m,) the bodies
+    com0: np.ndarray      # (m, 3) x̄₀
+    force_w: np.ndarray   # (m, 3) ΣF_w of the world-frame rows
+    force_p: np.ndarray   # (m, 3) ΣF_p of the world-frame rows with a point
+    moment_w: np.ndarray  # (m, 3) Σ (p − x̄₀) × F_w + Στ_w
+    force_b: np.ndarray   # (m, 3) ΣF_b of the body-frame rows (body axes)
+    moment_b: np.ndarray  # (m, 3) Σ r_b × F_b + Στ_b (body axes)
 
 
 class WrenchSchedule:
@@ -148,27 +162,27 @@ class WrenchSchedule:
         self._sums = None
         return k
 
-    def _sum_per_body(self, state: BodyState) -> tuple:
-        """``(targets (m,), com0 (m, 3), force_w, force_p, moment_w, force_b, moment_b (m, 3) each)`` over
-        the m bodies that have rows (see the class docstring)."""
+    def _sum_per_body(self, state: BodyState) -> WrenchSums:
+        """The :class:`WrenchSums` over the m bodies that have rows (see the class docstring)."""
         targets, row_target = np.unique(self.body, return_inverse=True)
         m = len(targets)
         com0 = state.position[targets]
         world = ~self.body_frame[:, None]
         with_point = world & ~self.at_com[:, None]
-        # lever of every row: world rows with a point from x̄₀; body rows their body-frame offset; at-COM rows 0
-        lever = np.where(self.at_com[:, None], 0.0,
-                         np.where(world, self.point - com0[row_target], self.point))
-        moment = np.cross(lever, self.force) + self.torque
+        # each row's moment (p − centre) × F (forces.moment_about): world rows with a point about x̄₀; body rows
+        # about their body's COM, their point being the body-frame offset; at-COM rows none (0 × F)
+        point = np.where(self.at_com[:, None], 0.0, self.point)
+        centre = np.where(with_point, com0[row_target], 0.0)
+        moment = moment_about(point, centre, self.force) + self.torque
 
         def per_body(values: np.ndarray) -> np.ndarray:
             out = np.zeros((m, 3))
             np.add.at(out, row_target, values)
             return out
 
-        return (targets, com0, per_body(np.where(world, self.force, 0.0)),
-                per_body(np.where(with_point, self.force, 0.0)), per_body(np.where(world, moment, 0.0)),
-                per_body(np.where(world, 0.0, self.force)), per_body(np.where(world, 0.0, moment)))
+        return WrenchSums(targets, com0, per_body(np.where(world, self.force, 0.0)),
+                          per_body(np.where(with_point, self.force, 0.0)), per_body(np.where(world, moment, 0.0)),
+                          per_body(np.where(world, 0.0, self.force)), per_body(np.where(world, 0.0, moment)))
 
     def apply(self, state: BodyState) -> None:
         """Accumulate every active wrench into ``state.force`` / ``state.torque`` at the current poses
@@ -183,7 +197,7 @@ class WrenchSchedule:
         targets, com0, force_w, force_p, moment_w, force_b, moment_b = self._sums
         force, moment = force_w.copy(), moment_w.copy()
         if self._any_with_point:
-            moment -= np.cross(state.position[targets] - com0, force_p)
+            moment -= moment_about(state.position[targets], com0, force_p)
         if self._any_body_frame:
             q = state.orientation[targets]
             force += quat_rotate(q, force_b)
@@ -246,17 +260,29 @@ def _name(value, field: str) -> str:
     return value
 
 
+@dataclass(frozen=True)
+class CommandLimits:
+    """What a wrench command may ask for (the node's ``max_force`` / ``max_torque`` parameters)."""
+
+    max_force: float = 1e6            #: largest |F| [N]
+    max_torque: float = 1e6           #: largest |τ| of the pure couple [N m]
+    max_offset: float = MAX_OFFSET    #: largest lever arm |p − x̄| [m]
+
+
+#: the limits of a command made without any
+DEFAULT_LIMITS = CommandLimits()
+
+
 def make_command(body_names: list[str], body: str, *, force=(0.0, 0.0, 0.0), torque=(0.0, 0.0, 0.0), point=None,
-                 frame: str = "", duration: float = 0.0, max_force: float = 1e6, max_torque: float = 1e6,
-                 max_offset: float = MAX_OFFSET, fixed: np.ndarray | None = None,
-                 positions: np.ndarray | None = None) -> WrenchCommand:
+                 frame: str = "", duration: float = 0.0, limits: CommandLimits = DEFAULT_LIMITS,
+                 fixed: np.ndarray | None = None, positions: np.ndarray | None = None) -> WrenchCommand:
     """Validate a wrench request and turn it into a :class:`WrenchCommand`.
 
     ``frame`` is ``""`` or ``"world"`` (world axes) or the body's own name (body axes); any other frame is
-    rejected, as are non-finite values, force / torque magnitudes above ``max_force`` / ``max_torque``, a
-    lever arm ``|p − x̄|`` above ``max_offset`` (body frame: ``|point|``; world frame: checked against the
-    body's current COM when ``positions`` (n, 3) is given), unknown or fixed bodies, over-long names and NaN
-    durations.  Raises :class:`WrenchError` naming the field.
+    rejected, as are non-finite values, force / torque magnitudes above ``limits.max_force`` /
+    ``limits.max_torque``, a lever arm ``|p − x̄|`` above ``limits.max_offset`` (body frame: ``|point|``; world
+    frame: checked against the body's current COM when ``positions`` (n, 3) is given), unknown or ``fixed``
+    ((n,) bool) bodies, over-long names and NaN durations.  Raises :class:`WrenchError` naming the field.
     """
     body = _name(body, "body")
     frame = _name(frame, "header.frame_id")
@@ -283,14 +309,14 @@ def make_command(body_names: list[str], body: str, *, force=(0.0, 0.0, 0.0), tor
     if point is not None:
         point = _finite_vector(point, "point", None)
         if kind == BODY:
-            _finite_vector(point, "point", max_offset, "distance from the centre of mass")
+            _finite_vector(point, "point", limits.max_offset, "distance from the centre of mass")
         elif positions is not None:
-            _finite_vector(np.subtract(point, positions[index]), "point", max_offset,
+            _finite_vector(np.subtract(point, positions[index]), "point", limits.max_offset,
                            "distance from the centre of mass")
     return WrenchCommand(
         body=index,
-        force=_finite_vector(force, "wrench.force", max_force),
-        torque=_finite_vector(torque, "wrench.torque", max_torque),
+        force=_finite_vector(force, "wrench.force", limits.max_force),
+        torque=_finite_vector(torque, "wrench.torque", limits.max_torque),
         point=point,
         frame=kind,
         duration=duration,

@@ -16,6 +16,7 @@ from cgp_core.bodies import Shape
 from cgp_core.collision.bvh import StaticMesh
 from cgp_core.collision.convex_phase import pack_meshes
 from cgp_core.collision.mesh_contacts import mesh_capsule_contacts
+from cgp_core.collision.narrowphase import ContactBuffer
 from cgp_core.inertia import box_inertia, compound_mass_properties, parallel_axis, solid_sphere_inertia
 from cgp_core.rotation import quat_from_rotvec, quat_rotate, quat_to_matrix
 from cgp_core.scene import SceneError
@@ -276,8 +277,7 @@ def test_a_sphere_on_the_terrain_gets_from_the_bvh_the_contacts_of_all_its_trian
     found = 0
     for _ in range(40):
         xy = rng.uniform(-4.5, 4.5, 2)
-        _, distance, cx, cy, cz = bvh_closest_point(*mesh.bvh, mesh.vertices, mesh.triangles,
-                                                    np.array([*xy, 5.0]), np.inf)
+        _, distance, cx, cy, cz = bvh_closest_point(mesh.arrays, np.array([*xy, 5.0]), np.inf)
         local = np.array([cx, cy, cz])
         # the closest point straight below, then the sphere 2 mm into the surface along the local up
         local = local + np.array([0, 0, radius - 0.002])
@@ -285,10 +285,8 @@ def test_a_sphere_on_the_terrain_gets_from_the_bvh_the_contacts_of_all_its_trian
         rows = []
         for m in (mesh, everything):
             n, s, q, f = np.empty((64, 3)), np.empty(64), np.empty((64, 3)), np.empty(64, np.int64)
-            count, complete = mesh_capsule_contacts(
-                m.vertices, m.triangles, m.active_edges, m.node_lo, m.node_hi, m.node_child_or_first,
-                m.node_count, m.triangle_order, m.triangle_lo, m.triangle_hi, p, R, False,
-                np.array([centre, centre]), radius, 0.01, np.empty(2048, np.int64), n, s, q, f, 0)
+            count, complete = mesh_capsule_contacts(m.arrays, p, R, False, np.array([centre, centre]), radius, 0.01,
+                                                    np.empty(2048, np.int64), ContactBuffer(n, s, q, f), 0)
             assert complete
             order = np.lexsort(np.round(q[:count], 12).T)
             rows.append((n[:count][order], s[:count][order], q[:count][order]))

@@ -14,7 +14,7 @@ from cgp_core import World, parse_scene
 from cgp_core.collision.bvh import bvh_raycast
 from cgp_core.collision.contacts import FEATURE_SLOTS
 from cgp_core.collision.epa import penetration
-from cgp_core.collision.gjk import NO_ADJACENCY, no_adjacency
+from cgp_core.collision.gjk import NO_ADJACENCY, Core, no_adjacency
 from cgp_core.rotation import quat_to_matrix
 
 
@@ -45,8 +45,7 @@ def test_convex_pile_settles_on_the_terrain_and_sleeps():
     lowest = np.inf
     for i in np.flatnonzero(model.shape == int(model.shape[1])):  # the hulls
         for x, y, z in hull_world_vertices(world, i):
-            hit, t, *_ = bvh_raycast(*terrain.bvh, terrain.vertices, terrain.triangles, np.array([x, y, 5.0]),
-                                     np.array([0.0, 0.0, -1.0]), 10.0)
+            hit, t, *_ = bvh_raycast(terrain.arrays, np.array([x, y, 5.0]), np.array([0.0, 0.0, -1.0]), 10.0)
             assert hit >= 0
             lowest = min(lowest, z - (5.0 - t))
     assert lowest > -0.005, lowest
@@ -109,10 +108,10 @@ def test_a_plank_turning_a_quarter_turn_per_step_is_stopped_by_the_time_of_impac
         for _ in range(8):
             world.step()
             R = quat_to_matrix(world.body_state.orientation[1])
-            separation = penetration(plank.vertices, no_adjacency(plank.vertices), NO_ADJACENCY,
-                                     world.body_state.position[1], R, 0.0, wall.vertices,
-                                     no_adjacency(wall.vertices), NO_ADJACENCY, world.body_state.position[0],
-                                     np.eye(3), 0.0)[0]
+            separation = penetration(
+                Core(plank.vertices, no_adjacency(plank.vertices), NO_ADJACENCY, world.body_state.position[1], R), 0.0,
+                Core(wall.vertices, no_adjacency(wall.vertices), NO_ADJACENCY, world.body_state.position[0],
+                     np.eye(3)), 0.0)[0]
             deepest = min(deepest, separation)
             corners = hull_world_vertices(world, 1)
             beside = np.abs(corners[:, 0]) < 0.2

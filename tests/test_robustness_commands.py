@@ -33,7 +33,7 @@ from std_srvs.srv import Trigger
 from cgp_core.bodies import BodyState
 from cgp_core.forces import apply_force_at_point, apply_torque
 from cgp_core.rotation import quat_normalize, quat_rotate
-from cgp_core.wrenches import MAX_NAME_LENGTH, WrenchError, WrenchSchedule, make_command
+from cgp_core.wrenches import MAX_NAME_LENGTH, CommandLimits, WrenchError, WrenchSchedule, make_command
 
 DT_NS = round(1e9 / 60)
 BOX_MASS = 2.0
@@ -172,8 +172,8 @@ NAN, INF = float("nan"), float("inf")
 def test_make_command_rejects_a_bad_field_naming_it(kwargs, field, kind, says):
     args = dict(body="box", force=(1.0, 0.0, 0.0), point=(0.0, 0.0, 2.0), frame="", duration=0.0) | kwargs
     with pytest.raises(WrenchError) as info:
-        make_command(NAMES, args.pop("body"), max_force=1e5, max_torque=1e3, fixed=FIXED, positions=POSITIONS,
-                     **args)
+        make_command(NAMES, args.pop("body"), limits=CommandLimits(max_force=1e5, max_torque=1e3), fixed=FIXED,
+                     positions=POSITIONS, **args)
     assert (info.value.field, info.value.kind) == (field, kind)
     message = str(info.value)
     assert message.startswith(f"{field}: ") and says in message, message
@@ -183,7 +183,8 @@ def test_make_command_rejects_a_bad_field_naming_it(kwargs, field, kind, says):
 def test_make_command_accepts_limits_and_negative_durations():
     """The limits are inclusive, and a negative duration means "until cleared" (issue 5), not an error."""
     command = make_command(NAMES, "box", force=(0.0, 6e4, 8e4), torque=(1e3, 0, 0), point=(1000.0, 0.0, 2.0),
-                           duration=-1.0, max_force=1e5, max_torque=1e3, fixed=FIXED, positions=POSITIONS)
+                           duration=-1.0, limits=CommandLimits(max_force=1e5, max_torque=1e3), fixed=FIXED,
+                           positions=POSITIONS)
     assert command.duration == -1.0 and command.force == (0.0, 6e4, 8e4)
 
 

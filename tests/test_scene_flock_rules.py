@@ -30,7 +30,7 @@ BAD = {
     "turning rate as text": (f"flocks: [{COUZIN}, couzin: {{turning_rate_deg: fast}}}}]",
                              "flocks[0] (s).couzin.turning_rate_deg", "must be a number, got a string 'fast'"),
     "field of view over 360": (f"flocks: [{COUZIN}, couzin: {{field_of_view_deg: 400}}}}]",
-                               "flocks[0] (s).couzin.field_of_view_deg", "must be <= 360, got 400"),
+                               "flocks[0] (s).couzin.field_of_view_deg", "must be in [0, 360] degrees"),
     "no zones at all": (f"flocks: [{COUZIN}, couzin: {{repulsion_radius: 0, orientation_width: 0, "
                         "attraction_width: 0}}]", "flocks[0] (s).couzin",
                         "repulsion_radius + orientation_width + attraction_width must be > 0"),

@@ -45,6 +45,7 @@ only its own boid's outputs, so results do not depend on the number of threads, 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -95,11 +96,22 @@ def decide(n_r: int, d_r, n_o: int, d_o, n_a: int, d_a, heading):
     return heading[0], heading[1], heading[2]  # nothing perceived, or the responses cancel: carry on
 
 
+class Zones(NamedTuple):
+    """An animal's zones, as the compiled loop takes them (distances to the neighbour [m])."""
+
+    repulsion: float     # r_r: closer than this, move away
+    orientation: float   # r_r + Δr_o: closer than this (and not repelled), align
+    attraction: float    # r_r + Δr_o + Δr_a (inf for topological neighbours): closer than this, approach
+    cos_half_fov: float  # cos(blind angle's complement / 2); <= −1: no blind volume
+
+
 @njit(parallel=True)
-def _desired_directions(start, count, index, order, positions, headings, period, repulsion_radius,
-                        orientation_radius, attraction_radius, cos_half_fov, out_desired, out_perceived):
-    """The zones of every animal, one slot per iteration: inputs in the neighbour list's slot order, each result
-    written to its boid's row ``order[s]`` (unit desired direction, number of neighbours perceived)."""
+def _desired_directions(neighbors, positions, headings, period, zones, out_desired, out_perceived):
+    """The :class:`Zones` of every animal, one slot of the :class:`NeighborList` per iteration: inputs in the
+    list's slot order, each result written to its boid's row ``order[s]`` (unit desired direction, number of
+    neighbours perceived)."""
+    start, count, index, order = neighbors.start, neighbors.count, neighbors.index, neighbors.order
+    repulsion_radius, orientation_radius, attraction_radius, cos_half_fov = zones
     for s in prange(positions.shape[0]):
         n_r = n_o = n_a = 0
         rx = ry = rz = 0.0  # d_r = −Σ r̂_ij
@@ -153,10 +165,10 @@ def desired_directions(neighbors: NeighborList, positions: np.ndarray, headings:
     desired = np.empty((n, 3))
     perceived = np.empty(n, np.int64)
     attraction = math.inf if params.neighbor_mode == "topological" else c.perception_radius
-    _desired_directions(neighbors.start, neighbors.count, neighbors.index, neighbors.order,
-                        neighbors.sorted(positions), neighbors.sorted(headings),
-                        np.zeros(3) if period is None else period, c.repulsion_radius,
-                        c.repulsion_radius + c.orientation_width, attraction, c.cos_half_fov, desired, perceived)
+    zones = Zones(float(c.repulsion_radius), float(c.repulsion_radius + c.orientation_width), float(attraction),
+                  float(c.cos_half_fov))
+    _desired_directions(neighbors, neighbors.sorted(positions), neighbors.sorted(headings),
+                        np.zeros(3) if period is None else period, zones, desired, perceived)
     return desired, perceived
 
 

@@ -36,13 +36,14 @@ nearest-neighbour distances.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from ..jit import njit, prange, threads_for
 from . import couzin
 from .frames import initial_dorsal, low_pass_weight, quaternions_rows, unit_headings, update_frames_rows
-from .neighbors import NeighborList, make_search
+from .neighbors import BoidArrays, NeighborList, make_search
 from .obstacles import ObstacleHits, Obstacles
 from .order import FlockOrder, flock_order, nearest_neighbor_distances
 from .params import FlockParams
@@ -80,6 +81,32 @@ def _scaled_to(x: float, y: float, z: float, limit: float):
 _OPEN, _SOFT, _WRAP = 0, 1, 2
 
 
+class Walls(NamedTuple):
+    """The flock's box as the per-boid kernels take it."""
+
+    mode: int           # _OPEN, _SOFT or _WRAP
+    low: np.ndarray     # (3,) lower corner [m]
+    high: np.ndarray    # (3,) upper corner [m]
+    margin: float       # soft walls push within this distance of a wall [m]
+    gain: float         # the push per metre inside the margin [1/s²]
+
+
+class Speeds(NamedTuple):
+    """Reynolds' limits on a boid's motion."""
+
+    max_acceleration: float  # [m/s²]
+    min_speed: float         # [m/s]
+    max_speed: float         # [m/s]
+
+
+class Turning(NamedTuple):
+    """Couzin's motion: constant speed, limited turn, and what avoidance may take over."""
+
+    max_acceleration: float  # the avoidance strength that takes over the desired direction completely [m/s²]
+    speed: float             # s [m/s]
+    max_turn: float          # θ·dt, the largest turn in a step [rad]
+
+
 @njit
 def _wall_push(x: float, low: float, high: float, margin: float) -> float:
     """Soft wall along one axis, in units of the wall gain: 0 deeper inside than ``margin``, growing linearly
@@ -88,10 +115,11 @@ def _wall_push(x: float, low: float, high: float, margin: float) -> float:
 
 
 @njit
-def _needed(x, i, avoidance, max_acceleration, bounds_mode, bounds_min, bounds_max, wall_margin, wall_gain):
-    """What boid i needs: avoidance (bodies, predators) + soft walls, capped at max_acceleration."""
+def _needed(x, i, avoidance, max_acceleration, walls):
+    """What boid i needs: avoidance (bodies, predators) + soft :class:`Walls`, capped at max_acceleration."""
+    bounds_min, bounds_max, wall_margin, wall_gain = walls.low, walls.high, walls.margin, walls.gain
     nx, ny, nz = avoidance[i, 0], avoidance[i, 1], avoidance[i, 2]
-    if bounds_mode == _SOFT and wall_gain > 0.0:
+    if walls.mode == _SOFT and wall_gain > 0.0:
         nx += wall_gain * _wall_push(x[i, 0], bounds_min[0], bounds_max[0], wall_margin)
         ny += wall_gain * _wall_push(x[i, 1], bounds_min[1], bounds_max[1], wall_margin)
         nz += wall_gain * _wall_push(x[i, 2], bounds_min[2], bounds_max[2], wall_margin)
@@ -99,9 +127,10 @@ def _needed(x, i, avoidance, max_acceleration, bounds_mode, bounds_min, bounds_m
 
 
 @njit
-def _advance(x, v, i, dt, bounds_mode, bounds_min, bounds_max):
-    """``b += b_v dt`` for boid i, then the box: soft walls put a boid that still reached a wall back on it
-    without its outward velocity, a periodic box wraps it."""
+def _advance(x, v, i, dt, walls):
+    """``b += b_v dt`` for boid i, then the box: soft :class:`Walls` put a boid that still reached a wall back on
+    it without its outward velocity, a periodic box wraps it."""
+    bounds_mode, bounds_min, bounds_max = walls.mode, walls.low, walls.high
     for a in range(3):
         x[i, a] += v[i, a] * dt
         if bounds_mode == _SOFT:
@@ -120,14 +149,15 @@ def _advance(x, v, i, dt, bounds_mode, bounds_min, bounds_max):
 
 
 @njit(parallel=True)
-def _move(x, v, heading, wanted, avoidance, max_acceleration, min_speed, max_speed, dt, bounds_mode, bounds_min,
-          bounds_max, wall_margin, wall_gain):
-    """Stages 3-5 of the step for Reynolds' rules, per boid (see the module docstring): what the boid needs
-    (soft walls + ``avoidance``) and what the flock wants (``wanted``) by prioritized allocation;
-    ``b_v += a dt``, the speed clamp, ``b += b_v dt`` and the box."""
+def _move(boids, wanted, avoidance, speeds, dt, walls):
+    """Stages 3-5 of the step for Reynolds' rules, per boid of ``boids`` (:class:`BoidArrays`, updated in place;
+    see the module docstring): what the boid needs (soft :class:`Walls` + ``avoidance``) and what the flock
+    wants (``wanted``) by prioritized allocation; ``b_v += a dt``, the speed clamp (:class:`Speeds`),
+    ``b += b_v dt`` and the box."""
+    x, v, heading = boids
+    max_acceleration, min_speed, max_speed = speeds
     for i in prange(x.shape[0]):
-        nx, ny, nz = _needed(x, i, avoidance, max_acceleration, bounds_mode, bounds_min, bounds_max, wall_margin,
-                             wall_gain)
+        nx, ny, nz = _needed(x, i, avoidance, max_acceleration, walls)
         # the flock's wish gets what is left of max_acceleration
         left = max(max_acceleration - math.sqrt(nx * nx + ny * ny + nz * nz), 0.0)
         wx, wy, wz = _scaled_to(wanted[i, 0], wanted[i, 1], wanted[i, 2], left)
@@ -141,26 +171,28 @@ def _move(x, v, heading, wanted, avoidance, max_acceleration, min_speed, max_spe
             speed = min_speed
         scale = min(max(speed, min_speed), max_speed) / speed
         v[i, 0], v[i, 1], v[i, 2] = vx * scale, vy * scale, vz * scale
-        _advance(x, v, i, dt, bounds_mode, bounds_min, bounds_max)
+        _advance(x, v, i, dt, walls)
 
 
 @njit(parallel=True)
-def _turn(x, v, heading, desired, avoidance, noise_angle, noise_azimuth, max_acceleration, speed, max_turn, dt,
-          bounds_mode, bounds_min, bounds_max, wall_margin, wall_gain):
-    """Stages 3-5 of the step for Couzin's rules, per boid (``couzin.py``): what the boid needs (soft walls +
-    ``avoidance``) takes over the desired direction in proportion to its strength, the noise rotates it, the
-    heading turns towards it by at most θ·dt (``max_turn``), ``b_v = s v̂``, ``b += b_v dt`` and the box.  The
-    new heading goes into ``v`` only: the frames (``frames.py``) turn ``heading`` after it, seeing the turn."""
+def _turn(boids, desired, avoidance, noise, turning, dt, walls):
+    """Stages 3-5 of the step for Couzin's rules, per boid of ``boids`` (:class:`BoidArrays`, updated in place;
+    ``couzin.py``): what the boid needs (soft :class:`Walls` + ``avoidance``) takes over the desired direction
+    in proportion to its strength, the noise (``noise``: angle, azimuth (N,) each) rotates it, the heading turns
+    towards it by at most θ·dt (:class:`Turning`), ``b_v = s v̂``, ``b += b_v dt`` and the box.  The new heading
+    goes into ``v`` only: the frames (``frames.py``) turn ``heading`` after it, seeing the turn."""
+    x, v, heading = boids
+    noise_angle, noise_azimuth = noise
+    max_acceleration, speed, max_turn = turning
     cos_max, sin_max = math.cos(max_turn), math.sin(max_turn)
     for i in prange(x.shape[0]):
-        nx, ny, nz = _needed(x, i, avoidance, max_acceleration, bounds_mode, bounds_min, bounds_max, wall_margin,
-                             wall_gain)
+        nx, ny, nz = _needed(x, i, avoidance, max_acceleration, walls)
         dx, dy, dz = couzin.blend_avoidance(desired[i, 0], desired[i, 1], desired[i, 2], nx, ny, nz,
                                             max_acceleration)
         dx, dy, dz = couzin.with_noise(dx, dy, dz, noise_angle[i], noise_azimuth[i])
         hx, hy, hz = couzin.turn_towards(heading[i, 0], heading[i, 1], heading[i, 2], dx, dy, dz, cos_max, sin_max)
         v[i, 0], v[i, 1], v[i, 2] = speed * hx, speed * hy, speed * hz
-        _advance(x, v, i, dt, bounds_mode, bounds_min, bounds_max)
+        _advance(x, v, i, dt, walls)
 
 
 class Flock:
@@ -345,15 +377,15 @@ class Flock:
 
         # walls + avoidance, allocation or turn, integration, the box: per boid, compiled
         margin = max(p.bounds_margin, 1e-9)
-        box = ({"none": _OPEN, "soft": _SOFT, "wrap": _WRAP}[p.bounds_mode], p.bounds_min, p.bounds_max, margin,
-               p.bounds_strength / margin)
+        walls = Walls({"none": _OPEN, "soft": _SOFT, "wrap": _WRAP}[p.bounds_mode], p.bounds_min, p.bounds_max,
+                      margin, p.bounds_strength / margin)
+        boids = BoidArrays(x, v, self._heading)
         if couzin_rules:
-            angle, azimuth = couzin.noise_angles(self._noise, p.count, p.couzin.noise, dt)
-            _turn(x, v, self._heading, desired, avoidance, angle, azimuth, p.max_acceleration, p.couzin.speed,
-                  math.radians(p.couzin.turning_rate_deg) * dt, float(dt), *box)
+            noise = couzin.noise_angles(self._noise, p.count, p.couzin.noise, dt)
+            turning = Turning(p.max_acceleration, p.couzin.speed, math.radians(p.couzin.turning_rate_deg) * dt)
+            _turn(boids, desired, avoidance, noise, turning, float(dt), walls)
         else:
-            _move(x, v, self._heading, wanted, avoidance, p.max_acceleration, p.min_speed, p.max_speed, float(dt),
-                  *box)
+            _move(boids, wanted, avoidance, Speeds(p.max_acceleration, p.min_speed, p.max_speed), float(dt), walls)
 
         if use_obstacles:
             if p.bounds_mode == "wrap":

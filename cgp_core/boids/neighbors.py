@@ -35,7 +35,7 @@ Every kernel here runs as plain Python under ``NUMBA_DISABLE_JIT=1`` with the sa
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -51,8 +51,7 @@ _MAX_TABLE_CELLS_PER_POINT = 8
 _MAX_CELLS_PER_AXIS = 2**20
 
 
-@dataclass
-class NeighborList:
+class NeighborList(NamedTuple):
     """Every boid's neighbours, one row per boid, in the list's own numbering of the boids ("slots").
 
     A search may number the boids its own way: the grid numbers them in cell order, so that boids near each
@@ -61,22 +60,18 @@ class NeighborList:
     Rows and their entries are slots; :meth:`sorted` puts an array of the flock's (boid order) into slot order
     for a rule kernel, :meth:`unsorted` puts a kernel's per-slot result back into boid order.
 
-    Attributes (shapes):
-        order: (N,) int64 — slot s is boid ``order[s]`` (the grid: cell order; the other backends: identity).
-        start: (N,) int64 — where slot s's row begins in ``index``.
-        count: (N,) int64 — how many neighbours slot s has.
-        index: (C,) int32 — the rows: slot s's neighbours are the slots ``index[start[s] : start[s] + count[s]]``
-               (in the backend's order).  ``C`` may exceed ``count.sum()``: a backend may leave room it did not
-               use between rows (the grid gives every row the same room, so no counting pass is needed).
-
     A k-nearest search fits the same layout (``start = k·s``, ``count = k``), so rule kernels written against
-    it work for metric and topological neighbourhoods alike.
+    it work for metric and topological neighbourhoods alike; they take the list whole (a bundle, see
+    :mod:`cgp_core.jit`).
     """
 
-    order: np.ndarray
-    start: np.ndarray
-    count: np.ndarray
-    index: np.ndarray
+    order: np.ndarray  # (N,) int64 — slot s is boid ``order[s]`` (the grid: cell order; the other backends: identity)
+    start: np.ndarray  # (N,) int64 — where slot s's row begins in ``index``
+    count: np.ndarray  # (N,) int64 — how many neighbours slot s has
+    index: np.ndarray  # (C,) int32 — the rows: slot s's neighbours are the slots ``index[start[s] : start[s] +
+    #                    count[s]]`` (in the backend's order).  ``C`` may exceed ``count.sum()``: a backend may leave
+    #                    room it did not use between rows (the grid gives every row the same room, so no counting
+    #                    pass is needed)
 
     @property
     def boids(self) -> int:
@@ -111,6 +106,14 @@ class NeighborList:
         keep = a < b
         pairs = np.stack((a[keep], b[keep]), axis=1).astype(np.int64)
         return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+
+
+class BoidArrays(NamedTuple):
+    """A flock's per-boid rows as a kernel reads them (N rows; in boid order, or in a list's slot order)."""
+
+    positions: np.ndarray   # (N, 3) b [m]
+    velocities: np.ndarray  # (N, 3) b_v [m/s]
+    headings: np.ndarray    # (N, 3) unit headings (the frames' x axes)
 
 
 @njit
@@ -299,12 +302,37 @@ class KDTreeSearch:
 _FORWARD_COLUMNS = ((0, 0), (0, 1), (1, -1), (1, 0), (1, 1))
 
 
+class CellGrid(NamedTuple):
+    """The grid search's points sorted by cell (N points in slot order) and how to find a cell's run of them."""
+
+    relative: np.ndarray     # (N, 3) positions relative to the cloud's lower corner (periodic axes folded)
+    positions: np.ndarray    # (N, 3) positions
+    edge: np.ndarray         # (3,) cell sizes [m]
+    dims: np.ndarray         # (3,) int64 cells per axis
+    period: np.ndarray       # (3,) periodic box sizes (0: open axis)
+    dense: bool              # cells looked up in ``table`` (else by binary search in ``sorted_keys``)
+    table: np.ndarray        # (cells + 1,) int64 first slot of each cell (dense), else unused
+    sorted_keys: np.ndarray  # (N,) int64 cell key of each slot (sparse), else empty
+    radius: float            # the neighbour radius d [m]
+
+
+class Probe(NamedTuple):
+    """One point's candidate test: the point and the shared formula's parameters."""
+
+    x: float
+    y: float
+    z: float
+    radius2: float   # d²
+    periodic: bool   # minimum images along the periodic axes of ``CellGrid.period``
+
+
 @njit
-def _first_slot(key, dense, table, sorted_keys):
+def _first_slot(key, grid):
     """The first sorted slot of the cell ``key`` or of a later one: from the dense table of cell starts, or
     by binary search in the sorted keys (sparse clouds)."""
-    if dense:
-        return table[key]
+    if grid.dense:
+        return grid.table[key]
+    sorted_keys = grid.sorted_keys
     first, last = 0, sorted_keys.shape[0]  # the first index whose key is >= key (a lower bound)
     while first < last:
         middle = (first + last) // 2
@@ -341,13 +369,15 @@ def _column_gap(inside, edge, offset):
 
 
 @njit
-def _test_run(first, last, x0, y0, z0, sorted_positions, period, periodic, radius2, index, row, room, found):
-    """Test the candidates in slots [first, last) against the point (x0, y0, z0) with the shared formula and
+def _test_run(first, last, probe, grid, index, row, room, found):
+    """Test the candidates in slots [first, last) against the :class:`Probe` with the shared formula and
     append the slots that pass to the row ``index[row :]``; returns the new number found.
 
     The store is unconditional and ``found`` advances by the test's outcome (the entry after the last one
     found is scratch; ``room`` clamps it, past which the row has overflowed): a branch-free loop runs ~1.5
     times faster than an ``if`` the processor mispredicts for about one candidate in three."""
+    sorted_positions, period = grid.positions, grid.period
+    x0, y0, z0, radius2, periodic = probe
     for t in range(first, last):
         dx = sorted_positions[t, 0] - x0
         dy = sorted_positions[t, 1] - y0
@@ -362,8 +392,10 @@ def _test_run(first, last, x0, y0, z0, sorted_positions, period, periodic, radiu
 
 
 @njit
-def _count_run(first, last, x0, y0, z0, sorted_positions, period, periodic, radius2, found):
+def _count_run(first, last, probe, grid, found):
     """:func:`_test_run` without writing: how many of the slots [first, last) pass."""
+    sorted_positions, period = grid.positions, grid.period
+    x0, y0, z0, radius2, periodic = probe
     for t in range(first, last):
         dx = sorted_positions[t, 0] - x0
         dy = sorted_positions[t, 1] - y0
@@ -377,9 +409,9 @@ def _count_run(first, last, x0, y0, z0, sorted_positions, period, periodic, radi
 
 
 @njit(parallel=True)
-def _forward_neighbors(relative, sorted_positions, edge, dims, period, dense, table, sorted_keys, radius,
-                       row_start, row_room, forward, index):
-    """Half shell, parallel over slots: each slot's neighbours among the *later* ones (own column: later slots;
+def _forward_neighbors(grid, row_start, row_room, forward, index):
+    """Half shell, parallel over slots (the :class:`CellGrid`'s): each slot's neighbours among the *later* ones
+    (own column: later slots;
     the four forward columns: all), written as slots to the slot's row ``index[row_start[s] :]`` (which has
     ``row_room[s] + 1`` entries: the last is scratch; ``row_room[s] < 0``: count only, write nothing); their
     number to ``forward[s]`` (more than ``row_room[s]``: the row overflowed).
@@ -387,6 +419,8 @@ def _forward_neighbors(relative, sorted_positions, edge, dims, period, dense, ta
     Per column, the candidates are the z cells ``[z − d, z + d]`` — one run of the sorted order (two when it
     wraps around a periodic z axis) — and columns farther than d from the point in the xy plane are skipped.
     """
+    relative, sorted_positions, edge, dims, period, radius = (grid.relative, grid.positions, grid.edge, grid.dims,
+                                                              grid.period, grid.radius)
     n = relative.shape[0]
     radius2 = radius * radius
     reach = radius * (1.0 + _CANDIDATE_SLACK)  # candidate enumeration only: a little generous
@@ -395,7 +429,7 @@ def _forward_neighbors(relative, sorted_positions, edge, dims, period, dense, ta
     for s in prange(n):
         row, room = row_start[s], row_room[s]
         rx, ry, rz = relative[s, 0], relative[s, 1], relative[s, 2]
-        x0, y0, z0 = sorted_positions[s, 0], sorted_positions[s, 1], sorted_positions[s, 2]
+        probe = Probe(sorted_positions[s, 0], sorted_positions[s, 1], sorted_positions[s, 2], radius2, periodic)
         cx = min(int(rx / edge[0]), dims[0] - 1)
         cy = min(int(ry / edge[1]), dims[1] - 1)
         z_first = int(math.floor((rz - reach) / edge[2]))
@@ -429,15 +463,14 @@ def _forward_neighbors(relative, sorted_positions, edge, dims, period, dense, ta
                 first_cell, last_cell = (a0, a1) if run == 0 else (b0, b1)
                 if last_cell < first_cell:
                     continue
-                first = _first_slot(column + first_cell, dense, table, sorted_keys)
-                last = _first_slot(column + last_cell + 1, dense, table, sorted_keys)
+                first = _first_slot(column + first_cell, grid)
+                last = _first_slot(column + last_cell + 1, grid)
                 if own:
                     first = max(first, s + 1)
                 if room < 0:
-                    found = _count_run(first, last, x0, y0, z0, sorted_positions, period, periodic, radius2, found)
+                    found = _count_run(first, last, probe, grid, found)
                 else:
-                    found = _test_run(first, last, x0, y0, z0, sorted_positions, period, periodic, radius2, index,
-                                      row, room, found)
+                    found = _test_run(first, last, probe, grid, index, row, room, found)
         forward[s] = found
 
 
@@ -598,12 +631,13 @@ class GridSearch:
         sorted_relative = np.empty_like(relative)
         _gather(positions, order, sorted_positions)
         _gather(relative, order, sorted_relative)
-        grid = (sorted_relative, sorted_positions, edge, dims, period, dense, table, sorted_keys, float(radius))
+        grid = CellGrid(sorted_relative, sorted_positions, edge, dims, period, dense, table, sorted_keys,
+                        float(radius))
         forward = np.empty(n, np.int64)
         count = np.empty(n, np.int64)
         while self._capacity <= self.MAX_UNIFORM_CAPACITY:
             start, room = self._uniform_layout(n)
-            _forward_neighbors(*grid, start, room - 1, forward, self._index)
+            _forward_neighbors(grid, start, room - 1, forward, self._index)
             if forward.max() < self._capacity - 1 and _complete_rows(start, forward, self._index, start, room, count,
                                                                      self._index, pool_size()):
                 return NeighborList(order, start, count, self._index)
@@ -630,11 +664,11 @@ class GridSearch:
         forward rows at their exact size, then the full rows."""
         n = len(order)
         no_index = np.zeros(0, np.int32)
-        _forward_neighbors(*grid, np.zeros(n, np.int64), np.full(n, -1, np.int64), forward, no_index)
+        _forward_neighbors(grid, np.zeros(n, np.int64), np.full(n, -1, np.int64), forward, no_index)
         forward_start = np.zeros(n, np.int64)
         np.cumsum(forward[:-1] + 1, out=forward_start[1:])  # + 1: each row's scratch entry
         forward_index = np.empty(int(forward.sum()) + n, np.int32)
-        _forward_neighbors(*grid, forward_start, forward, forward, forward_index)
+        _forward_neighbors(grid, forward_start, forward, forward, forward_index)
         entries = np.repeat(forward_start - (np.cumsum(forward) - forward), forward) + np.arange(int(forward.sum()))
         full = forward + np.bincount(forward_index[entries], minlength=n)  # + the rows' backward entries
         start = np.zeros(n, np.int64)

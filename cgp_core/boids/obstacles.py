@@ -28,11 +28,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
 from ..bodies import BodyModel, BodyState, Shape
-from ..collision.bvh import bvh_closest_point
+from ..collision.bvh import TriangleMesh, bvh_closest_point
 from ..jit import njit, prange
 from .neighbors import bounding_box
 
@@ -43,19 +44,12 @@ _CELL_REACHES = 2.0
 _MAX_CELLS = 1 << 16
 
 
-@dataclass
-class ObstacleHits:
-    """(point, shape) pairs closer than the query reach.
+class ObstacleHits(NamedTuple):
+    """(point, shape) pairs closer than the query reach (Q of them)."""
 
-    Attributes (shapes):
-        point:    (Q,) intp — index of the point (boid).
-        distance: (Q,) — signed distance from the point to the shape's surface [m], negative inside.
-        normal:   (3, Q) — unit outward direction (the way out / away from the shape).
-    """
-
-    point: np.ndarray
-    distance: np.ndarray
-    normal: np.ndarray
+    point: np.ndarray     # (Q,) intp — index of the point (boid)
+    distance: np.ndarray  # (Q,) — signed distance from the point to the shape's surface [m], negative inside
+    normal: np.ndarray    # (3, Q) — unit outward direction (the way out / away from the shape)
 
     @property
     def count(self) -> int:
@@ -69,6 +63,38 @@ class ObstacleHits:
         return ObstacleHits(np.concatenate([p.point for p in parts]),
                             np.concatenate([p.distance for p in parts]),
                             np.concatenate([p.normal for p in parts], axis=1))
+
+
+class PackedShapes(NamedTuple):
+    """Every obstacle shape in one set of arrays, as the compiled query takes them (K shapes)."""
+
+    kind: np.ndarray      # (K,) int64 _SPHERE, _BOX or _CAPSULE
+    center: np.ndarray    # (K, 3) [m]
+    rotation: np.ndarray  # (K, 3, 3) boxes: columns = axes; capsules: column 2 = the axis; spheres: identity
+    half: np.ndarray      # (K, 3) boxes: half extents; capsules: (0, 0, half length); spheres: 0
+    radius: np.ndarray    # (K,) spheres, capsules (boxes: 0)
+    bound: np.ndarray     # (K,) the shape's bounding-sphere radius [m]
+
+
+class ShapeBins(NamedTuple):
+    """The shapes binned into a coarse grid of cells over the query points (CSR lists per cell)."""
+
+    low: np.ndarray        # (3,) the grid's lower corner [m]
+    cell: float            # cell edge [m]
+    dims: np.ndarray       # (3,) int64 cells per axis
+    table: np.ndarray      # (cells + 1,) int64 where each cell's list begins in ``shape_ids``
+    shape_ids: np.ndarray  # (E,) int64 the shapes whose grown bounding sphere overlaps the cell
+    grown: np.ndarray      # (K,) the shapes' bounding-sphere radii grown by the reach [m]
+
+
+class Query(NamedTuple):
+    """What :func:`_point_hits` looks for."""
+
+    points: np.ndarray    # (N, 3) one point per row
+    selected: np.ndarray  # (S,) int64 the points to write (fill pass), else unused
+    reach: float          # shapes and ground closer than this [m]
+    ground: bool          # the plane z = ground_height is an obstacle
+    ground_height: float  # [m]
 
 
 @dataclass
@@ -207,9 +233,8 @@ class Obstacles:
             parts.append(ObstacleHits(*_hull_hits(rows, float(reach), self.hull_centers, self.hull_rotations,
                                                   self.hull_face_start, self.hull_face_plane, self.hull_bound)))
         for mesh, position, rotation, two_sided in self.meshes:
-            parts.append(ObstacleHits(*_mesh_hits(rows, float(reach), mesh.node_lo, mesh.node_hi,
-                                                  mesh.node_child_or_first, mesh.node_count, mesh.triangle_order,
-                                                  mesh.vertices, mesh.triangles, position, rotation, two_sided)))
+            parts.append(ObstacleHits(*_mesh_hits(rows, float(reach), tuple(mesh.arrays), position, rotation,
+                                                  two_sided)))
         return ObstacleHits.concatenate(parts)
 
     def _primitive_hits(self, rows: np.ndarray, reach: float) -> ObstacleHits:
@@ -218,38 +243,35 @@ class Obstacles:
         if len(self.sphere_radii) + len(self.box_centers) + len(self.capsule_centers) == 0 \
                 and self.ground_height is None:
             return ObstacleHits.concatenate([])
-        kind, center, rotation, half, radius, bound = self._packed()
-        grown = bound + reach
+        shapes = self._packed()
+        grown = shapes.bound + reach
         low, high = bounding_box(rows)
         extent = high - low
         cell = max(_CELL_REACHES * reach, float(np.prod(extent + 1e-9) / _MAX_CELLS) ** (1.0 / 3.0), 1e-6)
         dims = (np.floor(extent / cell) + 1).astype(np.int64)
-        table, shape_ids = _bin_shapes(center, grown, low, cell, dims)
+        table, shape_ids = _bin_shapes(shapes.center, grown, low, cell, dims)
+        bins = ShapeBins(low, cell, dims, table, shape_ids, grown)
         ground = self.ground_height is not None
         ground_height = float(self.ground_height) if ground else 0.0
         counts = np.empty(n, np.int64)
-        no_hits = (np.zeros(0, np.int64), np.zeros(0), np.zeros((3, 0)))
-        args = (float(reach), low, cell, dims, table, shape_ids, kind, center, rotation, half, radius, grown, ground,
-                ground_height)
-        _point_hits(False, rows, np.arange(0), *args, counts, *no_hits)  # count, for every point
+        no_hits = ObstacleHits(np.zeros(0, np.int64), np.zeros(0), np.zeros((3, 0)))
+        query = Query(rows, np.arange(0), float(reach), ground, ground_height)
+        _point_hits(False, query, shapes, bins, counts, no_hits)  # count, for every point
         # write, for the points that hit something: usually a few hundred of thousands of boids, so a second
         # pass over all of them would cost as much as the first
         hitting = np.flatnonzero(counts)
         if len(hitting) == 0:
-            return ObstacleHits(*no_hits)
+            return no_hits
         counts = counts[hitting]
         start = np.zeros(len(hitting), np.int64)
         np.cumsum(counts[:-1], out=start[1:])
         total = int(start[-1] + counts[-1])
         hits = ObstacleHits(np.empty(total, np.int64), np.empty(total), np.empty((3, total)))
-        _point_hits(True, rows, hitting, *args, start, hits.point, hits.distance, hits.normal)
+        _point_hits(True, query._replace(selected=hitting), shapes, bins, start, hits)
         return hits
 
-    def _packed(self):
-        """Every shape in one set of arrays for the compiled query (computed once per Obstacles): kind (K,),
-        center (K, 3), rotation (K, 3, 3) (boxes: columns = axes; capsules: column 2 = the axis), half
-        (K, 3) (boxes: half extents; capsules: (0, 0, half length)), radius (K,) (spheres, capsules), bound
-        (K,) — the shape's bounding-sphere radius."""
+    def _packed(self) -> PackedShapes:
+        """Every shape in one set of arrays for the compiled query (computed once per Obstacles)."""
         if "packed" not in self._cache:
             ks, kb, kc = len(self.sphere_radii), len(self.box_centers), len(self.capsule_centers)
             k = ks + kb + kc
@@ -264,7 +286,7 @@ class Obstacles:
             radius = np.concatenate([self.sphere_radii, np.zeros(kb), self.capsule_radii])
             bound = np.concatenate([self.sphere_radii, np.linalg.norm(self.box_half_extents, axis=1),
                                     self.capsule_half_lengths + self.capsule_radii])
-            self._cache["packed"] = (kind, np.ascontiguousarray(center), rotation, half, radius, bound)
+            self._cache["packed"] = PackedShapes(kind, np.ascontiguousarray(center), rotation, half, radius, bound)
         return self._cache["packed"]
 
 
@@ -366,11 +388,15 @@ def _bin_shapes(center, grown, low, cell, dims):
 
 
 @njit(parallel=True)
-def _point_hits(fill, points, selected, reach, low, cell, dims, table, shape_ids, kind, center, rotation, half,
-                radius, grown, ground, ground_height, counts_or_start, hit_point, hit_distance, hit_normal):
-    """Per point, the shapes of its cell within ``reach`` and the ground plane z = ``ground_height`` (if
-    ``ground``): counted for every point into ``counts_or_start[i]`` (``fill`` False), or, for the points
-    ``selected[q]`` (``fill`` True), written from ``counts_or_start[q]`` on."""
+def _point_hits(fill, query, shapes, bins, counts_or_start, hits):
+    """Per point of the :class:`Query`, the :class:`PackedShapes` of its cell (:class:`ShapeBins`) within the
+    reach and the ground plane: counted for every point into ``counts_or_start[i]`` (``fill`` False), or, for
+    the points ``query.selected[q]`` (``fill`` True), written into ``hits`` (:class:`ObstacleHits`) from
+    ``counts_or_start[q]`` on."""
+    points, selected, reach, ground, ground_height = query
+    kind, center, rotation, half, radius, _ = shapes
+    low, cell, dims, table, shape_ids, grown = bins
+    hit_point, hit_distance, hit_normal = hits
     items = selected.shape[0] if fill else points.shape[0]
     for q in prange(items):
         i = selected[q] if fill else np.int64(q)  # (a prange index is unsigned: one integer type for both)
@@ -453,10 +479,12 @@ def _hull_hits(points, reach, centers, rotations, face_start, face_plane, bound)
 
 
 @njit
-def _mesh_hits(points, reach, node_lo, node_hi, node_child_or_first, node_count, triangle_order, vertices, triangles,
-               position, rotation, two_sided):
-    """Every point within ``reach`` of a static mesh posed by ``position``, ``rotation``: the BVH's closest point
-    (see the module docstring for the sign): ``(point (Q,), distance (Q,), normal (3, Q))``."""
+def _mesh_hits(points, reach, mesh, position, rotation, two_sided):
+    """Every point within ``reach`` of a static mesh (a :class:`~cgp_core.collision.bvh.TriangleMesh`, as a plain
+    tuple from Python) posed by ``position``, ``rotation``: the BVH's closest point (see the module docstring for
+    the sign): ``(point (Q,), distance (Q,), normal (3, Q))``."""
+    mesh = TriangleMesh(*mesh)
+    vertices, triangles = mesh.vertices, mesh.triangles
     n = len(points)
     hit_point, hit_distance, hit_normal = np.empty(n, np.int64), np.empty(n), np.empty((3, n))
     local = np.empty(3)
@@ -465,8 +493,7 @@ def _mesh_hits(points, reach, node_lo, node_hi, node_child_or_first, node_count,
         dx, dy, dz = points[i, 0] - position[0], points[i, 1] - position[1], points[i, 2] - position[2]
         for r in range(3):
             local[r] = rotation[0, r] * dx + rotation[1, r] * dy + rotation[2, r] * dz
-        t, distance, cx, cy, cz = bvh_closest_point(node_lo, node_hi, node_child_or_first, node_count,
-                                                    triangle_order, vertices, triangles, local, reach)
+        t, distance, cx, cy, cz = bvh_closest_point(mesh, local, reach)
         if t < 0 or distance >= reach:
             continue
         ox, oy, oz = local[0] - cx, local[1] - cy, local[2] - cz

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -95,10 +96,26 @@ def _nearest_of(i, positions, candidates, count, period, best2):
     return best2
 
 
+class Searched(NamedTuple):
+    """A metric neighbour list and what it proves about the positions now (see the module docstring)."""
+
+    neighbors: NeighborList  # each boid's neighbours within ``radius`` at ``positions``
+    positions: np.ndarray    # (N, 3) where the boids were when the list was built
+    radius: float            # d [m]
+    ordinary_move: float     # how far an ordinary step has moved a boid since [m]
+
+
+class Budget(NamedTuple):
+    """How much work :func:`_nearest_in_rows` may do besides the rows."""
+
+    max_jumpers: int        # boids that moved more than the ordinary move, checked one by one, at most
+    brute_force_pairs: int  # distances tested for the boids the rows did not decide, at most
+
+
 @njit
-def _nearest_in_rows(start, count, index, order, positions, searched, period, radius, ordinary_move, max_jumpers,
-                     brute_force_pairs, out, found):
-    """Each boid's nearest neighbour now from the rows of a list built at ``searched`` (see the module docstring):
+def _nearest_in_rows(searched, positions, period, budget, out, found):
+    """Each boid's nearest neighbour now from the rows of the list in ``searched`` (:class:`Searched`; see the
+    module docstring), within the :class:`Budget`:
 
     1. the moves since the search, |x_i − x_i(search)| (minimum images); the boids that moved more than
        ``ordinary_move`` are *jumpers* (at most ``max_jumpers``; with more, every boid counts as one that moved
@@ -111,15 +128,19 @@ def _nearest_in_rows(start, count, index, order, positions, searched, period, ra
     and every extra kernel call or parallel region is one more chance for the bag writer's Python to hold the
     GIL, or its lz4 the other core, for milliseconds.  Returns how many are still not found (searched by the
     caller)."""
+    start, count, index, order = searched.neighbors.start, searched.neighbors.count, searched.neighbors.index, \
+        searched.neighbors.order
+    ordinary_move, radius = searched.ordinary_move, searched.radius
+    max_jumpers, brute_force_pairs = budget
     n = positions.shape[0]
     moves = np.empty(n)
     jumpers = np.empty(n, np.int64)
     jumping = 0
     largest = 0.0
     for i in range(n):
-        dx = minimum_image(positions[i, 0] - searched[i, 0], period[0])
-        dy = minimum_image(positions[i, 1] - searched[i, 1], period[1])
-        dz = minimum_image(positions[i, 2] - searched[i, 2], period[2])
+        dx = minimum_image(positions[i, 0] - searched.positions[i, 0], period[0])
+        dy = minimum_image(positions[i, 1] - searched.positions[i, 1], period[1])
+        dz = minimum_image(positions[i, 2] - searched.positions[i, 2], period[2])
         moves[i] = math.sqrt(squared_length(dx, dy, dz))
         largest = max(largest, moves[i])
         if moves[i] > ordinary_move:
@@ -191,9 +212,8 @@ def nearest_neighbor_distances(positions: np.ndarray, period: np.ndarray | None 
     out = np.empty(n)
     if neighbors is not None and neighbors.boids == n:
         found = np.empty(n, np.bool_)
-        if _nearest_in_rows(neighbors.start, neighbors.count, neighbors.index, neighbors.order, positions, searched,
-                            period, float(radius), float(ordinary_move), MAX_JUMPERS, BRUTE_FORCE_PAIRS, out,
-                            found) == 0:
+        if _nearest_in_rows(Searched(neighbors, searched, float(radius), float(ordinary_move)), positions, period,
+                            Budget(MAX_JUMPERS, BRUTE_FORCE_PAIRS), out, found) == 0:
             return out
         queries = np.flatnonzero(~found)
     else:
@@ -209,12 +229,27 @@ def nearest_neighbor_distances(positions: np.ndarray, period: np.ndarray | None 
 
 # ---- the moments ----------------------------------------------------------------------------------------------
 
+class Moments(NamedTuple):
+    """The order parameters :func:`_moments` computes, as numbers."""
+
+    polarization: float   # p
+    milling: float        # m
+    cx: float             # centroid c [m]
+    cy: float
+    cz: float
+    radius_of_gyration: float
+    mean_nearest: float   # mean nearest-neighbour distance [m]
+    mean_speed: float     # [m/s]
+    min_speed: float
+    max_speed: float
+
+
 @njit
 def _moments(x, u, nearest):
     """Two sequential passes over the boids: (Σ x, Σ v̂, Σ |u|, min |u|, max |u|, Σ nearest-neighbour distance),
-    then, about the centroid c, (Σ |x − c|², Σ r̂ × v̂).  Returns the order parameters as floats: p, m, c (3),
-    R_g, mean nearest-neighbour distance, mean / min / max speed.  A boid that does not move has no heading (it
-    counts 0 in Σ v̂, as one at the centroid has no r̂)."""
+    then, about the centroid c, (Σ |x − c|², Σ r̂ × v̂).  Returns the order parameters as :class:`Moments`: p, m,
+    c (3), R_g, mean nearest-neighbour distance, mean / min / max speed.  A boid that does not move has no
+    heading (it counts 0 in Σ v̂, as one at the centroid has no r̂)."""
     n = x.shape[0]
     nearest_sum = 0.0
     cx = cy = cz = 0.0  # Σ x
@@ -249,8 +284,8 @@ def _moments(x, u, nearest):
             mz += (ox * u[i, 1] - oy * u[i, 0]) * scale
     polarization = math.sqrt(hx * hx + hy * hy + hz * hz) / n
     milling = math.sqrt(mx * mx + my * my + mz * mz) / n
-    return (polarization, milling, cx, cy, cz, math.sqrt(spread / n), nearest_sum / n, speed_sum / n, slowest,
-            fastest)
+    return Moments(polarization, milling, cx, cy, cz, math.sqrt(spread / n), nearest_sum / n, speed_sum / n, slowest,
+                   fastest)
 
 
 def flock_order(positions: np.ndarray, velocities: np.ndarray, nearest: np.ndarray | None = None) -> FlockOrder:

@@ -48,33 +48,24 @@ velocity and position updates are multiplied by dt (semi-implicit Euler, in ``fl
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from ..jit import njit, prange, threads_for
-from .neighbors import NeighborList, pair_offset, squared_length
+from .neighbors import BoidArrays, NeighborList, pair_offset, squared_length
 
 COHESION_GATE = 1.05  # cohesion is suspended while a neighbour is closer than this many separation radii
 
 
-@dataclass
-class NeighborSums:
-    """Per-boid sums over neighbours (N boids).
+class NeighborSums(NamedTuple):
+    """Per-boid sums over neighbours (N boids)."""
 
-    Attributes (shapes):
-        count:          (N,) float64 — n, the number of visible neighbours (inside d and the field of view).
-        offset_sum:     (N, 3) — Σ (x_i − b) over visible neighbours.
-        velocity_sum:   (N, 3) — Σ x_{v_i} over visible neighbours.
-        separation:     (N, 3) — v2 (over all neighbours closer than s, whatever the field of view).
-        crowded:        (N,) bool — a neighbour is closer than ``COHESION_GATE · s`` (cohesion suspended).
-    """
-
-    count: np.ndarray
-    offset_sum: np.ndarray
-    velocity_sum: np.ndarray
-    separation: np.ndarray
-    crowded: np.ndarray
+    count: np.ndarray         # (N,) float64 — n, the number of visible neighbours (inside d and the field of view)
+    offset_sum: np.ndarray    # (N, 3) — Σ (x_i − b) over visible neighbours
+    velocity_sum: np.ndarray  # (N, 3) — Σ x_{v_i} over visible neighbours
+    separation: np.ndarray    # (N, 3) — v2 (over all neighbours closer than s, whatever the field of view)
+    crowded: np.ndarray       # (N,) bool — a neighbour is closer than ``COHESION_GATE · s`` (cohesion suspended)
 
 
 @njit
@@ -94,10 +85,13 @@ def sees(heading: np.ndarray, i: int, dx: float, dy: float, dz: float, r2: float
 
 
 @njit(parallel=True)
-def _neighbor_sums(start, count, index, order, positions, velocities, headings, period, separation_radius,
-                   cos_half_fov, out_count, out_offset, out_velocity, out_separation, out_crowded):
-    """The loop over every boid's neighbours.  Inputs in the neighbour list's slot order, so that a boid's
-    neighbours are read from nearby memory; each result is written to its boid's row (``order[i]``)."""
+def _neighbor_sums(neighbors, boids, period, separation_radius, cos_half_fov, out):
+    """The loop over every boid's neighbours (a :class:`NeighborList`).  ``boids`` (:class:`BoidArrays`) in the
+    list's slot order, so that a boid's neighbours are read from nearby memory; each result is written to its
+    boid's row (``order[i]``) of ``out`` (:class:`NeighborSums`)."""
+    start, count, index, order = neighbors.start, neighbors.count, neighbors.index, neighbors.order
+    positions, velocities, headings = boids
+    out_count, out_offset, out_velocity, out_separation, out_crowded = out
     s = separation_radius
     s2 = s * s
     gate2 = (COHESION_GATE * s) ** 2
@@ -155,10 +149,9 @@ def neighbor_sums(neighbors: NeighborList, positions: np.ndarray, velocities: np
     n = len(positions)
     sums = NeighborSums(count=np.empty(n), offset_sum=np.empty((n, 3)), velocity_sum=np.empty((n, 3)),
                         separation=np.empty((n, 3)), crowded=np.empty(n, dtype=np.bool_))
-    _neighbor_sums(neighbors.start, neighbors.count, neighbors.index, neighbors.order, neighbors.sorted(positions),
-                   neighbors.sorted(velocities), neighbors.sorted(headings),
-                   np.zeros(3) if period is None else period, float(separation_radius), float(cos_half_fov),
-                   sums.count, sums.offset_sum, sums.velocity_sum, sums.separation, sums.crowded)
+    slots = BoidArrays(neighbors.sorted(positions), neighbors.sorted(velocities), neighbors.sorted(headings))
+    _neighbor_sums(neighbors, slots, np.zeros(3) if period is None else period, float(separation_radius),
+                   float(cos_half_fov), sums)
     return sums
 
 
@@ -181,8 +174,11 @@ def alignment_of(count: float, velocity_sum: np.ndarray, velocity: np.ndarray):
 
 
 @njit(parallel=True)
-def _rule_rows(rule, count, offset_sum, velocity_sum, separation_sum, crowded, velocities, gated, w1, w2, w3, out):
-    """Per boid: v1 (``rule`` 1), v3 (3), or the weighted sum w1 v1 + w2 v2 + w3 v3 (0)."""
+def _rule_rows(rule, sums, velocities, gated, weights, out):
+    """Per boid, from its :class:`NeighborSums`: v1 (``rule`` 1), v3 (3), or the weighted sum
+    w1 v1 + w2 v2 + w3 v3 (0) with ``weights`` (w1, w2, w3)."""
+    count, offset_sum, velocity_sum, separation_sum, crowded = sums
+    w1, w2, w3 = weights
     for i in prange(count.shape[0]):
         c1, c2, c3 = cohesion_of(count[i], offset_sum[i], crowded[i], gated)
         a1, a2, a3 = alignment_of(count[i], velocity_sum[i], velocities[i])
@@ -199,8 +195,7 @@ def _rule_rows(rule, count, offset_sum, velocity_sum, separation_sum, crowded, v
 def _rows(rule: int, sums: NeighborSums, velocities: np.ndarray, gated: bool, weights=(0.0, 0.0, 0.0)):
     out = np.empty_like(sums.offset_sum)
     with threads_for(len(out)):
-        _rule_rows(rule, sums.count, sums.offset_sum, sums.velocity_sum, sums.separation, sums.crowded,
-                   velocities, gated, *map(float, weights), out)
+        _rule_rows(rule, sums, velocities, gated, tuple(map(float, weights)), out)
     return out
 
 

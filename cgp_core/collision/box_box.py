@@ -31,7 +31,7 @@ import math
 import numpy as np
 
 from ..jit import njit
-from .narrowphase import _rows, closest_segment_segment, multi_point_batch, write_point
+from .narrowphase import Box, _rows, closest_segment_segment, multi_point_batch, write_point
 
 #: an edge axis must beat the best face axis by this much (relative to the separation, plus the absolute
 #: part) to be chosen; B's face must beat A's by the same (keeps reference face and features stable)
@@ -49,9 +49,11 @@ def _cross2(ax, ay, bx, by):
 
 
 @njit
-def box_box_contacts(ca, Ra, ha, cb, Rb, hb, margin, normal, separation, point, feature, m):
-    """Box A vs box B: up to 4 points, normal from A to B, written into the output buffers from row ``m``
-    (see :mod:`.narrowphase`); returns the next free row."""
+def box_box_contacts(box_a, box_b, margin, out, m):
+    """:class:`~.narrowphase.Box` A vs box B: up to 4 points, normal from A to B, written into the
+    :class:`~.narrowphase.ContactBuffer` ``out`` from row ``m``; returns the next free row."""
+    ca, Ra, ha = box_a
+    cb, Rb, hb = box_b
     d = cb - ca
     C = np.empty((3, 3))  # C[i, j] = a_i · b_j
     for i in range(3):
@@ -105,16 +107,17 @@ def box_box_contacts(ca, Ra, ha, cb, Rb, hb, margin, normal, separation, point, 
     if not best < margin:
         return m
     if use_edge:
-        return _edge_contact(ca, Ra, ha, cb, Rb, hb, C, ie // 3, ie % 3, margin, best, normal, separation, point,
-                             feature, m)
+        return _edge_contact(box_a, box_b, ie // 3, ie % 3, margin, best, out, m)
     if use_b:
-        return _face_contact(cb, Rb, hb, ca, Ra, ha, ib, use_b, margin, best, normal, separation, point, feature, m)
-    return _face_contact(ca, Ra, ha, cb, Rb, hb, ia, use_b, margin, best, normal, separation, point, feature, m)
+        return _face_contact(box_b, box_a, ib, use_b, margin, best, out, m)
+    return _face_contact(box_a, box_b, ia, use_b, margin, best, out, m)
 
 
 @njit
-def _edge_contact(ca, Ra, ha, cb, Rb, hb, C, i, j, margin, best, normal, separation, point, feature, m):
+def _edge_contact(box_a, box_b, i, j, margin, best, out, m):
     """One point midway between the closest points of the two supporting edges (edge i of A, j of B)."""
+    ca, Ra, ha = box_a
+    cb, Rb, hb = box_b
     # the axis a_i × b_j in world coordinates, unit, from A towards B
     ai, bj = Ra[:, i], Rb[:, j]
     L = np.empty(3)
@@ -147,15 +150,18 @@ def _edge_contact(ca, Ra, ha, cb, Rb, hb, C, i, j, margin, best, normal, separat
     if best > 0.0:
         sep = min(sep, best)
     if sep < margin:
-        m = write_point(normal, separation, point, feature, m, L[0], L[1], L[2], sep, 0.5 * (x1 + x2),
-                        0.5 * (y1 + y2), 0.5 * (z1 + z2), _EDGE_FEATURE_BASE + 3 * i + j)
+        m = write_point(out, m, L[0], L[1], L[2], sep, 0.5 * (x1 + x2), 0.5 * (y1 + y2), 0.5 * (z1 + z2),
+                        _EDGE_FEATURE_BASE + 3 * i + j)
     return m
 
 
 @njit
-def _face_contact(cR, RR, hR, cI, RI, hI, axis, flip, margin, best, normal, separation, point, feature, m):
-    """Face contact: box R owns the reference face (normal along its axis ``axis``), box I is incident.
-    ``flip``: R is B (the normal written is then reversed, so it still points from A to B)."""
+def _face_contact(reference, incident, axis, flip, margin, best, out, m):
+    """Face contact: box ``reference`` owns the reference face (normal along its axis ``axis``), box ``incident``
+    is incident.  ``flip``: the reference is B (the normal written is then reversed, so it still points from A
+    to B)."""
+    cR, RR, hR = reference
+    cI, RI, hI = incident
     n_ref = np.empty(3)
     side = 1.0 if (RR[0, axis] * (cI[0] - cR[0]) + RR[1, axis] * (cI[1] - cR[1])
                    + RR[2, axis] * (cI[2] - cR[2])) >= 0.0 else -1.0
@@ -271,8 +277,7 @@ def _face_contact(cR, RR, hR, cI, RI, hI, axis, flip, margin, best, normal, sepa
     for s in range(_CANDIDATES):
         if valid[s]:
             half = 0.5 * Z_geom[s]
-            m = write_point(normal, separation, point, feature, m,
-                            sign * n_ref[0], sign * n_ref[1], sign * n_ref[2], Z[s],
+            m = write_point(out, m, sign * n_ref[0], sign * n_ref[1], sign * n_ref[2], Z[s],
                             face_centre[0] + X[s] * u[0] + Y[s] * v[0] + half * n_ref[0],
                             face_centre[1] + X[s] * u[1] + Y[s] * v[1] + half * n_ref[1],
                             face_centre[2] + X[s] * u[2] + Y[s] * v[2] + half * n_ref[2],
@@ -324,4 +329,6 @@ def _reduce_to_four(X, Y, hu, hv, valid):
 def box_box(ca, Ra, ha, cb, Rb, hb, margin):
     """Box A vs box B, ``k`` pairs as stacked arrays.  Returns ``(pair, normal, separation, point, feature)``
     (see :mod:`.narrowphase`), up to 4 points per pair, normal from A to B."""
-    return multi_point_batch(box_box_contacts, 4, len(ca), _rows(ca, Ra, ha, cb, Rb, hb, margin))
+    ca, Ra, ha, cb, Rb, hb, margin = _rows(ca, Ra, ha, cb, Rb, hb, margin)
+    return multi_point_batch(box_box_contacts, 4, len(ca),
+                             lambda i: (Box(ca[i], Ra[i], ha[i]), Box(cb[i], Rb[i], hb[i]), margin[i]))

@@ -17,7 +17,7 @@ Conventions (all contact code follows them):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -29,29 +29,17 @@ GROUND = -1
 FEATURE_SLOTS = 512
 
 
-@dataclass
-class ContactSet:
-    """``m`` contact points.
+class ContactSet(NamedTuple):
+    """``m`` contact points (a bundle: compiled kernels take it as it is, see :mod:`cgp_core.jit`)."""
 
-    Attributes (shapes):
-        body_a:      (m,) intp — body index of side A, or ``GROUND`` (−1).
-        body_b:      (m,) intp — body index of side B.
-        normal:      (m, 3) — unit normal from A to B.
-        separation:  (m,) — signed gap along ``normal`` [m] (negative = penetration depth).
-        point:       (m, 3) — world contact point, midway between the surfaces.
-        key:         (m,) int64 — (primitive pair, feature) identity, see the module docstring.
-        friction:    (m,) — combined Coulomb μ of the pair (see :mod:`cgp_core.solver.materials`).
-        restitution: (m,) — combined coefficient of restitution e of the pair.
-    """
-
-    body_a: np.ndarray
-    body_b: np.ndarray
-    normal: np.ndarray
-    separation: np.ndarray
-    point: np.ndarray
-    key: np.ndarray
-    friction: np.ndarray
-    restitution: np.ndarray
+    body_a: np.ndarray       # (m,) intp — body index of side A, or ``GROUND`` (−1)
+    body_b: np.ndarray       # (m,) intp — body index of side B
+    normal: np.ndarray       # (m, 3) — unit normal from A to B
+    separation: np.ndarray   # (m,) — signed gap along ``normal`` [m] (negative = penetration depth)
+    point: np.ndarray        # (m, 3) — world contact point, midway between the surfaces
+    key: np.ndarray          # (m,) int64 — (primitive pair, feature) identity, see the module docstring
+    friction: np.ndarray     # (m,) — combined Coulomb μ of the pair (see :mod:`cgp_core.collision.materials`)
+    restitution: np.ndarray  # (m,) — combined coefficient of restitution e of the pair
 
     @property
     def count(self) -> int:
@@ -72,7 +60,7 @@ class ContactSet:
 
     def select(self, mask_or_index: np.ndarray) -> ContactSet:
         """The subset picked by a boolean mask or an index array."""
-        return ContactSet(*(getattr(self, f)[mask_or_index] for f in _FIELDS))
+        return ContactSet(*(field[mask_or_index] for field in self))
 
     @staticmethod
     def concatenate(parts: list[ContactSet]) -> ContactSet:
@@ -81,11 +69,8 @@ class ContactSet:
             return ContactSet.empty()
         if len(parts) == 1:
             return parts[0]
-        return ContactSet(*(np.concatenate([getattr(p, f) for p in parts]) for f in _FIELDS))
+        return ContactSet(*(np.concatenate(fields) for fields in zip(*parts)))
 
     def penetration(self) -> np.ndarray:
         """Penetration depth ``max(−separation, 0)`` per contact, (m,)."""
         return np.maximum(-self.separation, 0.0)
-
-
-_FIELDS = ("body_a", "body_b", "normal", "separation", "point", "key", "friction", "restitution")

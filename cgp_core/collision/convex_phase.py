@@ -63,21 +63,23 @@ body back up whatever went through it), use the margin alone.
 from __future__ import annotations
 
 import math
-from collections import namedtuple
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from ..bodies import BodyModel, Shape
 from ..jit import njit
 from .box_box import box_box_contacts
-from .bvh import StaticMesh, bvh_overlap
-from .contacts import FEATURE_SLOTS, GROUND
-from .convex import ConvexPolyhedron, HullSet, box_hull
+from .bvh import StaticMesh, TriangleMesh, bvh_overlap
+from .contacts import FEATURE_SLOTS, GROUND, ContactSet
+from .convex import ConvexPolyhedron, HullSet, box_hull, hull_of, posed
 from .manifold import hull_capsule_contacts, hull_hull_contacts, plane_hull_contacts, reduce_to_four
 from .materials import combine_friction, combine_restitution
 from .mesh_contacts import mesh_capsule_contacts, mesh_hull_contacts
 from .narrowphase import (
+    Box,
+    Capsule,
+    ContactBuffer,
     box_capsule_contacts,
     box_plane_contacts,
     capsule_capsule_contacts,
@@ -88,8 +90,8 @@ from .narrowphase import (
     sphere_sphere_point,
     write_point,
 )
-from .primitives import CollisionModel
-from .toi import time_of_impact
+from .primitives import BodyMotion, CollisionModel
+from .toi import MovingCore, time_of_impact
 
 SPHERE, BOX, CAPSULE = int(Shape.SPHERE), int(Shape.BOX), int(Shape.CAPSULE)
 HULL, MESH = int(Shape.CONVEX), int(Shape.MESH)
@@ -110,46 +112,53 @@ MESH_CANDIDATES = 64
 
 # ---- the static data: hulls, meshes, primitives ---------------------------------------------------------------
 
-#: the arrays of :class:`.convex.HullSet` a kernel takes (see its docstring for the shapes)
-Hulls = namedtuple("Hulls", "vertex_start vertices adjacency_start adjacency face_start face_plane "
-                            "face_vertex_start face_vertices")
+class MeshSet(NamedTuple):
+    """``k`` static meshes packed as CSR arrays, every index inside a mesh local to it (as :class:`.bvh.StaticMesh`
+    has them), so that one compiled kernel can slice mesh i (:func:`mesh_of`)."""
 
-#: static meshes packed as CSR arrays (every index inside a mesh local to it, as :class:`.bvh.StaticMesh` has
-#: them), so that one compiled kernel can slice mesh k:
-#:   vertex_start (k + 1,), vertices (V, 3); triangle_start (k + 1,), triangles (T, 3) local vertex indices,
-#:   active_edges (T,) uint8, triangle_order (T,) local triangle indices, triangle_lo, triangle_hi (T, 3);
-#:   node_start (k + 1,), node_lo, node_hi (N, 3), node_child_or_first (N,) local node / slot, node_count (N,);
-#:   centre, half (k, 3): the box of each mesh's vertices in its frame (for its bounds); two_sided (k,) bool
-Meshes = namedtuple("Meshes", "vertex_start vertices triangle_start triangles active_edges triangle_order "
-                              "triangle_lo triangle_hi node_start node_lo node_hi node_child_or_first node_count "
-                              "centre half two_sided")
+    vertex_start: np.ndarray         # (k + 1,) int64 — mesh i's vertices: rows vertex_start[i] .. [i + 1] − 1
+    vertices: np.ndarray             # (V, 3) in the mesh's frame
+    triangle_start: np.ndarray       # (k + 1,) int64 — mesh i's triangles (and their per-triangle rows below)
+    triangles: np.ndarray            # (T, 3) int64 local vertex indices
+    active_edges: np.ndarray         # (T,) uint8 (:func:`.bvh.active_edges`)
+    triangle_order: np.ndarray       # (T,) int64 local triangle indices (the BVH's slots)
+    triangle_lo: np.ndarray          # (T, 3) each triangle's box
+    triangle_hi: np.ndarray          # (T, 3)
+    node_start: np.ndarray           # (k + 1,) int64 — mesh i's BVH nodes
+    node_lo: np.ndarray              # (N, 3)
+    node_hi: np.ndarray              # (N, 3)
+    node_child_or_first: np.ndarray  # (N,) int64 local node / slot
+    node_count: np.ndarray           # (N,) int64
+    centre: np.ndarray               # (k, 3) the centre of each mesh's vertex box, its frame (for its bounds)
+    half: np.ndarray                 # (k, 3) that box's half sizes
+    two_sided: np.ndarray            # (k,) bool — False: only the front faces push (a terrain, a closed mesh)
 
-#: every primitive, the detector's first (see the module docstring), shapes (P = all primitives):
-#:   body (P,) int64, kind (P,) int64 (SPHERE, BOX, CAPSULE, HULL, MESH), offset (P, 3) centre in the body
-#:   frame, rotation (P, 3, 3) the primitive's axes in body axes, radius (P,), half (P, 3) box half sizes /
-#:   capsule (0, 0, half length), hull (P,) int64 (a HULL's hull, a BOX's 8-corner hull, else −1), mesh (P,)
-#:   int64 (a MESH's mesh, else −1), first_new: the first primitive of this stage (= the detector's count p)
-Primitives = namedtuple("Primitives", "body kind offset rotation radius half hull mesh first_new")
+
+class ShapePrimitives(NamedTuple):
+    """Every primitive, the detector's first (see the module docstring); P of them, of ``n`` bodies."""
+
+    body: np.ndarray      # (P,) int64 owning body
+    kind: np.ndarray      # (P,) int64 SPHERE, BOX, CAPSULE, HULL or MESH
+    offset: np.ndarray    # (P, 3) centre in the body frame
+    rotation: np.ndarray  # (P, 3, 3) the primitive's axes in body axes (identity but for compound parts)
+    radius: np.ndarray    # (P,) sphere / capsule radius
+    half: np.ndarray      # (P, 3) box half sizes; capsule (0, 0, half length)
+    hull: np.ndarray      # (P,) int64 a HULL's hull in the :class:`.convex.HullSet`, a BOX's 8-corner hull, else −1
+    mesh: np.ndarray      # (P,) int64 a MESH's mesh in the :class:`MeshSet`, else −1
+    first_new: np.int64   # the first primitive of this stage (= the detector's count p)
 
 
-@dataclass
-class ShapeModel:
-    """The convex stage's view of a body model (see the module docstring).
+class ShapeModel(NamedTuple):
+    """The convex stage's view of a body model (built once per model, :func:`build_shape_model`); the detector
+    hands it to the compiled kernels as a plain tuple of plain tuples (:meth:`plain`)."""
 
-    Attributes:
-        primitives: :data:`Primitives` (the detector's primitives first, then this stage's).
-        hulls:      :data:`Hulls` — the hulls of convex bodies and parts, and of every box that may meet a hull
-                    or a mesh.
-        meshes:     :data:`Meshes`.
-        body_reach: (n,) — farthest distance from each body's COM to its surface (as the detector's, over every
-                    primitive).
-        count:      P, every primitive.
-    """
-
-    primitives: tuple
-    hulls: tuple
-    meshes: tuple
-    body_reach: np.ndarray
+    primitives: ShapePrimitives
+    hulls: HullSet                # the hulls of convex bodies and parts, and of every box that may meet one
+    meshes: MeshSet
+    body_reach: np.ndarray        # (n,) farthest distance from each body's COM to its surface (every primitive)
+    body_friction: np.ndarray     # (n,) the bodies' Coulomb μ
+    body_restitution: np.ndarray  # (n,) their coefficients of restitution
+    fixed_body: np.ndarray        # (n,) bool — the body never moves
 
     @property
     def count(self) -> int:
@@ -159,16 +168,23 @@ class ShapeModel:
     def first_new(self) -> int:
         return int(self.primitives.first_new)
 
-
-def _hull_tuple(hulls: list[ConvexPolyhedron]) -> tuple:
-    hs = HullSet.from_hulls(hulls)
-    return Hulls(hs.vertex_start, np.ascontiguousarray(hs.vertices, dtype=float), hs.adjacency_start, hs.adjacency,
-                 hs.face_start, np.ascontiguousarray(hs.face_plane, dtype=float), hs.face_vertex_start,
-                 hs.face_vertices)
+    def plain(self) -> tuple:
+        """The same as plain tuples (see "Bundles" in :mod:`cgp_core.jit`)."""
+        return tuple(tuple(field) if isinstance(field, tuple) else field for field in self)
 
 
-def pack_meshes(meshes: list[StaticMesh], two_sided: list[bool]) -> tuple:
-    """:data:`Meshes` of ``meshes`` (possibly none)."""
+class ShapePoses(NamedTuple):
+    """Where the P primitives are this sub-step (:func:`pose_shapes`), and how far they may get."""
+
+    centre: np.ndarray    # (P, 3) world centres [m]
+    rotation: np.ndarray  # (P, 3, 3) world axes: R_body · R_part
+    lo: np.ndarray        # (P, 3) AABB lower corners grown by the margin (NaN: the body is not finite)
+    hi: np.ndarray        # (P, 3) upper corners
+    margin: np.ndarray    # (P,) speculative margin of the primitive's body [m]
+
+
+def pack_meshes(meshes: list[StaticMesh], two_sided: list[bool]) -> MeshSet:
+    """The :class:`MeshSet` of ``meshes`` (possibly none)."""
     def offsets(sizes):
         start = np.zeros(len(sizes) + 1, np.int64)
         start[1:] = np.cumsum(sizes)
@@ -181,14 +197,14 @@ def pack_meshes(meshes: list[StaticMesh], two_sided: list[bool]) -> tuple:
     i1 = np.zeros(0, np.int64)
     centre = np.array([0.5 * (m.vertices.min(0) + m.vertices.max(0)) for m in meshes]).reshape(-1, 3)
     half = np.array([0.5 * (m.vertices.max(0) - m.vertices.min(0)) for m in meshes]).reshape(-1, 3)
-    return Meshes(offsets([len(m.vertices) for m in meshes]), cat([m.vertices for m in meshes], f3),
+    return MeshSet(offsets([len(m.vertices) for m in meshes]), cat([m.vertices for m in meshes], f3),
                   offsets([len(m.triangles) for m in meshes]), cat([m.triangles for m in meshes], i3),
-                  cat([m.active_edges for m in meshes], np.zeros(0, np.uint8)),
-                  cat([m.triangle_order for m in meshes], i1), cat([m.triangle_lo for m in meshes], f3),
-                  cat([m.triangle_hi for m in meshes], f3), offsets([len(m.node_count) for m in meshes]),
-                  cat([m.node_lo for m in meshes], f3), cat([m.node_hi for m in meshes], f3),
-                  cat([m.node_child_or_first for m in meshes], i1), cat([m.node_count for m in meshes], i1),
-                  centre, half, np.array(two_sided, dtype=np.bool_).reshape(-1))
+                   cat([m.active_edges for m in meshes], np.zeros(0, np.uint8)),
+                   cat([m.triangle_order for m in meshes], i1), cat([m.triangle_lo for m in meshes], f3),
+                   cat([m.triangle_hi for m in meshes], f3), offsets([len(m.node_count) for m in meshes]),
+                   cat([m.node_lo for m in meshes], f3), cat([m.node_hi for m in meshes], f3),
+                   cat([m.node_child_or_first for m in meshes], i1), cat([m.node_count for m in meshes], i1),
+                   centre, half, np.array(two_sided, dtype=np.bool_).reshape(-1))
 
 
 def build_shape_model(model: BodyModel, cm: CollisionModel) -> ShapeModel:
@@ -240,7 +256,7 @@ def build_shape_model(model: BodyModel, cm: CollisionModel) -> ShapeModel:
     # the detector's primitives, first; its boxes get a hull when they may meet a hull or a mesh
     any_new = bool(body)
     old_hull = [box_index(cm.half_extents[k]) if any_new and int(cm.shape[k]) == BOX else -1 for k in range(p)]
-    prims = Primitives(
+    prims = ShapePrimitives(
         body=np.concatenate([cm.body, np.array(body, np.int64)]).astype(np.int64),
         kind=np.concatenate([cm.shape.astype(np.int64), np.array(kind, np.int64)]),
         offset=np.ascontiguousarray(np.concatenate([cm.offset, np.array(offset, float).reshape(-1, 3)])),
@@ -251,7 +267,7 @@ def build_shape_model(model: BodyModel, cm: CollisionModel) -> ShapeModel:
         hull=np.array(old_hull + hull, np.int64),
         mesh=np.concatenate([np.full(p, -1, np.int64), np.array(mesh, np.int64)]),
         first_new=np.int64(p))
-    hull_tuple = _hull_tuple(hulls)
+    hull_tuple = HullSet.from_hulls(hulls)
     # reach: the detector's, and this stage's primitives' farthest points from their bodies' COMs
     reach = cm.body_reach.copy() if len(cm.body_reach) == model.count else np.zeros(model.count)
     for q in range(p, len(prims.body)):
@@ -267,18 +283,25 @@ def build_shape_model(model: BodyModel, cm: CollisionModel) -> ShapeModel:
             extent = np.linalg.norm(prims.half[q]) if k == BOX else prims.radius[q] + prims.half[q, 2]
             far = np.linalg.norm(prims.offset[q]) + extent
         reach[b] = max(reach[b], far)
-    return ShapeModel(prims, hull_tuple, pack_meshes(meshes, two_sided), reach)
+    return ShapeModel(prims, hull_tuple, pack_meshes(meshes, two_sided), reach, cm.body_friction,
+                      cm.body_restitution, cm.fixed_body)
 
 
 # ---- poses and bounds --------------------------------------------------------------------------------------
 
 @njit
-def pose_shapes(prims, hulls, meshes, body_reach, position, rotation, velocity, angular_velocity, h,
-                speculative_distance, centre, prim_rotation, lo, hi, margin):
-    """World pose of every primitive: ``prim_rotation (P, 3, 3)`` = R_body · R_part for all; and for this stage's
-    primitives (from ``prims.first_new``) the centre ``(P, 3)``, the AABB ``lo, hi (P, 3)`` grown by the margin and
-    the margin ``(P,)`` — written in place (the detector's rows come from :func:`.primitives.primitive_bounds`).
-    A primitive whose body's state or speed is not finite gets NaN bounds (it overlaps nothing), as there."""
+def pose_shapes(shapes, motion, h, speculative_distance, poses):
+    """World pose of every primitive of the :class:`ShapeModel` ``shapes`` moving with the
+    :class:`.primitives.BodyMotion` ``motion``, written into the :class:`ShapePoses` ``poses`` (P rows, whose
+    first ``first_new`` rows of centre, lo, hi and margin already hold the detector's
+    :func:`.primitives.primitive_bounds`): the rotation R_body · R_part of all; the centre, the AABB grown by the
+    margin and the margin of this stage's primitives.  A primitive whose body's state or speed is not finite gets
+    NaN bounds (it overlaps nothing), as there.  Bundles as plain tuples from Python (see :mod:`cgp_core.jit`)."""
+    shapes, motion, poses = ShapeModel(*shapes), BodyMotion(*motion), ShapePoses(*poses)
+    prims, hulls, meshes = ShapePrimitives(*shapes.primitives), HullSet(*shapes.hulls), MeshSet(*shapes.meshes)
+    body_reach, position, rotation = shapes.body_reach, motion.position, motion.rotation
+    velocity, angular_velocity = motion.velocity, motion.angular_velocity
+    centre, prim_rotation, lo, hi, margin = poses
     P = len(prims.body)
     for k in range(P):
         b = prims.body[k]
@@ -334,12 +357,15 @@ def pose_shapes(prims, hulls, meshes, body_reach, position, rotation, velocity, 
 # ---- the stage -------------------------------------------------------------------------------------------------
 
 @njit
-def _hull_of(hulls, i):
-    """Hull i's slices, as :meth:`.convex.HullSet.hull` gives them."""
-    v0, v1 = hulls.vertex_start[i], hulls.vertex_start[i + 1]
-    f0, f1 = hulls.face_start[i], hulls.face_start[i + 1]
-    return (hulls.vertices[v0:v1], hulls.adjacency_start[v0:v1 + 1], hulls.adjacency, hulls.face_plane[f0:f1],
-            hulls.face_vertex_start[f0:f1 + 1], hulls.face_vertices)
+def mesh_of(meshes, k):
+    """Mesh ``k`` of the :class:`MeshSet` as a :class:`.bvh.TriangleMesh` (slices, no copies)."""
+    v0, v1 = meshes.vertex_start[k], meshes.vertex_start[k + 1]
+    t0, t1 = meshes.triangle_start[k], meshes.triangle_start[k + 1]
+    n0, n1 = meshes.node_start[k], meshes.node_start[k + 1]
+    return TriangleMesh(meshes.vertices[v0:v1], meshes.triangles[t0:t1], meshes.active_edges[t0:t1],
+                        meshes.node_lo[n0:n1], meshes.node_hi[n0:n1], meshes.node_child_or_first[n0:n1],
+                        meshes.node_count[n0:n1], meshes.triangle_order[t0:t1], meshes.triangle_lo[t0:t1],
+                        meshes.triangle_hi[t0:t1])
 
 
 @njit
@@ -358,39 +384,41 @@ def _column(R, k, out):
 
 
 @njit
-def _grown(normal, separation, point, feature, owner_a, owner_b, m, need):
-    """The output buffers with room for ``need`` more rows after row ``m`` (doubled when short)."""
-    if m + need <= len(separation):
-        return normal, separation, point, feature, owner_a, owner_b
-    cap = max(2 * len(separation), m + need)
-    n2, s2, p2 = np.empty((cap, 3)), np.empty(cap), np.empty((cap, 3))
-    f2, a2, b2 = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64)
-    n2[:m] = normal[:m]
-    s2[:m] = separation[:m]
-    p2[:m] = point[:m]
-    f2[:m] = feature[:m]
+def _grown(out, owner_a, owner_b, m, need):
+    """The :class:`.narrowphase.ContactBuffer` ``out`` and the rows' primitives ``owner_a``, ``owner_b`` with room
+    for ``need`` more rows after row ``m`` (doubled when short)."""
+    if m + need <= len(out.separation):
+        return out, owner_a, owner_b
+    cap = max(2 * len(out.separation), m + need)
+    grown = ContactBuffer(np.empty((cap, 3)), np.empty(cap), np.empty((cap, 3)), np.empty(cap, np.int64))
+    a2, b2 = np.empty(cap, np.int64), np.empty(cap, np.int64)
+    grown.normal[:m] = out.normal[:m]
+    grown.separation[:m] = out.separation[:m]
+    grown.point[:m] = out.point[:m]
+    grown.feature[:m] = out.feature[:m]
     a2[:m] = owner_a[:m]
     b2[:m] = owner_b[:m]
-    return n2, s2, p2, f2, a2, b2
+    return grown, a2, b2
 
 
 @njit
-def _copy_row(normal, separation, point, feature, to, row):
+def _copy_row(out, to, row):
     for r in range(3):
-        normal[to, r] = normal[row, r]
-        point[to, r] = point[row, r]
-    separation[to] = separation[row]
-    feature[to] = feature[row]
+        out.normal[to, r] = out.normal[row, r]
+        out.point[to, r] = out.point[row, r]
+    out.separation[to] = out.separation[row]
+    out.feature[to] = out.feature[row]
 
 
 @njit
-def merge_close_rows(normal, separation, point, feature, start, m):
-    """Rows ``start .. m − 1`` without near-duplicates: a hull vertex over a mesh vertex or edge is reported by each
-    triangle around it, at (almost) the same point with (slightly) different normals and separations — two such
-    rows make the solver's block singular with inconsistent targets.  Rows whose points are within 1e-3 of their
-    span (+ 10 µm) of an earlier row's are merged into it, the deeper of the two kept (the points are the
-    geometric midway points: a separation may be lowered to a face's SAT value, the point is not).  Returns the new
-    end row."""
+def merge_close_rows(out, start, m):
+    """Rows ``start .. m − 1`` of ``out`` without near-duplicates: a hull vertex over a mesh vertex or edge is
+    reported by each triangle around it, at (almost) the same point with (slightly) different normals and
+    separations — two such rows make the solver's block singular with inconsistent targets.  Rows whose points are
+    within 1e-3 of their span (+ 10 µm) of an earlier row's are merged into it, the deeper of the two kept (the
+    points are the geometric midway points: a separation may be lowered to a face's SAT value, the point is not).
+    Returns the new end row."""
+    point, separation = out.point, out.separation
     k = m - start
     if k < 2:
         return m
@@ -418,21 +446,22 @@ def merge_close_rows(normal, separation, point, feature, start, m):
                 break
         if twin < 0:
             if kept != s:
-                _copy_row(normal, separation, point, feature, kept, s)
+                _copy_row(out, kept, s)
             kept_at[kept - start] = at[q]
             kept += 1
         elif separation[s] < separation[twin]:
-            _copy_row(normal, separation, point, feature, twin, s)
+            _copy_row(out, twin, s)
     return kept
 
 
 @njit
-def reduce_mesh_rows(normal, separation, point, feature, start, m):
-    """At most 4 of the rows ``start .. m − 1`` (one mesh–shape pair's points, from several triangles), near-
-    duplicates merged first (:func:`merge_close_rows`): those extreme along the diagonals of the plane across
+def reduce_mesh_rows(out, start, m):
+    """At most 4 of the rows ``start .. m − 1`` of ``out`` (one mesh–shape pair's points, from several triangles),
+    near-duplicates merged first (:func:`merge_close_rows`): those extreme along the diagonals of the plane across
     their mean normal (:func:`.manifold.reduce_to_four`, the box kernel's rule), and the deepest point always;
     each keeps its own normal.  Returns the new end row."""
-    m = merge_close_rows(normal, separation, point, feature, start, m)
+    m = merge_close_rows(out, start, m)
+    normal, separation, point = out.normal, out.separation, out.point
     k = m - start
     if k <= 4:
         return m
@@ -478,7 +507,7 @@ def reduce_mesh_rows(normal, separation, point, feature, start, m):
     for s in range(k):
         if valid[s]:
             if start + s != kept:
-                _copy_row(normal, separation, point, feature, kept, start + s)
+                _copy_row(out, kept, start + s)
             kept += 1
     return kept
 
@@ -501,53 +530,130 @@ def rank_features(feature, start, m):
 
 
 @njit
-def convex_phase(prims, hulls, meshes, body_friction, body_restitution, active, movable, centre, prim_rotation, lo,
-                 margin, pair_i, pair_j, has_ground, ground_friction, ground_restitution, key_base):
-    """Contact points of this stage's active primitives with the ground and of the candidate pairs ``pair_i,
-    pair_j`` (primitive indices, AABBs overlapping) that this stage's primitives take part in (pairs of two of the
-    detector's primitives are skipped: :func:`.detector.narrow_phase` has them), as the :class:`.ContactSet` fields
-    ``(body_a, body_b, normal, separation, point, key, friction, restitution)`` and ``touched (n,)``: the sleeping
-    bodies in a contact; ground contacts first, then the pairs in the order given.  Keys: pair ids from
-    ``key_base`` (see the module docstring)."""
+def _posed_hull(shapes, poses, k):
+    """Primitive ``k``'s hull (a HULL's, or a BOX's 8 corners) as a :class:`.convex.PosedHull` at its pose."""
+    return posed(hull_of(shapes.hulls, shapes.primitives.hull[k]), poses.centre[k], poses.rotation[k])
+
+
+@njit
+def _ground_contacts(k, shapes, poses, axis, out, m):
+    """The ground (A) against this stage's primitive ``k`` (B, not a mesh), written into ``out`` from row ``m``;
+    returns the next free row.  ``axis (3,)``: work space."""
+    prims = shapes.primitives
+    kind, centre, R, margin = prims.kind[k], poses.centre[k], poses.rotation[k], poses.margin[k]
+    if kind == HULL:
+        m = plane_hull_contacts(_posed_hull(shapes, poses, k), margin, out, m)
+    elif kind == SPHERE:
+        nx, ny, nz, s, px, py, pz = sphere_plane_point(centre, prims.radius[k])
+        if s < margin:
+            m = write_point(out, m, nx, ny, nz, s, px, py, pz, 0)
+    elif kind == BOX:
+        m = box_plane_contacts(Box(centre, R, prims.half[k]), margin, out, m)
+    else:
+        _column(R, 2, axis)
+        m = capsule_plane_contacts(Capsule(centre, axis, prims.half[k, 2], prims.radius[k]), margin, out, m)
+    return m
+
+
+@njit
+def _primitive_pair_contacts(a, b, shapes, poses, work, out, m):
+    """Primitives ``a`` (A) and ``b`` (B), neither a mesh, kinds in SPHERE < BOX < CAPSULE < HULL order, written
+    into ``out`` from row ``m``: returns ``(next free row, flipped)`` — flipped when the hull kernels wanted the
+    hull as side A (a sphere or capsule against a hull).  ``work`` (3, 3): axes and a segment."""
+    prims = shapes.primitives
+    sa, sb = prims.kind[a], prims.kind[b]
+    centre, radius, half = poses.centre, prims.radius, prims.half
+    Ra, Rb = poses.rotation[a], poses.rotation[b]
+    limit = poses.margin[a] + poses.margin[b]
+    axis_a, axis_b = work[0], work[1]
+    if sb == HULL and (sa == HULL or sa == BOX):
+        return hull_hull_contacts(_posed_hull(shapes, poses, a), _posed_hull(shapes, poses, b), limit, out, m), \
+            False
+    if sb == HULL:  # a sphere or a capsule and a hull: the hull is side A
+        _segment(centre[a], Ra, half[a, 2], work[:2])
+        return hull_capsule_contacts(_posed_hull(shapes, poses, b), work[:2], radius[a], limit, out, m), True
+    if sa == SPHERE and sb == SPHERE:
+        nx, ny, nz, s, px, py, pz = sphere_sphere_point(centre[a, 0], centre[a, 1], centre[a, 2], radius[a],
+                                                        centre[b, 0], centre[b, 1], centre[b, 2], radius[b])
+        if s < limit:
+            m = write_point(out, m, nx, ny, nz, s, px, py, pz, 0)
+    elif sa == SPHERE and sb == BOX:
+        nx, ny, nz, s, px, py, pz = sphere_box_point(centre[a], radius[a], Box(centre[b], Rb, half[b]))
+        if s < limit:
+            m = write_point(out, m, nx, ny, nz, s, px, py, pz, 0)
+    elif sa == SPHERE:
+        _column(Rb, 2, axis_b)
+        nx, ny, nz, s, px, py, pz = sphere_capsule_point(centre[a], radius[a],
+                                                         Capsule(centre[b], axis_b, half[b, 2], radius[b]))
+        if s < limit:
+            m = write_point(out, m, nx, ny, nz, s, px, py, pz, 0)
+    elif sa == BOX and sb == BOX:
+        m = box_box_contacts(Box(centre[a], Ra, half[a]), Box(centre[b], Rb, half[b]), limit, out, m)
+    elif sa == BOX:
+        _column(Rb, 2, axis_b)
+        m = box_capsule_contacts(Box(centre[a], Ra, half[a]), Capsule(centre[b], axis_b, half[b, 2], radius[b]),
+                                 limit, out, m)
+    else:
+        _column(Ra, 2, axis_a)
+        _column(Rb, 2, axis_b)
+        m = capsule_capsule_contacts(Capsule(centre[a], axis_a, half[a, 2], radius[a]),
+                                     Capsule(centre[b], axis_b, half[b, 2], radius[b]), limit, out, m)
+    return m, False
+
+
+@njit
+def _mesh_contacts(a, b, shapes, poses, candidates, work, out, m):
+    """Mesh primitive ``a`` (A) against primitive ``b`` (B, not a mesh) into ``out`` from row ``m``: returns
+    ``(next free row, done)`` — not done when the BVH query's ``candidates`` scratch or ``out``'s free rows were
+    too few (the caller grows both and calls again)."""
+    prims, meshes = shapes.primitives, shapes.meshes
+    mk = prims.mesh[a]
+    mesh = mesh_of(meshes, mk)
+    Ra, Rb = poses.rotation[a], poses.rotation[b]
+    limit = poses.margin[a] + poses.margin[b]
+    if prims.kind[b] == HULL or prims.kind[b] == BOX:
+        return mesh_hull_contacts(mesh, poses.centre[a], Ra, meshes.two_sided[mk], _posed_hull(shapes, poses, b),
+                                  limit, candidates, out, m)
+    _segment(poses.centre[b], Rb, prims.half[b, 2], work[:2])
+    return mesh_capsule_contacts(mesh, poses.centre[a], Ra, meshes.two_sided[mk], work[:2], prims.radius[b], limit,
+                                 candidates, out, m)
+
+
+@njit
+def convex_phase(shapes, poses, pairs, active, ground, key_base):
+    """Contact points of this stage's active primitives with the ground and of the candidate pairs (primitive
+    indices, AABBs overlapping) that this stage's primitives take part in (pairs of two of the detector's
+    primitives are skipped: :func:`.detector.narrow_phase` has them): the :class:`.ContactSet` (ground contacts
+    first, then the pairs in the order given) and ``touched (n,)``: the sleeping bodies in a contact.  Keys: pair
+    ids from ``key_base`` (see the module docstring).
+
+    ``shapes``: :class:`ShapeModel`; ``poses``: :class:`ShapePoses`; ``pairs``: :class:`.detector.Pairs`;
+    ``active (n,)`` bool: the bodies being stepped; ``ground``: :class:`.detector.GroundPlane` — bundles as plain
+    tuples from Python (see :mod:`cgp_core.jit`)."""
+    shapes = ShapeModel(ShapePrimitives(*shapes[0]), HullSet(*shapes[1]), MeshSet(*shapes[2]), *shapes[3:])
+    poses = ShapePoses(*poses)
+    pair_i, pair_j = pairs
+    has_ground, ground_friction, ground_restitution = ground
+    prims = shapes.primitives
     P = len(prims.body)
     first_new = prims.first_new
     cap = 4 * (P - first_new + len(pair_i)) + 16
-    normal, separation, point = np.empty((cap, 3)), np.empty(cap), np.empty((cap, 3))
-    feature = np.empty(cap, np.int64)
+    out = ContactBuffer(np.empty((cap, 3)), np.empty(cap), np.empty((cap, 3)), np.empty(cap, np.int64))
     prim_a = np.empty(cap, np.int64)  # −1: the ground
     prim_b = np.empty(cap, np.int64)
-    axis = np.empty(3)
-    axis_b = np.empty(3)
-    segment = np.empty((2, 3))
+    work = np.empty((3, 3))
     candidates = np.empty(MESH_CANDIDATES, np.int64)
     m = np.int64(0)
 
     # -- the ground plane z = 0 (side A) against this stage's active primitives near it
     if has_ground:
         for k in range(first_new, P):
-            b = prims.body[k]
-            if not active[b] or not lo[k, 2] < margin[k] or prims.kind[k] == MESH:
+            if not active[prims.body[k]] or not poses.lo[k, 2] < poses.margin[k] or prims.kind[k] == MESH:
                 continue
-            normal, separation, point, feature, prim_a, prim_b = _grown(normal, separation, point, feature, prim_a,
-                                                                        prim_b, m, 4)
+            out, prim_a, prim_b = _grown(out, prim_a, prim_b, m, 4)
             start = m
-            kind = prims.kind[k]
-            if kind == HULL:
-                v, _, _, _, _, _ = _hull_of(hulls, prims.hull[k])
-                m = plane_hull_contacts(v, centre[k], prim_rotation[k], margin[k], normal, separation, point,
-                                        feature, m)
-            elif kind == SPHERE:
-                nx, ny, nz, s, px, py, pz = sphere_plane_point(centre[k], prims.radius[k])
-                if s < margin[k]:
-                    m = write_point(normal, separation, point, feature, m, nx, ny, nz, s, px, py, pz, 0)
-            elif kind == BOX:
-                m = box_plane_contacts(centre[k], prim_rotation[k], prims.half[k], margin[k], normal, separation,
-                                       point, feature, m)
-            else:
-                _column(prim_rotation[k], 2, axis)
-                m = capsule_plane_contacts(centre[k], axis, prims.half[k, 2], prims.radius[k], margin[k], normal,
-                                           separation, point, feature, m)
-            rank_features(feature, start, m)
+            m = _ground_contacts(k, shapes, poses, work[0], out, m)
+            rank_features(out.feature, start, m)
             prim_a[start:m] = -1
             prim_b[start:m] = k
 
@@ -567,87 +673,35 @@ def convex_phase(prims, hulls, meshes, body_friction, body_restitution, active, 
             a, b = j, i
         else:
             a, b = i, j
-        sa, sb = prims.kind[a], prims.kind[b]
-        Ra, Rb = prim_rotation[a], prim_rotation[b]
-        limit = margin[a] + margin[b]
-        normal, separation, point, feature, prim_a, prim_b = _grown(normal, separation, point, feature, prim_a,
-                                                                    prim_b, m, 4)
+        out, prim_a, prim_b = _grown(out, prim_a, prim_b, m, 4)
         start = m
-        first, second = a, b  # the contact's side A and B (the hull kernels want the hull first)
-        if sa == MESH:
-            mk = prims.mesh[a]
-            v0, v1 = meshes.vertex_start[mk], meshes.vertex_start[mk + 1]
-            t0, t1 = meshes.triangle_start[mk], meshes.triangle_start[mk + 1]
-            n0, n1 = meshes.node_start[mk], meshes.node_start[mk + 1]
+        first, second = a, b  # the contact's side A and B
+        if prims.kind[a] == MESH:
             done = False
             while not done:
-                if sb == HULL or sb == BOX:
-                    vb, asb, adb, fpb, fvsb, fvb = _hull_of(hulls, prims.hull[b])
-                    m, done = mesh_hull_contacts(
-                        meshes.vertices[v0:v1], meshes.triangles[t0:t1], meshes.active_edges[t0:t1],
-                        meshes.node_lo[n0:n1], meshes.node_hi[n0:n1], meshes.node_child_or_first[n0:n1],
-                        meshes.node_count[n0:n1], meshes.triangle_order[t0:t1], meshes.triangle_lo[t0:t1],
-                        meshes.triangle_hi[t0:t1], centre[a], Ra, meshes.two_sided[mk], vb, asb, adb, fpb, fvsb,
-                        fvb, centre[b], Rb, limit, candidates, normal, separation, point, feature, m)
-                else:
-                    _segment(centre[b], Rb, prims.half[b, 2], segment)
-                    m, done = mesh_capsule_contacts(
-                        meshes.vertices[v0:v1], meshes.triangles[t0:t1], meshes.active_edges[t0:t1],
-                        meshes.node_lo[n0:n1], meshes.node_hi[n0:n1], meshes.node_child_or_first[n0:n1],
-                        meshes.node_count[n0:n1], meshes.triangle_order[t0:t1], meshes.triangle_lo[t0:t1],
-                        meshes.triangle_hi[t0:t1], centre[a], Ra, meshes.two_sided[mk], segment, prims.radius[b],
-                        limit, candidates, normal, separation, point, feature, m)
+                m, done = _mesh_contacts(a, b, shapes, poses, candidates, work, out, m)
                 if not done:  # more triangles than scratch, or too few free rows: bigger buffers, again
                     m = start
                     candidates = np.empty(4 * len(candidates), np.int64)
-                    normal, separation, point, feature, prim_a, prim_b = _grown(
-                        normal, separation, point, feature, prim_a, prim_b, m, 4 * len(candidates))
-            m = reduce_mesh_rows(normal, separation, point, feature, start, m)
-        elif sb == HULL and sa == HULL or sb == HULL and sa == BOX:
-            va, asa, ada, fpa, fvsa, fva = _hull_of(hulls, prims.hull[a])
-            vb, asb, adb, fpb, fvsb, fvb = _hull_of(hulls, prims.hull[b])
-            m = hull_hull_contacts(va, asa, ada, fpa, fvsa, fva, centre[a], Ra, vb, asb, adb, fpb, fvsb, fvb,
-                                   centre[b], Rb, limit, normal, separation, point, feature, m)
-        elif sb == HULL:  # a sphere or a capsule and a hull: the hull is side A
-            first, second = b, a
-            vb, asb, adb, fpb, fvsb, fvb = _hull_of(hulls, prims.hull[b])
-            _segment(centre[a], Ra, prims.half[a, 2], segment)
-            m = hull_capsule_contacts(vb, asb, adb, fpb, fvsb, fvb, centre[b], Rb, segment, prims.radius[a], limit,
-                                      normal, separation, point, feature, m)
-        elif sa == SPHERE and sb == SPHERE:
-            nx, ny, nz, s, px, py, pz = sphere_sphere_point(centre[a, 0], centre[a, 1], centre[a, 2],
-                                                            prims.radius[a], centre[b, 0], centre[b, 1],
-                                                            centre[b, 2], prims.radius[b])
-            if s < limit:
-                m = write_point(normal, separation, point, feature, m, nx, ny, nz, s, px, py, pz, 0)
-        elif sa == SPHERE and sb == BOX:
-            nx, ny, nz, s, px, py, pz = sphere_box_point(centre[a], prims.radius[a], centre[b], Rb, prims.half[b])
-            if s < limit:
-                m = write_point(normal, separation, point, feature, m, nx, ny, nz, s, px, py, pz, 0)
-        elif sa == SPHERE:
-            _column(Rb, 2, axis_b)
-            nx, ny, nz, s, px, py, pz = sphere_capsule_point(centre[a], prims.radius[a], centre[b], axis_b,
-                                                             prims.half[b, 2], prims.radius[b])
-            if s < limit:
-                m = write_point(normal, separation, point, feature, m, nx, ny, nz, s, px, py, pz, 0)
-        elif sa == BOX and sb == BOX:
-            m = box_box_contacts(centre[a], Ra, prims.half[a], centre[b], Rb, prims.half[b], limit, normal,
-                                 separation, point, feature, m)
-        elif sa == BOX:
-            _column(Rb, 2, axis_b)
-            m = box_capsule_contacts(centre[a], Ra, prims.half[a], centre[b], axis_b, prims.half[b, 2],
-                                     prims.radius[b], limit, normal, separation, point, feature, m)
+                    out, prim_a, prim_b = _grown(out, prim_a, prim_b, m, 4 * len(candidates))
+            m = reduce_mesh_rows(out, start, m)
         else:
-            _column(Ra, 2, axis)
-            _column(Rb, 2, axis_b)
-            m = capsule_capsule_contacts(centre[a], axis, prims.half[a, 2], prims.radius[a], centre[b], axis_b,
-                                         prims.half[b, 2], prims.radius[b], limit, normal, separation, point,
-                                         feature, m)
-        rank_features(feature, start, m)
+            m, flipped = _primitive_pair_contacts(a, b, shapes, poses, work, out, m)
+            if flipped:
+                first, second = b, a
+        rank_features(out.feature, start, m)
         prim_a[start:m] = first
         prim_b[start:m] = second
+    return _contact_set(shapes, out, prim_a, prim_b, m, active, ground, key_base)
 
-    # -- bodies, identity keys and materials; sleeping (movable, not active) bodies touched
+
+@njit
+def _contact_set(shapes, out, prim_a, prim_b, m, active, ground, key_base):
+    """The :class:`.ContactSet` of the ``m`` points in ``out`` (of primitives ``prim_a``, ``prim_b``: bodies,
+    identity keys, materials), and ``touched (n,)``: the sleeping (movable, not active) bodies touched."""
+    prims = shapes.primitives
+    body_friction, body_restitution = shapes.body_friction, shapes.body_restitution
+    P = len(prims.body)
     touched = np.zeros(len(active), np.bool_)
     body_a = np.empty(m, np.int64)
     body_b = np.empty(m, np.int64)
@@ -658,27 +712,30 @@ def convex_phase(prims, hulls, meshes, body_friction, body_restitution, active, 
         body_b[c] = prims.body[prim_b[c]]
         if prim_a[c] < 0:
             body_a[c] = GROUND
-            mu_a, e_a = ground_friction, ground_restitution
+            mu_a, e_a = ground[1], ground[2]
         else:
             body_a[c] = prims.body[prim_a[c]]
             mu_a, e_a = body_friction[body_a[c]], body_restitution[body_a[c]]
         friction[c] = combine_friction(mu_a, body_friction[body_b[c]])
         restitution[c] = combine_restitution(e_a, body_restitution[body_b[c]])
-        key[c] = (key_base + (prim_a[c] + 1) * (P + 1) + prim_b[c]) * FEATURE_SLOTS + feature[c]
+        key[c] = (key_base + (prim_a[c] + 1) * (P + 1) + prim_b[c]) * FEATURE_SLOTS + out.feature[c]
         for body in (body_a[c], body_b[c]):
-            if body >= 0 and movable[body] and not active[body]:
+            if body >= 0 and not shapes.fixed_body[body] and not active[body]:
                 touched[body] = True
-    return (body_a, body_b, normal[:m].copy(), separation[:m].copy(), point[:m].copy(), key, friction,
-            restitution, touched)
+    contacts = ContactSet(body_a, body_b, out.normal[:m].copy(), out.separation[:m].copy(), out.point[:m].copy(),
+                          key, friction, restitution)
+    return contacts, touched
 
 
 # ---- continuous collision for fast rotation: time of impact after the integrator --------------------------------
 
 @njit
-def fast_turn_pairs(prims, active, movable, angular_velocity, h, pair_i, pair_j):
-    """The candidate pairs this stage takes in which an active body turning by more than :data:`TOI_ANGLE` in the
-    sub-step meets a fixed hull, box or mesh: ``(moving primitive, static primitive)`` arrays (see the module
-    docstring)."""
+def fast_turn_pairs(shapes, active, angular_velocity, h, pairs):
+    """The candidate pairs (:class:`.detector.Pairs`) this stage takes in which an active body turning by more
+    than :data:`TOI_ANGLE` in the sub-step meets a fixed hull, box or mesh: ``(moving primitive, static
+    primitive)`` arrays (see the module docstring).  Bundles as plain tuples from Python."""
+    prims, fixed_body = ShapePrimitives(*shapes[0]), shapes[6]
+    pair_i, pair_j = pairs
     first_new = prims.first_new
     moving = np.empty(len(pair_i), np.int64)
     static = np.empty(len(pair_i), np.int64)
@@ -690,7 +747,7 @@ def fast_turn_pairs(prims, active, movable, angular_velocity, h, pair_i, pair_j)
         for side in range(2):
             k, s = (i, j) if side == 0 else (j, i)
             b, o = prims.body[k], prims.body[s]
-            if b == o or not active[b] or movable[o]:
+            if b == o or not active[b] or not fixed_body[o]:
                 continue
             if prims.kind[s] != HULL and prims.kind[s] != BOX and prims.kind[s] != MESH:
                 continue
@@ -703,14 +760,16 @@ def fast_turn_pairs(prims, active, movable, angular_velocity, h, pair_i, pair_j)
 
 
 @njit
-def _moving_core(prims, hulls, k):
+def _core_in_body(shapes, k):
     """Primitive k's core in its body's frame (about the COM): ``(vertices (c, 3), adjacency_start, adjacency,
     radius)`` — a hull's vertices (with its adjacency), a box's corners, a capsule's segment, a sphere's centre."""
+    prims = shapes.primitives
     kind = prims.kind[k]
     R, o = prims.rotation[k], prims.offset[k]
     if kind == HULL:
-        v, adjacency_start, adjacency, _, _, _ = _hull_of(hulls, prims.hull[k])
-        local = v
+        hull = hull_of(shapes.hulls, prims.hull[k])
+        adjacency_start, adjacency = hull.adjacency_start, hull.adjacency
+        local = hull.vertices
     else:
         adjacency_start, adjacency = np.zeros(9, np.int64), np.zeros(0, np.int64)
         hx, hy, hz = prims.half[k, 0], prims.half[k, 1], prims.half[k, 2]
@@ -732,66 +791,74 @@ def _moving_core(prims, hulls, k):
 
 
 @njit
-def sweep_times(prims, hulls, meshes, moving, static, centre, prim_rotation, position0, rotation0, velocity,
-                angular_velocity, h, target, tolerance):
-    """Time of impact (fraction of the sub-step, :func:`.toi.time_of_impact`) of each pair ``moving[q]`` (turning
-    about its body's COM from ``position0``, ``rotation0`` (n, 3, 3) with ``velocity``, ``angular_velocity``
-    (n, 3)) against ``static[q]`` (posed by ``centre``, ``prim_rotation``; a mesh: each triangle its swept box
-    meets), ``(q,)``: 1 where it does not touch within the sub-step, and also where it touched at the start
-    (t = 0: a resting contact, the contacts' business)."""
-    out = np.ones(len(moving))
+def _mesh_time(mesh, Rm, pm, moving, h, target, tolerance, candidates):
+    """The earliest time of impact of the :class:`.toi.MovingCore` ``moving`` with the triangles of the
+    :class:`.bvh.TriangleMesh` ``mesh`` (posed by ``pm``, ``Rm``) its swept ball meets; 1 if none."""
+    x0, v = moving.position, moving.velocity
     zero, eye = np.zeros(3), np.eye(3)
     no_start, no_adjacency = np.zeros(4, np.int64), np.zeros(0, np.int64)
     triangle = np.empty((3, 3))
+    core, radius = moving.vertices, moving.radius
+    reach = radius
+    for i in range(len(core)):
+        reach = max(reach, math.sqrt(core[i, 0] ** 2 + core[i, 1] ** 2 + core[i, 2] ** 2) + radius)
+    lo, hi = np.empty(3), np.empty(3)
+    for r in range(3):
+        a = Rm[0, r] * (x0[0] - pm[0]) + Rm[1, r] * (x0[1] - pm[1]) + Rm[2, r] * (x0[2] - pm[2])
+        e = Rm[0, r] * (x0[0] + v[0] * h - pm[0]) + Rm[1, r] * (x0[1] + v[1] * h - pm[1]) \
+            + Rm[2, r] * (x0[2] + v[2] * h - pm[2])
+        lo[r] = min(a, e) - reach
+        hi[r] = max(a, e) + reach
+    found = candidates.shape[0] + 1
+    while found > len(candidates):
+        found = bvh_overlap(mesh, lo, hi, candidates)
+        if found > len(candidates):
+            candidates = np.empty(2 * found, np.int64)
+    best = 1.0
+    for c in range(found):
+        t = candidates[c]
+        for corner in range(3):
+            vi = mesh.triangles[t, corner]
+            for r in range(3):
+                triangle[corner, r] = pm[r] + Rm[r, 0] * mesh.vertices[vi, 0] + Rm[r, 1] * mesh.vertices[vi, 1] \
+                    + Rm[r, 2] * mesh.vertices[vi, 2]
+        time, _, _, hit, _ = time_of_impact(moving, MovingCore(triangle, no_start, no_adjacency, zero, eye, zero,
+                                                               zero, 0.0), h, target, tolerance)
+        if hit and time > 0.0:
+            best = min(best, time)
+    return best
+
+
+@njit
+def sweep_times(shapes, moving, static, poses, start, h, target, tolerance):
+    """Time of impact (fraction of the sub-step, :func:`.toi.time_of_impact`) of each pair ``moving[q]`` (turning
+    about its body's COM from the :class:`.primitives.BodyMotion` ``start``: positions and rotations at the
+    sub-step's start, the velocities and angular velocities over it) against ``static[q]`` (posed by the
+    :class:`ShapePoses` ``poses``; a mesh: each triangle its swept box meets), ``(q,)``: 1 where it does not touch
+    within the sub-step, and also where it touched at the start (t = 0: a resting contact, the contacts'
+    business).  Bundles as plain tuples from Python."""
+    shapes = ShapeModel(ShapePrimitives(*shapes[0]), HullSet(*shapes[1]), MeshSet(*shapes[2]), *shapes[3:])
+    poses, start = ShapePoses(*poses), BodyMotion(*start)
+    prims = shapes.primitives
+    out = np.ones(len(moving))
+    zero = np.zeros(3)
     candidates = np.empty(MESH_CANDIDATES, np.int64)
     for q in range(len(moving)):
         k, s = moving[q], static[q]
         b = prims.body[k]
-        core, adjacency_start, adjacency, radius = _moving_core(prims, hulls, k)
-        x0, R0, v, w = position0[b], rotation0[b], velocity[b], angular_velocity[b]
-        best = 1.0
+        core, adjacency_start, adjacency, radius = _core_in_body(shapes, k)
+        mover = MovingCore(core, adjacency_start, adjacency, start.position[b], start.rotation[b],
+                           start.velocity[b], start.angular_velocity[b], radius)
         if prims.kind[s] == MESH:
-            # the triangles the moving core's swept ball meets, in the mesh's frame
-            mk = prims.mesh[s]
-            reach = radius
-            for i in range(len(core)):
-                reach = max(reach, math.sqrt(core[i, 0] ** 2 + core[i, 1] ** 2 + core[i, 2] ** 2) + radius)
-            lo, hi = np.empty(3), np.empty(3)
-            Rm, pm = prim_rotation[s], centre[s]
-            for r in range(3):
-                a = Rm[0, r] * (x0[0] - pm[0]) + Rm[1, r] * (x0[1] - pm[1]) + Rm[2, r] * (x0[2] - pm[2])
-                e = Rm[0, r] * (x0[0] + v[0] * h - pm[0]) + Rm[1, r] * (x0[1] + v[1] * h - pm[1]) \
-                    + Rm[2, r] * (x0[2] + v[2] * h - pm[2])
-                lo[r] = min(a, e) - reach
-                hi[r] = max(a, e) + reach
-            v0 = meshes.vertex_start[mk]
-            t0, t1 = meshes.triangle_start[mk], meshes.triangle_start[mk + 1]
-            n0, n1 = meshes.node_start[mk], meshes.node_start[mk + 1]
-            found = candidates.shape[0] + 1
-            while found > len(candidates):
-                found = bvh_overlap(meshes.node_lo[n0:n1], meshes.node_hi[n0:n1], meshes.node_child_or_first[n0:n1],
-                                    meshes.node_count[n0:n1], meshes.triangle_order[t0:t1],
-                                    meshes.triangle_lo[t0:t1], meshes.triangle_hi[t0:t1], lo, hi, candidates)
-                if found > len(candidates):
-                    candidates = np.empty(2 * found, np.int64)
-            for c in range(found):
-                t = candidates[c]
-                for corner in range(3):
-                    vi = v0 + meshes.triangles[t0 + t, corner]
-                    for r in range(3):
-                        triangle[corner, r] = pm[r] + Rm[r, 0] * meshes.vertices[vi, 0] \
-                            + Rm[r, 1] * meshes.vertices[vi, 1] + Rm[r, 2] * meshes.vertices[vi, 2]
-                time, _, _, hit, _ = time_of_impact(core, adjacency_start, adjacency, x0, R0, v, w, radius,
-                                                    triangle, no_start, no_adjacency, zero, eye, zero, zero, 0.0, h,
-                                                    target, tolerance)
-                if hit and time > 0.0:
-                    best = min(best, time)
+            best = _mesh_time(mesh_of(shapes.meshes, prims.mesh[s]), poses.rotation[s], poses.centre[s], mover, h,
+                              target, tolerance, candidates)
         else:
-            other, other_start, other_adjacency, other_radius = _moving_core(prims, hulls, s)
-            time, _, _, hit, _ = time_of_impact(core, adjacency_start, adjacency, x0, R0, v, w, radius,
-                                                other, other_start, other_adjacency, position0[prims.body[s]],
-                                                rotation0[prims.body[s]], zero, zero, other_radius, h, target,
-                                                tolerance)
+            best = 1.0
+            other, other_start, other_adjacency, other_radius = _core_in_body(shapes, s)
+            o = prims.body[s]
+            time, _, _, hit, _ = time_of_impact(mover, MovingCore(other, other_start, other_adjacency,
+                                                                  start.position[o], start.rotation[o], zero, zero,
+                                                                  other_radius), h, target, tolerance)
             if hit and time > 0.0:
                 best = min(best, time)
         out[q] = best

@@ -1,10 +1,26 @@
 """Contact detection for one sub-step: broad phase → narrow phase → :class:`ContactSet`.
 
-Three compiled stages, called from :meth:`CollisionDetector.detect`:
-:func:`~cgp_core.collision.primitives.primitive_bounds` (primitive poses, AABBs grown by the speculative margins),
-the broad phase (:func:`small_scene_pairs` for a handful of primitives, else the configured :mod:`.broadphase`
-function) and :func:`narrow_phase` (one loop over the ground and the
-candidate pairs, each pair handed to its shape pair's kernel in :mod:`.narrowphase` / :mod:`.box_box`).
+Three compiled stages, called in order from :meth:`CollisionDetector.detect`, which times each into
+:attr:`CollisionDetector.profile` (:data:`STAGES`):
+
+1. ``bounds`` — :func:`~cgp_core.collision.primitives.primitive_bounds`: the :class:`CollisionModel`'s
+   primitives at the bodies' :class:`~.primitives.BodyMotion` → :class:`PrimitivePoses` (centres, AABBs grown by
+   the speculative margins);
+2. ``broad_phase`` — :func:`small_scene_pairs` for a handful of primitives, else the configured
+   :mod:`.broadphase` function → :class:`Pairs`;
+3. ``narrow_phase`` — :func:`narrow_phase`: one loop over the ground (:class:`GroundPlane`) and the candidate
+   pairs, each handed to its shape pair's kernel in :mod:`.narrowphase` / :mod:`.box_box` → a
+   :class:`ContactSet`;
+4. ``convex_phase`` — only for a model with issue 25's shapes (convex hulls, compound bodies' parts, static
+   meshes: :mod:`.convex_phase`, whose :class:`~.convex_phase.ShapeModel` numbers its primitives after the
+   :class:`CollisionModel`'s): :func:`.convex_phase.pose_shapes` poses and bounds them in the ``bounds`` stage, one
+   broad phase takes every primitive, the pairs of two of the :class:`CollisionModel`'s primitives go to
+   :func:`narrow_phase` unchanged, every other pair and those shapes' ground contacts to
+   :func:`.convex_phase.convex_phase`, whose contacts are appended;
+5. ``time_of_impact`` — after the integrator (:meth:`CollisionDetector.sweep_fast_rotation`): bodies that turned
+   fast next to fixed hulls, boxes or meshes are put back at their time of impact (:mod:`.convex_phase`).
+
+A scene without issue 25's shapes runs stages 1–3 exactly as before (no cost, the same bits).
 
 Speculative contacts (Catto, "Continuous collision", GDC 2013; Box2D v3).  A pair is reported not only when
 it touches but whenever its gap may close within the coming sub-step: each body gets a *margin*
@@ -24,10 +40,13 @@ missed.
 
 from __future__ import annotations
 
+import time
+from typing import NamedTuple
+
 import numpy as np
 
 from ..bodies import BodyModel, BodyState, Shape
-from ..jit import njit
+from ..jit import StageProfile, njit
 from .box_box import box_box_contacts
 from .broadphase import DEFAULT_BROAD_PHASE, get_broad_phase, sweep_and_prune_kernel, sweep_and_prune_pairs
 from .contacts import FEATURE_SLOTS, GROUND, ContactSet
@@ -35,6 +54,7 @@ from .convex_phase import (
     TOI_TARGET,
     TOI_TOLERANCE,
     ShapeModel,
+    ShapePoses,
     build_shape_model,
     convex_phase,
     fast_turn_pairs,
@@ -43,6 +63,9 @@ from .convex_phase import (
 )
 from .materials import Ground, combine_friction, combine_restitution
 from .narrowphase import (
+    Box,
+    Capsule,
+    ContactBuffer,
     box_capsule_contacts,
     box_plane_contacts,
     capsule_capsule_contacts,
@@ -53,7 +76,7 @@ from .narrowphase import (
     sphere_sphere_point,
     write_point,
 )
-from .primitives import CollisionModel, build_collision_model, primitive_bounds
+from .primitives import CollisionModel, PrimitivePoses, build_collision_model, primitive_bounds
 
 #: default speculative distance [m]: contacts within this gap are kept even at rest, so a resting contact
 #: does not flicker in and out (and lose its warm-start impulse) with the solver's tiny residual motion
@@ -67,6 +90,25 @@ MAX_POINTS_PER_PAIR = 4
 
 SPHERE, BOX, CAPSULE = int(Shape.SPHERE), int(Shape.BOX), int(Shape.CAPSULE)
 
+#: the stages of :attr:`CollisionDetector.profile`, in order
+STAGES = ("bounds", "broad_phase", "narrow_phase", "convex_phase", "time_of_impact")
+BOUNDS, BROAD_PHASE, NARROW_PHASE, CONVEX_PHASE, TIME_OF_IMPACT = range(len(STAGES))
+
+
+class Pairs(NamedTuple):
+    """Candidate primitive pairs (their AABBs overlap), ``q`` of them."""
+
+    first: np.ndarray   # (q,) int64 primitive index
+    second: np.ndarray  # (q,) int64 primitive index
+
+
+class GroundPlane(NamedTuple):
+    """The static ground z = 0 as the narrow phase takes it."""
+
+    present: bool        # the scene has a ground
+    friction: float      # its Coulomb μ
+    restitution: float   # its coefficient of restitution e
+
 
 class CollisionDetector:
     """Finds the contacts of a body model at the current state.
@@ -78,6 +120,8 @@ class CollisionDetector:
 
     The collision primitives of a model are built on first use and cached, keyed on the model object (the
     model is static; a new model — bodies spawned or deleted — is a new object and gets new primitives).
+    :attr:`profile` (a :class:`~cgp_core.jit.StageProfile`) accumulates the wall time of each stage
+    (:data:`STAGES`) over the calls of :meth:`detect` until its ``reset()``.
     """
 
     def __init__(self, broad_phase: str = DEFAULT_BROAD_PHASE,
@@ -92,13 +136,18 @@ class CollisionDetector:
         self.continuous = bool(continuous)
         self._model: BodyModel | None = None
         self._cmodel: CollisionModel | None = None
-        self._shapes: ShapeModel | None = None
-        self._sweeps = None  # what sweep_fast_rotation needs from the last detect (convex_phase.FastTurns)
+        self._plain_cmodel: tuple = ()  # the same as a plain tuple, as the compiled stages take it
+        self._shapes: ShapeModel | None = None  # the convex stage's primitives (None: the model has none)
+        self._plain_shapes: tuple = ()
+        self._sweeps = None  # what sweep_fast_rotation needs from the last detect
+        self.profile = StageProfile(STAGES)
 
     def collision_model(self, model: BodyModel) -> CollisionModel:
         if model is not self._model or self._cmodel is None or len(self._cmodel.body_reach) != model.count:
             self._cmodel = build_collision_model(model)
+            self._plain_cmodel = tuple(self._cmodel)
             self._shapes = build_shape_model(model, self._cmodel) if model.has_convex_phase_shapes else None
+            self._plain_shapes = self._shapes.plain() if self._shapes is not None else ()
             self._model = model
         return self._cmodel
 
@@ -121,38 +170,42 @@ class CollisionDetector:
         caller wakes it: see :mod:`cgp_core.sleep`).
         """
         cm = self.collision_model(model)
-        shapes = self._shapes
         self.touched_sleeping = np.zeros(0, np.intp)
         self._sweeps = None
-        if cm.count == 0 and shapes is None:
+        if cm.count == 0 and self._shapes is None:
             return ContactSet.empty()
         if velocity is None:
             velocity = state.linear_velocity(model)
         if angular_velocity is None:
             angular_velocity = state.angular_velocity(model)
         R = state.rotation_matrices() if rotation is None else rotation
-        R = np.ascontiguousarray(R)
         movable = ~cm.fixed_body
         active = movable if active is None else active & movable
         h_motion = float(h) if self.continuous else 0.0  # (only the margins: h (|v| + |ω| reach))
-        centre, lo, hi, margin = primitive_bounds(cm.body, cm.offset, cm.radius, cm.half_extents, cm.body_reach,
-                                                  state.position, R, velocity, angular_velocity, h_motion,
-                                                  self.speculative_distance)
+        clock, profile = time.perf_counter, self.profile
+        start = clock()
+        motion = (state.position, np.ascontiguousarray(R), velocity, angular_velocity)  # a BodyMotion
+        poses = primitive_bounds(self._plain_cmodel, motion, h_motion, self.speculative_distance)
         # a primitive whose body's state went non-finite (a numerical blow-up, which World contains after the
         # tick) takes no part in collisions rather than stopping everyone else's step: its bounds are NaN (see
         # primitive_bounds), so no overlap test passes
-        if shapes is not None:
-            return self._detect_with_shapes(model, state, shapes, cm, ground, velocity, angular_velocity, R, active,
-                                            movable, h_motion, centre, lo, hi, margin)
+        if self._shapes is not None:
+            return self._detect_with_shapes(model, motion, poses, active, ground, h_motion, start)
+        lo, hi = poses.lo, poses.hi
+        now = clock()
+        profile.add(BOUNDS, now - start)
+        start = now
         i, j = self._candidate_pairs(lo, hi, cm.body, active)
-        contacts = narrow_phase(cm.body, cm.shape, cm.radius, cm.half_extents, model.friction, model.restitution,
-                                active, movable, centre, R, lo, margin, i, j,
-                                ground is not None, ground.friction if ground is not None else 0.0,
-                                ground.restitution if ground is not None else 0.0)
-        body_a, body_b, normal, separation, point, key, friction, restitution, touched = contacts
+        now = clock()
+        profile.add(BROAD_PHASE, now - start)
+        start = now
+        ground_plane = (True, ground.friction, ground.restitution) if ground is not None else (False, 0.0, 0.0)
+        contacts, touched = narrow_phase(self._plain_cmodel, tuple(poses), (i, j), active, ground_plane)
+        profile.add(NARROW_PHASE, clock() - start)
+        profile.calls += 1
         if touched.any():
             self.touched_sleeping = np.flatnonzero(touched)
-        return ContactSet(body_a, body_b, normal, separation, point, key, friction, restitution)
+        return contacts
 
     def _candidate_pairs(self, lo, hi, prim_body, active):
         """The broad phase: primitive pairs ``i, j`` whose AABBs overlap."""
@@ -170,59 +223,67 @@ class CollisionDetector:
             i, j = sane[i], sane[j]
         return np.ascontiguousarray(i, np.int64), np.ascontiguousarray(j, np.int64)
 
-    def _detect_with_shapes(self, model, state, shapes, cm, ground, velocity, angular_velocity, R, active, movable,
-                            h_motion, centre_old, lo_old, hi_old, margin_old) -> ContactSet:
-        """:meth:`detect` for a model with convex hulls, compound bodies or static meshes: every primitive into
-        one broad phase; the pairs of two of :class:`CollisionModel`'s primitives to :func:`narrow_phase`
-        (unchanged), every other pair and this stage's ground contacts to :func:`.convex_phase.convex_phase`;
-        its contacts appended."""
+    def _detect_with_shapes(self, model: BodyModel, motion: tuple, poses: PrimitivePoses, active: np.ndarray,
+                            ground: Ground | None, h_motion: float, start: float) -> ContactSet:
+        """:meth:`detect` for a model with convex hulls, compound bodies or static meshes (stages 1–4 of the
+        module docstring), from the detector's own :class:`PrimitivePoses` on; ``start``: the clock at the
+        ``bounds`` stage's start."""
+        clock, profile = time.perf_counter, self.profile
+        cm, shapes = self._cmodel, self._shapes
         p, P = cm.count, shapes.count
-        centre, lo, hi = np.empty((P, 3)), np.empty((P, 3)), np.empty((P, 3))
-        margin, rotation = np.empty(P), np.empty((P, 3, 3))
-        centre[:p], lo[:p], hi[:p], margin[:p] = centre_old, lo_old, hi_old, margin_old
-        pose_shapes(shapes.primitives, shapes.hulls, shapes.meshes, shapes.body_reach, state.position, R, velocity,
-                    angular_velocity, h_motion, self.speculative_distance, centre, rotation, lo, hi, margin)
-        i, j = self._candidate_pairs(lo, hi, shapes.primitives.body, active)
-        has_ground = ground is not None
-        mu, e = (ground.friction, ground.restitution) if has_ground else (0.0, 0.0)
+        every = ShapePoses(np.empty((P, 3)), np.empty((P, 3, 3)), np.empty((P, 3)), np.empty((P, 3)), np.empty(P))
+        every.centre[:p], every.lo[:p], every.hi[:p], every.margin[:p] = poses.centre, poses.lo, poses.hi, poses.margin
+        pose_shapes(self._plain_shapes, motion, h_motion, self.speculative_distance, tuple(every))
+        now = clock()
+        profile.add(BOUNDS, now - start)
+        start = now
+        i, j = self._candidate_pairs(every.lo, every.hi, shapes.primitives.body, active)
+        now = clock()
+        profile.add(BROAD_PHASE, now - start)
+        start = now
+        ground_plane = (True, ground.friction, ground.restitution) if ground is not None else (False, 0.0, 0.0)
         parts = []
         touched = np.zeros(model.count, bool)
         if p:
             old = (i < p) & (j < p)
-            (body_a, body_b, normal, separation, point, key, friction, restitution, touched_old) = narrow_phase(
-                cm.body, cm.shape, cm.radius, cm.half_extents, model.friction, model.restitution, active, movable,
-                centre_old, R, lo_old, margin_old, np.ascontiguousarray(i[old]), np.ascontiguousarray(j[old]),
-                has_ground, mu, e)
-            parts.append(ContactSet(body_a, body_b, normal, separation, point, key, friction, restitution))
+            contacts, touched_old = narrow_phase(self._plain_cmodel, tuple(poses),
+                                                 (np.ascontiguousarray(i[old]), np.ascontiguousarray(j[old])),
+                                                 active, ground_plane)
+            parts.append(contacts)
             touched |= touched_old
-        (body_a, body_b, normal, separation, point, key, friction, restitution, touched_new) = convex_phase(
-            shapes.primitives, shapes.hulls, shapes.meshes, model.friction, model.restitution, active, movable,
-            centre, rotation, lo, margin, i, j, has_ground, mu, e, np.int64((p + 1) ** 2))
-        parts.append(ContactSet(body_a, body_b, normal, separation, point, key, friction, restitution))
+        now = clock()
+        profile.add(NARROW_PHASE, now - start)
+        start = now
+        contacts, touched_new = convex_phase(self._plain_shapes, tuple(every), (i, j), active, ground_plane,
+                                             np.int64((p + 1) ** 2))
+        parts.append(contacts)
         touched |= touched_new
+        if self.continuous:
+            moving, static = fast_turn_pairs(self._plain_shapes, active, motion[3], h_motion, (i, j))
+            if len(moving):
+                self._sweeps = (model, moving, static, motion[0].copy(), motion[1].copy(), every)
+        profile.add(CONVEX_PHASE, clock() - start)
+        profile.calls += 1
         if touched.any():
             self.touched_sleeping = np.flatnonzero(touched)
-        if self.continuous:
-            moving, static = fast_turn_pairs(shapes.primitives, active, movable, angular_velocity, float(h_motion), i,
-                                             j)
-            if len(moving):
-                self._sweeps = (model, moving, static, state.position.copy(), R.copy(), centre, rotation)
         return ContactSet.concatenate(parts)
 
     def sweep_fast_rotation(self, model: BodyModel, state: BodyState, h: float) -> None:
         """Continuous collision for fast rotation (pipeline stage 4, right after the integrator; see
-        :mod:`.convex_phase`): every body that the last :meth:`detect` found turning by more than
-        :data:`.convex_phase.TOI_ANGLE` next to a fixed hull, box or mesh is swept from its pose then to its pose
-        now (constant velocity and angular velocity, :func:`.convex_phase.sweep_times`: conservative advancement);
-        if it touched within the sub-step it is put back at its pose at that time of impact.  Its momenta are
-        kept: the next sub-step's contact, made at that pose, stops it.  A no-op when nothing turned that fast."""
+        :mod:`.convex_phase`), timed as the ``time_of_impact`` stage: every body that the last :meth:`detect` found
+        turning by more than :data:`.convex_phase.TOI_ANGLE` next to a fixed hull, box or mesh is swept from its
+        pose then to its pose now (constant velocity and angular velocity, :func:`.convex_phase.sweep_times`:
+        conservative advancement); if it touched within the sub-step it is put back at its pose at that time of
+        impact.  Its momenta are kept: the next sub-step's contact, made at that pose, stops it.  A no-op when
+        nothing turned that fast."""
         sweeps, self._sweeps = self._sweeps, None
         if sweeps is None or sweeps[0] is not model or self._shapes is None:
             return
         from ..rotation import matrix_to_quat, quat_from_rotvec, quat_multiply, quat_to_rotvec
         from .toi import rotated
 
-        _, moving, static, position0, rotation0, centre, prim_rotation = sweeps
+        start = time.perf_counter()
+        _, moving, static, position0, rotation0, poses = sweeps
         prims = self._shapes.primitives
         bodies = np.unique(prims.body[moving])
         R1 = state.rotation_matrices()
@@ -231,8 +292,8 @@ class CollisionDetector:
         velocity[bodies] = (state.position[bodies] - position0[bodies]) / h
         turn = matrix_to_quat(R1[bodies] @ np.swapaxes(rotation0[bodies], -1, -2))  # R1 R0ᵀ
         angular_velocity[bodies] = quat_to_rotvec(turn) / h
-        times = sweep_times(prims, self._shapes.hulls, self._shapes.meshes, moving, static, centre, prim_rotation,
-                            position0, rotation0, velocity, angular_velocity, float(h), TOI_TARGET, TOI_TOLERANCE)
+        times = sweep_times(self._plain_shapes, moving, static, tuple(poses),
+                            (position0, rotation0, velocity, angular_velocity), float(h), TOI_TARGET, TOI_TOLERANCE)
         first = np.ones(model.count)
         np.minimum.at(first, prims.body[moving], times)
         for b in np.flatnonzero(first < 1.0):
@@ -244,6 +305,7 @@ class CollisionDetector:
             state.orientation[b] = q / np.linalg.norm(q)
             if state.rotation is not None:
                 state.rotation[b] = R
+        self.profile.add(TIME_OF_IMPACT, time.perf_counter() - start)
 
 
 @njit
@@ -267,90 +329,115 @@ def small_scene_pairs(lo, hi, prim_body, active):
 
 
 @njit
-def narrow_phase(prim_body, prim_shape, prim_radius, prim_half, body_friction, body_restitution, active, movable,
-                 centre, rotation, lo, margin, pair_i, pair_j, has_ground, ground_friction, ground_restitution):
-    """Contact points of the active primitives with the ground and of the candidate pairs ``pair_i, pair_j``
-    (primitive indices, AABBs overlapping), as the :class:`ContactSet` fields ``(body_a, body_b, normal,
-    separation, point, key, friction, restitution)``, and ``touched (n,)``: the sleeping bodies in a contact;
-    ground contacts first, in primitive order, then the pairs in the order given.  A pair's side A is the
-    primitive whose shape comes first in SPHERE < BOX < CAPSULE.
-    Materials: friction √(μ_a μ_b), restitution max(e_a, e_b) (see :mod:`.materials`)."""
+def narrow_phase(primitives, poses, pairs, active, ground):
+    """Contact points of the active primitives with the ground and of the candidate pairs: the
+    :class:`ContactSet` (ground contacts first, in primitive order, then the pairs in the order given), and
+    ``touched (n,)`` bool: the sleeping bodies (movable, not ``active``) in a contact.  A pair's side A is the
+    primitive whose shape comes first in SPHERE < BOX < CAPSULE.  Materials: friction √(μ_a μ_b), restitution
+    max(e_a, e_b) (see :mod:`.materials`).
+
+    ``primitives``: :class:`CollisionModel`; ``poses``: :class:`PrimitivePoses`; ``pairs``: :class:`Pairs`;
+    ``active`` (n,) bool: the bodies being stepped; ``ground``: :class:`GroundPlane` — bundles as plain tuples
+    from Python (see :mod:`cgp_core.jit`)."""
+    primitives, poses, pairs, ground = (CollisionModel(*primitives), PrimitivePoses(*poses), Pairs(*pairs),
+                                        GroundPlane(*ground))
+    prim_body = primitives.body
     p = len(prim_body)
-    cap = MAX_POINTS_PER_PAIR * (p + len(pair_i)) + 1
-    normal = np.empty((cap, 3))
-    separation = np.empty(cap)
-    point = np.empty((cap, 3))
-    feature = np.empty(cap, np.int64)
+    cap = MAX_POINTS_PER_PAIR * (p + len(pairs.first)) + 1
+    out = ContactBuffer(np.empty((cap, 3)), np.empty(cap), np.empty((cap, 3)), np.empty(cap, np.int64))
     prim_a = np.empty(cap, np.int64)  # −1: the ground
     prim_b = np.empty(cap, np.int64)
-    axis_a = np.empty(3)
-    axis_b = np.empty(3)
+    axes = np.empty((2, 3))  # capsule axes (the columns 2 of their rotations)
     # (an int64, not a literal 0: numba would also compile the kernels it is passed to for a literal 0)
     m = np.int64(0)
 
     # -- the ground plane z = 0 (side A) against every active primitive near it
-    if has_ground:
+    if ground.present:
         for k in range(p):
-            if not active[prim_body[k]] or not lo[k, 2] < margin[k]:
+            if not active[prim_body[k]] or not poses.lo[k, 2] < poses.margin[k]:
                 continue
             start = m
-            shape = prim_shape[k]
-            if shape == SPHERE:
-                nx, ny, nz, s, px, py, pz = sphere_plane_point(centre[k], prim_radius[k])
-                if s < margin[k]:
-                    m = write_point(normal, separation, point, feature, m, nx, ny, nz, s, px, py, pz, 0)
-            elif shape == BOX:
-                m = box_plane_contacts(centre[k], rotation[prim_body[k]], prim_half[k], margin[k], normal,
-                                       separation, point, feature, m)
-            else:
-                _column(rotation[prim_body[k]], 2, axis_b)
-                m = capsule_plane_contacts(centre[k], axis_b, prim_half[k, 2], prim_radius[k], margin[k], normal,
-                                           separation, point, feature, m)
+            m = _ground_contacts(k, primitives, poses, axes[1], out, m)
             prim_a[start:m] = -1
             prim_b[start:m] = k
 
     # -- primitive pairs
-    for q in range(len(pair_i)):
-        i, j = pair_i[q], pair_j[q]
+    for q in range(len(pairs.first)):
+        i, j = pairs.first[q], pairs.second[q]
         bi, bj = prim_body[i], prim_body[j]
         if bi == bj or not (active[bi] or active[bj]):
             continue
-        a, b = (j, i) if prim_shape[i] > prim_shape[j] else (i, j)
-        sa, sb = prim_shape[a], prim_shape[b]
-        Ra, Rb = rotation[prim_body[a]], rotation[prim_body[b]]
-        limit = margin[a] + margin[b]
+        a, b = (j, i) if primitives.shape[i] > primitives.shape[j] else (i, j)
         start = m
-        if sa == SPHERE and sb != BOX and sb != CAPSULE:
-            nx, ny, nz, s, px, py, pz = sphere_sphere_point(centre[a, 0], centre[a, 1], centre[a, 2], prim_radius[a],
-                                                            centre[b, 0], centre[b, 1], centre[b, 2], prim_radius[b])
-            if s < limit:
-                m = write_point(normal, separation, point, feature, m, nx, ny, nz, s, px, py, pz, 0)
-        elif sa == SPHERE and sb == BOX:
-            nx, ny, nz, s, px, py, pz = sphere_box_point(centre[a], prim_radius[a], centre[b], Rb, prim_half[b])
-            if s < limit:
-                m = write_point(normal, separation, point, feature, m, nx, ny, nz, s, px, py, pz, 0)
-        elif sa == SPHERE:
-            _column(Rb, 2, axis_b)
-            nx, ny, nz, s, px, py, pz = sphere_capsule_point(centre[a], prim_radius[a], centre[b], axis_b,
-                                                             prim_half[b, 2], prim_radius[b])
-            if s < limit:
-                m = write_point(normal, separation, point, feature, m, nx, ny, nz, s, px, py, pz, 0)
-        elif sa == BOX and sb == BOX:
-            m = box_box_contacts(centre[a], Ra, prim_half[a], centre[b], Rb, prim_half[b], limit, normal, separation,
-                                 point, feature, m)
-        elif sa == BOX:
-            _column(Rb, 2, axis_b)
-            m = box_capsule_contacts(centre[a], Ra, prim_half[a], centre[b], axis_b, prim_half[b, 2], prim_radius[b],
-                                     limit, normal, separation, point, feature, m)
-        else:
-            _column(Ra, 2, axis_a)
-            _column(Rb, 2, axis_b)
-            m = capsule_capsule_contacts(centre[a], axis_a, prim_half[a, 2], prim_radius[a], centre[b], axis_b,
-                                         prim_half[b, 2], prim_radius[b], limit, normal, separation, point, feature, m)
+        m = _pair_contacts(a, b, primitives, poses, axes, out, m)
         prim_a[start:m] = a
         prim_b[start:m] = b
+    return _contact_set(primitives, out, prim_a, prim_b, m, active, ground)
 
-    # -- bodies, identity keys and materials; sleeping (movable, not active) bodies touched
+
+@njit(inline="always")
+def _ground_contacts(k, primitives, poses, axis, out, m):
+    """The ground (A) against primitive ``k`` (B), written into ``out`` from row ``m``; returns the next free row.
+    ``axis`` (3,): work space."""
+    shape, centre, margin = primitives.shape[k], poses.centre[k], poses.margin[k]
+    R = poses.rotation[primitives.body[k]]
+    if shape == SPHERE:
+        nx, ny, nz, s, px, py, pz = sphere_plane_point(centre, primitives.radius[k])
+        if s < margin:
+            m = write_point(out, m, nx, ny, nz, s, px, py, pz, 0)
+    elif shape == BOX:
+        m = box_plane_contacts(Box(centre, R, primitives.half_extents[k]), margin, out, m)
+    else:
+        _column(R, 2, axis)
+        m = capsule_plane_contacts(Capsule(centre, axis, primitives.half_extents[k, 2], primitives.radius[k]),
+                                   margin, out, m)
+    return m
+
+
+@njit(inline="always")
+def _pair_contacts(a, b, primitives, poses, axes, out, m):
+    """Primitive ``a`` (A) against primitive ``b`` (B), shapes in SPHERE < BOX < CAPSULE order, written into
+    ``out`` from row ``m``; returns the next free row.  ``axes`` (2, 3): work space."""
+    sa, sb = primitives.shape[a], primitives.shape[b]
+    centre, radius, half = poses.centre, primitives.radius, primitives.half_extents
+    Ra, Rb = poses.rotation[primitives.body[a]], poses.rotation[primitives.body[b]]
+    limit = poses.margin[a] + poses.margin[b]
+    axis_a, axis_b = axes[0], axes[1]
+    if sa == SPHERE and sb != BOX and sb != CAPSULE:
+        nx, ny, nz, s, px, py, pz = sphere_sphere_point(centre[a, 0], centre[a, 1], centre[a, 2], radius[a],
+                                                        centre[b, 0], centre[b, 1], centre[b, 2], radius[b])
+        if s < limit:
+            m = write_point(out, m, nx, ny, nz, s, px, py, pz, 0)
+    elif sa == SPHERE and sb == BOX:
+        nx, ny, nz, s, px, py, pz = sphere_box_point(centre[a], radius[a], Box(centre[b], Rb, half[b]))
+        if s < limit:
+            m = write_point(out, m, nx, ny, nz, s, px, py, pz, 0)
+    elif sa == SPHERE:
+        _column(Rb, 2, axis_b)
+        nx, ny, nz, s, px, py, pz = sphere_capsule_point(centre[a], radius[a],
+                                                         Capsule(centre[b], axis_b, half[b, 2], radius[b]))
+        if s < limit:
+            m = write_point(out, m, nx, ny, nz, s, px, py, pz, 0)
+    elif sa == BOX and sb == BOX:
+        m = box_box_contacts(Box(centre[a], Ra, half[a]), Box(centre[b], Rb, half[b]), limit, out, m)
+    elif sa == BOX:
+        _column(Rb, 2, axis_b)
+        m = box_capsule_contacts(Box(centre[a], Ra, half[a]), Capsule(centre[b], axis_b, half[b, 2], radius[b]),
+                                 limit, out, m)
+    else:
+        _column(Ra, 2, axis_a)
+        _column(Rb, 2, axis_b)
+        m = capsule_capsule_contacts(Capsule(centre[a], axis_a, half[a, 2], radius[a]),
+                                     Capsule(centre[b], axis_b, half[b, 2], radius[b]), limit, out, m)
+    return m
+
+
+@njit
+def _contact_set(primitives, out, prim_a, prim_b, m, active, ground):
+    """The :class:`ContactSet` of the ``m`` points in ``out`` (of primitives ``prim_a``, ``prim_b``: bodies,
+    identity keys, materials), and ``touched (n,)``: the sleeping (movable, not active) bodies touched."""
+    prim_body, body_friction, body_restitution = primitives.body, primitives.body_friction, primitives.body_restitution
+    p = len(prim_body)
     touched = np.zeros(len(active), np.bool_)
     body_a = np.empty(m, np.int64)
     body_b = np.empty(m, np.int64)
@@ -361,18 +448,19 @@ def narrow_phase(prim_body, prim_shape, prim_radius, prim_half, body_friction, b
         body_b[c] = prim_body[prim_b[c]]
         if prim_a[c] < 0:
             body_a[c] = GROUND
-            mu_a, e_a = ground_friction, ground_restitution
+            mu_a, e_a = ground.friction, ground.restitution
         else:
             body_a[c] = prim_body[prim_a[c]]
             mu_a, e_a = body_friction[body_a[c]], body_restitution[body_a[c]]
         friction[c] = combine_friction(mu_a, body_friction[body_b[c]])
         restitution[c] = combine_restitution(e_a, body_restitution[body_b[c]])
-        key[c] = contact_key(prim_a[c], prim_b[c], feature[c], p)
+        key[c] = contact_key(prim_a[c], prim_b[c], out.feature[c], p)
         for body in (body_a[c], body_b[c]):
-            if body >= 0 and movable[body] and not active[body]:
+            if body >= 0 and not primitives.fixed_body[body] and not active[body]:
                 touched[body] = True
-    return (body_a, body_b, normal[:m].copy(), separation[:m].copy(), point[:m].copy(), key, friction,
-            restitution, touched)
+    contacts = ContactSet(body_a, body_b, out.normal[:m].copy(), out.separation[:m].copy(), out.point[:m].copy(),
+                          key, friction, restitution)
+    return contacts, touched
 
 
 @njit

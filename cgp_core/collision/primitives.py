@@ -13,12 +13,18 @@ were for the scenes without them.
 
 Built once per :class:`~cgp_core.bodies.BodyModel` (the model is static); :func:`primitive_bounds` places the
 primitives at the bodies' current poses and bounds them.
+
+The :class:`CollisionModel` is a bundle the compiled stages take whole (see "Bundles" in :mod:`cgp_core.jit`):
+a new primitive kind is a shape code and the field or two its geometry needs — per-primitive variable-size data
+(a convex hull's vertices, faces, adjacency; a mesh's triangles) stored CSR-style, e.g. ``vertex_start (p + 1,)``
+and ``vertices (V, 3)`` with primitive k's rows ``vertex_start[k] : vertex_start[k + 1]`` — filled in
+:func:`build_collision_model`; the signatures of the detector's stages do not change.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -26,30 +32,20 @@ from ..bodies import BodyModel, Shape
 from ..jit import njit
 
 
-@dataclass
-class CollisionModel:
-    """``p`` primitives of ``n`` bodies.
+class CollisionModel(NamedTuple):
+    """``p`` primitives of ``n`` bodies, and the per-body numbers contact detection needs."""
 
-    Attributes (shapes):
-        body:          (p,) intp — owning body.
-        shape:         (p,) int8 — ``Shape.SPHERE``, ``BOX`` or ``CAPSULE`` (particles become spheres).
-        offset:        (p, 3) — primitive centre in the body frame (0 except for particles).
-        radius:        (p,) — sphere / capsule radius (0 for boxes).
-        half_extents:  (p, 3) — box half sizes; capsule (0, 0, half_length); sphere zeros.
-        extent:        (p,) — radius of the primitive's bounding sphere about its centre.
-        body_reach:    (n,) — farthest distance from a body's COM to its surface: bounds how far any surface
-                       point moves when the body turns by an angle θ (≤ reach · θ).
-        fixed_body:    (n,) bool — the body never moves (pairs of two fixed bodies are skipped).
-    """
-
-    body: np.ndarray
-    shape: np.ndarray
-    offset: np.ndarray
-    radius: np.ndarray
-    half_extents: np.ndarray
-    extent: np.ndarray
-    body_reach: np.ndarray
-    fixed_body: np.ndarray
+    body: np.ndarray              # (p,) intp — owning body
+    shape: np.ndarray             # (p,) int8 — ``Shape.SPHERE``, ``BOX`` or ``CAPSULE`` (particles become spheres)
+    offset: np.ndarray            # (p, 3) — primitive centre in the body frame (0 except for particles)
+    radius: np.ndarray            # (p,) — sphere / capsule radius (0 for boxes)
+    half_extents: np.ndarray      # (p, 3) — box half sizes; capsule (0, 0, half_length); sphere zeros
+    extent: np.ndarray            # (p,) — radius of the primitive's bounding sphere about its centre
+    body_reach: np.ndarray        # (n,) — farthest distance from a body's COM to its surface: bounds how far any
+    #                               surface point moves when the body turns by an angle θ (≤ reach · θ)
+    fixed_body: np.ndarray        # (n,) bool — the body never moves (pairs of two fixed bodies are skipped)
+    body_friction: np.ndarray     # (n,) — the body's Coulomb μ (a contact combines its two, see .materials)
+    body_restitution: np.ndarray  # (n,) — the body's coefficient of restitution e
 
     @property
     def count(self) -> int:
@@ -87,10 +83,11 @@ def build_collision_model(model: BodyModel) -> CollisionModel:
             continue  # primitives of collision.convex_phase (see the module docstring)
         else:
             raise ValueError(f"body {model.names[i]!r}: unknown shape code {s}")
+    friction, restitution = np.asarray(model.friction, dtype=float), np.asarray(model.restitution, dtype=float)
     if not body:  # (a model of hulls, compounds and meshes alone has none of these primitives)
         return CollisionModel(np.zeros(0, np.intp), np.zeros(0, np.int8), np.zeros((0, 3)), np.zeros(0),
                               np.zeros((0, 3)), np.zeros(0), np.zeros(model.count),
-                              np.asarray(model.inv_mass) <= 0.0)
+                              np.asarray(model.inv_mass) <= 0.0, friction, restitution)
     body_a = np.concatenate(body).astype(np.intp)
     shape_a = np.concatenate(shape).astype(np.int8)
     offset_a = np.concatenate(offset)
@@ -105,19 +102,45 @@ def build_collision_model(model: BodyModel) -> CollisionModel:
     body_reach = np.zeros(model.count)
     np.maximum.at(body_reach, body_a, reach_p)
     return CollisionModel(body=body_a, shape=shape_a, offset=offset_a, radius=radius_a, half_extents=half_a,
-                          extent=extent, body_reach=body_reach, fixed_body=np.asarray(model.inv_mass) <= 0.0)
+                          extent=extent, body_reach=body_reach, fixed_body=np.asarray(model.inv_mass) <= 0.0,
+                          body_friction=friction, body_restitution=restitution)
+
+
+class BodyMotion(NamedTuple):
+    """The ``n`` bodies' poses and the velocities they will move with over the sub-step."""
+
+    position: np.ndarray          # (n, 3) centres of mass x̄ [m]
+    rotation: np.ndarray          # (n, 3, 3) R (body → world)
+    velocity: np.ndarray          # (n, 3) v [m/s]
+    angular_velocity: np.ndarray  # (n, 3) ω, world [rad/s]
+
+
+class PrimitivePoses(NamedTuple):
+    """Where the ``p`` primitives are this sub-step, and how far they may get."""
+
+    centre: np.ndarray    # (p, 3) primitive centres, world [m]
+    rotation: np.ndarray  # (n, 3, 3) the bodies' rotations (a primitive turns with its body)
+    lo: np.ndarray        # (p, 3) AABB lower corners grown by the margin (NaN: the body is not finite)
+    hi: np.ndarray        # (p, 3) AABB upper corners grown by the margin
+    margin: np.ndarray    # (p,) speculative margin of the primitive's body [m]
 
 
 @njit
-def primitive_bounds(prim_body, offset, radius, half_extents, body_reach, position, rotation, velocity,
-                     angular_velocity, h, speculative_distance):
-    """Primitive centres ``(p, 3)``, AABBs ``lo, hi (p, 3)`` grown by the speculative margin (NaN for a primitive
-    whose bounds or margin are not finite), and the margins ``(p,)`` (their bodies').
+def primitive_bounds(primitives, motion, h, speculative_distance):
+    """The :class:`PrimitivePoses` of the :class:`CollisionModel` ``primitives`` moving with the
+    :class:`BodyMotion` ``motion`` over a sub-step of ``h``: centres, AABBs grown by the speculative margin (NaN
+    for a primitive whose bounds or margin are not finite), margins (their bodies').  Bundles as plain tuples
+    from Python (see :mod:`cgp_core.jit`).
 
     The margin of a body is ``speculative_distance + h (|v| + |ω| · reach)`` (see the module docstring).
     The tight AABB of a box is its centre ± ``|R| h`` along the world axes (Ericson 4.2.6); a capsule's is its
     segment's box grown by the radius.
     """
+    primitives, motion = CollisionModel(*primitives), BodyMotion(*motion)
+    prim_body, offset, radius, half_extents = (primitives.body, primitives.offset, primitives.radius,
+                                               primitives.half_extents)
+    body_reach, position, rotation = primitives.body_reach, motion.position, motion.rotation
+    velocity, angular_velocity = motion.velocity, motion.angular_velocity
     p = len(prim_body)
     centre = np.empty((p, 3))
     lo = np.empty((p, 3))
@@ -143,15 +166,14 @@ def primitive_bounds(prim_body, offset, radius, half_extents, body_reach, positi
             # tick) takes no part in collisions rather than dragging others along: NaN bounds overlap nothing
             lo[k, :] = np.nan
             hi[k, :] = np.nan
-    return centre, lo, hi, margin
+    return PrimitivePoses(centre, rotation, lo, hi, margin)
 
 
 def primitive_aabbs(cmodel: CollisionModel, position: np.ndarray, rotation: np.ndarray):
     """Tight world AABBs ``lo, hi (p, 3)`` of the primitives for body poses ``position (n, 3)``, ``rotation
     (n, 3, 3)`` (:func:`primitive_bounds` with no margin)."""
     n = len(position)
-    _, lo, hi, _ = primitive_bounds(cmodel.body, cmodel.offset, cmodel.radius, cmodel.half_extents,
-                                    cmodel.body_reach, np.ascontiguousarray(position, dtype=float),
-                                    np.ascontiguousarray(rotation, dtype=float), np.zeros((n, 3)), np.zeros((n, 3)),
-                                    0.0, 0.0)
-    return lo, hi
+    motion = BodyMotion(np.ascontiguousarray(position, dtype=float), np.ascontiguousarray(rotation, dtype=float),
+                        np.zeros((n, 3)), np.zeros((n, 3)))
+    poses = primitive_bounds(tuple(cmodel), tuple(motion), 0.0, 0.0)
+    return poses.lo, poses.hi

@@ -51,6 +51,7 @@ import numpy as np
 
 from ..bodies import BodyModel, BodyState
 from ..jit import njit
+from ..rotation import quat_rotate_scalar
 from .base import check_step, inverse3_into
 
 #: Largest value of h |L| ‖I_body⁻¹‖_F one implicit solve is given.  This bounds both h|Ω| (the angle turned
@@ -158,13 +159,10 @@ def _free_rotation_kernel(inv_inertia, q, angular_momentum, h, movable):
 @njit
 def _midpoint_rotation(W, q, L, h, pi_mid):
     """One implicit-midpoint step of the free rotation of one body, ``q`` (4,) updated in place."""
-    # Π = Rᵀ L: L rotated by the conjugate quaternion (v + w t + u × t with t = 2 u × v, u = −(x, y, z))
-    ux, uy, uz, w = -q[0], -q[1], -q[2], q[3]
-    tx, ty, tz = 2.0 * (uy * L[2] - uz * L[1]), 2.0 * (uz * L[0] - ux * L[2]), 2.0 * (ux * L[1] - uy * L[0])
+    # Π = Rᵀ L: L rotated by the conjugate quaternion (base.body_angular_momentum, one body)
+    w = q[3]
     pi_n = np.empty(3)
-    pi_n[0] = L[0] + w * tx + (uy * tz - uz * ty)
-    pi_n[1] = L[1] + w * ty + (uz * tx - ux * tz)
-    pi_n[2] = L[2] + w * tz + (ux * ty - uy * tx)
+    pi_n[0], pi_n[1], pi_n[2] = quat_rotate_scalar(-q[0], -q[1], -q[2], w, L[0], L[1], L[2])
     unconverged = solve_midpoint_momentum(W, pi_n, h, pi_mid)
     # v = h Ω_mid / 2;  q ⊗ [v, 1] = [u + w v + u × v,  w − u·v] for q = [u, w]; normalized, q ⊗ cay(h Ω̂_mid)
     v0 = 0.5 * h * (W[0, 0] * pi_mid[0] + W[0, 1] * pi_mid[1] + W[0, 2] * pi_mid[2])

@@ -27,7 +27,7 @@ solve, so a resting body gets exactly the impulse that cancels it — and the ro
   (velocity from the momentum alone) and whose gap closes within it asks instead for
   J V ≥ −e · (J V)_before (Box2D v2's velocity bias; the threshold keeps resting contacts from
   micro-bouncing).  A bounce off the static world from a speculative contact is also put at its time of
-  impact (see :func:`solve_contacts`).
+  impact (see :func:`apply_restitution`).
 
 The accumulated impulses are added to P and L at the start of the sub-step: ΔP = Σ J_linᵀ λ, ΔL = Σ J_angᵀ λ
 (= Σ r × impulse), equal and opposite on the two bodies at the same point, so momentum is conserved to
@@ -59,24 +59,36 @@ the same Jacobians and manifolds finds position / orientation corrections D with
 ``max_correction``), λ ≥ 0.  D moves the bodies; P is not touched and L is turned with the body (the
 body-frame angular momentum stays the same), so the kinetic energy is unchanged exactly.
 
-Data layout of a sub-step (m contacts sorted by body pair, G manifolds, n bodies + one static row n for the
-ground): ``J, MJ (m, 3, 12)`` the rows [n, t₁, t₂] of J and M⁻¹Jᵀ (body a's six entries, then b's), ``eff (m, 3)``,
-``lam (m, 3)`` accumulated impulses, ``V (n + 1, 6)`` velocities [v, ω], ``group_start (G + 1,)``, and the
-manifold block cache ``A (G, 4, 4)`` with its pseudo-inverses ``(G, 16, 4, 4)``.
+**The stages** (Box2D v3's ``b2PrepareContactsTask``, ``b2WarmStartContactsTask``, ``b2SolveContactsTask``,
+``b2ApplyRestitutionTask``, ``b2StoreImpulsesTask``, here one compiled function each), run in this order by
+:func:`solve_step`, which times each into :attr:`SequentialImpulseSolver.profile`:
+
+1. :func:`prepare_bodies` — the n + 1 body rows (row n: the static ground) and their velocities V, V_before;
+2. :func:`prepare_contacts` — the contacts that can move something sorted into manifolds, matched with the
+   previous sub-step's, their rows J, M⁻¹Jᵀ and effective masses, the manifolds' blocks, the targets;
+3. :func:`warm_start_contacts` — the matched impulses applied;
+4. :func:`solve_contacts` — the sweeps;
+5. :func:`apply_restitution` — bounces off the static world placed at their time of impact;
+6. :func:`apply_impulses` — the accumulated impulses (and rolling resistance) added to P and L;
+7. :func:`store_impulses` — the warm-start memory for the next sub-step;
+
+and after the integrator, :func:`recover_penetration_kernel` (the position stage).  What they hand each other
+is named in :mod:`.arrays` (``SolverBodies``, ``Manifolds``, ``Rows``, ``Targets``, ``WarmStart``, every array
+with its shape).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from ..bodies import BodyModel, BodyState
+from ..bodies import BodyModel, BodyState, tensor_times
 from ..collision import CollisionDetector, ContactSet
 from ..collision.detector import FEATURE_SLOTS
-from ..jit import njit
+from ..jit import StageProfile, clock, lap, njit
 from ..rotation import (
     quat_multiply_scalar,
     quat_rotate_scalar,
@@ -84,23 +96,49 @@ from ..rotation import (
     quat_to_rotvec_scalar,
     rotvec_to_quat_scalar,
 )
+from .arrays import (
+    BodyArrays,
+    Manifolds,
+    RecoveryBodies,
+    Rows,
+    Scratch,
+    Solved,
+    SolverBodies,
+    StepSettings,
+    Targets,
+    WarmStart,
+)
 from .base import SolverSettings
 from .manifold import MAX_BLOCK, solve_manifold_lcp
 
-#: extra sweeps over the manifolds holding a bouncing point (see the sweeps in solve_contacts)
+#: extra sweeps over the manifolds holding a bouncing point (see solve_contacts)
 IMPACT_SWEEPS = 16
+
+#: the stages of :attr:`SequentialImpulseSolver.profile`, in order (the velocity stage's, then the position stage)
+STAGES = ("prepare", "warm_start", "solve", "restitution", "apply_impulses", "store_impulses", "recover_penetration")
+PREPARE, WARM_START, SOLVE, RESTITUTION, APPLY_IMPULSES, STORE_IMPULSES, RECOVER = range(len(STAGES))
+
+
+class Tangents(NamedTuple):
+    """Two unit tangents t₁, t₂ completing a unit normal to a right-handed frame (n, t₁, t₂)."""
+
+    t1x: float
+    t1y: float
+    t1z: float
+    t2x: float
+    t2y: float
+    t2z: float
 
 
 @njit
 def tangent_basis_scalar(x, y, z):
-    """Two unit tangents completing the unit normal (x, y, z) to a right-handed orthonormal frame (n, t₁, t₂),
-    by the branch-free construction of Duff et al. (JCGT 2017, "Building an orthonormal basis, revisited"); a
-    pure function of n, so a contact whose normal does not change keeps its tangents (the ground's are x and
-    y).  Returns ``(t1x, t1y, t1z, t2x, t2y, t2z)``."""
+    """The :class:`Tangents` of the unit normal (x, y, z), by the branch-free construction of Duff et al. (JCGT
+    2017, "Building an orthonormal basis, revisited"); a pure function of n, so a contact whose normal does not
+    change keeps its tangents (the ground's are x and y)."""
     sign = 1.0 if z >= 0.0 else -1.0
     a = -1.0 / (sign + z)
     b = x * y * a
-    return 1.0 + sign * x * x * a, sign * b, -sign * x, b, sign + y * y * a, -y
+    return Tangents(1.0 + sign * x * x * a, sign * b, -sign * x, b, sign + y * y * a, -y)
 
 
 # ---- warm-start matching -----------------------------------------------------------------------------------
@@ -148,7 +186,7 @@ def match_previous(key, point, old_key, old_point):
     return prev
 
 
-# ---- stage "solve contacts" -----------------------------------------------------------------------------
+# ---- row helpers --------------------------------------------------------------------------------------------
 
 #: the rows of a contact in ``J``, ``MJ``, ``eff`` and ``lam``: the normal and the two tangents.  numpy integers,
 #: not Python ints: numba compiles a kernel called with a literal int once for each value (three copies of each
@@ -172,10 +210,96 @@ def _apply(MJ, c, r, delta, V, a, b):
         V[b, k] += MJ[c, r, 6 + k] * delta
 
 
+# ---- 1. prepare the bodies --------------------------------------------------------------------------------
+
 @njit
-def build_rows(a, b, normal, point, position, inv_mass, inv_inertia):
-    """The rows of m contacts: ``J, MJ (m, 3, 12)`` (directions n, t₁, t₂; see the module docstring) and the
-    effective masses ``eff (m, 3)``; also the lever arms ``r_a, r_b (m, 3)``."""
+def prepare_bodies(bodies, h):
+    """The n + 1 :class:`SolverBodies` rows of the n bodies in ``bodies`` (:class:`BodyArrays`) and the static
+    row n: the movable ones dynamic, with V = M⁻¹ (momentum + h·force) — gravity is inside the solve, so a
+    resting body gets exactly the impulse that cancels it — and V_before = M⁻¹ momentum."""
+    n = len(bodies.position)
+    inv_mass = np.zeros(n + 1)
+    dynamic = np.zeros(n + 1, np.bool_)
+    inv_inertia = np.zeros((n + 1, 3, 3))
+    pos = np.zeros((n + 1, 3))
+    V = np.zeros((n + 1, 6))  # the velocities being solved for: from momentum + h·force ...
+    V_before = np.zeros((n + 1, 6))  # ... and before this sub-step's forces (restitution)
+    position, P, L = bodies.position, bodies.linear_momentum, bodies.angular_momentum
+    F, T = bodies.force, bodies.torque
+    # element by element, not pos[i] = position[i]: numba compiles a row copy with a shape check whose error
+    # message alone takes seconds to compile (measured: 3 s of this module's ~20 s)
+    for i in range(n):
+        for k in range(3):
+            pos[i, k] = position[i, k]
+        if not bodies.movable[i]:
+            continue
+        dynamic[i] = True
+        inv_mass[i] = bodies.inv_mass[i]
+        for r in range(3):
+            for c in range(3):
+                inv_inertia[i, r, c] = bodies.inv_inertia[i, r, c]
+        for k in range(3):
+            V[i, k] = (P[i, k] + h * F[i, k]) * inv_mass[i]
+            V_before[i, k] = P[i, k] * inv_mass[i]
+        # ω = I_world⁻¹ L (bodies.tensor_times), with and without this sub-step's torque
+        V[i, 3], V[i, 4], V[i, 5] = tensor_times(inv_inertia[i], L[i, 0] + h * T[i, 0], L[i, 1] + h * T[i, 1],
+                                                 L[i, 2] + h * T[i, 2])
+        V_before[i, 3], V_before[i, 4], V_before[i, 5] = tensor_times(inv_inertia[i], L[i, 0], L[i, 1], L[i, 2])
+    return SolverBodies(inv_mass, inv_inertia, pos, dynamic, V, V_before)
+
+
+# ---- 2. prepare the contacts ------------------------------------------------------------------------------
+
+@njit
+def prepare_contacts(contacts, bodies, memory, settings):
+    """Box2D's prepare stage for a :class:`ContactSet`: the contacts that can move something (a contact between
+    two bodies that cannot move needs no impulse, and has no effective mass) sorted by body pair into
+    :class:`Manifolds`, each matched with the previous sub-step's (``memory``, :class:`WarmStart`); their
+    :class:`Rows`; their :class:`Targets`.  Returns those three and the deepest penetration among all the
+    contacts given."""
+    n = len(bodies.position) - 1
+    deepest = 0.0
+    count = 0
+    pair = np.empty(len(contacts.body_b), np.int64)
+    kept = np.empty(len(contacts.body_b), np.int64)
+    for c in range(len(contacts.body_b)):
+        deepest = max(deepest, -contacts.separation[c])
+        ia = n if contacts.body_a[c] < 0 else contacts.body_a[c]
+        if bodies.dynamic[ia] or bodies.dynamic[contacts.body_b[c]]:
+            pair[count] = ia * (n + 1) + contacts.body_b[c]
+            kept[count] = c
+            count += 1
+    order = kept[:count][np.argsort(pair[:count], kind="mergesort")]
+    m = len(order)
+    a = np.empty(m, np.int64)
+    b = np.empty(m, np.int64)
+    group_start = np.empty(m + 1, np.int64)
+    G = 0
+    for q in range(m):
+        c = order[q]
+        a[q] = n if contacts.body_a[c] < 0 else contacts.body_a[c]
+        b[q] = contacts.body_b[c]
+        if q == 0 or a[q] != a[q - 1] or b[q] != b[q - 1]:
+            group_start[G] = q
+            G += 1
+    group_start[G] = m
+    group_start = group_start[:G + 1].copy()
+    key, point = contacts.key[order], contacts.point[order]
+    manifolds = Manifolds(a, b, group_start, contacts.normal[order], contacts.separation[order], point,
+                          contacts.friction[order], contacts.restitution[order], key,
+                          match_previous(key, point, memory.key, memory.point))
+    J, MJ, eff, lever = build_rows(manifolds, bodies)
+    A, cache, cached = manifold_blocks(group_start, J, MJ)
+    rows = Rows(J, MJ, eff, lever, A, cache, cached)
+    return manifolds, rows, velocity_targets(manifolds, rows, bodies, settings), deepest
+
+
+@njit
+def build_rows(manifolds, bodies):
+    """The rows of the m contacts: ``J, MJ (m, 3, 12)`` (directions n, t₁, t₂; see the module docstring), the
+    effective masses ``eff (m, 3)`` and the lever arms ``r_a, r_b (m, 2, 3)``."""
+    a, b, normal, point = manifolds.a, manifolds.b, manifolds.normal, manifolds.point
+    position, inv_mass, inv_inertia = bodies.position, bodies.inv_mass, bodies.inv_inertia
     m = len(a)
     J = np.zeros((m, 3, 12))
     MJ = np.zeros((m, 3, 12))
@@ -237,71 +361,109 @@ def manifold_blocks(group_start, J, MJ):
 
 
 @njit
-def _solve_normal_rows(g, lo, hi, a, b, J, MJ, eff, lam, target, lower, V, A, cache, cached, scratch, must,
-                       scratch_big):
-    """Update the normal rows of manifold ``g`` (contacts lo..hi−1) towards J V ≥ target with accumulated
-    λ ≥ ``lower`` (0: a contact only pushes; −inf: a two-sided row, J V = target): exactly as a block for ≤ 4
-    points (falling back to one point at a time if the block has no exact solution), else one point at a time.
-    ``lam (m,)`` is updated in place, V too; ``scratch (2, 4)``, ``must (4,)``, ``scratch_big (m, 2)``: work
-    space.  Returns the
-    largest |Δλ| / eff."""
-    P = hi - lo
-    change = 0.0
-    if 1 < P <= MAX_BLOCK:
-        bvec, x = scratch[0], scratch[1]
-        for i in range(P):
-            c = lo + i
-            bvec[i] = _row_velocity(J, c, NORMAL, V, a[c], b[c]) - target[c]
-            for j in range(P):
-                bvec[i] -= A[g, i, j] * lam[lo + j]
-            must[i] = lower[c] == -np.inf
-        if solve_manifold_lcp(A[g], P, bvec, must, cache[g], cached[g], x):
-            for i in range(P):
-                c = lo + i
-                delta = x[i] - lam[c]
-                lam[c] = x[i]
-                _apply(MJ, c, NORMAL, delta, V, a[c], b[c])
-                change = max(change, abs(delta) / eff[c, 0])
-            return change
-    if P > MAX_BLOCK:
-        # a big group (a particle plate on the ground): a Jacobi step on all its points from the same
-        # velocities, each seeing its bodies with 1/P of their mass (mass splitting, Tonge et al. 2012), so the
-        # increments add up without overshooting; point-by-point Gauss–Seidel on 16 rigidly coupled points
-        # converges too slowly to bring a plate to rest in 8 sweeps
-        for i in range(P):
-            c = lo + i
-            vn = _row_velocity(J, c, NORMAL, V, a[c], b[c])
-            new = max(lam[c] - eff[c, 0] / P * (vn - target[c]), lower[c])
-            scratch_big[i, 0] = new - lam[c]
-            lam[c] = new
-        for i in range(P):
-            c = lo + i
-            _apply(MJ, c, NORMAL, scratch_big[i, 0], V, a[c], b[c])
-            change = max(change, abs(scratch_big[i, 0]) / eff[c, 0])
-        return change
-    for c in range(lo, hi):
-        change = max(change, _push_normal_row(c, J, MJ, eff, lam, target, lower, V, a[c], b[c]))
-    return change
+def velocity_targets(manifolds, rows, bodies, settings):
+    """The :class:`Targets`: speculative contacts close their gap and no more; fast approaches bounce."""
+    a, b, separation, restitution = manifolds.a, manifolds.b, manifolds.separation, manifolds.restitution
+    J, V, V_before, h = rows.J, bodies.velocity, bodies.velocity_before, settings.h
+    m = len(a)
+    bias = np.empty(m)
+    lower = np.zeros(m)
+    vn_before = np.empty(m)
+    bounce = np.zeros(m, np.bool_)
+    for c in range(m):
+        bias[c] = -max(separation[c], 0.0) / h
+        vn_before[c] = _row_velocity(J, c, NORMAL, V_before, a[c], b[c])
+        vn_free = _row_velocity(J, c, NORMAL, V, a[c], b[c])
+        # restitution: a contact approaching faster than the threshold before the sub-step whose gap closes
+        # within it (at the contact-free velocity) bounces: its target is −e times the approach speed
+        if restitution[c] > 0.0 and vn_before[c] < -settings.restitution_threshold \
+                and separation[c] + h * vn_free < 0.0:
+            bounce[c] = True
+            bias[c] = max(bias[c], -restitution[c] * vn_before[c])
+    return Targets(bias, lower, vn_before, bounce, np.full(m, np.nan))
 
+
+# ---- 3. warm start ----------------------------------------------------------------------------------------
 
 @njit
-def _push_normal_row(c, J, MJ, eff, lam, target, lower, V, a, b):
-    """One sequential-impulse update of the normal row of contact ``c`` alone (accumulated λ ≥ ``lower[c]``);
-    returns |Δλ| / eff."""
-    vn = _row_velocity(J, c, NORMAL, V, a, b)
-    new = max(lam[c] - eff[c, 0] * (vn - target[c]), lower[c])
-    delta = new - lam[c]
-    lam[c] = new
-    _apply(MJ, c, NORMAL, delta, V, a, b)
-    return abs(delta) / eff[c, 0]
+def warm_start_contacts(manifolds, rows, bodies, memory, warm_start):
+    """The accumulated impulses ``lam (m, 3)`` to start from: the matched contacts' of the previous sub-step
+    (``memory``; the friction vector re-projected onto the new tangents and clamped to the cone), applied to
+    ``bodies.velocity``; zeros for the rest (and for all with ``warm_start`` off)."""
+    a, b, J, MJ, V = manifolds.a, manifolds.b, rows.J, rows.MJ, bodies.velocity
+    m = len(a)
+    lam = np.zeros((m, 3))
+    if warm_start:
+        for c in range(m):
+            o = manifolds.previous[c]
+            if o < 0:
+                continue
+            lam[c, 0] = memory.normal[o]
+            f = memory.friction[o]
+            t1 = f[0] * J[c, 1, 6] + f[1] * J[c, 1, 7] + f[2] * J[c, 1, 8]  # J[c, r, 6:9] is the direction
+            t2 = f[0] * J[c, 2, 6] + f[1] * J[c, 2, 7] + f[2] * J[c, 2, 8]
+            scale = min(1.0, manifolds.friction[c] * lam[c, 0] / max(math.sqrt(t1 * t1 + t2 * t2), 1e-300))
+            lam[c, 1], lam[c, 2] = t1 * scale, t2 * scale
+            for r in range(3):
+                _apply(MJ, c, r, lam[c, r], V, a[c], b[c])
+    return lam
+
+
+# ---- 4. solve: the sweeps ---------------------------------------------------------------------------------
+
+@njit
+def solve_contacts(manifolds, rows, targets, lam, bodies, settings):
+    """The sweeps: manifold after manifold (:func:`_solve_manifold`), updating ``lam`` and ``bodies.velocity``
+    in place, until a whole sweep changed no row velocity by more than ``velocity_tolerance`` (a warm-started
+    resting stack is converged after one) or ``velocity_iterations`` sweeps; then the impact sweeps.  Returns
+    the number of sweeps run."""
+    group_start = manifolds.group_start
+    m = len(manifolds.a)
+    G = len(group_start) - 1
+    lam_n = np.empty(m)
+    scratch = Scratch(np.empty((2, MAX_BLOCK)), np.zeros(MAX_BLOCK, np.bool_), np.empty((m, 2)))
+    # impacts: manifolds (multi-point groups) converge slowest exactly when the impulse changes most, so the
+    # manifolds holding a bouncing point get up to ``impact_sweeps`` extra sweeps after the regular ones
+    # (impacts are rare; resting manifolds are warm)
+    impact = np.zeros(G, np.bool_)
+    any_impact = False
+    for g in range(G):
+        if group_start[g + 1] - group_start[g] > 1:
+            for c in range(group_start[g], group_start[g + 1]):
+                if targets.bounce[c]:
+                    impact[g] = True
+                    any_impact = True
+    sweeps = 0
+    impact_done = 0
+    regular = True  # the regular sweeps over every manifold first, then the impact sweeps
+    while True:
+        change = 0.0
+        for g in range(G):
+            if regular or impact[g]:
+                change = max(change, _solve_manifold(g, manifolds, rows, targets, lam, lam_n, bodies.velocity,
+                                                     scratch))
+        # each kind stops once a whole sweep changed no row velocity by more than the tolerance (a warm-started
+        # resting stack is converged after one), or after its number of sweeps
+        if regular:
+            sweeps += 1
+            if change <= settings.velocity_tolerance or sweeps >= settings.velocity_iterations:
+                regular = False
+                if not any_impact or settings.impact_sweeps == 0:
+                    break
+        else:
+            impact_done += 1
+            if change <= settings.velocity_tolerance or impact_done >= settings.impact_sweeps:
+                break
+    return sweeps
 
 
 @njit(inline="always")
-def _solve_manifold(g, lo, hi, a, b, J, MJ, eff, lam, lam_n, bias, lower, mu, V, A, cache, cached, scratch, must,
-                    scratch_big):
+def _solve_manifold(g, manifolds, rows, targets, lam, lam_n, V, scratch):
     """One Gauss–Seidel update of manifold ``g``: each point's two friction rows (a step on both from the same
     velocities, clamped to the Coulomb cone |λ_t| ≤ μ λₙ with the current λₙ), then the normal rows.  Returns
     the largest change of a row's own velocity, |Δλ| / eff [m/s] (for the early stop)."""
+    a, b, J, MJ, eff, mu = manifolds.a, manifolds.b, rows.J, rows.MJ, rows.eff, manifolds.friction
+    lo, hi = manifolds.group_start[g], manifolds.group_start[g + 1]
     change = 0.0
     P = hi - lo
     jacobi = P > 1
@@ -320,148 +482,134 @@ def _solve_manifold(g, lo, hi, a, b, J, MJ, eff, lam, lam_n, bias, lower, mu, V,
             _apply(MJ, c, TANGENT_1, d1, V, a[c], b[c])
             _apply(MJ, c, TANGENT_2, d2, V, a[c], b[c])
         else:
-            scratch_big[c - lo, 0], scratch_big[c - lo, 1] = d1, d2
+            scratch.big[c - lo, 0], scratch.big[c - lo, 1] = d1, d2
         change = max(change, abs(d1) / eff[c, 1], abs(d2) / eff[c, 2])
     if jacobi:
         for c in range(lo, hi):
-            _apply(MJ, c, TANGENT_1, scratch_big[c - lo, 0], V, a[c], b[c])
-            _apply(MJ, c, TANGENT_2, scratch_big[c - lo, 1], V, a[c], b[c])
+            _apply(MJ, c, TANGENT_1, scratch.big[c - lo, 0], V, a[c], b[c])
+            _apply(MJ, c, TANGENT_2, scratch.big[c - lo, 1], V, a[c], b[c])
     for c in range(lo, hi):
         lam_n[c] = lam[c, 0]
     if P == 1:  # the common case, without the call
-        change = max(change, _push_normal_row(lo, J, MJ, eff, lam_n, bias, lower, V, a[lo], b[lo]))
+        change = max(change, _push_normal_row(lo, rows, lam_n, targets.bias, targets.lower, V, a[lo], b[lo]))
     else:
-        change = max(change, _solve_normal_rows(g, lo, hi, a, b, J, MJ, eff, lam_n, bias, lower, V, A, cache,
-                                                cached, scratch, must, scratch_big))
+        change = max(change, _solve_normal_rows(g, manifolds, rows, lam_n, targets.bias, targets.lower, V,
+                                                scratch))
     for c in range(lo, hi):
         lam[c, 0] = lam_n[c]
     return change
 
 
 @njit
-def solve_contacts(a, b, group_start, normal, separation, point, friction, restitution, prev, old_normal,
-                   old_friction, position, inv_mass, inv_inertia, dynamic, V, V_before, h, velocity_iterations,
-                   velocity_tolerance, restitution_threshold, warm_start, rolling_resistance, impact_sweeps):
-    """The velocity stage for m contacts sorted by body pair (manifolds ``group_start``): builds the rows,
-    warm starts from ``prev`` (matched old contacts: ``old_normal (o,)``, ``old_friction (o, 3)``), sweeps,
-    places bounces off the static world at their time of impact, adds rolling resistance.
+def _solve_normal_rows(g, manifolds, rows, lam, target, lower, V, scratch):
+    """Update the normal rows of manifold ``g`` towards J V ≥ target with accumulated λ ≥ ``lower`` (0: a
+    contact only pushes; −inf: a two-sided row, J V = target): exactly as a block for ≤ 4 points (falling back
+    to one point at a time if the block has no exact solution), else one point at a time.  ``lam (m,)`` is
+    updated in place, V too.  Returns the largest |Δλ| / eff."""
+    a, b, J, MJ, eff = manifolds.a, manifolds.b, rows.J, rows.MJ, rows.eff
+    lo, hi = manifolds.group_start[g], manifolds.group_start[g + 1]
+    P = hi - lo
+    change = 0.0
+    if 1 < P <= MAX_BLOCK:
+        bvec, x, must = scratch.block[0], scratch.block[1], scratch.must
+        for i in range(P):
+            c = lo + i
+            bvec[i] = _row_velocity(J, c, NORMAL, V, a[c], b[c]) - target[c]
+            for j in range(P):
+                bvec[i] -= rows.A[g, i, j] * lam[lo + j]
+            must[i] = lower[c] == -np.inf
+        if solve_manifold_lcp(rows.A[g], P, bvec, must, rows.cache[g], rows.cached[g], x):
+            for i in range(P):
+                c = lo + i
+                delta = x[i] - lam[c]
+                lam[c] = x[i]
+                _apply(MJ, c, NORMAL, delta, V, a[c], b[c])
+                change = max(change, abs(delta) / eff[c, 0])
+            return change
+    if P > MAX_BLOCK:
+        # a big group (a particle plate on the ground): a Jacobi step on all its points from the same
+        # velocities, each seeing its bodies with 1/P of their mass (mass splitting, Tonge et al. 2012), so the
+        # increments add up without overshooting; point-by-point Gauss–Seidel on 16 rigidly coupled points
+        # converges too slowly to bring a plate to rest in 8 sweeps
+        big = scratch.big
+        for i in range(P):
+            c = lo + i
+            vn = _row_velocity(J, c, NORMAL, V, a[c], b[c])
+            new = max(lam[c] - eff[c, 0] / P * (vn - target[c]), lower[c])
+            big[i, 0] = new - lam[c]
+            lam[c] = new
+        for i in range(P):
+            c = lo + i
+            _apply(MJ, c, NORMAL, big[i, 0], V, a[c], b[c])
+            change = max(change, abs(big[i, 0]) / eff[c, 0])
+        return change
+    for c in range(lo, hi):
+        change = max(change, _push_normal_row(c, rows, lam, target, lower, V, a[c], b[c]))
+    return change
 
-    Body arrays have n + 1 rows (row n: the static ground): ``position``, ``inv_mass``, ``inv_inertia`` (world
-    frame), ``dynamic`` (bool: its velocity changes), ``V`` (solved in place from momentum + h·force) and
-    ``V_before`` (from momentum alone, for restitution).
 
-    Returns ``(impulse (n + 1, 6)`` = the momentum changes [ΔP, ΔL], ``lam (m, 3)``, ``J, MJ, eff``, the
-    block cache ``(A, cache, cached)``, ``toi_shift (m,)`` (NaN where none) and the number of sweeps).
-    """
-    m = len(a)
-    G = len(group_start) - 1
-    J, MJ, eff, lever = build_rows(a, b, normal, point, position, inv_mass, inv_inertia)
-    A, cache, cached = manifold_blocks(group_start, J, MJ)
+@njit
+def _push_normal_row(c, rows, lam, target, lower, V, a, b):
+    """One sequential-impulse update of the normal row of contact ``c`` alone (accumulated λ ≥ ``lower[c]``);
+    returns |Δλ| / eff."""
+    vn = _row_velocity(rows.J, c, NORMAL, V, a, b)
+    new = max(lam[c] - rows.eff[c, 0] * (vn - target[c]), lower[c])
+    delta = new - lam[c]
+    lam[c] = new
+    _apply(rows.MJ, c, NORMAL, delta, V, a, b)
+    return abs(delta) / rows.eff[c, 0]
 
-    # -- targets: speculative contacts close their gap and no more; fast approaches bounce
-    bias = np.empty(m)
-    lower = np.zeros(m)
-    vn_before = np.empty(m)
-    bounce = np.zeros(m, np.bool_)
-    for c in range(m):
-        bias[c] = -max(separation[c], 0.0) / h
-        vn_before[c] = _row_velocity(J, c, NORMAL, V_before, a[c], b[c])
-        vn_free = _row_velocity(J, c, NORMAL, V, a[c], b[c])
-        # restitution: a contact approaching faster than the threshold before the sub-step whose gap closes
-        # within it (at the contact-free velocity) bounces: its target is −e times the approach speed
-        if restitution[c] > 0.0 and vn_before[c] < -restitution_threshold and separation[c] + h * vn_free < 0.0:
-            bounce[c] = True
-            bias[c] = max(bias[c], -restitution[c] * vn_before[c])
 
-    # -- warm start: last sub-step's impulses of the same contacts (friction re-projected and clamped)
-    lam = np.zeros((m, 3))
-    if warm_start:
-        for c in range(m):
-            o = prev[c]
-            if o < 0:
-                continue
-            lam[c, 0] = old_normal[o]
-            f = old_friction[o]
-            t1 = f[0] * J[c, 1, 6] + f[1] * J[c, 1, 7] + f[2] * J[c, 1, 8]  # J[c, r, 6:9] is the direction
-            t2 = f[0] * J[c, 2, 6] + f[1] * J[c, 2, 7] + f[2] * J[c, 2, 8]
-            scale = min(1.0, friction[c] * lam[c, 0] / max(math.sqrt(t1 * t1 + t2 * t2), 1e-300))
-            lam[c, 1], lam[c, 2] = t1 * scale, t2 * scale
-            for r in range(3):
-                _apply(MJ, c, r, lam[c, r], V, a[c], b[c])
+# ---- 5. restitution: bounces at their time of impact -------------------------------------------------------
 
-    # -- sweeps: manifold after manifold; stop once a whole sweep changed no row velocity by more than the
-    #    tolerance (a warm-started resting stack is converged after one)
-    lam_n = np.empty(m)
-    scratch = np.empty((2, MAX_BLOCK))
-    must = np.zeros(MAX_BLOCK, np.bool_)
-    scratch_big = np.empty((m, 2))
-    # impacts: manifolds (multi-point groups) converge slowest exactly when the impulse changes most, so the
-    # manifolds holding a bouncing point get up to ``impact_sweeps`` extra sweeps after the regular ones
-    # (impacts are rare; resting manifolds are warm)
-    impact = np.zeros(G, np.bool_)
-    any_impact = False
-    for g in range(G):
-        if group_start[g + 1] - group_start[g] > 1:
-            for c in range(group_start[g], group_start[g + 1]):
-                if bounce[c]:
-                    impact[g] = True
-                    any_impact = True
-    sweeps = 0
-    impact_done = 0
-    regular = True  # the regular sweeps over every manifold first, then the impact sweeps
-    while True:
-        change = 0.0
-        for g in range(G):
-            if regular or impact[g]:
-                change = max(change, _solve_manifold(g, group_start[g], group_start[g + 1], a, b, J, MJ, eff, lam,
-                                                     lam_n, bias, lower, friction, V, A, cache, cached, scratch,
-                                                     must, scratch_big))
-        # each kind stops once a whole sweep changed no row velocity by more than the tolerance (a warm-started
-        # resting stack is converged after one), or after its number of sweeps
-        if regular:
-            sweeps += 1
-            if change <= velocity_tolerance or sweeps >= velocity_iterations:
-                regular = False
-                if not any_impact or impact_sweeps == 0:
-                    break
-        else:
-            impact_done += 1
-            if change <= velocity_tolerance or impact_done >= impact_sweeps:
-                break
-
-    # -- time of impact of bounces on the static world (ground, fixed bodies): a speculative contact (gap s > 0)
-    #    that bounced did so t* = s / |vₙ before| into the sub-step, not at its start.  The velocity is right (e
-    #    times the impact speed), but moving with it for the whole sub-step would leave the body
-    #    s (1 + vₙ after / |vₙ before|) too far from the surface, which the position stage takes back with a
-    #    two-sided row.  This is what makes a dropped ball rebound to e² of its height instead of bouncing early
-    #    by up to one step of travel.  Not done between two moving bodies: the shift is not an impulse, so it
-    #    would spoil their total angular momentum; they bounce at the start of the sub-step, as in Box2D.
-    toi_shift = np.full(m, np.nan)
-    for c in range(m):
-        if bounce[c] and separation[c] > 0.0 and not (dynamic[a[c]] and dynamic[b[c]]):
-            approach = -vn_before[c]
+@njit
+def apply_restitution(manifolds, rows, targets, bodies, h):
+    """Restitution is a target of the sweeps (:func:`velocity_targets`); what is left after them — Box2D's place
+    for it — is *when* a bounce off the static world (ground, fixed bodies) happens.  A speculative contact (gap
+    s > 0) that bounced did so t* = s / |vₙ before| into the sub-step, not at its start.  The velocity is right
+    (e times the impact speed), but moving with it for the whole sub-step would leave the body
+    s (1 + vₙ after / |vₙ before|) too far from the surface, which the position stage takes back with a
+    two-sided row: writes that target into ``targets.toi_shift``.  This is what makes a dropped ball rebound to
+    e² of its height instead of bouncing early by up to one step of travel.  Not done between two moving bodies:
+    the shift is not an impulse, so it would spoil their total angular momentum; they bounce at the start of the
+    sub-step, as in Box2D."""
+    a, b, separation, dynamic = manifolds.a, manifolds.b, manifolds.separation, bodies.dynamic
+    for c in range(len(a)):
+        if targets.bounce[c] and separation[c] > 0.0 and not (dynamic[a[c]] and dynamic[b[c]]):
+            approach = -targets.approach[c]
             gap = min(separation[c], approach * h)
-            vn_after = max(_row_velocity(J, c, NORMAL, V, a[c], b[c]), 0.0)
-            toi_shift[c] = -gap * (1.0 + vn_after / approach)
+            vn_after = max(_row_velocity(rows.J, c, NORMAL, bodies.velocity, a[c], b[c]), 0.0)
+            targets.toi_shift[c] = -gap * (1.0 + vn_after / approach)
 
-    # -- impulses → momenta (equal and opposite at the same point)
-    n1 = len(V)
+
+# ---- 6. impulses → momenta ---------------------------------------------------------------------------------
+
+@njit
+def apply_impulses(manifolds, rows, lam, bodies, momenta, rolling_resistance):
+    """Add the accumulated impulses to the momenta, equal and opposite at the same point: ΔP = Σ J_linᵀ λ,
+    ΔL = Σ J_angᵀ λ (= Σ r × impulse); with rolling resistance (:func:`resist_rolling`) on top.  ``momenta``:
+    the :class:`BodyArrays` whose ``linear_momentum`` / ``angular_momentum`` (n rows) change in place."""
+    a, b, J = manifolds.a, manifolds.b, rows.J
+    n1 = len(bodies.velocity)
     impulse = np.zeros((n1, 6))
-    for c in range(m):
+    for c in range(len(a)):
         for r in range(3):
             for k in range(6):
                 impulse[a[c], k] += J[c, r, k] * lam[c, r]
                 impulse[b[c], k] += J[c, r, 6 + k] * lam[c, r]
     if rolling_resistance > 0.0:
-        resist_rolling(V, a, b, normal, lever, lam, inv_inertia, dynamic, rolling_resistance, impulse)
+        resist_rolling(manifolds, rows, lam, bodies, rolling_resistance, impulse)
     for i in range(n1):
-        if not dynamic[i]:
+        if not bodies.dynamic[i]:
             impulse[i, :] = 0.0
-    return impulse, lam, J, MJ, eff, A, cache, cached, toi_shift, sweeps
+    for i in range(n1 - 1):
+        for k in range(3):
+            momenta.linear_momentum[i, k] += impulse[i, k]
+            momenta.angular_momentum[i, k] += impulse[i, 3 + k]
 
 
 @njit
-def resist_rolling(V, a, b, normal, lever, lam, inv_inertia, dynamic, coefficient, impulse):
+def resist_rolling(manifolds, rows, lam, bodies, coefficient, impulse):
     """Add the angular impulses of rolling resistance to ``impulse (n + 1, 6)``, after the contact impulses are
     solved.
 
@@ -477,10 +625,11 @@ def resist_rolling(V, a, b, normal, lever, lam, inv_inertia, dynamic, coefficien
     following sub-steps: a rolling ball decelerates at ``(5/7) c_rr g`` (tests/test_rest_and_sleep.py checks
     this closed form).
 
-    V: (n + 1, 6) solved velocities [v, ω]; a, b: (m,) body rows; normal: (m, 3) from a to b; lever: (m, 2, 3)
-    contact point minus each COM; lam: (m, 3) accumulated impulses (column 0: λₙ ≥ 0); inv_inertia:
-    (n + 1, 3, 3) world-frame; dynamic: (n + 1,) bool.
+    Reads the solved velocities ``bodies.velocity`` (n + 1, 6), the lever arms ``rows.lever`` (m, 2, 3) and
+    ``lam`` (m, 3) (column 0: λₙ ≥ 0).
     """
+    a, b, normal, lever = manifolds.a, manifolds.b, manifolds.normal, rows.lever
+    V, inv_inertia, dynamic = bodies.velocity, bodies.inv_inertia, bodies.dynamic
     m = len(a)
     n1 = len(V)
     rolling = np.zeros(m, np.bool_)
@@ -518,94 +667,14 @@ def resist_rolling(V, a, b, normal, lever, lam, inv_inertia, dynamic, coefficien
         impulse[ib, 5] -= size * az
 
 
+# ---- 7. store the impulses for the next warm start --------------------------------------------------------
+
 @njit
-def solve_step(body_a, body_b, normal, separation, point, key, friction, restitution, model_inv_mass, movable,
-               world_inv_inertia, position, linear_momentum, angular_momentum, force, torque, h, old_key, old_normal,
-               old_friction, old_point, velocity_iterations, velocity_tolerance, restitution_threshold, warm_start,
-               rolling_resistance, impact_sweeps):
-    """The stage "solve contacts" for a :class:`ContactSet`'s arrays: the bodies with one extra static row (index
-    n, the ground), the contacts that can move something sorted by body pair (each manifold a run), matched
-    with last sub-step's (``old_*``, key-sorted), solved (:func:`solve_contacts`), and the impulses added to
-    ``linear_momentum`` / ``angular_momentum`` in place.  ``movable`` (n,): the bodies whose velocity may
-    change (movable and awake).
-
-    Returns the sorted contacts' ``a, b, group_start``, rows ``J, MJ, eff``, block cache, ``separation``,
-    ``toi_shift`` (for the recovery stage), the number of sweeps, the deepest penetration, and the new warm-start
-    memory ``(key, normal impulse, friction impulse (·, 3), point)`` sorted by key."""
-    n = len(position)
-    inv_mass = np.zeros(n + 1)
-    dynamic = np.zeros(n + 1, np.bool_)
-    inv_inertia = np.zeros((n + 1, 3, 3))
-    pos = np.zeros((n + 1, 3))
-    V = np.zeros((n + 1, 6))  # the velocities being solved for: from momentum + h·force ...
-    V_before = np.zeros((n + 1, 6))  # ... and before this sub-step's forces (restitution)
-    # element by element, not pos[i] = position[i]: numba compiles a row copy with a shape check whose error
-    # message alone takes seconds to compile (measured: 3 s of this module's ~20 s)
-    for i in range(n):
-        for k in range(3):
-            pos[i, k] = position[i, k]
-        if not movable[i]:
-            continue
-        dynamic[i] = True
-        inv_mass[i] = model_inv_mass[i]
-        for r in range(3):
-            for c in range(3):
-                inv_inertia[i, r, c] = world_inv_inertia[i, r, c]
-        for k in range(3):
-            V[i, k] = (linear_momentum[i, k] + h * force[i, k]) * inv_mass[i]
-            V_before[i, k] = linear_momentum[i, k] * inv_mass[i]
-        for r in range(3):
-            acc = 0.0
-            acc_before = 0.0
-            for c in range(3):
-                acc += inv_inertia[i, r, c] * (angular_momentum[i, c] + h * torque[i, c])
-                acc_before += inv_inertia[i, r, c] * angular_momentum[i, c]
-            V[i, 3 + r] = acc
-            V_before[i, 3 + r] = acc_before
-
-    # -- a contact between two bodies that cannot move needs no impulse (and has no effective mass); the rest
-    #    sorted by body pair, so each manifold is a run of consecutive contacts
-    deepest = 0.0
-    count = 0
-    pair = np.empty(len(body_b), np.int64)
-    kept = np.empty(len(body_b), np.int64)
-    for c in range(len(body_b)):
-        deepest = max(deepest, -separation[c])
-        ia = n if body_a[c] < 0 else body_a[c]
-        if dynamic[ia] or dynamic[body_b[c]]:
-            pair[count] = ia * (n + 1) + body_b[c]
-            kept[count] = c
-            count += 1
-    order = kept[:count][np.argsort(pair[:count], kind="mergesort")]
-    m = len(order)
-    a = np.empty(m, np.int64)
-    b = np.empty(m, np.int64)
-    group_start = np.empty(m + 1, np.int64)
-    G = 0
-    for q in range(m):
-        c = order[q]
-        a[q] = n if body_a[c] < 0 else body_a[c]
-        b[q] = body_b[c]
-        if q == 0 or a[q] != a[q - 1] or b[q] != b[q - 1]:
-            group_start[G] = q
-            G += 1
-    group_start[G] = m
-    group_start = group_start[:G + 1].copy()
-    normal_s, separation_s, point_s = normal[order], separation[order], point[order]
-    key_s = key[order]
-
-    prev = match_previous(key_s, point_s, old_key, old_point)
-    impulse, lam, J, MJ, eff, A, cache, cached, toi_shift, sweeps = solve_contacts(
-        a, b, group_start, normal_s, separation_s, point_s, friction[order], restitution[order], prev, old_normal,
-        old_friction, pos, inv_mass, inv_inertia, dynamic, V, V_before, h, velocity_iterations, velocity_tolerance,
-        restitution_threshold, warm_start, rolling_resistance, impact_sweeps)
-    for i in range(n):
-        for k in range(3):
-            linear_momentum[i, k] += impulse[i, k]
-            angular_momentum[i, k] += impulse[i, 3 + k]
-
-    # -- warm-start memory: the normal impulse and the world-frame friction impulse of each contact, by key
-    by_key = np.argsort(key_s, kind="mergesort")
+def store_impulses(manifolds, rows, lam):
+    """The :class:`WarmStart` memory: each contact's normal impulse and world-frame friction impulse, by key."""
+    key, J = manifolds.key, rows.J
+    m = len(key)
+    by_key = np.argsort(key, kind="mergesort")
     warm_normal = np.empty(m)
     warm_friction = np.empty((m, 3))
     for q in range(m):
@@ -613,27 +682,67 @@ def solve_step(body_a, body_b, normal, separation, point, key, friction, restitu
         warm_normal[q] = lam[c, 0]
         for k in range(3):  # J[c, r, 6:9] is row r's direction
             warm_friction[q, k] = lam[c, 1] * J[c, 1, 6 + k] + lam[c, 2] * J[c, 2, 6 + k]
-    return (a, b, group_start, J, MJ, eff, A, cache, cached, separation_s, toi_shift, sweeps, deepest,
-            key_s[by_key], warm_normal, warm_friction, point_s[by_key])
+    return WarmStart(key[by_key], warm_normal, warm_friction, manifolds.point[by_key])
 
 
-# ---- stage "recover penetration" ---------------------------------------------------------------------------
+# ---- the velocity stage, in order ---------------------------------------------------------------------------
 
 @njit
-def recover_penetration_kernel(a, b, group_start, J, MJ, eff, A, cache, cached, separation, toi_shift,
-                               position_before, orientation_before, position, orientation, angular_momentum, dynamic,
-                               iterations, correction_fraction, slop, max_correction):
-    """Split-impulse penetration recovery (see the module docstring), in place on ``position``,
-    ``orientation`` and ``angular_momentum`` (n, ·) of the ``dynamic`` bodies.  Returns the turn quaternions
-    ``(n, 4)`` applied (identity where none) and the deepest penetration after the step, before recovery."""
+def solve_step(contacts, bodies, memory, settings, profile):
+    """The pipeline stage "solve contacts" of one sub-step: Box2D's stages in order, each timed into ``profile``
+    (:data:`STAGES`).  ``contacts``: a :class:`ContactSet`; ``bodies``: :class:`BodyArrays` (its momenta get the
+    impulses, in place); ``memory``: the previous sub-step's :class:`WarmStart`; ``settings``:
+    :class:`StepSettings` — each as a plain tuple from Python (see "Bundles" in :mod:`cgp_core.jit`).
+
+    Returns what the position stage needs (:class:`Solved`) and the new warm-start memory."""
+    contacts, bodies, memory, settings = (ContactSet(*contacts), BodyArrays(*bodies), WarmStart(*memory),
+                                          StepSettings(*settings))
+    start = clock()
+    solver_bodies = prepare_bodies(bodies, settings.h)
+    manifolds, rows, targets, deepest = prepare_contacts(contacts, solver_bodies, memory, settings)
+    start = lap(profile, PREPARE, start)
+    lam = warm_start_contacts(manifolds, rows, solver_bodies, memory, settings.warm_start)
+    start = lap(profile, WARM_START, start)
+    sweeps = solve_contacts(manifolds, rows, targets, lam, solver_bodies, settings)
+    start = lap(profile, SOLVE, start)
+    apply_restitution(manifolds, rows, targets, solver_bodies, settings.h)
+    start = lap(profile, RESTITUTION, start)
+    apply_impulses(manifolds, rows, lam, solver_bodies, bodies, settings.rolling_resistance)
+    start = lap(profile, APPLY_IMPULSES, start)
+    memory = store_impulses(manifolds, rows, lam)
+    lap(profile, STORE_IMPULSES, start)
+    return Solved(manifolds, rows, targets, sweeps, deepest), memory
+
+
+# ---- the position stage ("recover penetration") --------------------------------------------------------------
+
+@njit
+def recover_penetration_kernel(manifolds, rows, targets, bodies, settings, profile):
+    """Split-impulse penetration recovery (see the module docstring) for the contacts of the last
+    :func:`solve_step` (``manifolds``, ``rows``, ``targets``: its :class:`Solved`), in place on the
+    :class:`RecoveryBodies` ``bodies`` (position, orientation, angular momentum of the dynamic ones); timed into
+    ``profile[RECOVER]``.  Bundles as plain tuples from Python.  Returns the turn quaternions ``(n, 4)`` applied
+    (identity where none) and the deepest penetration after the step, before recovery."""
+    manifolds, rows, targets, bodies, settings = (Manifolds(*manifolds), Rows(*rows), Targets(*targets),
+                                                  RecoveryBodies(*bodies), StepSettings(*settings))
+    start = clock()
+    turn, deepest = _recover_penetration(manifolds, rows, targets, bodies, settings)
+    lap(profile, RECOVER, start)
+    return turn, deepest
+
+
+@njit
+def _recover_penetration(manifolds, rows, targets, bodies, settings):
+    a, b, group_start, separation = manifolds.a, manifolds.b, manifolds.group_start, manifolds.separation
+    position, orientation = bodies.position, bodies.orientation
     n = len(position)
     m = len(a)
     # the bodies' actual motion over the sub-step, as a generalized displacement Δ = (Δx, Δθ)
     disp = np.zeros((n + 1, 6))
     for i in range(n):
         for k in range(3):
-            disp[i, k] = position[i, k] - position_before[i, k]
-        q, p = orientation[i], orientation_before[i]
+            disp[i, k] = position[i, k] - bodies.position_before[i, k]
+        q, p = orientation[i], bodies.orientation_before[i]
         rx, ry, rz, rw = quat_multiply_scalar(q[0], q[1], q[2], q[3], -p[0], -p[1], -p[2], p[3])
         disp[i, 3], disp[i, 4], disp[i, 5] = quat_to_rotvec_scalar(rx, ry, rz, rw)
     target = np.empty(m)
@@ -641,11 +750,11 @@ def recover_penetration_kernel(a, b, group_start, J, MJ, eff, A, cache, cached, 
     deepest = 0.0
     needed = False
     for c in range(m):
-        s = separation[c] + _row_velocity(J, c, NORMAL, disp, a[c], b[c])
+        s = separation[c] + _row_velocity(rows.J, c, NORMAL, disp, a[c], b[c])
         deepest = max(deepest, -s)
-        target[c] = min(correction_fraction * (-s - slop), max_correction)
-        if not math.isnan(toi_shift[c]):
-            target[c] = toi_shift[c]
+        target[c] = min(settings.position_correction * (-s - settings.penetration_slop), settings.max_correction)
+        if not math.isnan(targets.toi_shift[c]):
+            target[c] = targets.toi_shift[c]
             lower[c] = -np.inf
             needed = True
         elif target[c] > 0.0:
@@ -656,19 +765,16 @@ def recover_penetration_kernel(a, b, group_start, J, MJ, eff, A, cache, cached, 
         return turn, deepest
     correction = np.zeros((n + 1, 6))
     lam = np.zeros(m)
-    scratch = np.empty((2, MAX_BLOCK))
-    must = np.zeros(MAX_BLOCK, np.bool_)
-    scratch_big = np.empty((m, 2))
-    for _ in range(iterations):
+    scratch = Scratch(np.empty((2, MAX_BLOCK)), np.zeros(MAX_BLOCK, np.bool_), np.empty((m, 2)))
+    for _ in range(settings.position_iterations):
         for g in range(len(group_start) - 1):
             lo, hi = group_start[g], group_start[g + 1]
             if hi - lo == 1:
-                _push_normal_row(lo, J, MJ, eff, lam, target, lower, correction, a[lo], b[lo])
+                _push_normal_row(lo, rows, lam, target, lower, correction, a[lo], b[lo])
             else:
-                _solve_normal_rows(g, lo, hi, a, b, J, MJ, eff, lam, target, lower, correction, A, cache, cached,
-                                   scratch, must, scratch_big)
+                _solve_normal_rows(g, manifolds, rows, lam, target, lower, correction, scratch)
     for i in range(n):
-        if not dynamic[i]:
+        if not bodies.dynamic[i]:
             continue
         for k in range(3):
             position[i, k] += correction[i, k]
@@ -680,12 +786,23 @@ def recover_penetration_kernel(a, b, group_start, J, MJ, eff, A, cache, cached, 
         sign = -1.0 if w < 0.0 else 1.0  # canonical w >= 0, as rotation.quat_normalize
         q[0], q[1], q[2], q[3] = sign * x / norm, sign * y / norm, sign * z / norm, sign * w / norm
         # keep the body-frame angular momentum (and so the kinetic energy ½ Lᵀ I_world⁻¹ L) unchanged
-        L = angular_momentum[i]
+        L = bodies.angular_momentum[i]
         L[0], L[1], L[2] = quat_rotate_scalar(tx, ty, tz, tw, L[0], L[1], L[2])
     return turn, deepest
 
 
 # ---- the solver object ----------------------------------------------------------------------------------------
+
+class PendingRecovery(NamedTuple):
+    """What :meth:`SequentialImpulseSolver.recover_penetration` needs from the last ``solve_velocities``."""
+
+    model: BodyModel                # the model the contacts index (a new model: nothing to recover)
+    solved: Solved                  # the velocity stage's manifolds, rows, targets
+    position_before: np.ndarray     # (n, 3) x̄ when the contacts were found
+    orientation_before: np.ndarray  # (n, 4) q then
+    dynamic: np.ndarray             # (n,) bool: the bodies the stage may move
+    settings: tuple                 # the StepSettings, as the plain tuple the kernels take
+
 
 class SequentialImpulseSolver:
     """Sequential impulses, one manifold at a time; see the module docstring.
@@ -700,7 +817,9 @@ class SequentialImpulseSolver:
     count starts cold), and what :meth:`recover_penetration` needs from the last :meth:`solve_velocities`.
 
     After each sub-step :attr:`stats` holds what a benchmark or a curious user wants to see (contact count,
-    manifolds, sweeps, deepest penetration before and after the step).
+    manifolds, sweeps, deepest penetration before and after the step); :attr:`profile` (a
+    :class:`~cgp_core.jit.StageProfile`) accumulates the wall time of each stage (:data:`STAGES`) over the
+    sub-steps until its ``reset()``.
     """
 
     name: ClassVar[str] = "sequential_impulse"
@@ -717,23 +836,35 @@ class SequentialImpulseSolver:
         self.settings = settings
         self.detector = detector or CollisionDetector()
         self.stats: dict = {}
+        self.profile = StageProfile(STAGES)
+        self._step_settings: tuple | None = None  # (h, the settings object, StepSettings as a plain tuple)
         self.reset()
 
     def reset(self) -> None:
         """Forget the warm-start memory (call it when bodies are teleported en masse; World.reset does)."""
-        # the warm-start memory, sorted by key (the kernel keeps it so): none yet
-        self._warm_keys, self._warm_normal = np.zeros(0, np.int64), np.zeros(0)
-        self._warm_friction, self._warm_point = np.zeros((0, 3)), np.zeros((0, 3))
+        self._memory = WarmStart.empty()  # sorted by key (store_impulses keeps it so): none yet
         self._warm_model = None  # the model the warm-start keys refer to (they index its primitives)
         self._warm_count = -1
-        self._pending = None  # what recover_penetration needs from the last solve
+        self._pending: PendingRecovery | None = None
+
+    def _settings_for(self, h: float) -> tuple:
+        """The :class:`StepSettings` of sub-step ``h``, as the plain tuple the kernels take (kept while neither
+        changes)."""
+        s = self.settings
+        cached = self._step_settings
+        if cached is None or cached[0] != h or cached[1] != s:
+            plain = tuple(StepSettings(
+                float(h), int(s.velocity_iterations), float(s.velocity_tolerance), float(s.restitution_threshold),
+                bool(s.warm_start), float(s.rolling_resistance), IMPACT_SWEEPS, int(s.position_iterations),
+                float(s.position_correction), float(s.penetration_slop), float(s.max_correction)))
+            self._step_settings = cached = (h, replace(s), plain)
+        return cached[2]
 
     def solve_velocities(self, model: BodyModel, state: BodyState, contacts: ContactSet, h: float, *,
                          inv_inertia: np.ndarray | None = None, active: np.ndarray | None = None) -> None:
         """Add contact impulses to ``state.linear_momentum`` / ``angular_momentum`` (see :mod:`.base`).
         ``inv_inertia`` (n, 3, 3): the world-frame I⁻¹ at ``state``'s poses if the caller has it already;
         ``active`` (n,) bool: the bodies being stepped (default: all; a sleeping body acts as static)."""
-        s = self.settings
         n = model.count
         self._pending = None
         if model is not self._warm_model or n != self._warm_count:
@@ -742,34 +873,28 @@ class SequentialImpulseSolver:
         if inv_inertia is None:
             inv_inertia = state.inv_inertia_world(model)
         movable = model.inv_mass > 0.0 if active is None else (model.inv_mass > 0.0) & active
-        (a, b, group_start, J, MJ, eff, A, cache, cached, separation, toi_shift, sweeps, deepest, warm_key,
-         warm_normal, warm_friction, warm_point) = solve_step(
-            contacts.body_a, contacts.body_b, contacts.normal, contacts.separation, contacts.point, contacts.key,
-            contacts.friction, contacts.restitution, model.inv_mass, movable, np.ascontiguousarray(inv_inertia),
-            state.position, state.linear_momentum, state.angular_momentum, state.force, state.torque, float(h),
-            self._warm_keys, self._warm_normal, self._warm_friction, self._warm_point, s.velocity_iterations,
-            s.velocity_tolerance, s.restitution_threshold, s.warm_start, s.rolling_resistance, IMPACT_SWEEPS)
-        self._warm_keys, self._warm_normal, self._warm_friction, self._warm_point = (warm_key, warm_normal,
-                                                                                    warm_friction, warm_point)
-        self.stats = {"contacts": contacts.count, "manifolds": len(group_start) - 1, "sweeps": sweeps,
-                      "max_penetration": deepest}
-        if len(a):
-            self._pending = (model, a, b, group_start, J, MJ, eff, A, cache, cached, separation, toi_shift,
-                             state.position.copy(), state.orientation.copy(), movable)
+        settings = self._settings_for(float(h))
+        bodies = (model.inv_mass, movable, np.ascontiguousarray(inv_inertia), state.position, state.linear_momentum,
+                  state.angular_momentum, state.force, state.torque)  # a BodyArrays, as a plain tuple
+        solved, self._memory = solve_step(tuple(contacts), bodies, tuple(self._memory), settings,
+                                          self.profile.seconds)
+        self.profile.calls += 1
+        self.stats = {"contacts": contacts.count, "manifolds": len(solved.manifolds.group_start) - 1,
+                      "sweeps": solved.sweeps, "max_penetration": solved.deepest}
+        if len(solved.manifolds.a):
+            self._pending = PendingRecovery(model, solved, state.position.copy(), state.orientation.copy(), movable,
+                                            settings)
 
     def recover_penetration(self, model: BodyModel, state: BodyState, h: float) -> None:
         """Move penetrating bodies apart (positions / orientations only) for the contacts of the last
         :meth:`solve_velocities`, after the integrator has moved the bodies."""
-        s = self.settings
         p, self._pending = self._pending, None
-        if p is None or s.position_iterations == 0 or p[0] is not model:
+        if p is None or self.settings.position_iterations == 0 or p.model is not model:
             return
-        (_, a, b, group_start, J, MJ, eff, A, cache, cached, separation, toi_shift, position_before,
-         orientation_before, dynamic) = p
-        turn, deepest = recover_penetration_kernel(
-            a, b, group_start, J, MJ, eff, A, cache, cached, separation, toi_shift, position_before,
-            orientation_before, state.position, state.orientation, state.angular_momentum, dynamic,
-            s.position_iterations, s.position_correction, s.penetration_slop, s.max_correction)
+        bodies = (p.position_before, p.orientation_before, state.position, state.orientation, state.angular_momentum,
+                  p.dynamic)  # a RecoveryBodies, as a plain tuple
+        turn, deepest = recover_penetration_kernel(tuple(p.solved.manifolds), tuple(p.solved.rows),
+                                                   tuple(p.solved.targets), bodies, p.settings, self.profile.seconds)
         self.stats["max_penetration_after_step"] = float(max(deepest, 0.0))
         if state.rotation is not None:  # an integrator that keeps its own matrix (explicit Euler)
-            state.rotation[dynamic] = quat_to_matrix(turn[dynamic]) @ state.rotation[dynamic]
+            state.rotation[p.dynamic] = quat_to_matrix(turn[p.dynamic]) @ state.rotation[p.dynamic]

@@ -51,7 +51,17 @@ class StopWatchdog:
         #: set by the main thread when it leaves its loop (normal shutdown begins) and when it is done
         self.shutting_down = threading.Event()
         self.done = threading.Event()
-        threading.Thread(target=self._run, name="cgp-sim-stop-watchdog", daemon=True).start()
+        self._thread = threading.Thread(target=self._run, name="cgp-sim-stop-watchdog", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        """The node is done: the watchdog's thread ends (and the wakeup fd goes back to Python's default), so that
+        nothing of the node outlives ``main()`` (tests/test_node_graph.py checks no thread of ours is left)."""
+        self.done.set()
+        signal.set_wakeup_fd(-1)
+        self._write.close()  # the thread's recv() returns b"": it ends
+        self._thread.join(timeout=STOP_DEADLINE_S)
+        self._read.close()
 
     def _run(self) -> None:
         while True:
@@ -197,6 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"cgp-sim: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
+        watchdog.close()
         return 2
     executor = SingleThreadedExecutor()
     executor.add_node(node)
@@ -214,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
         node.destroy_node()  # with it the DDS participant: before the process exits (SimNode.destroy_node)
         executor.shutdown()
         rclpy.try_shutdown()
-        watchdog.done.set()
+        watchdog.close()
     return 0
 
 

@@ -30,7 +30,7 @@ from geometry_msgs.msg import WrenchStamped
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.serialization import deserialize_message
 
-from cgp_core.wrenches import MAX_NAME_LENGTH, WrenchError, make_command
+from cgp_core.wrenches import MAX_NAME_LENGTH, CommandLimits, WrenchError, make_command
 
 from .. import interface as itf
 from .qos import COMMAND_QOS
@@ -219,7 +219,7 @@ def apply_wrench_command(data: bytes, world, params, frames: itf.Frames = itf.UN
         torque=(msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z),
         point=(msg.point.x, msg.point.y, msg.point.z), frame=frames.to_core(msg.header.frame_id),
         duration=msg.duration.sec + 1e-9 * msg.duration.nanosec,
-        max_force=params["max_force"], max_torque=params["max_torque"],
+        limits=CommandLimits(max_force=params["max_force"], max_torque=params["max_torque"]),
         fixed=world.body_model.fixed, positions=world.body_state.position)
 
 
@@ -231,7 +231,7 @@ def body_wrench_command(body: str, data: bytes, world, params, frames: itf.Frame
         force=(msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z),
         torque=(msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z),
         point=None, frame=frames.to_core(msg.header.frame_id), duration=0.0,
-        max_force=params["max_force"], max_torque=params["max_torque"])
+        limits=CommandLimits(max_force=params["max_force"], max_torque=params["max_torque"]))
 
 
 def _decode(data: bytes, msg_type):
