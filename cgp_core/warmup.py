@@ -149,7 +149,7 @@ class CompilePart:
 
     Attributes:
         name:      shown in logs and in the worker's command line.
-        modules:   module prefixes whose kernels the worker compiles (``CGP_SIM_JIT_ONLY``).  A kernel calls
+        modules:   modules or packages whose kernels the worker compiles (``CGP_SIM_JIT_ONLY``).  A kernel calls
                    other kernels only if they are compiled too, so a part lists the modules its kernels call.
         sentinels: ``"module:kernel"`` entry points whose on-disk cache tells whether this part is compiled
                    (a part's kernels are compiled together, so one entry point per stage of the run suffices).
@@ -185,8 +185,10 @@ PARTS: tuple[CompilePart, ...] = (
                 ("cgp_core.collision.detector:narrow_phase", "cgp_core.integrators.implicit_midpoint:_step_kernel",
                  "cgp_core.dynamics:coming_velocities"), steps_flocks=False),
     # (the obstacle query of static meshes calls the BVH's closest point, which calls GJK's closest point on a
-    # triangle; module names are prefixes: "cgp_core.collision.convex" would take convex_phase along)
-    CompilePart("flock", ("cgp_core.boids", "cgp_core.collision.bvh", "cgp_core.collision.gjk"),
+    # triangle; GJK calls the hulls' support mapping: with gjk compiled here, convex's kernels must be too, or the
+    # convex shapes' contacts, plain Python in this worker, reach a compiled GJK calling a plain support_index)
+    CompilePart("flock", ("cgp_core.boids", "cgp_core.collision.bvh", "cgp_core.collision.gjk",
+                          "cgp_core.collision.convex"),
                 ("cgp_core.boids.rules:_neighbor_sums", "cgp_core.boids.flock:_move")),
     # issue 25's shapes: ~60 s of compiling on an idle core (GJK, EPA, the manifolds and the stage that calls them
     # all), more than any other part; it calls the sphere / box / capsule kernels too (compiled here as well)
