@@ -43,7 +43,7 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 from cgp_core.collision.bvh import StaticMesh  # noqa: E402
 from cgp_core.collision.convex import HullSet, convex_hull  # noqa: E402
 from cgp_core.collision.epa import penetration  # noqa: E402
-from cgp_core.collision.gjk import gjk_distance  # noqa: E402
+from cgp_core.collision.gjk import Core, gjk_distance  # noqa: E402
 from cgp_core.collision.meshfile import load_mesh  # noqa: E402
 from cgp_core.jit import njit  # noqa: E402
 
@@ -78,11 +78,11 @@ def distance_loop(vertex_start, vertices, adjacency_start, adjacency, a, b, ra, 
     """The narrow phase's way: every pair's GJK distance from inside a compiled loop."""
     for k in range(len(a)):
         i, j = a[k], b[k]
-        d, _, _, _, _ = gjk_distance(vertices[vertex_start[i]:vertex_start[i + 1]],
-                                     adjacency_start[vertex_start[i]:vertex_start[i + 1] + 1], adjacency, pa[k],
-                                     ra[k], 0.0, vertices[vertex_start[j]:vertex_start[j + 1]],
-                                     adjacency_start[vertex_start[j]:vertex_start[j + 1] + 1], adjacency, pb[k],
-                                     rb[k], 0.0)
+        a_core = Core(vertices[vertex_start[i]:vertex_start[i + 1]],
+                      adjacency_start[vertex_start[i]:vertex_start[i + 1] + 1], adjacency, pa[k], ra[k])
+        b_core = Core(vertices[vertex_start[j]:vertex_start[j + 1]],
+                      adjacency_start[vertex_start[j]:vertex_start[j + 1] + 1], adjacency, pb[k], rb[k])
+        d, _, _, _, _ = gjk_distance(a_core, 0.0, b_core, 0.0)
         out[k] = d
 
 
@@ -90,11 +90,11 @@ def distance_loop(vertex_start, vertices, adjacency_start, adjacency, a, b, ra, 
 def penetration_loop(vertex_start, vertices, adjacency_start, adjacency, a, b, ra, rb, pa, pb, out):
     for k in range(len(a)):
         i, j = a[k], b[k]
-        s, _, _, _ = penetration(vertices[vertex_start[i]:vertex_start[i + 1]],
-                                 adjacency_start[vertex_start[i]:vertex_start[i + 1] + 1], adjacency, pa[k], ra[k],
-                                 0.0, vertices[vertex_start[j]:vertex_start[j + 1]],
-                                 adjacency_start[vertex_start[j]:vertex_start[j + 1] + 1], adjacency, pb[k], rb[k],
-                                 0.0)
+        a_core = Core(vertices[vertex_start[i]:vertex_start[i + 1]],
+                      adjacency_start[vertex_start[i]:vertex_start[i + 1] + 1], adjacency, pa[k], ra[k])
+        b_core = Core(vertices[vertex_start[j]:vertex_start[j + 1]],
+                      adjacency_start[vertex_start[j]:vertex_start[j + 1] + 1], adjacency, pb[k], rb[k])
+        s, _, _, _ = penetration(a_core, 0.0, b_core, 0.0)
         out[k] = s
 
 
@@ -103,8 +103,9 @@ def ours_from_python(hulls, pairs):
     out = np.empty(len(a))
     for k in range(len(a)):
         ha, hb = hulls[a[k]], hulls[b[k]]
-        out[k] = gjk_distance(ha.vertices, ha.adjacency_start, ha.adjacency, pa[k], ra[k], 0.0,
-                              hb.vertices, hb.adjacency_start, hb.adjacency, pb[k], rb[k], 0.0)[0]
+        # (plain tuples at the Python → compiled border: see "Bundles" in cgp_core.jit)
+        out[k] = gjk_distance((ha.vertices, ha.adjacency_start, ha.adjacency, pa[k], ra[k]), 0.0,
+                              (hb.vertices, hb.adjacency_start, hb.adjacency, pb[k], rb[k]), 0.0)[0]
     return out
 
 
@@ -159,7 +160,10 @@ def main(argv=None) -> int:
     parser.add_argument("--pairs", type=int, default=2000)
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--hulls", type=int, default=100)
+    parser.add_argument("--quick", action="store_true", help="fewer rounds (benchmarks/run.py --quick)")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.rounds = min(args.rounds, 2)
     out = Results("gjk", options=vars(args))
     hulls = pile_hulls(args.hulls)
     hs = HullSet.from_hulls(hulls)

@@ -9,6 +9,9 @@ Conventions
   the axes are the shape's own axes (box edges; capsule axis = body z).  For a particle set the axes are those
   of the scene's particle coordinates and the origin is moved to their COM (so ``position`` is always the COM,
   as the lecture's state vector has it), which makes the inertia tensor a full symmetric 3×3 matrix in general.
+  A convex hull and a compound body likewise keep the axes of the points / parts as the scene gives them, with
+  the origin moved to the COM.  A static mesh (fixed only: it has no COM that matters) keeps its file's origin
+  and axes (times its ``scale``).
 - Orientation is a unit quaternion ``(x, y, z, w)`` mapping body to world: ``p_world = x + R(q) p_body``.
 - The state carries momenta, not velocities (the lecture's state: x, R, P, L); velocities are derived:
   ``v = P / m``, ``I_world = R I_body Rᵀ``, ``ω = I_world⁻¹ L``.
@@ -43,6 +46,37 @@ class Shape(enum.IntEnum):
     BOX = 1
     CAPSULE = 2  # a segment of length ``2 * half_length`` along body z, swept by a sphere of ``radius``
     PARTICLES = 3  # the lecture's discrete body: point masses, each drawn and collided as a small sphere
+    CONVEX = 4  # a convex polyhedron (BodyModel.hulls): the hull of the scene's points or of a mesh file
+    COMPOUND = 5  # one rigid body made of parts (BodyModel.parts): spheres, boxes, capsules, hulls at relative poses
+    MESH = 6  # a static triangle mesh with a BVH (BodyModel.meshes), for fixed bodies only (terrain, level geometry)
+
+
+@dataclass
+class CompoundParts:
+    """The ``k`` parts of one compound body, in its body frame (origin = the body's COM, the scene's axes).
+
+    Attributes (shapes):
+        shape:        (k,) int8 — ``Shape.SPHERE``, ``BOX``, ``CAPSULE`` or ``CONVEX``.
+        position:     (k, 3) — the part's centre in the body frame (a convex part's: its own COM).
+        rotation:     (k, 3, 3) — the part's axes in body axes (columns).
+        radius:       (k,) — sphere / capsule radius; 0 for boxes and hulls.
+        half_extents: (k, 3) — box half sizes; capsule (0, 0, half_length); zeros for spheres and hulls.
+        hulls:        list of k — a convex part's :class:`~cgp_core.collision.convex.ConvexPolyhedron` about its
+                      COM in the part's axes; ``None`` for the other parts.
+        mass:         (k,) — each part's share of the body's mass [kg].
+    """
+
+    shape: np.ndarray
+    position: np.ndarray
+    rotation: np.ndarray
+    radius: np.ndarray
+    half_extents: np.ndarray
+    hulls: list
+    mass: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return len(self.shape)
 
 
 @dataclass
@@ -52,9 +86,11 @@ class BodyModel:
     Attributes (shapes):
         names:            list[str], length n — unique, ROS-name-safe.
         shape:            (n,) int8 — :class:`Shape` values.
-        radius:           (n,) — sphere / capsule radius; particle radius for PARTICLES; 0 for boxes.
+        radius:           (n,) — sphere / capsule radius; particle radius for PARTICLES; 0 for boxes and the
+                          shapes of issue 25 (CONVEX, COMPOUND, MESH).
         half_extents:     (n, 3) — box half sizes along body x, y, z; capsule: (0, 0, half_length); bounding
-                          half extents of the particle set for PARTICLES.
+                          half extents of the particle set for PARTICLES; for CONVEX, COMPOUND and MESH the
+                          half extents of a box about the body origin that holds the whole shape.
         mass:             (n,) — kg (the configured mass, also for fixed bodies, for drawing / reporting).
         inv_mass:         (n,) — 1/kg, 0 for fixed bodies.
         inertia_body:     (n, 3, 3) — inertia tensor about the COM in body axes (kg m²).
@@ -67,6 +103,14 @@ class BodyModel:
         color:            (n, 4) — RGBA in [0, 1] for markers.
         predator:         (n,) bool — the boids of every flock flee it (``boids/predators.py``); all False when
                           not given.
+        hulls:            list of n — a CONVEX body's :class:`~cgp_core.collision.convex.ConvexPolyhedron` in
+                          the body frame (vertices about the COM), ``None`` for others; all ``None`` when not
+                          given.
+        parts:            list of n — a COMPOUND body's :class:`CompoundParts`, ``None`` for others.
+        meshes:           list of n — a MESH body's :class:`~cgp_core.collision.bvh.StaticMesh` (vertices in the
+                          body frame, its BVH built once at load), ``None`` for others.
+        two_sided:        (n,) bool — a MESH body's triangles push from both sides (default: only from their
+                          front, the side their counter-clockwise winding faces: a terrain's up).
     """
 
     names: list[str]
@@ -83,10 +127,26 @@ class BodyModel:
     particles: list
     color: np.ndarray
     predator: np.ndarray | None = None
+    hulls: list | None = None
+    parts: list | None = None
+    meshes: list | None = None
+    two_sided: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        n = len(self.names)
         if self.predator is None:
-            self.predator = np.zeros(len(self.names), dtype=bool)
+            self.predator = np.zeros(n, dtype=bool)
+        for name in ("hulls", "parts", "meshes"):
+            if getattr(self, name) is None:
+                setattr(self, name, [None] * n)
+        if self.two_sided is None:
+            self.two_sided = np.zeros(n, dtype=bool)
+
+    @property
+    def has_convex_phase_shapes(self) -> bool:
+        """Whether a body is a hull, a compound or a static mesh (the contacts of those run in
+        :mod:`cgp_core.collision.convex_phase`)."""
+        return bool(np.isin(self.shape, (Shape.CONVEX, Shape.COMPOUND, Shape.MESH)).any())
 
     @property
     def count(self) -> int:

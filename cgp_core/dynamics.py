@@ -86,8 +86,10 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
     #    momentum + h·force + impulse satisfies non-penetration, restitution and friction
     solver.solve_velocities(model, state, contacts, h, inv_inertia=inv_inertia, active=active)
 
-    # 4. integrate
+    # 4. integrate; then continuous collision for bodies turning fast next to fixed hulls and meshes (put back at
+    #    their time of impact: cgp_core.collision.convex_phase)
     integrator.step(model, state, h, active=active)
+    solver.detector.sweep_fast_rotation(model, state, h)
 
     # 5. recover penetration (moves bodies apart; momenta untouched: adds no kinetic energy)
     solver.recover_penetration(model, state, h)

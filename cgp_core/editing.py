@@ -210,4 +210,44 @@ def body_distances(model: BodyModel, state: BodyState, point) -> np.ndarray:
     for i in np.flatnonzero(shape == Shape.PARTICLES):  # a particle set: its nearest particle's sphere
         centers = state.position[i] + np.asarray(model.particles[i])[:, :3] @ R[i].T
         out[i] = sphere_distance(p, centers, np.full(len(centers), model.radius[i]))[0].min()
+    for i in np.flatnonzero(shape == Shape.CONVEX):
+        out[i] = _hull_distance(p[0], model.hulls[i], state.position[i], R[i])
+    for i in np.flatnonzero(shape == Shape.COMPOUND):  # its nearest part
+        out[i] = _parts_distance(p, model.parts[i], state.position[i], R[i])
+    for i in np.flatnonzero(shape == Shape.MESH):  # a surface: the distance to its closest point (no inside)
+        from .collision.bvh import bvh_closest_point
+
+        mesh = model.meshes[i]
+        local = (p[0] - state.position[i]) @ R[i]
+        out[i] = bvh_closest_point(tuple(mesh.arrays), local, np.inf)[1]
     return out
+
+
+def _hull_distance(point: np.ndarray, hull, position: np.ndarray, rotation: np.ndarray) -> float:
+    """Signed distance from a point to a posed convex hull: GJK (EPA inside), exact."""
+    from .collision.epa import penetration
+
+    core = np.zeros((1, 3))
+    return float(penetration(hull.vertices, hull.adjacency_start, hull.adjacency, np.asarray(position, float),
+                             np.ascontiguousarray(rotation, dtype=float), 0.0, core, np.zeros(2, np.int64),
+                             np.zeros(0, np.int64), np.asarray(point, float), np.eye(3), 0.0)[0])
+
+
+def _parts_distance(p: np.ndarray, parts, position: np.ndarray, rotation: np.ndarray) -> float:
+    """Signed distance from ``p (1, 3)`` to a compound body's nearest part."""
+    centres = position + parts.position @ rotation.T
+    turned = rotation @ parts.rotation
+    best = np.inf
+    for k in range(parts.count):
+        kind = int(parts.shape[k])
+        if kind == Shape.SPHERE:
+            d = sphere_distance(p, centres[k:k + 1], parts.radius[k:k + 1])[0][0, 0]
+        elif kind == Shape.BOX:
+            d = box_distance(p, centres[k:k + 1], turned[k:k + 1], parts.half_extents[k:k + 1])[0][0, 0]
+        elif kind == Shape.CAPSULE:
+            d = capsule_distance(p, centres[k:k + 1], turned[k:k + 1, :, 2], parts.half_extents[k:k + 1, 2],
+                                 parts.radius[k:k + 1])[0][0, 0]
+        else:
+            d = _hull_distance(p[0], parts.hulls[k], centres[k], turned[k])
+        best = min(best, float(d))
+    return best

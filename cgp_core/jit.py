@@ -57,10 +57,10 @@ without coming back to Python between them (each return to Python would cost the
 Compiling in parallel (:mod:`cgp_core.warmup`): numba compiles one kernel at a time, on one core, about 40 s
 for the default scene's kernels when no cache exists.  :func:`cgp_core.warmup.compile_in_parallel` splits
 that work over several processes, each compiling the kernels of some modules into the shared on-disk cache.
-A worker is told which with ``CGP_SIM_JIT_ONLY`` (module prefixes, comma-separated, e.g.
-``cgp_core.solver,cgp_core.rotation``): there, the other modules' kernels stay plain Python — the
-``NUMBA_DISABLE_JIT`` path, per module — so the worker steps a scene (to give every kernel the argument types
-the real run gives it) without compiling what another worker compiles.
+A worker is told which with ``CGP_SIM_JIT_ONLY`` (modules or packages, comma-separated, e.g.
+``cgp_core.solver,cgp_core.rotation``; a package takes its modules along, a module only itself): there, the other
+modules' kernels stay plain Python — the ``NUMBA_DISABLE_JIT`` path, per module — so the worker steps a scene (to give
+every kernel the argument types the real run gives it) without compiling what another worker compiles.
 """
 
 from __future__ import annotations
@@ -197,7 +197,8 @@ def njit(*args, **options):
 
 
 def _compiled(function, settings):
-    if JIT_DISABLED or (JIT_ONLY and not function.__module__.startswith(JIT_ONLY)):
+    module = function.__module__
+    if JIT_DISABLED or (JIT_ONLY and not any(module == m or module.startswith(m + ".") for m in JIT_ONLY)):
         return function  # plain Python: the JIT is off, or this is another compile worker's kernel
     if settings.get("parallel"):
         return ParallelKernel(function, settings)

@@ -52,6 +52,18 @@ MAX_PARTICLES_PER_BODY = 100_000
 MAX_EXPECTED_NEIGHBORS = 256
 #: a user's regular expression (the entity filter), in characters
 MAX_PATTERN_LENGTH = 1024
+#: issue 25's shapes.  Points a convex hull is taken of (qhull is O(n log n); a body's hull needs far fewer), and
+#: vertices of the hull (every query on a hull — GJK, SAT, clipping — grows with them: simplify the shape)
+MAX_HULL_POINTS = 100_000
+MAX_HULL_VERTICES = 1024
+#: a mesh file's bytes (a binary STL of ~670k triangles; checked before reading, :mod:`cgp_core.user_input`),
+#: and its vertices and triangles after equal vertices are merged (a static mesh's BVH of 500k triangles builds in
+#: ~0.2 s and holds ~45 MB)
+MAX_MESH_FILE_BYTES = 32 * 1024 * 1024
+MAX_MESH_VERTICES = 500_000
+MAX_MESH_TRIANGLES = 500_000
+#: parts of one compound body (each is a collision primitive of its own)
+MAX_PARTS_PER_BODY = 256
 
 # ---- ranges of physical quantities --------------------------------------------------------------------------
 

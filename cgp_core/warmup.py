@@ -67,6 +67,60 @@ def warm_up(ticks: int = 24, *, complete: bool = True, flocks: bool = True) -> W
     if flocks and complete:
         with parallel_from(0):  # the same again, on the parallel twins
             run()
+    if complete:
+        warm_up_convex(flocks=flocks)
+    return world
+
+
+#: issue 25's shapes placed so that every pair of the convex stage runs within a few ticks: hull–ground,
+#: hull–hull, box–hull, hull–sphere, hull–capsule, the parts of a compound (sphere, box, capsule, hull) against
+#: the ground and the others, a static mesh against a sphere, a capsule, a box and a hull, and a plank spinning
+#: fast next to a fixed hull (the time of impact); with a small flock around them (the obstacle queries)
+CONVEX_WARM_UP = """
+world: {substeps: 2, sleep: false}
+bodies:
+  - {name: slab, shape: mesh, mesh: terrain.obj, fixed: true, position: [20, 0, -0.1]}
+  - {name: post, shape: convex, fixed: true, points: [[0, 0, 0], [0.4, 0, 0], [0, 0.4, 0], [0.4, 0.4, 0],
+     [0, 0, 2], [0.4, 0, 2], [0, 0.4, 2], [0.4, 0.4, 2]], position: [-0.2, -0.2, 0]}
+  - {name: rock, shape: convex, mesh: rock.stl, density: 2600, position: [0.6, 0, 0.1]}
+  - {name: rock_on_rock, shape: convex, mesh: rock.stl, scale: 0.5, density: 2600, position: [0.6, 0, 0.3]}
+  - {name: box_on_rock, shape: box, size: [0.1, 0.1, 0.1], position: [0.7, 0.1, 0.3]}
+  - {name: ball_by_rock, shape: sphere, radius: 0.05, position: [0.85, 0, 0.08]}
+  - {name: stick_by_rock, shape: capsule, radius: 0.03, length: 0.2, position: [0.6, 0.2, 0.1],
+     orientation: [0.7071068, 0, 0, 0.7071068]}
+  - {name: table, shape: compound, mass: 3, position: [-0.8, 0, 0.05], parts: [
+      {shape: box, size: [0.3, 0.3, 0.04], position: [0, 0, 0.2]},
+      {shape: capsule, radius: 0.02, length: 0.12, position: [0.1, 0.1, 0.1]},
+      {shape: sphere, radius: 0.03, position: [-0.1, -0.1, 0.03]},
+      {shape: convex, points: [[0, 0, 0], [0.05, 0, 0], [0, 0.05, 0], [0, 0, 0.1]], position: [0.1, -0.1, 0]}]}
+  - {name: mesh_ball, shape: sphere, radius: 0.1, position: [20, 0, 0.5]}
+  - {name: mesh_stick, shape: capsule, radius: 0.05, length: 0.3, position: [21, 0, 0.5]}
+  - {name: mesh_box, shape: box, size: [0.2, 0.2, 0.2], position: [20, 1, 0.5]}
+  - {name: mesh_rock, shape: convex, mesh: rock.stl, position: [21, 1, 0.5]}
+  - {name: spinner, shape: box, size: [1.0, 0.02, 0.05], position: [0, 0.75, 1.0], angular_velocity: [0, 0, 60]}
+  - {name: spinning_rock, shape: convex, mesh: rock.stl, position: [20, -1, 0.6], angular_velocity: [0, 60, 0]}
+flocks:
+  - {name: minnows, count: 40, spawn: {center: [0.5, 0, 0.6], extent: [1.5, 1.5, 0.8]}, radius: 0.5,
+     separation_radius: 0.2, min_speed: 0.5, max_speed: 1.0, boid_size: 0.05, obstacle_margin: 0.5, seed: 2,
+     bounds: {mode: none}}
+  - {name: tadpoles, count: 20, spawn: {center: [20, 0, 0.5], extent: [1.0, 1.0, 0.3]}, radius: 0.5,
+     separation_radius: 0.2, min_speed: 0.5, max_speed: 1.0, boid_size: 0.05, obstacle_margin: 0.5, seed: 3,
+     bounds: {mode: none}}
+"""
+
+
+def warm_up_convex(ticks: int = 6, *, flocks: bool = True) -> World:
+    """Step :data:`CONVEX_WARM_UP`: the kernels of issue 25's shapes (the convex stage, GJK / EPA, the manifolds,
+    the BVH queries, the time of impact; the flock's hull and mesh obstacle queries)."""
+    import dataclasses
+
+    from .scene import parse_scene
+    from .world import World
+
+    scene = parse_scene(CONVEX_WARM_UP, "<warm-up: convex shapes>")
+    world = World(scene if flocks else dataclasses.replace(scene, flocks=[]))
+    for _ in range(ticks):
+        world.step()
     return world
 
 
@@ -95,7 +149,7 @@ class CompilePart:
 
     Attributes:
         name:      shown in logs and in the worker's command line.
-        modules:   module prefixes whose kernels the worker compiles (``CGP_SIM_JIT_ONLY``).  A kernel calls
+        modules:   modules or packages whose kernels the worker compiles (``CGP_SIM_JIT_ONLY``).  A kernel calls
                    other kernels only if they are compiled too, so a part lists the modules its kernels call.
         sentinels: ``"module:kernel"`` entry points whose on-disk cache tells whether this part is compiled
                    (a part's kernels are compiled together, so one entry point per stage of the run suffices).
@@ -105,7 +159,18 @@ class CompilePart:
     modules: tuple[str, ...]
     sentinels: tuple[str, ...]
     steps_flocks: bool = True  #: whether the worker's scenario needs the flocks (False: it leaves them out)
+    #: whether the default scene runs these kernels: the node compiles such parts at start-up when they are not
+    #: cached (``--default-scene``); the others only ``make setup`` does (a scene that needs them and finds no
+    #: cache compiles them in its first tick)
+    default_scene: bool = True
 
+
+#: the modules of the sphere / box / capsule contacts (the default scene's), and those of issue 25's shapes
+_CONTACT_MODULES = ("cgp_core.collision.detector", "cgp_core.collision.primitives", "cgp_core.collision.broadphase",
+                    "cgp_core.collision.narrowphase", "cgp_core.collision.box_box", "cgp_core.collision.materials")
+_CONVEX_MODULES = ("cgp_core.collision.convex_phase", "cgp_core.collision.convex", "cgp_core.collision.gjk",
+                   "cgp_core.collision.epa", "cgp_core.collision.manifold", "cgp_core.collision.bvh",
+                   "cgp_core.collision.mesh_contacts", "cgp_core.collision.toi")
 
 #: cgp_core's share-out, balanced on the compile times measured on an idle core (numba 0.68) for the default
 #: scene: the solver ~16 s; contact detection and the integrators ~14 s; the flock ~9 s (``make setup`` also
@@ -115,12 +180,21 @@ PARTS: tuple[CompilePart, ...] = (
                 ("cgp_core.solver.sequential_impulse:solve_step",
                  "cgp_core.solver.sequential_impulse:recover_penetration_kernel"), steps_flocks=False),
     # (rotation's and bodies' few small kernels are compiled by both rigid-body parts: each part's kernels call them)
-    CompilePart("contacts", ("cgp_core.collision", "cgp_core.integrators", "cgp_core.dynamics", "cgp_core.sleep",
-                             "cgp_core.rotation", "cgp_core.bodies"),
+    CompilePart("contacts", _CONTACT_MODULES + ("cgp_core.integrators", "cgp_core.dynamics", "cgp_core.sleep",
+                                                "cgp_core.rotation", "cgp_core.bodies"),
                 ("cgp_core.collision.detector:narrow_phase", "cgp_core.integrators.implicit_midpoint:_step_kernel",
                  "cgp_core.dynamics:coming_velocities"), steps_flocks=False),
-    CompilePart("flock", ("cgp_core.boids",),
+    # (the obstacle query of static meshes calls the BVH's closest point, which calls GJK's closest point on a
+    # triangle; GJK calls the hulls' support mapping: with gjk compiled here, convex's kernels must be too, or the
+    # convex shapes' contacts, plain Python in this worker, reach a compiled GJK calling a plain support_index)
+    CompilePart("flock", ("cgp_core.boids", "cgp_core.collision.bvh", "cgp_core.collision.gjk",
+                          "cgp_core.collision.convex"),
                 ("cgp_core.boids.rules:_neighbor_sums", "cgp_core.boids.flock:_move")),
+    # issue 25's shapes: ~60 s of compiling on an idle core (GJK, EPA, the manifolds and the stage that calls them
+    # all), more than any other part; it calls the sphere / box / capsule kernels too (compiled here as well)
+    CompilePart("convex", _CONVEX_MODULES + _CONTACT_MODULES,
+                ("cgp_core.collision.convex_phase:convex_phase", "cgp_core.collision.convex_phase:sweep_times"),
+                steps_flocks=False, default_scene=False),
 )
 
 
@@ -244,6 +318,8 @@ def main(argv: list[str], *, name: str, parts: tuple[CompilePart, ...], worker_m
         scenario(complete=not args.default_scene, flocks=part.steps_flocks)
         return 0
     started = time.perf_counter()
+    if args.default_scene:
+        parts = tuple(p for p in parts if p.default_scene)
     compile_missing(parts, worker_module, lambda text: print(f"{name}: {text}", file=sys.stderr, flush=True))
     scenario(complete=not args.default_scene)
     print(f"{name}: simulation kernels compiled and cached ({time.perf_counter() - started:.1f} s)")

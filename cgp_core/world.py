@@ -45,7 +45,7 @@ Changing the bodies between ticks (spawn, delete, teleport) — the contract the
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -90,6 +90,9 @@ class PreparedSpawn:
     model: object = None  # BodyModel of the one body
     state: object = None  # its BodyState
     flock: object = None  # Flock
+    #: what loading it had to say (BodySpec.notes: a hull of non-convex points, a BVH built), reported as events
+    #: when it is added
+    notes: list = field(default_factory=list)
 
 
 def check_name(name) -> None:
@@ -117,7 +120,7 @@ class WorldEvent:
     """Something the world did on its own that a user should hear about (the node logs these)."""
 
     time: float
-    level: str  # "warn" | "error"
+    level: str  # "info" | "warn" | "error"
     text: str
 
 
@@ -162,7 +165,12 @@ class World:
         self.events: list[WorldEvent] = []
         self.spawned: list[str] = []
         self.model_version = 0
+        for body in scene.bodies:  # what loading the bodies had to say (a hull of non-convex points, a BVH built)
+            self._report_notes(body)
         self.remember_tick_start()
+
+    def _report_notes(self, spec) -> None:
+        self.events.extend(WorldEvent(self.time, level, text) for level, text in getattr(spec, "notes", ()))
 
     @classmethod
     def from_scene(cls, scene: str | Scene, **kwargs) -> World:
@@ -431,7 +439,7 @@ class World:
                                 "have their own); give the identity (0, 0, 0, 1)")
             return PreparedSpawn(kind, name, flock=Flock(spec))
         model, state = Scene(source, self.scene.world, [spec], []).build_bodies()
-        return PreparedSpawn(kind, name, model=model, state=state)
+        return PreparedSpawn(kind, name, model=model, state=state, notes=list(spec.notes))
 
     def add_spawned(self, prepared: PreparedSpawn) -> str:
         """Add what :meth:`prepare_spawn` built (between ticks, on the thread that steps); the name and the body
@@ -456,6 +464,7 @@ class World:
             _, self._initial_body_state = concatenate_bodies(old_model, self._initial_body_state, model,
                                                              state.copy())
             self._bodies_changed()
+            self._report_notes(prepared)
         self.spawned.append(prepared.name)
         self.model_version += 1
         return prepared.kind

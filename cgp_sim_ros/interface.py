@@ -49,7 +49,7 @@ the fixed bodies, sent again whenever that set or a fixed body's pose changes.
 :mod:`cgp_sim_ros.ros.sim_services`, every call also a line on ``~/events``):
 
 ==============================  =====================================================================
-``~/get_simulator_features``    GetSimulatorFeatures: what is supported, ``spawn_formats: [yaml]``
+``~/get_simulator_features``    GetSimulatorFeatures: what is supported, ``spawn_formats: [yaml, stl, obj]``
 ``~/spawn_entity``              SpawnEntity: ``{body: <scene entry>}`` / ``{flock: <scene entry>}`` YAML
 ``~/delete_entity``             DeleteEntity: a body or a flock
 ``~/get_entities``              GetEntities: names (bodies, then flocks), regex / sphere filters

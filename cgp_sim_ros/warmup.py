@@ -14,6 +14,7 @@ sources — so that it does not compile them one after the other, on one core, i
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 
 from cgp_core import warmup as core
@@ -21,8 +22,8 @@ from cgp_core.warmup import CompilePart
 
 #: cgp_core's parts, the flock's with the node's marker kernels (fish triangles, sphere lists) added
 PARTS: tuple[CompilePart, ...] = tuple(
-    CompilePart(p.name, p.modules + ("cgp_sim_ros.drawing.shapes",),
-                p.sentinels + ("cgp_sim_ros.drawing.shapes:_fish_vertices",))
+    dataclasses.replace(p, modules=p.modules + ("cgp_sim_ros.drawing.shapes",),
+                        sentinels=p.sentinels + ("cgp_sim_ros.drawing.shapes:_fish_vertices",))
     if p.name == "flock" else p for p in core.PARTS)
 
 
@@ -57,7 +58,7 @@ def compile_missing_kernels(log) -> None:
     """Compile, in parallel, the parts of the default scene's kernels that are not cached yet; ``log(text)``
     says what happens.  The kernels the default scene does not use (issue 14's flock rules, the parallel twins
     for big flocks) are left to compile on first use: they would lengthen the flock worker's share."""
-    core.compile_missing(PARTS, "cgp_sim_ros.warmup", log, "--default-scene")
+    core.compile_missing(tuple(p for p in PARTS if p.default_scene), "cgp_sim_ros.warmup", log, "--default-scene")
 
 
 def main(argv: list[str] | None = None) -> int:

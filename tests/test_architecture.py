@@ -239,15 +239,6 @@ def test_no_import_cycle():
 #: the most parameters a function takes, and the most values it returns as a bare tuple
 MAX_PARAMETERS, MAX_RETURNED = 10, 4
 
-#: Not yet held to the rule, and why: issue 25's geometry kernels were written beside the restructure (issue 24)
-#: and merged before it; they get their bundles (hull set, BVH, GJK simplex ...) when they are wired into the
-#: detector.  The set may only shrink (a test below checks every entry still exists).
-NOT_YET_BUNDLED = frozenset({
-    "cgp_core/collision/bvh.py", "cgp_core/collision/convex.py", "cgp_core/collision/epa.py",
-    "cgp_core/collision/gjk.py", "cgp_core/collision/manifold.py", "cgp_core/collision/mesh_contacts.py",
-    "cgp_core/collision/toi.py",
-})
-
 
 def _signature_findings(tree: ast.AST, where: str) -> list[str]:
     """Every function of ``tree`` with more than MAX_PARAMETERS parameters (``self`` / ``cls`` do not count;
@@ -276,19 +267,8 @@ def test_no_function_takes_more_than_10_parameters_or_returns_more_than_4_values
     numba keeps in registers like a bare tuple (no allocation) and which names what a bare tuple only numbers."""
     findings = []
     for path in _modules(package):
-        if str(path.relative_to(REPO)) in NOT_YET_BUNDLED:
-            continue
         findings += _signature_findings(ast.parse(path.read_text(), str(path)), str(path.relative_to(REPO)))
     assert not findings, "\n".join(findings)
-
-
-def test_the_modules_not_yet_bundled_exist_and_still_break_the_rule():
-    """An entry of NOT_YET_BUNDLED is a module that exists and still has a long signature (once bundled, it
-    leaves the set)."""
-    for module in sorted(NOT_YET_BUNDLED):
-        path = REPO / module
-        assert path.is_file(), f"{module} is gone: remove it from NOT_YET_BUNDLED"
-        assert _signature_findings(ast.parse(path.read_text()), module), f"{module} keeps the rule: remove it"
 
 
 def test_the_signature_check_finds_long_signatures_and_bare_tuples():

@@ -23,9 +23,9 @@ from cgp_core.collision.bvh import (
 )
 from cgp_core.collision.convex import box_hull, convex_hull
 from cgp_core.collision.epa import penetration
-from cgp_core.collision.gjk import NO_ADJACENCY, box_core, no_adjacency, point_core
+from cgp_core.collision.gjk import NO_ADJACENCY, Core, box_core, no_adjacency, point_core
 from cgp_core.collision.meshfile import MAX_FILE_BYTES, MeshFileError, load_mesh
-from cgp_core.collision.toi import rotated, time_of_impact
+from cgp_core.collision.toi import MovingCore, rotated, time_of_impact
 from cgp_core.inertia import polyhedron_mass_properties
 from msgs_config import __file__ as msgs_config_init
 
@@ -64,13 +64,13 @@ def test_box_queries_equal_brute_force(terrain):
         centre = rng.uniform([-6, -6, -1], [6, 6, 1])
         half = rng.uniform(0.01, 1.0, 3)
         lo, hi = centre - half, centre + half
-        n = bvh_overlap(*terrain.bvh, terrain.triangle_lo, terrain.triangle_hi, lo, hi, out)
+        n = bvh_overlap(terrain.arrays, lo, hi, out)
         brute = np.flatnonzero(((terrain.triangle_lo <= hi) & (terrain.triangle_hi >= lo)).all(axis=1))
         assert sorted(out[:n]) == list(brute)
     # a too-small buffer: the count is still right
     small = np.empty(3, np.int64)
-    assert bvh_overlap(*terrain.bvh, terrain.triangle_lo, terrain.triangle_hi, np.array([-6.0, -6, -2]),
-                       np.array([6.0, 6, 2]), small) == len(terrain.triangles)
+    assert bvh_overlap(terrain.arrays, np.array([-6.0, -6, -2]), np.array([6.0, 6, 2]), small) \
+        == len(terrain.triangles)
 
 
 def brute_closest(mesh, p):
@@ -88,12 +88,12 @@ def test_closest_point_queries_equal_brute_force(terrain):
     # brute force with numpy over all triangles: the candidate closest points of the three regions
     for _ in range(300):
         p = rng.uniform([-6, -6, -1.5], [6, 6, 1.5])
-        tri, dist, x, y, z = bvh_closest_point(*terrain.bvh, terrain.vertices, terrain.triangles, p, np.inf)
+        tri, dist, x, y, z = bvh_closest_point(terrain.arrays, p, np.inf)
         d_brute, i_brute, q_brute = brute_closest(terrain, p)
         assert dist == pytest.approx(d_brute, abs=1e-12)
         np.testing.assert_allclose([x, y, z], q_brute, atol=1e-9)
         # within a max distance: nothing beyond it
-        tri, dist, *_ = bvh_closest_point(*terrain.bvh, terrain.vertices, terrain.triangles, p, 0.5 * d_brute)
+        tri, dist, *_ = bvh_closest_point(terrain.arrays, p, 0.5 * d_brute)
         assert tri == -1
 
 
@@ -120,7 +120,7 @@ def test_raycasts_equal_brute_force(terrain):
         if k % 4 == 0:
             direction = np.array([0.0, 0.0, -1.0])  # straight down: axis-parallel slabs
         length = rng.uniform(0.5, 5.0)
-        tri, t, u, v = bvh_raycast(*terrain.bvh, terrain.vertices, terrain.triangles, origin, direction, length)
+        tri, t, u, v = bvh_raycast(terrain.arrays, origin, direction, length)
         brute = ray_all_triangles(terrain, origin, direction)
         brute[(brute < 0) | (brute > length)] = np.inf
         if np.isinf(brute.min()):
@@ -141,8 +141,8 @@ def core(v):
 
 def toi(a, pa, Ra, va, wa, ra, b, pb, Rb, vb, wb, rb, duration, target=1e-3, tolerance=1e-5):
     f = lambda x: np.asarray(x, dtype=float)  # noqa: E731
-    return time_of_impact(*a, f(pa), f(Ra), f(va), f(wa), ra, *b, f(pb), f(Rb), f(vb), f(wb), rb, duration, target,
-                          tolerance)
+    return time_of_impact(MovingCore(*a, f(pa), f(Ra), f(va), f(wa), ra),
+                          MovingCore(*b, f(pb), f(Rb), f(vb), f(wb), rb), duration, target, tolerance)
 
 
 def test_sphere_falling_onto_a_box_meets_it_at_the_closed_form_time():
@@ -178,7 +178,7 @@ def test_a_spinning_plank_is_caught_where_a_start_of_step_contact_misses_it():
     wall_at = np.array([0.0, 0.8, 0.0])
     args = (plank, [0, 0, 0], EYE, [0, 0, 0], spin, 0.0, wall, wall_at, EYE, [0, 0, 0], [0, 0, 0], 0.0, duration)
     # the start-of-step picture: the gap and the closest points' approach speed along the normal
-    sep0, n0, pa0, pb0 = penetration(*plank, np.zeros(3), EYE, 0.0, *wall, wall_at, EYE, 0.0)
+    sep0, n0, pa0, pb0 = penetration(Core(*plank, np.zeros(3), EYE), 0.0, Core(*wall, wall_at, EYE), 0.0)
     approach = np.cross(spin, pa0) @ n0  # the plank point's velocity along the normal (the wall is still)
     assert sep0 == pytest.approx(0.79 - 0.02, abs=1e-12) and sep0 - duration * approach >= sep0 - 1e-12
     t, sep, n, hit, iterations = toi(*args, target=1e-3, tolerance=1e-4)
@@ -187,7 +187,7 @@ def test_a_spinning_plank_is_caught_where_a_start_of_step_contact_misses_it():
 
     def gap(s):
         R = rotated(EYE, *spin, duration * s)
-        return penetration(*plank, np.zeros(3), R, 0.0, *wall, wall_at, EYE, 0.0)[0]
+        return penetration(Core(*plank, np.zeros(3), R), 0.0, Core(*wall, wall_at, EYE), 0.0)[0]
     assert min(gap(s) for s in np.linspace(0.0, t, 400)) >= 1e-3 - 1e-9
     assert gap(t) <= 1e-3 + 1e-4
     assert min(gap(s) for s in np.linspace(t, 1.0, 400)) < 0.0  # it would have gone through
@@ -198,10 +198,9 @@ def test_a_fast_hull_against_a_thin_wall_hits_at_the_closed_form_time():
     wall = box_hull([0.0025, 1.0, 1.0])
     reach_x = rock.vertices[:, 0].max()
     # 300 m/s along x from 1 m before the wall, at 60 Hz: 5 m per step
-    t, sep, n, hit, _ = time_of_impact(rock.vertices, rock.adjacency_start, rock.adjacency, np.array([-1.0, 0, 0]),
-                                       EYE, np.array([300.0, 0, 0]), np.zeros(3), 0.0, wall.vertices,
-                                       wall.adjacency_start, wall.adjacency, np.zeros(3), EYE, np.zeros(3),
-                                       np.zeros(3), 0.0, 1 / 60, 1e-3, 1e-5)
+    t, sep, n, hit, _ = toi((rock.vertices, rock.adjacency_start, rock.adjacency), [-1.0, 0, 0], EYE, [300.0, 0, 0],
+                            np.zeros(3), 0.0, (wall.vertices, wall.adjacency_start, wall.adjacency), np.zeros(3), EYE,
+                            np.zeros(3), np.zeros(3), 0.0, 1 / 60, 1e-3, 1e-5)
     assert hit and t == pytest.approx((1.0 - 0.0025 - reach_x - 1e-3) / 5.0, abs=1e-5 / 5.0)
 
 
@@ -210,9 +209,9 @@ def test_a_fast_hull_meets_a_single_triangle_wall():
     triangle across its path meets it at the closed-form time (the triangle is a 3-vertex core)."""
     rock = convex_hull(np.random.default_rng(4).normal(size=(20, 3)) * 0.1)
     triangle = np.array([[0.0, -2.0, -2.0], [0.0, 2.0, -2.0], [0.0, 0.0, 2.0]])
-    t, sep, n, hit, _ = time_of_impact(rock.vertices, rock.adjacency_start, rock.adjacency, np.array([-1.0, 0, 0]),
-                                       EYE, np.array([300.0, 0, 0]), np.zeros(3), 0.0, *core(triangle), np.zeros(3),
-                                       EYE, np.zeros(3), np.zeros(3), 0.0, 1 / 60, 1e-3, 1e-5)
+    t, sep, n, hit, _ = toi((rock.vertices, rock.adjacency_start, rock.adjacency), [-1.0, 0, 0], EYE, [300.0, 0, 0],
+                            np.zeros(3), 0.0, core(triangle), np.zeros(3), EYE, np.zeros(3), np.zeros(3), 0.0, 1 / 60,
+                            1e-3, 1e-5)
     reach_x = rock.vertices[:, 0].max()
     assert hit and t == pytest.approx((1.0 - reach_x - 1e-3) / 5.0, abs=1e-5 / 5.0)
     np.testing.assert_allclose(n, [1, 0, 0], atol=1e-9)
@@ -262,7 +261,7 @@ def test_bad_mesh_files_are_refused_naming_the_file_and_reason(tmp_path):
     with pytest.raises(MeshFileError, match="nothere.stl: cannot read: no such file"):
         load_mesh(tmp_path / "nothere.stl")
     (tmp_path / "dir.obj").mkdir()
-    with pytest.raises(MeshFileError, match="dir.obj: cannot read: not a regular file"):
+    with pytest.raises(MeshFileError, match="dir.obj: cannot read: is a directory, not a regular file"):
         load_mesh(tmp_path / "dir.obj")
     (tmp_path / "empty.stl").write_bytes(b"")
     with pytest.raises(MeshFileError, match="empty.stl: empty"):

@@ -16,13 +16,14 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from cgp_core.jit import JIT_DISABLED
 from cgp_core.collision.bvh import StaticMesh, bvh_closest_point, bvh_overlap, bvh_raycast
-from cgp_core.collision.convex import box_hull, convex_hull
+from cgp_core.collision.convex import PosedHull, box_hull, convex_hull
 from cgp_core.collision.epa import penetration
-from cgp_core.collision.gjk import gjk_distance
+from cgp_core.collision.gjk import Core, gjk_distance
 from cgp_core.collision.manifold import (hull_capsule_contacts, hull_hull_contacts, plane_hull_contacts,
                                          triangle_hull_contacts)
 from cgp_core.collision.mesh_contacts import mesh_capsule_contacts, mesh_hull_contacts
-from cgp_core.collision.toi import time_of_impact
+from cgp_core.collision.narrowphase import ContactBuffer
+from cgp_core.collision.toi import MovingCore, time_of_impact
 
 assert JIT_DISABLED == (sys.argv[2] == "plain"), "NUMBA_DISABLE_JIT did not reach the child"
 rng = np.random.default_rng(25)
@@ -31,37 +32,42 @@ p = rng.normal(size=(200, 3))
 hulls.append(convex_hull(p / np.linalg.norm(p, axis=1)[:, None] * 0.3))  # hill climbing
 rotations = Rotation.random(len(hulls), random_state=1).as_matrix()
 out = []
-def args(h):
-    return h.vertices, h.adjacency_start, h.adjacency
-def faces(h):
-    return h.vertices, h.adjacency_start, h.adjacency, h.face_plane, h.face_vertex_start, h.face_vertices
+def core(h, position, rotation):
+    return Core(h.vertices, h.adjacency_start, h.adjacency, position, rotation)
+def posed(h, position, rotation):
+    return PosedHull(h.vertices, h.adjacency_start, h.adjacency, h.face_plane, h.face_vertex_start, h.face_vertices,
+                     position, rotation)
 n, s, q, f = np.zeros((64, 3)), np.zeros(64), np.zeros((64, 3)), np.zeros(64, np.int64)
+out_buffer = ContactBuffer(n, s, q, f)
 for i in range(len(hulls)):
     for j in range(len(hulls)):
         if i == j:
             continue
         pb = rng.normal(size=3) * 0.3
-        d, hit, pa_, pb_, nn = gjk_distance(*args(hulls[i]), np.zeros(3), rotations[i], 0.01,
-                                            *args(hulls[j]), pb, rotations[j], 0.02)
+        d, hit, pa_, pb_, nn = gjk_distance(core(hulls[i], np.zeros(3), rotations[i]), 0.01,
+                                            core(hulls[j], pb, rotations[j]), 0.02)
         out.append([d, float(hit), *pa_, *pb_, *nn])
-        sep, nn, pa_, pb_ = penetration(*args(hulls[i]), np.zeros(3), rotations[i], 0.0,
-                                        *args(hulls[j]), pb, rotations[j], 0.0)
+        sep, nn, pa_, pb_ = penetration(core(hulls[i], np.zeros(3), rotations[i]), 0.0,
+                                        core(hulls[j], pb, rotations[j]), 0.0)
         out.append([sep, *nn, *pa_, *pb_])
-        m = hull_hull_contacts(*faces(hulls[i]), np.zeros(3), rotations[i], *faces(hulls[j]), pb, rotations[j],
-                               0.05, n, s, q, f, 0)
+        m = hull_hull_contacts(posed(hulls[i], np.zeros(3), rotations[i]), posed(hulls[j], pb, rotations[j]), 0.05,
+                               out_buffer, 0)
         out += [[*n[k], s[k], *q[k], float(f[k])] for k in range(m)]
-    m = plane_hull_contacts(hulls[i].vertices, np.array([0, 0, 0.1]), rotations[i], 0.05, n, s, q, f, 0)
+    m = plane_hull_contacts(posed(hulls[i], np.array([0, 0, 0.1]), rotations[i]), 0.05, out_buffer, 0)
     out += [[*n[k], s[k], *q[k], float(f[k])] for k in range(m)]
-    m = hull_capsule_contacts(*faces(hulls[i]), np.zeros(3), rotations[i], np.array([[0.0, 0, 0.2], [0.3, 0, 0.25]]),
-                              0.05, 0.05, n, s, q, f, 0)
+    m = hull_capsule_contacts(posed(hulls[i], np.zeros(3), rotations[i]), np.array([[0.0, 0, 0.2], [0.3, 0, 0.25]]),
+                              0.05, 0.05, out_buffer, 0)
     out += [[*n[k], s[k], *q[k], float(f[k])] for k in range(m)]
     triangle = np.array([[-1.0, -1, 0], [1, -1, 0], [0, 1, 0.05]])
-    m = triangle_hull_contacts(triangle, np.uint8(5), False, *faces(hulls[i]), np.array([0, 0, 0.12]), rotations[i],
-                               0.05, n, s, q, f, 0)
+    m = triangle_hull_contacts(triangle, np.uint8(5), False, posed(hulls[i], np.array([0, 0, 0.12]), rotations[i]),
+                               0.05, out_buffer, 0)
     out += [[*n[k], s[k], *q[k], float(f[k])] for k in range(m)]
-    t, sep, nn, hit, it = time_of_impact(*args(hulls[i]), np.zeros(3), np.eye(3), np.array([0.0, 0, 0]),
-                                         np.array([0.0, 0, 200.0]), 0.0, *args(hulls[-2]), np.array([0.0, 0.9, 0]),
-                                         np.eye(3), np.zeros(3), np.zeros(3), 0.0, 1 / 60, 1e-3, 1e-5)
+    h, o = hulls[i], hulls[-2]
+    t, sep, nn, hit, it = time_of_impact(
+        MovingCore(h.vertices, h.adjacency_start, h.adjacency, np.zeros(3), np.eye(3), np.array([0.0, 0, 0]),
+                   np.array([0.0, 0, 200.0]), 0.0),
+        MovingCore(o.vertices, o.adjacency_start, o.adjacency, np.array([0.0, 0.9, 0]), np.eye(3), np.zeros(3),
+                   np.zeros(3), 0.0), 1 / 60, 1e-3, 1e-5)
     out.append([t, sep, *nn, float(hit), float(it)])
 x, y = np.meshgrid(np.linspace(-2, 2, 20), np.linspace(-2, 2, 20), indexing="ij")
 vertices = np.column_stack([x.ravel(), y.ravel(), 0.2 * np.sin(x.ravel() * 2) * np.cos(y.ravel())])
@@ -74,20 +80,18 @@ out.append(np.concatenate([mesh.node_lo.ravel(), mesh.node_hi.ravel(), mesh.node
 found = np.empty(len(triangles), np.int64)
 for k in range(50):
     c = rng.uniform(-2, 2, 3)
-    cnt = bvh_overlap(*mesh.bvh, mesh.triangle_lo, mesh.triangle_hi, c - 0.3, c + 0.3, found)
+    cnt = bvh_overlap(mesh.arrays, c - 0.3, c + 0.3, found)
     out.append(found[:cnt].astype(float).tolist())
-    out.append(list(bvh_closest_point(*mesh.bvh, mesh.vertices, mesh.triangles, c, np.inf)))
-    out.append(list(bvh_raycast(*mesh.bvh, mesh.vertices, mesh.triangles, c + [0, 0, 1], rng.normal(size=3), 5.0)))
-margs = (mesh.vertices, mesh.triangles, mesh.active_edges, mesh.node_lo, mesh.node_hi, mesh.node_child_or_first,
-         mesh.node_count, mesh.triangle_order, mesh.triangle_lo, mesh.triangle_hi)
+    out.append(list(bvh_closest_point(mesh.arrays, c, np.inf)))
+    out.append(list(bvh_raycast(mesh.arrays, c + [0, 0, 1], rng.normal(size=3), 5.0)))
 Rm = Rotation.from_euler("xyz", [0.1, 0.2, 0.3]).as_matrix()
 pm = np.array([0.3, -0.2, 0.1])
 for i, h in enumerate(hulls):
     pos = pm + Rm @ np.array([rng.uniform(-1, 1), rng.uniform(-1, 1), 0.12])
-    m, ok = mesh_hull_contacts(*margs, pm, Rm, False, *faces(h), pos, rotations[i], 0.05, found, n, s, q, f, 0)
+    m, ok = mesh_hull_contacts(mesh.arrays, pm, Rm, False, posed(h, pos, rotations[i]), 0.05, found, out_buffer, 0)
     out += [[*n[k], s[k], *q[k], float(f[k]), float(ok)] for k in range(m)]
-    m, ok = mesh_capsule_contacts(*margs, pm, Rm, False, np.array([pos, pos + [0.3, 0.1, 0.05]]), 0.1, 0.05, found,
-                                  n, s, q, f, 0)
+    m, ok = mesh_capsule_contacts(mesh.arrays, pm, Rm, False, np.array([pos, pos + [0.3, 0.1, 0.05]]), 0.1, 0.05,
+                                  found, out_buffer, 0)
     out += [[*n[k], s[k], *q[k], float(f[k]), float(ok)] for k in range(m)]
 flat = np.concatenate([np.asarray(row, dtype=float).ravel() for row in out])
 np.save(sys.argv[1], flat)

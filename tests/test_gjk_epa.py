@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from cgp_core.collision.convex import convex_hull
 from cgp_core.collision.epa import penetration
-from cgp_core.collision.gjk import NO_ADJACENCY, box_core, gjk_distance, no_adjacency, point_core, segment_core
+from cgp_core.collision.gjk import NO_ADJACENCY, Core, box_core, gjk_distance, no_adjacency, point_core, segment_core
 
 EYE = np.eye(3)
 
@@ -25,14 +25,17 @@ def core(vertices, hull=None):
     return vertices, no_adjacency(vertices), NO_ADJACENCY
 
 
+def posed(a, p, R):
+    """The :class:`Core` of a core's arrays at position ``p``, rotation ``R``."""
+    return Core(*a, np.asarray(p, float), np.asarray(R, float))
+
+
 def distance(a, pa, Ra, ra, b, pb, Rb, rb):
-    return gjk_distance(*a, np.asarray(pa, float), np.asarray(Ra, float), ra, *b, np.asarray(pb, float),
-                        np.asarray(Rb, float), rb)
+    return gjk_distance(posed(a, pa, Ra), ra, posed(b, pb, Rb), rb)
 
 
 def signed(a, pa, Ra, ra, b, pb, Rb, rb):
-    return penetration(*a, np.asarray(pa, float), np.asarray(Ra, float), ra, *b, np.asarray(pb, float),
-                       np.asarray(Rb, float), rb)
+    return penetration(posed(a, pa, Ra), ra, posed(b, pb, Rb), rb)
 
 
 def random_hull(rng, n=20, size=0.4):

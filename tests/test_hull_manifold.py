@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from cgp_core.collision.box_box import box_box_contacts
 from cgp_core.collision.bvh import active_edges
-from cgp_core.collision.convex import box_hull, convex_hull
+from cgp_core.collision.convex import PosedHull, box_hull, convex_hull
 from cgp_core.collision.manifold import (
     FACE_FEATURE,
     hull_capsule_contacts,
@@ -31,14 +31,15 @@ def buffers():
     return np.empty((CAP, 3)), np.empty(CAP), np.empty((CAP, 3)), np.empty(CAP, np.int64)
 
 
-def hull_args(h):
-    return h.vertices, h.adjacency_start, h.adjacency, h.face_plane, h.face_vertex_start, h.face_vertices
+def posed(h, position, R):
+    """The :class:`PosedHull` of hull ``h`` at ``position``, ``R``."""
+    return PosedHull(h.vertices, h.adjacency_start, h.adjacency, h.face_plane, h.face_vertex_start, h.face_vertices,
+                     np.asarray(position, float), np.asarray(R, float))
 
 
 def hull_hull(a, pa, Ra, b, pb, Rb, margin):
     n, s, p, f = buffers()
-    m = hull_hull_contacts(*hull_args(a), np.asarray(pa, float), np.asarray(Ra, float), *hull_args(b),
-                           np.asarray(pb, float), np.asarray(Rb, float), margin, n, s, p, f, 0)
+    m = hull_hull_contacts(posed(a, pa, Ra), posed(b, pb, Rb), margin, ContactBuffer(n, s, p, f), 0)
     return n[:m], s[:m], p[:m], f[:m]
 
 
@@ -50,7 +51,7 @@ def prism(sides=6, radius=0.2, half_height=0.05):
 
 def test_box_as_hull_gives_the_box_kernels_manifold_on_random_poses():
     rng = np.random.default_rng(0)
-    compared = multi = 0
+    compared = multi = wider = 0
     for trial in range(150):
         ha, hb = rng.uniform(0.1, 0.5, 3), rng.uniform(0.1, 0.5, 3)
         Ra, Rb = Rotation.random(2, random_state=trial).as_matrix()
@@ -62,7 +63,14 @@ def test_box_as_hull_gives_the_box_kernels_manifold_on_random_poses():
         m = box_box_contacts(Box(pa, Ra, ha), Box(pb, Rb, hb), margin, ContactBuffer(n, s, p, f), 0)
         box = n[:m], s[:m], p[:m]
         hull = hull_hull(box_hull(ha), pa, Ra, box_hull(hb), pb, Rb, margin)
-        assert len(hull[0]) == m, trial
+        if len(hull[0]) != m:
+            # the one departure, on purpose: where box–box's reduction (in the reference face's units) keeps only
+            # 2 or 3 of more candidates, the hull kernel reduces in the contact polygon's own units and keeps 4
+            assert len(hull[0]) == 4 > m >= 2, trial
+            np.testing.assert_allclose(hull[0], np.tile(box[0][0], (4, 1)), atol=1e-9)
+            assert hull[1].min() <= box[1].min() + 1e-9  # not shallower (box–box may drop the deepest candidate)
+            wider += 1
+            continue
         if m == 0:
             continue
         compared += 1
@@ -71,7 +79,7 @@ def test_box_as_hull_gives_the_box_kernels_manifold_on_random_poses():
         order_box, order_hull = np.lexsort(box[2].T), np.lexsort(hull[2].T)
         np.testing.assert_allclose(hull[2][order_hull], box[2][order_box], atol=1e-9)
         np.testing.assert_allclose(hull[1][order_hull], box[1][order_box], atol=1e-9)
-    assert compared >= 80 and multi >= 30
+    assert compared >= 80 and multi >= 30 and wider <= 5
 
 
 def test_a_hull_resting_on_a_face_gets_equal_separations_at_the_face_corners():
@@ -117,14 +125,14 @@ def test_features_are_stable_while_a_resting_hull_moves_a_little():
 def test_a_hull_on_the_ground_gets_at_most_four_equally_deep_points():
     hexagon = prism()
     n, s, p, f = buffers()
-    m = plane_hull_contacts(hexagon.vertices, np.array([1.0, 2.0, 0.05 - 2e-3]),
-                            Rotation.from_euler("z", 0.4).as_matrix(), 0.01, n, s, p, f, 0)
+    m = plane_hull_contacts(posed(hexagon, [1.0, 2.0, 0.05 - 2e-3], Rotation.from_euler("z", 0.4).as_matrix()), 0.01,
+                            ContactBuffer(n, s, p, f), 0)
     assert m == 4
     np.testing.assert_allclose(s[:m], -2e-3, atol=1e-14)
     np.testing.assert_allclose(p[:m, 2], -1e-3, atol=1e-14)
     # tilted: only the low corners are within the margin
-    m = plane_hull_contacts(hexagon.vertices, np.array([0.0, 0.0, 0.2]), Rotation.from_euler("x", 0.6).as_matrix(),
-                            0.01, n, s, p, f, 0)
+    m = plane_hull_contacts(posed(hexagon, [0.0, 0.0, 0.2], Rotation.from_euler("x", 0.6).as_matrix()), 0.01,
+                            ContactBuffer(n, s, p, f), 0)
     world_z = (hexagon.vertices @ Rotation.from_euler("x", 0.6).as_matrix().T)[:, 2] + 0.2
     assert m == np.count_nonzero(world_z < 0.01)
     np.testing.assert_allclose(np.sort(s[:m]), np.sort(world_z[world_z < 0.01]), atol=1e-14)
@@ -132,8 +140,8 @@ def test_a_hull_on_the_ground_gets_at_most_four_equally_deep_points():
 
 def capsule(hull, position, R, segment, radius, margin=0.01):
     n, s, p, f = buffers()
-    m = hull_capsule_contacts(*hull_args(hull), np.asarray(position, float), R, np.asarray(segment, float), radius,
-                              margin, n, s, p, f, 0)
+    m = hull_capsule_contacts(posed(hull, position, R), np.asarray(segment, float), radius, margin,
+                              ContactBuffer(n, s, p, f), 0)
     return n[:m], s[:m], p[:m], f[:m]
 
 
@@ -159,8 +167,8 @@ def test_sphere_and_capsule_on_a_hull_face():
 
 def triangle_contacts(triangle, flags, hull, position, R, margin=0.01, two_sided=False):
     n, s, p, f = buffers()
-    m = triangle_hull_contacts(np.asarray(triangle, float), np.uint8(flags), two_sided, *hull_args(hull),
-                               np.asarray(position, float), R, margin, n, s, p, f, 0)
+    m = triangle_hull_contacts(np.asarray(triangle, float), np.uint8(flags), two_sided, posed(hull, position, R),
+                               margin, ContactBuffer(n, s, p, f), 0)
     return n[:m], s[:m], p[:m], f[:m]
 
 
@@ -211,11 +219,6 @@ def flat_grid(cells=4, size=2.0):
     return vertices, np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
 
 
-def mesh_args(mesh):
-    return (mesh.vertices, mesh.triangles, mesh.active_edges, mesh.node_lo, mesh.node_hi, mesh.node_child_or_first,
-            mesh.node_count, mesh.triangle_order, mesh.triangle_lo, mesh.triangle_hi)
-
-
 def test_hulls_and_spheres_on_a_posed_flat_mesh_feel_only_its_up_direction():
     """A flat grid mesh (32 triangles, every internal edge inactive) turned and moved in the world; a box, a
     hexagonal prism and a sphere resting on it anywhere — across edges and vertices — get contacts whose normal
@@ -237,8 +240,8 @@ def test_hulls_and_spheres_on_a_posed_flat_mesh_feel_only_its_up_direction():
             lowest = (hull.vertices @ local_R.T)[:, 2].min()
             local_p = np.array([*rng.uniform(-0.6, 0.6, 2), -lowest - depth])
             n, s, p, f = buffers()
-            m, complete = mesh_hull_contacts(*mesh_args(mesh), pm, Rm, False, *hull_args(hull), pm + Rm @ local_p,
-                                             Rm @ local_R, 0.01, candidates, n, s, p, f, 0)
+            m, complete = mesh_hull_contacts(mesh.arrays, pm, Rm, False, posed(hull, pm + Rm @ local_p, Rm @ local_R),
+                                             0.01, candidates, ContactBuffer(n, s, p, f), 0)
             assert complete and m >= 3
             np.testing.assert_allclose(n[:m], np.tile(up, (m, 1)), atol=1e-12)
             assert s[:m].min() == pytest.approx(-depth, abs=1e-12)
@@ -248,8 +251,8 @@ def test_hulls_and_spheres_on_a_posed_flat_mesh_feel_only_its_up_direction():
         local_c[:2] = np.round(local_c[:2] * 2) / 2 if _ % 4 == 0 else local_c[:2]  # right over a grid vertex
         c = pm + Rm @ local_c
         n, s, p, f = buffers()
-        m, complete = mesh_capsule_contacts(*mesh_args(mesh), pm, Rm, False, np.array([c, c]), 0.1, 0.01,
-                                            candidates, n, s, p, f, 0)
+        m, complete = mesh_capsule_contacts(mesh.arrays, pm, Rm, False, np.array([c, c]), 0.1, 0.01, candidates,
+                                            ContactBuffer(n, s, p, f), 0)
         assert complete and m == 1, local_c
         np.testing.assert_allclose(n[0], up, atol=1e-12)
         assert s[0] == pytest.approx(-depth, abs=1e-12)

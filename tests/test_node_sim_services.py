@@ -73,7 +73,7 @@ def test_features_states_and_stepping(start_node, probe):
                                       F.SIMULATION_RESET_SPAWNED, F.SIMULATION_STATE_GETTING,
                                       F.SIMULATION_STATE_SETTING, F.SIMULATION_STATE_PAUSE,
                                       F.STEP_SIMULATION_SINGLE, F.STEP_SIMULATION_MULTIPLE, F.STEP_SIMULATION_ACTION}
-    assert list(features.spawn_formats) == ["yaml"] and "body or flock" in features.custom_info
+    assert list(features.spawn_formats) == ["yaml", "stl", "obj"] and "body or flock" in features.custom_info
 
     assert sim.simulation_state() == S.STATE_PAUSED
     again = sim.set_simulation_state(S.STATE_PAUSED)
@@ -313,8 +313,8 @@ def test_every_refusal_has_its_code_and_changes_nothing(start_node, probe, tmp_p
 
     cases = [
         (dict(name="b"), R.NO_RESOURCE, "both empty"),
-        (dict(name="b", uri=str(urdf)), R.UNSUPPORTED_FORMAT, "not a .yaml file"),
-        (dict(name="b", uri="package://robots/robot.yaml"), R.UNSUPPORTED_FORMAT, "only local YAML files"),
+        (dict(name="b", uri=str(urdf)), R.UNSUPPORTED_FORMAT, "not a .yaml, .stl or .obj file"),
+        (dict(name="b", uri="package://robots/robot.yaml"), R.UNSUPPORTED_FORMAT, "only local files are spawned"),
         (dict(name="b", uri=str(tmp_path / "missing.yaml")), R.RESOURCE_PARSE_ERROR, "cannot read"),
         (dict(name="b", resource="body: {shape: box, size: [1, 1"), R.RESOURCE_PARSE_ERROR, "malformed YAML: line 2"),
         (dict(name="b", resource="body: {shape: box, size: [1, -1, 1]}"), R.RESOURCE_PARSE_ERROR,

@@ -183,6 +183,31 @@ def test_markers_as_a_viewer_replays_them(tmp_path):
     assert seen[3.0] == seen[2.5]
 
 
+def test_a_hull_marker_is_drawn_at_its_pose(tmp_path):
+    """Issue 25's hull and mesh markers: a TRIANGLE_LIST in the body frame whose pose moves it (as RViz and
+    Foxglove draw it) — the renderer draws its triangles where the pose puts them, the same points each time."""
+    from cgp_core.collision.meshfile import load_mesh
+    from cgp_core.scene import builtin_mesh_dir
+
+    vertices, triangles = load_mesh(builtin_mesh_dir() / "rock.stl")
+    rock = dict(marker_type=cdr.TRIANGLE_LIST, ns="bodies/rock", id=0, points=4 * vertices[triangles].reshape(-1, 3),
+                color=(1.0, 0.1, 0.1, 1.0))
+    quarter = (0.0, 0.0, 0.7071067811865476, 0.7071067811865476)
+    _marker_bag(tmp_path / "bag", [(0.0, [cdr.marker(cdr.MarkerFields(**rock, position=(-1.5, 0, 0)))]),
+                                   (1.0, [cdr.marker(cdr.MarkerFields(**rock, position=(1.5, 0, 0.2),
+                                                                      orientation=quarter))]),
+                                   (2.0, [])])
+    seen = {}
+    for t in (0.5, 1.5):
+        png = tmp_path / f"t{t}.png"
+        render(str(tmp_path / "bag"), "-o", str(png), "--from", str(t), "--camera", "0,-8,0:0,0,0",
+               "--size", "200x100", "-q")
+        reds = pixels_of(np.asarray(Image.open(png).convert("RGB")), (1.0, 0.1, 0.1))
+        seen[t] = (len(reds), reds[:, 1].mean() if len(reds) else None)
+    assert seen[0.5][0] > 50 and seen[0.5][1] < 100  # on the left
+    assert seen[1.5][0] > 50 and seen[1.5][1] > 100  # moved right by its pose
+
+
 @pytest.mark.parametrize("args, says", [
     (["-o", "{tmp}/x.avi"], "unknown format '.avi'"),
     (["-o", "{tmp}/nodir/x.gif"], "does not exist"),

@@ -97,7 +97,8 @@ def test_spawn_errors_are_the_scene_file_errors_with_the_key_path():
         ({"robot": {}}, "spawn_entity: must be a mapping with exactly one key, body or flock (a scene file's "
                         "bodies / flocks entry), got a mapping of 1 keys, none of them body or flock"),
         ({"body": {"shape": "cube"}}, "spawn_entity: body (box1).shape: must be one of sphere, box, capsule, "
-                                      "particles, got 'cube'\nspawn_entity: body (box1).radius: missing"),
+                                      "particles, convex, compound, mesh, got 'cube'\n"
+                                      "spawn_entity: body (box1).radius: missing"),
         ({"flock": {"count": 0}}, "spawn_entity: flock (box1).count: must be >= 1, got 0"),
     ]
     for data, message in cases:

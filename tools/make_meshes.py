@@ -8,6 +8,8 @@ change here and commit the files).
   hills of ±0.4 m — the static mesh the pile lands on.  Open (a surface, not a solid).
 - ``mug.obj`` (OBJ): a cup as a closed surface of revolution (outer wall, rim, inner wall, floor: concave),
   8 cm radius, 10 cm high, 24 segments — a closed concave mesh (static; or its hull for a movable body).
+- ``triangle.obj`` (OBJ): one triangle, 2 m wide and 2 m high, in the plane x = 0 facing −x — the ``bullet``
+  scene's mesh wall (a single triangle: nothing behind it to catch what gets through).
 
 Usage: ``.venv/bin/python tools/make_meshes.py`` (needs only numpy and scipy).
 """
@@ -110,6 +112,11 @@ def mug() -> tuple[np.ndarray, np.ndarray]:
     return vertices, triangles
 
 
+def triangle() -> tuple[np.ndarray, np.ndarray]:
+    vertices = np.array([[0.0, -1.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 2.0]])
+    return vertices, np.array([[0, 2, 1]])  # counter-clockwise seen from −x: its front faces −x
+
+
 def main() -> int:
     OUT.mkdir(parents=True, exist_ok=True)
     v, t = rock()
@@ -123,6 +130,9 @@ def main() -> int:
     write_obj(OUT / "mug.obj", v, t, "cgp_sim mug: tools/make_meshes.py\na closed concave surface of revolution")
     volume = polyhedron_mass_properties(v, t, density=1.0, what="mug")[3]
     print(f"mug.obj: {len(v)} vertices, {len(t)} triangles, {volume * 1e6:.1f} cm³ of material")
+    v, t = triangle()
+    write_obj(OUT / "triangle.obj", v, t, "cgp_sim one-triangle wall: tools/make_meshes.py\nfront faces -x")
+    print(f"triangle.obj: {len(v)} vertices, {len(t)} triangle")
     return 0
 
 

@@ -11,6 +11,17 @@ loop over the boids (a test checks the two agree).  The cost is proportional to 
 boids × bodies: the shapes are binned into a coarse grid of cells over the boids (each shape into the cells its
 bounding sphere, grown by the reach, overlaps), and each boid looks only at the shapes of its own cell —
 usually none.  Two passes over the boids, in parallel: count each boid's hits, then write them.
+
+Issue 25's shapes: a compound body's parts are spheres, boxes and capsules here like any (at the part's pose);
+convex hulls (convex bodies and parts) and static meshes are queried by a second compiled loop
+(:func:`_convex_hits`), whose hits are appended (the consumers add the hits up per boid: order does not matter).
+A hull's signed distance is taken from its face planes, max_f (n_f · p − d_f) (Ericson 5.1.x): exact inside (the
+depth below the nearest face) and on the outside over a face; outside near an edge or a vertex it is a lower
+bound of the true distance, so a fish there steers a little early — never late.  A static mesh's is the BVH's
+closest point (:func:`cgp_core.collision.bvh.bvh_closest_point`) within the reach: a two-sided mesh has no inside
+(the distance is the unsigned one, the normal points from the closest point to the fish); a one-sided mesh (a
+terrain, whose triangles face up) counts a fish *behind* its closest triangle — below the terrain — as inside,
+so that fish is pushed back up through the surface; a fish farther below it than the reach is not seen at all.
 """
 
 from __future__ import annotations
@@ -22,6 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..bodies import BodyModel, BodyState, Shape
+from ..collision.bvh import TriangleMesh, bvh_closest_point
 from ..jit import njit, prange
 from .neighbors import bounding_box
 
@@ -100,6 +112,12 @@ class Obstacles:
         capsule_half_lengths: (kc,) — half the segment length.
         capsule_radii:        (kc,)
         ground_height:        float or None — the plane z = ground_height (outward normal +z), or no ground.
+        hull_centers:         (kh, 3) — convex hulls (convex bodies, compound parts): the origin of their vertices.
+        hull_rotations:       (kh, 3, 3) — their axes (columns) in world.
+        hull_face_start:      (kh + 1,) int64 — hull k's face planes are rows hull_face_start[k] .. [k + 1] − 1 of
+        hull_face_plane:      (F, 4) — unit outward normal and offset in the hull's frame (n · x = d on the face).
+        hull_bound:           (kh,) — radius of a sphere about the hull's origin holding it.
+        meshes:               list of (StaticMesh, position (3,), rotation (3, 3), two_sided) — static meshes.
     """
 
     sphere_centers: np.ndarray
@@ -112,6 +130,12 @@ class Obstacles:
     capsule_half_lengths: np.ndarray
     capsule_radii: np.ndarray
     ground_height: float | None = None
+    hull_centers: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    hull_rotations: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    hull_face_start: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
+    hull_face_plane: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    hull_bound: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    meshes: list = field(default_factory=list)
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @staticmethod
@@ -122,7 +146,8 @@ class Obstacles:
     @staticmethod
     def from_bodies(model: BodyModel, state: BodyState, ground: bool = False) -> Obstacles:
         """The bodies of a world at their current poses (spheres, boxes, capsules, the particles of particle
-        sets as spheres of the body's particle radius), plus the ground plane z = 0 if ``ground``."""
+        sets as spheres of the body's particle radius, convex hulls, compound bodies' parts at their poses,
+        static meshes), plus the ground plane z = 0 if ``ground``."""
         shape = np.asarray(model.shape)
         rotations = state.rotation_matrices() if model.count else np.zeros((0, 3, 3))
         spheres = np.flatnonzero(shape == Shape.SPHERE)
@@ -134,34 +159,89 @@ class Obstacles:
             radii.append(np.full(len(local), model.radius[b]))
         boxes = np.flatnonzero(shape == Shape.BOX)
         capsules = np.flatnonzero(shape == Shape.CAPSULE)
+        box = [[state.position[boxes]], [rotations[boxes]], [model.half_extents[boxes]]]  # columns: lists of arrays
+        capsule = [[state.position[capsules]], [rotations[capsules][:, :, 2]], [model.half_extents[capsules, 2]],
+                   [model.radius[capsules]]]
+        hulls = []  # (centre, rotation, hull)
+        for b in np.flatnonzero(shape == Shape.CONVEX):
+            hulls.append((state.position[b], rotations[b], model.hulls[b]))
+        for b in np.flatnonzero(shape == Shape.COMPOUND):
+            parts = model.parts[b]
+            centre = state.position[b] + parts.position @ rotations[b].T
+            turned = rotations[b] @ parts.rotation
+            for k in range(parts.count):
+                kind = int(parts.shape[k])
+                if kind == Shape.SPHERE:
+                    centers.append(centre[k][None])
+                    radii.append(parts.radius[k:k + 1])
+                elif kind == Shape.BOX:
+                    for column, value in zip(box, (centre[k], turned[k], parts.half_extents[k])):
+                        column.append(value[None])
+                elif kind == Shape.CAPSULE:
+                    for column, value in zip(capsule, (centre[k], turned[k][:, 2], parts.half_extents[k, 2],
+                                                       parts.radius[k])):
+                        column.append(np.reshape(value, (1, -1)) if np.ndim(value) else np.array([value]))
+                else:
+                    hulls.append((centre[k], turned[k], parts.hulls[k]))
+        meshes = [(model.meshes[b], state.position[b].copy(), rotations[b].copy(), bool(model.two_sided[b]))
+                  for b in np.flatnonzero(shape == Shape.MESH)]
+        face_start = np.zeros(len(hulls) + 1, np.int64)
+        face_start[1:] = np.cumsum([len(h.face_plane) for _, _, h in hulls])
         return Obstacles(
             sphere_centers=np.concatenate(centers).reshape(-1, 3),
             sphere_radii=np.concatenate(radii),
-            box_centers=state.position[boxes],
-            box_rotations=rotations[boxes],
-            box_half_extents=model.half_extents[boxes],
-            capsule_centers=state.position[capsules],
-            capsule_axes=rotations[capsules][:, :, 2],
-            capsule_half_lengths=model.half_extents[capsules, 2],
-            capsule_radii=model.radius[capsules],
+            box_centers=np.concatenate(box[0]).reshape(-1, 3),
+            box_rotations=np.concatenate(box[1]).reshape(-1, 3, 3),
+            box_half_extents=np.concatenate(box[2]).reshape(-1, 3),
+            capsule_centers=np.concatenate(capsule[0]).reshape(-1, 3),
+            capsule_axes=np.concatenate(capsule[1]).reshape(-1, 3),
+            capsule_half_lengths=np.concatenate(capsule[2]).reshape(-1),
+            capsule_radii=np.concatenate(capsule[3]).reshape(-1),
             ground_height=0.0 if ground else None,
+            hull_centers=np.array([c for c, _, _ in hulls], float).reshape(-1, 3),
+            hull_rotations=np.array([R for _, R, _ in hulls], float).reshape(-1, 3, 3),
+            hull_face_start=face_start,
+            hull_face_plane=np.concatenate([h.face_plane for _, _, h in hulls]) if hulls else np.zeros((0, 4)),
+            hull_bound=np.array([np.linalg.norm(h.vertices, axis=1).max() for _, _, h in hulls], float),
+            meshes=meshes,
         )
 
     @property
     def shape_count(self) -> int:
         """Number of shapes (the ground plane counts as one)."""
         return (len(self.sphere_radii) + len(self.box_centers) + len(self.capsule_centers)
-                + (self.ground_height is not None))
+                + (self.ground_height is not None) + len(self.hull_bound) + len(self.meshes))
 
     # ---- queries ---------------------------------------------------------------------------------------
 
     def query(self, points: np.ndarray, reach: float) -> ObstacleHits:
         """Every (point, shape) pair with signed distance < ``reach``; ``points (3, N)`` world coordinates.
         The hits come point by point (ascending), each point's shapes in order (spheres, boxes, capsules, then
-        the ground plane)."""
+        the ground plane); those on hulls and static meshes follow, point by point again."""
         rows = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T)  # (N, 3): one point per row
         n = len(rows)
         if n == 0 or self.shape_count == 0:
+            return ObstacleHits.concatenate([])
+        if len(self.hull_bound) or self.meshes:
+            return ObstacleHits.concatenate([self._primitive_hits(rows, reach), self._convex_hits(rows, reach)])
+        return self._primitive_hits(rows, reach)
+
+    def _convex_hits(self, rows: np.ndarray, reach: float) -> ObstacleHits:
+        """The hits on hulls and static meshes (see the module docstring), ``rows (N, 3)``."""
+        parts = []
+        if len(self.hull_bound):
+            parts.append(ObstacleHits(*_hull_hits(rows, float(reach), self.hull_centers, self.hull_rotations,
+                                                  self.hull_face_start, self.hull_face_plane, self.hull_bound)))
+        for mesh, position, rotation, two_sided in self.meshes:
+            parts.append(ObstacleHits(*_mesh_hits(rows, float(reach), tuple(mesh.arrays), position, rotation,
+                                                  two_sided)))
+        return ObstacleHits.concatenate(parts)
+
+    def _primitive_hits(self, rows: np.ndarray, reach: float) -> ObstacleHits:
+        """The hits on spheres, boxes, capsules and the ground plane, ``rows (N, 3)``."""
+        n = len(rows)
+        if len(self.sphere_radii) + len(self.box_centers) + len(self.capsule_centers) == 0 \
+                and self.ground_height is None:
             return ObstacleHits.concatenate([])
         shapes = self._packed()
         grown = shapes.bound + reach
@@ -354,3 +434,86 @@ def _point_hits(fill, query, shapes, bins, counts_or_start, hits):
             found += 1
         if not fill:
             counts_or_start[q] = found
+
+
+# ---- hulls and static meshes (issue 25) ----------------------------------------------------------------------
+
+@njit
+def _hull_hits(points, reach, centers, rotations, face_start, face_plane, bound):
+    """Every (point, hull) pair with the face-plane signed distance below ``reach`` (see the module docstring):
+    ``(point (Q,), distance (Q,), normal (3, Q))``, point by point."""
+    n, k = len(points), len(bound)
+    cap = 16
+    hit_point, hit_distance, hit_normal = np.empty(cap, np.int64), np.empty(cap), np.empty((3, cap))
+    count = 0
+    for i in range(n):
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        for h in range(k):
+            dx, dy, dz = px - centers[h, 0], py - centers[h, 1], pz - centers[h, 2]
+            grown = bound[h] + reach
+            if dx * dx + dy * dy + dz * dz >= grown * grown:
+                continue
+            R = rotations[h]
+            lx = R[0, 0] * dx + R[1, 0] * dy + R[2, 0] * dz  # the point in the hull's frame
+            ly = R[0, 1] * dx + R[1, 1] * dy + R[2, 1] * dz
+            lz = R[0, 2] * dx + R[1, 2] * dy + R[2, 2] * dz
+            best, best_f = -np.inf, -1
+            for f in range(face_start[h], face_start[h + 1]):
+                d = face_plane[f, 0] * lx + face_plane[f, 1] * ly + face_plane[f, 2] * lz - face_plane[f, 3]
+                if d > best:
+                    best, best_f = d, f
+            if best >= reach or best_f < 0:
+                continue
+            if count == cap:
+                cap *= 2
+                p2, d2, n2 = np.empty(cap, np.int64), np.empty(cap), np.empty((3, cap))
+                p2[:count], d2[:count], n2[:, :count] = hit_point[:count], hit_distance[:count], hit_normal[:, :count]
+                hit_point, hit_distance, hit_normal = p2, d2, n2
+            a, b, c = face_plane[best_f, 0], face_plane[best_f, 1], face_plane[best_f, 2]
+            hit_point[count] = i
+            hit_distance[count] = best
+            for r in range(3):
+                hit_normal[r, count] = R[r, 0] * a + R[r, 1] * b + R[r, 2] * c
+            count += 1
+    return hit_point[:count].copy(), hit_distance[:count].copy(), hit_normal[:, :count].copy()
+
+
+@njit
+def _mesh_hits(points, reach, mesh, position, rotation, two_sided):
+    """Every point within ``reach`` of a static mesh (a :class:`~cgp_core.collision.bvh.TriangleMesh`, as a plain
+    tuple from Python) posed by ``position``, ``rotation``: the BVH's closest point (see the module docstring for
+    the sign): ``(point (Q,), distance (Q,), normal (3, Q))``."""
+    mesh = TriangleMesh(*mesh)
+    vertices, triangles = mesh.vertices, mesh.triangles
+    n = len(points)
+    hit_point, hit_distance, hit_normal = np.empty(n, np.int64), np.empty(n), np.empty((3, n))
+    local = np.empty(3)
+    count = 0
+    for i in range(n):
+        dx, dy, dz = points[i, 0] - position[0], points[i, 1] - position[1], points[i, 2] - position[2]
+        for r in range(3):
+            local[r] = rotation[0, r] * dx + rotation[1, r] * dy + rotation[2, r] * dz
+        t, distance, cx, cy, cz = bvh_closest_point(mesh, local, reach)
+        if t < 0 or distance >= reach:
+            continue
+        ox, oy, oz = local[0] - cx, local[1] - cy, local[2] - cz
+        if distance > _TINY:
+            ox, oy, oz = ox / distance, oy / distance, oz / distance
+        a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
+        ex, ey, ez = vertices[b, 0] - vertices[a, 0], vertices[b, 1] - vertices[a, 1], vertices[b, 2] - vertices[a, 2]
+        fx, fy, fz = vertices[c, 0] - vertices[a, 0], vertices[c, 1] - vertices[a, 1], vertices[c, 2] - vertices[a, 2]
+        nx, ny, nz = ey * fz - ez * fy, ez * fx - ex * fz, ex * fy - ey * fx
+        length = math.sqrt(nx * nx + ny * ny + nz * nz)
+        nx, ny, nz = nx / length, ny / length, nz / length
+        signed = distance
+        if distance <= _TINY:  # on the surface: the triangle's front
+            ox, oy, oz = nx, ny, nz
+        elif not two_sided and ox * nx + oy * ny + oz * nz < 0.0:  # behind a one-sided mesh: inside
+            signed = -distance
+            ox, oy, oz = -ox, -oy, -oz
+        hit_point[count] = i
+        hit_distance[count] = signed
+        for r in range(3):
+            hit_normal[r, count] = rotation[r, 0] * ox + rotation[r, 1] * oy + rotation[r, 2] * oz
+        count += 1
+    return hit_point[:count].copy(), hit_distance[:count].copy(), hit_normal[:, :count].copy()

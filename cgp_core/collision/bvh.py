@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -51,6 +52,44 @@ SAH_BINS = 16
 #: traversal stack depth (a tree over 2^31 triangles split at worst 1 : (n − 1) would need more; the median
 #: fallback keeps real trees far below this)
 STACK_DEPTH = 256
+
+
+class BvhTree(NamedTuple):
+    """The tree :func:`build_bvh` gives (see the module docstring's layout)."""
+
+    node_lo: np.ndarray              # (N, 3) the node's box, lower corner
+    node_hi: np.ndarray              # (N, 3) upper corner
+    node_child_or_first: np.ndarray  # (N,) int64 internal: left child (right = left + 1); leaf: first slot
+    node_count: np.ndarray           # (N,) int64 leaf: its triangles (≥ 1); internal: 0
+    triangle_order: np.ndarray       # (T,) int64 slot → triangle
+    triangle_lo: np.ndarray          # (T, 3) each triangle's own box, by triangle index
+    triangle_hi: np.ndarray          # (T, 3)
+
+
+class TriangleMesh(NamedTuple):
+    """A static mesh with its tree, as the queries and the mesh contacts take it (:attr:`StaticMesh.arrays`; from
+    Python the queries also take it as a plain tuple, see "Bundles" in :mod:`cgp_core.jit`)."""
+
+    vertices: np.ndarray             # (V, 3) in the mesh's frame
+    triangles: np.ndarray            # (T, 3) int64 vertex indices, counter-clockwise seen from the front
+    active_edges: np.ndarray         # (T,) uint8 bit e: edge (v_e, v_(e+1)%3) is active (:func:`active_edges`)
+    node_lo: np.ndarray              # (N, 3) — the :class:`BvhTree`'s fields
+    node_hi: np.ndarray              # (N, 3)
+    node_child_or_first: np.ndarray  # (N,) int64
+    node_count: np.ndarray           # (N,) int64
+    triangle_order: np.ndarray       # (T,) int64
+    triangle_lo: np.ndarray          # (T, 3)
+    triangle_hi: np.ndarray          # (T, 3)
+
+
+class ClosestPoint(NamedTuple):
+    """What :func:`bvh_closest_point` gives."""
+
+    triangle: int     # the closest triangle, −1 if none is within the distance asked
+    distance: float   # to it (inf if none)
+    x: float          # the closest point, mesh frame
+    y: float
+    z: float
 
 
 @njit
@@ -76,7 +115,7 @@ def _area(lx, ly, lz, hx, hy, hz):
 def build_bvh(vertices, triangles):
     """Build the tree (see the module docstring) over ``triangles (T, 3)`` of ``vertices (V, 3)``, T ≥ 1.
 
-    Returns ``(node_lo, node_hi, node_child_or_first, node_count, triangle_order, triangle_lo, triangle_hi)``.
+    Returns a :class:`BvhTree`.
     """
     t = len(triangles)
     tri_lo, tri_hi, centroid = _triangle_boxes(vertices, triangles)
@@ -184,8 +223,8 @@ def build_bvh(vertices, triangles):
         stack_node[top], stack_start[top], stack_end[top] = left, start, mid
         stack_node[top + 1], stack_start[top + 1], stack_end[top + 1] = left + 1, mid, end
         top += 2
-    return (node_lo[:nodes].copy(), node_hi[:nodes].copy(), child[:nodes].copy(), count[:nodes].copy(), order,
-            tri_lo, tri_hi)
+    return BvhTree(node_lo[:nodes].copy(), node_hi[:nodes].copy(), child[:nodes].copy(), count[:nodes].copy(), order,
+                   tri_lo, tri_hi)
 
 
 # ---- queries ------------------------------------------------------------------------------------------
@@ -197,11 +236,15 @@ def _boxes_overlap(alo, ahi, k, lo, hi):
 
 
 @njit
-def bvh_overlap(node_lo, node_hi, node_child_or_first, node_count, triangle_order, triangle_lo, triangle_hi,
-                lo, hi, out):
-    """Triangles whose boxes overlap the box ``lo, hi (3,)`` (touching counts), written into ``out (cap,)`` in
+def bvh_overlap(mesh, lo, hi, out):
+    """Triangles of the :class:`TriangleMesh` ``mesh`` whose boxes overlap the box ``lo, hi (3,)`` (touching counts),
+    written into ``out (cap,)`` in
     tree order; returns how many there are (may exceed ``cap``: then only the first ``cap`` were written — call
     again with a bigger buffer)."""
+    mesh = TriangleMesh(*mesh)
+    node_lo, node_hi, node_child_or_first, node_count = mesh.node_lo, mesh.node_hi, mesh.node_child_or_first, \
+        mesh.node_count
+    triangle_order, triangle_lo, triangle_hi = mesh.triangle_order, mesh.triangle_lo, mesh.triangle_hi
     found = 0
     stack = np.empty(STACK_DEPTH, np.int64)
     stack[0] = 0
@@ -252,11 +295,14 @@ def closest_point_on_triangle(vertices, triangles, i, px, py, pz):
 
 
 @njit
-def bvh_closest_point(node_lo, node_hi, node_child_or_first, node_count, triangle_order, vertices, triangles,
-                      point, max_distance):
-    """The mesh point closest to ``point (3,)`` within ``max_distance`` (inf: anywhere):
-    ``(triangle, distance, x, y, z)``, triangle −1 if none is that close.  Nearest child first; a node farther
+def bvh_closest_point(mesh, point, max_distance):
+    """The point of the :class:`TriangleMesh` ``mesh`` closest to ``point (3,)`` within ``max_distance`` (inf:
+    anywhere): a :class:`ClosestPoint`, triangle −1 if none is that close.  Nearest child first; a node farther
     than the best so far is skipped (Ericson 6.3)."""
+    mesh = TriangleMesh(*mesh)
+    node_lo, node_hi, node_child_or_first, node_count = mesh.node_lo, mesh.node_hi, mesh.node_child_or_first, \
+        mesh.node_count
+    triangle_order, vertices, triangles = mesh.triangle_order, mesh.vertices, mesh.triangles
     px, py, pz = point[0], point[1], point[2]
     best_d2 = max_distance * max_distance if max_distance < np.inf else np.inf
     best_t = -1
@@ -289,7 +335,7 @@ def bvh_closest_point(node_lo, node_hi, node_child_or_first, node_count, triangl
                 stack[top], stack_d2[top] = left, dl
                 stack[top + 1], stack_d2[top + 1] = left + 1, dr
             top += 2
-    return best_t, math.sqrt(best_d2) if best_t >= 0 else np.inf, bx, by, bz
+    return ClosestPoint(best_t, math.sqrt(best_d2) if best_t >= 0 else np.inf, bx, by, bz)
 
 
 @njit
@@ -340,10 +386,14 @@ def _slab(node_lo, node_hi, k, ox, oy, oz, ix, iy, iz, t_max):
 
 
 @njit
-def bvh_raycast(node_lo, node_hi, node_child_or_first, node_count, triangle_order, vertices, triangles,
-                origin, direction, max_t):
-    """First hit of the segment ``origin + t direction``, 0 ≤ t ≤ ``max_t``: ``(triangle, t, u, v)``, triangle −1
+def bvh_raycast(mesh, origin, direction, max_t):
+    """First hit on the :class:`TriangleMesh` ``mesh`` of the segment ``origin + t direction``, 0 ≤ t ≤ ``max_t``:
+    ``(triangle, t, u, v)``, triangle −1
     if none (ties: the lowest triangle index)."""
+    mesh = TriangleMesh(*mesh)
+    node_lo, node_hi, node_child_or_first, node_count = mesh.node_lo, mesh.node_hi, mesh.node_child_or_first, \
+        mesh.node_count
+    triangle_order, vertices, triangles = mesh.triangle_order, mesh.vertices, mesh.triangles
     ox, oy, oz = origin[0], origin[1], origin[2]
     dx, dy, dz = direction[0], direction[1], direction[2]
     ix = 1.0 / dx if dx != 0.0 else np.inf
@@ -445,9 +495,11 @@ class StaticMesh:
         return cls(vertices, triangles, active_edges(vertices, triangles), *tree, build_seconds=seconds)
 
     @property
-    def bvh(self) -> tuple:
-        """``(node_lo, node_hi, node_child_or_first, node_count, triangle_order)``: the queries' first arguments."""
-        return self.node_lo, self.node_hi, self.node_child_or_first, self.node_count, self.triangle_order
+    def arrays(self) -> TriangleMesh:
+        """The mesh and its tree as the queries take them."""
+        return TriangleMesh(self.vertices, self.triangles, self.active_edges, self.node_lo, self.node_hi,
+                            self.node_child_or_first, self.node_count, self.triangle_order, self.triangle_lo,
+                            self.triangle_hi)
 
     @property
     def nbytes(self) -> int:

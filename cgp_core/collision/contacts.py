@@ -24,6 +24,10 @@ import numpy as np
 #: ``body_a`` value of a contact with the static ground plane z = 0
 GROUND = -1
 
+#: features per primitive pair in a contact key (box–box uses up to 296): ``key // FEATURE_SLOTS`` is the
+#: primitive pair, which the solver uses to match contacts across sub-steps
+FEATURE_SLOTS = 512
+
 
 class ContactSet(NamedTuple):
     """``m`` contact points (a bundle: compiled kernels take it as it is, see :mod:`cgp_core.jit`)."""

@@ -33,15 +33,16 @@ with :class:`HullError` naming the reason.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from ..jit import njit
+from ..limits import MAX_HULL_POINTS, MAX_HULL_VERTICES
 
-#: input points accepted by :func:`convex_hull` (qhull is O(n log n); a scene's hull needs far fewer)
-MAX_INPUT_POINTS = 100_000
-#: hull vertices accepted (a collision hull of more vertices is slow in every query; simplify the mesh first)
-MAX_HULL_VERTICES = 1024
+#: input points accepted by :func:`convex_hull`, and hull vertices (:mod:`cgp_core.limits`, the one place of the
+#: limits on what users give)
+MAX_INPUT_POINTS = MAX_HULL_POINTS
 #: vertices on one (merged) face: the manifold's feature ids reserve 8 bits for a face vertex
 MAX_FACE_VERTICES = 255
 #: a hull whose volume is below this fraction of the cube of its largest extent is refused as flat
@@ -224,18 +225,50 @@ def box_hull(half_extents) -> ConvexPolyhedron:
     return convex_hull(corners, what="box corners")
 
 
-@dataclass
-class HullSet:
+class Hull(NamedTuple):
+    """One hull's arrays as the kernels take them (:meth:`HullSet.hull`; indices local to the hull).  The two
+    ``*_start`` slices keep their absolute offsets into the shared ``adjacency`` / ``face_vertices``."""
+
+    vertices: np.ndarray           # (k, 3) float — in the hull's own frame
+    adjacency_start: np.ndarray    # (k + 1,) int64 — vertex v's neighbours: adjacency[start[v]:start[v + 1]]
+    adjacency: np.ndarray          # (A,) int64 — local vertex indices (the set's shared array)
+    face_plane: np.ndarray         # (f, 4) float — unit outward normal n and offset d (n · x = d on the face)
+    face_vertex_start: np.ndarray  # (f + 1,) int64 — face f's loop: face_vertices[start[f]:start[f + 1]]
+    face_vertices: np.ndarray      # (FV,) int64 — local vertex indices, counter-clockwise from outside
+
+
+class PosedHull(NamedTuple):
+    """A :class:`Hull` placed in the world: its frame's origin at ``position``, its axes the columns of
+    ``rotation`` (what the manifold kernels of :mod:`.manifold` take for each side)."""
+
+    vertices: np.ndarray           # (k, 3) — as in :class:`Hull`
+    adjacency_start: np.ndarray    # (k + 1,)
+    adjacency: np.ndarray          # (A,)
+    face_plane: np.ndarray         # (f, 4)
+    face_vertex_start: np.ndarray  # (f + 1,)
+    face_vertices: np.ndarray      # (FV,)
+    position: np.ndarray           # (3,) world [m]
+    rotation: np.ndarray           # (3, 3) body → world
+
+
+@njit
+def posed(hull, position, rotation):
+    """The :class:`PosedHull` of a :class:`Hull` at ``position (3,)``, ``rotation (3, 3)``."""
+    return PosedHull(hull.vertices, hull.adjacency_start, hull.adjacency, hull.face_plane, hull.face_vertex_start,
+                     hull.face_vertices, position, rotation)
+
+
+class HullSet(NamedTuple):
     """``h`` convex hulls as CSR arrays (see the module docstring for every array's shape and meaning)."""
 
-    vertex_start: np.ndarray
-    vertices: np.ndarray
-    adjacency_start: np.ndarray
-    adjacency: np.ndarray
-    face_start: np.ndarray
-    face_plane: np.ndarray
-    face_vertex_start: np.ndarray
-    face_vertices: np.ndarray
+    vertex_start: np.ndarray       # (h + 1,) int64
+    vertices: np.ndarray           # (V, 3) float
+    adjacency_start: np.ndarray    # (V + 1,) int64
+    adjacency: np.ndarray          # (A,) int64
+    face_start: np.ndarray         # (h + 1,) int64
+    face_plane: np.ndarray         # (F, 4) float
+    face_vertex_start: np.ndarray  # (F + 1,) int64
+    face_vertices: np.ndarray      # (FV,) int64
 
     @property
     def count(self) -> int:
@@ -259,22 +292,26 @@ class HullSet:
             return np.concatenate(arrays) if arrays else empty
 
         return cls(vertex_start=vertex_start,
-                   vertices=stack([h.vertices for h in hulls], np.zeros((0, 3))),
+                   vertices=np.ascontiguousarray(stack([h.vertices for h in hulls], np.zeros((0, 3))), float),
                    adjacency_start=np.concatenate(adjacency_start),
                    adjacency=stack([h.adjacency for h in hulls], np.zeros(0, np.int64)),
                    face_start=face_start,
-                   face_plane=stack([h.face_plane for h in hulls], np.zeros((0, 4))),
+                   face_plane=np.ascontiguousarray(stack([h.face_plane for h in hulls], np.zeros((0, 4))), float),
                    face_vertex_start=np.concatenate(face_vertex_start),
                    face_vertices=stack([h.face_vertices for h in hulls], np.zeros(0, np.int64)))
 
-    def hull(self, i: int) -> tuple:
-        """The arrays the kernels take for hull ``i``: ``(vertices, adjacency_start, adjacency, face_plane,
-        face_vertex_start, face_vertices)``; the two ``*_start`` slices keep their absolute offsets into the
-        shared ``adjacency`` / ``face_vertices`` (so they are sliced with one extra row)."""
-        v0, v1 = self.vertex_start[i], self.vertex_start[i + 1]
-        f0, f1 = self.face_start[i], self.face_start[i + 1]
-        return (self.vertices[v0:v1], self.adjacency_start[v0:v1 + 1], self.adjacency, self.face_plane[f0:f1],
-                self.face_vertex_start[f0:f1 + 1], self.face_vertices)
+    def hull(self, i: int) -> Hull:
+        """Hull ``i``'s arrays (:func:`hull_of`)."""
+        return hull_of(self, i)
+
+
+@njit
+def hull_of(hulls, i):
+    """Hull ``i`` of the :class:`HullSet` ``hulls`` as a :class:`Hull` (slices, no copies)."""
+    v0, v1 = hulls.vertex_start[i], hulls.vertex_start[i + 1]
+    f0, f1 = hulls.face_start[i], hulls.face_start[i + 1]
+    return Hull(hulls.vertices[v0:v1], hulls.adjacency_start[v0:v1 + 1], hulls.adjacency, hulls.face_plane[f0:f1],
+                hulls.face_vertex_start[f0:f1 + 1], hulls.face_vertices)
 
 
 # ---- the support mapping (compiled) ------------------------------------------------------------------------

@@ -10,11 +10,17 @@ Three compiled stages, called in order from :meth:`CollisionDetector.detect`, wh
    :mod:`.broadphase` function → :class:`Pairs`;
 3. ``narrow_phase`` — :func:`narrow_phase`: one loop over the ground (:class:`GroundPlane`) and the candidate
    pairs, each handed to its shape pair's kernel in :mod:`.narrowphase` / :mod:`.box_box` → a
-   :class:`ContactSet`.
+   :class:`ContactSet`;
+4. ``convex_phase`` — only for a model with issue 25's shapes (convex hulls, compound bodies' parts, static
+   meshes: :mod:`.convex_phase`, whose :class:`~.convex_phase.ShapeModel` numbers its primitives after the
+   :class:`CollisionModel`'s): :func:`.convex_phase.pose_shapes` poses and bounds them in the ``bounds`` stage, one
+   broad phase takes every primitive, the pairs of two of the :class:`CollisionModel`'s primitives go to
+   :func:`narrow_phase` unchanged, every other pair and those shapes' ground contacts to
+   :func:`.convex_phase.convex_phase`, whose contacts are appended;
+5. ``time_of_impact`` — after the integrator (:meth:`CollisionDetector.sweep_fast_rotation`): bodies that turned
+   fast next to fixed hulls, boxes or meshes are put back at their time of impact (:mod:`.convex_phase`).
 
-A new primitive kind (issue 25: convex hulls, compounds, static meshes) is fields of the :class:`CollisionModel`
-(see :mod:`.primitives`), a shape code, and its branches in :func:`_ground_contacts` / :func:`_pair_contacts`;
-these signatures stay.
+A scene without issue 25's shapes runs stages 1–3 exactly as before (no cost, the same bits).
 
 Speculative contacts (Catto, "Continuous collision", GDC 2013; Box2D v3).  A pair is reported not only when
 it touches but whenever its gap may close within the coming sub-step: each body gets a *margin*
@@ -43,7 +49,18 @@ from ..bodies import BodyModel, BodyState, Shape
 from ..jit import StageProfile, njit
 from .box_box import box_box_contacts
 from .broadphase import DEFAULT_BROAD_PHASE, get_broad_phase, sweep_and_prune_kernel, sweep_and_prune_pairs
-from .contacts import GROUND, ContactSet
+from .contacts import FEATURE_SLOTS, GROUND, ContactSet
+from .convex_phase import (
+    TOI_TARGET,
+    TOI_TOLERANCE,
+    ShapeModel,
+    ShapePoses,
+    build_shape_model,
+    convex_phase,
+    fast_turn_pairs,
+    pose_shapes,
+    sweep_times,
+)
 from .materials import Ground, combine_friction, combine_restitution
 from .narrowphase import (
     Box,
@@ -65,10 +82,6 @@ from .primitives import CollisionModel, PrimitivePoses, build_collision_model, p
 #: does not flicker in and out (and lose its warm-start impulse) with the solver's tiny residual motion
 DEFAULT_SPECULATIVE_DISTANCE = 0.002
 
-#: features per primitive pair in a contact key (box–box uses up to 296): ``key // FEATURE_SLOTS`` is the
-#: primitive pair, which the solver uses to match contacts across sub-steps
-FEATURE_SLOTS = 512
-
 #: up to this many primitives the broad phase tests every pair (compiled) whatever is configured
 SMALL_SCENE = 64
 
@@ -78,8 +91,8 @@ MAX_POINTS_PER_PAIR = 4
 SPHERE, BOX, CAPSULE = int(Shape.SPHERE), int(Shape.BOX), int(Shape.CAPSULE)
 
 #: the stages of :attr:`CollisionDetector.profile`, in order
-STAGES = ("bounds", "broad_phase", "narrow_phase")
-BOUNDS, BROAD_PHASE, NARROW_PHASE = range(len(STAGES))
+STAGES = ("bounds", "broad_phase", "narrow_phase", "convex_phase", "time_of_impact")
+BOUNDS, BROAD_PHASE, NARROW_PHASE, CONVEX_PHASE, TIME_OF_IMPACT = range(len(STAGES))
 
 
 class Pairs(NamedTuple):
@@ -112,23 +125,36 @@ class CollisionDetector:
     """
 
     def __init__(self, broad_phase: str = DEFAULT_BROAD_PHASE,
-                 speculative_distance: float = DEFAULT_SPECULATIVE_DISTANCE):
+                 speculative_distance: float = DEFAULT_SPECULATIVE_DISTANCE, *, continuous: bool = True):
         self.broad_phase_name = broad_phase
         self.broad_phase = get_broad_phase(broad_phase)
         if not (isinstance(speculative_distance, (int, float)) and 0.0 <= speculative_distance < np.inf):
             raise ValueError(f"speculative_distance must be a finite length >= 0 [m], got {speculative_distance!r}")
         self.speculative_distance = float(speculative_distance)
+        #: grow the margins by the motion over the sub-step and sweep fast-turning bodies (see the module
+        #: docstring and :mod:`.convex_phase`); False only to show, in tests, what they prevent
+        self.continuous = bool(continuous)
         self._model: BodyModel | None = None
         self._cmodel: CollisionModel | None = None
         self._plain_cmodel: tuple = ()  # the same as a plain tuple, as the compiled stages take it
+        self._shapes: ShapeModel | None = None  # the convex stage's primitives (None: the model has none)
+        self._plain_shapes: tuple = ()
+        self._sweeps = None  # what sweep_fast_rotation needs from the last detect
         self.profile = StageProfile(STAGES)
 
     def collision_model(self, model: BodyModel) -> CollisionModel:
         if model is not self._model or self._cmodel is None or len(self._cmodel.body_reach) != model.count:
             self._cmodel = build_collision_model(model)
             self._plain_cmodel = tuple(self._cmodel)
+            self._shapes = build_shape_model(model, self._cmodel) if model.has_convex_phase_shapes else None
+            self._plain_shapes = self._shapes.plain() if self._shapes is not None else ()
             self._model = model
         return self._cmodel
+
+    def shape_model(self, model: BodyModel) -> ShapeModel | None:
+        """The primitives of the convex stage (:mod:`.convex_phase`), None for a model without its shapes."""
+        self.collision_model(model)
+        return self._shapes
 
     def detect(self, model: BodyModel, state: BodyState, h: float, *, ground: Ground | None,
                velocity: np.ndarray | None = None, angular_velocity: np.ndarray | None = None,
@@ -145,7 +171,8 @@ class CollisionDetector:
         """
         cm = self.collision_model(model)
         self.touched_sleeping = np.zeros(0, np.intp)
-        if cm.count == 0:
+        self._sweeps = None
+        if cm.count == 0 and self._shapes is None:
             return ContactSet.empty()
         if velocity is None:
             velocity = state.linear_velocity(model)
@@ -154,30 +181,21 @@ class CollisionDetector:
         R = state.rotation_matrices() if rotation is None else rotation
         movable = ~cm.fixed_body
         active = movable if active is None else active & movable
+        h_motion = float(h) if self.continuous else 0.0  # (only the margins: h (|v| + |ω| reach))
         clock, profile = time.perf_counter, self.profile
         start = clock()
         motion = (state.position, np.ascontiguousarray(R), velocity, angular_velocity)  # a BodyMotion
-        poses = primitive_bounds(self._plain_cmodel, motion, float(h), self.speculative_distance)
+        poses = primitive_bounds(self._plain_cmodel, motion, h_motion, self.speculative_distance)
         # a primitive whose body's state went non-finite (a numerical blow-up, which World contains after the
         # tick) takes no part in collisions rather than stopping everyone else's step: its bounds are NaN (see
         # primitive_bounds), so no overlap test passes
+        if self._shapes is not None:
+            return self._detect_with_shapes(model, motion, poses, active, ground, h_motion, start)
         lo, hi = poses.lo, poses.hi
         now = clock()
         profile.add(BOUNDS, now - start)
         start = now
-        if cm.count <= SMALL_SCENE:
-            i, j = small_scene_pairs(lo, hi, cm.body, active)
-        elif self.broad_phase is sweep_and_prune_pairs:
-            i, j = sweep_and_prune_kernel(lo, hi, cm.body)  # one compiled call, no same-body pair; the order
-            # of the pairs does not matter here
-        else:
-            sane = np.flatnonzero(np.isfinite(lo).all(1) & np.isfinite(hi).all(1))
-            if sane.size == cm.count:
-                i, j = self.broad_phase(lo, hi)
-            else:
-                i, j = self.broad_phase(lo[sane], hi[sane])
-                i, j = sane[i], sane[j]
-            i, j = np.ascontiguousarray(i, np.int64), np.ascontiguousarray(j, np.int64)
+        i, j = self._candidate_pairs(lo, hi, cm.body, active)
         now = clock()
         profile.add(BROAD_PHASE, now - start)
         start = now
@@ -188,6 +206,106 @@ class CollisionDetector:
         if touched.any():
             self.touched_sleeping = np.flatnonzero(touched)
         return contacts
+
+    def _candidate_pairs(self, lo, hi, prim_body, active):
+        """The broad phase: primitive pairs ``i, j`` whose AABBs overlap."""
+        count = len(lo)
+        if count <= SMALL_SCENE:
+            return small_scene_pairs(lo, hi, prim_body, active)
+        if self.broad_phase is sweep_and_prune_pairs:
+            # one compiled call, no same-body pair; the order of the pairs does not matter here
+            return sweep_and_prune_kernel(lo, hi, prim_body)
+        sane = np.flatnonzero(np.isfinite(lo).all(1) & np.isfinite(hi).all(1))
+        if sane.size == count:
+            i, j = self.broad_phase(lo, hi)
+        else:
+            i, j = self.broad_phase(lo[sane], hi[sane])
+            i, j = sane[i], sane[j]
+        return np.ascontiguousarray(i, np.int64), np.ascontiguousarray(j, np.int64)
+
+    def _detect_with_shapes(self, model: BodyModel, motion: tuple, poses: PrimitivePoses, active: np.ndarray,
+                            ground: Ground | None, h_motion: float, start: float) -> ContactSet:
+        """:meth:`detect` for a model with convex hulls, compound bodies or static meshes (stages 1–4 of the
+        module docstring), from the detector's own :class:`PrimitivePoses` on; ``start``: the clock at the
+        ``bounds`` stage's start."""
+        clock, profile = time.perf_counter, self.profile
+        cm, shapes = self._cmodel, self._shapes
+        p, P = cm.count, shapes.count
+        every = ShapePoses(np.empty((P, 3)), np.empty((P, 3, 3)), np.empty((P, 3)), np.empty((P, 3)), np.empty(P))
+        every.centre[:p], every.lo[:p], every.hi[:p], every.margin[:p] = poses.centre, poses.lo, poses.hi, poses.margin
+        pose_shapes(self._plain_shapes, motion, h_motion, self.speculative_distance, tuple(every))
+        now = clock()
+        profile.add(BOUNDS, now - start)
+        start = now
+        i, j = self._candidate_pairs(every.lo, every.hi, shapes.primitives.body, active)
+        now = clock()
+        profile.add(BROAD_PHASE, now - start)
+        start = now
+        ground_plane = (True, ground.friction, ground.restitution) if ground is not None else (False, 0.0, 0.0)
+        parts = []
+        touched = np.zeros(model.count, bool)
+        if p:
+            old = (i < p) & (j < p)
+            contacts, touched_old = narrow_phase(self._plain_cmodel, tuple(poses),
+                                                 (np.ascontiguousarray(i[old]), np.ascontiguousarray(j[old])),
+                                                 active, ground_plane)
+            parts.append(contacts)
+            touched |= touched_old
+        now = clock()
+        profile.add(NARROW_PHASE, now - start)
+        start = now
+        contacts, touched_new = convex_phase(self._plain_shapes, tuple(every), (i, j), active, ground_plane,
+                                             np.int64((p + 1) ** 2))
+        parts.append(contacts)
+        touched |= touched_new
+        if self.continuous:
+            moving, static = fast_turn_pairs(self._plain_shapes, active, motion[3], h_motion, (i, j))
+            if len(moving):
+                self._sweeps = (model, moving, static, motion[0].copy(), motion[1].copy(), every)
+        profile.add(CONVEX_PHASE, clock() - start)
+        profile.calls += 1
+        if touched.any():
+            self.touched_sleeping = np.flatnonzero(touched)
+        return ContactSet.concatenate(parts)
+
+    def sweep_fast_rotation(self, model: BodyModel, state: BodyState, h: float) -> None:
+        """Continuous collision for fast rotation (pipeline stage 4, right after the integrator; see
+        :mod:`.convex_phase`), timed as the ``time_of_impact`` stage: every body that the last :meth:`detect` found
+        turning by more than :data:`.convex_phase.TOI_ANGLE` next to a fixed hull, box or mesh is swept from its
+        pose then to its pose now (constant velocity and angular velocity, :func:`.convex_phase.sweep_times`:
+        conservative advancement); if it touched within the sub-step it is put back at its pose at that time of
+        impact.  Its momenta are kept: the next sub-step's contact, made at that pose, stops it.  A no-op when
+        nothing turned that fast."""
+        sweeps, self._sweeps = self._sweeps, None
+        if sweeps is None or sweeps[0] is not model or self._shapes is None:
+            return
+        from ..rotation import matrix_to_quat, quat_from_rotvec, quat_multiply, quat_to_rotvec
+        from .toi import rotated
+
+        start = time.perf_counter()
+        _, moving, static, position0, rotation0, poses = sweeps
+        prims = self._shapes.primitives
+        bodies = np.unique(prims.body[moving])
+        R1 = state.rotation_matrices()
+        velocity = np.zeros((model.count, 3))
+        angular_velocity = np.zeros((model.count, 3))
+        velocity[bodies] = (state.position[bodies] - position0[bodies]) / h
+        turn = matrix_to_quat(R1[bodies] @ np.swapaxes(rotation0[bodies], -1, -2))  # R1 R0ᵀ
+        angular_velocity[bodies] = quat_to_rotvec(turn) / h
+        times = sweep_times(self._plain_shapes, moving, static, tuple(poses),
+                            (position0, rotation0, velocity, angular_velocity), float(h), TOI_TARGET, TOI_TOLERANCE)
+        first = np.ones(model.count)
+        np.minimum.at(first, prims.body[moving], times)
+        for b in np.flatnonzero(first < 1.0):
+            t = first[b]
+            state.position[b] = position0[b] + velocity[b] * h * t
+            R = rotated(rotation0[b], *angular_velocity[b], h * t)
+            q0 = matrix_to_quat(rotation0[b][None])[0]
+            q = quat_multiply(quat_from_rotvec(angular_velocity[b] * h * t), q0)
+            state.orientation[b] = q / np.linalg.norm(q)
+            if state.rotation is not None:
+                state.rotation[b] = R
+        self.profile.add(TIME_OF_IMPACT, time.perf_counter() - start)
 
 
 @njit

@@ -27,18 +27,20 @@ Minkowski face has vertices; the result when the cap is hit is the best face so 
 Minkowski difference without volume (a point or segment core against a triangle, two coplanar triangles) has
 depth 0: EPA returns 0 and that flat set's normal.
 
-Arrays as in :mod:`.gjk`.  Sign conventions: ``normal`` points from A to B; ``point_a`` (on A) lies ``depth``
-beyond ``point_b`` (on B) along the normal: ``point_a − point_b = depth · normal``.
+Bundles as in :mod:`.gjk` (a :class:`.gjk.Core` per side); :func:`epa` gives a :class:`Penetration`.  Sign conventions:
+``normal`` points from A to B; ``point_a`` (on A) lies ``depth`` beyond ``point_b`` (on B) along the normal: ``point_a −
+point_b = depth · normal``.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from ..jit import njit
-from .gjk import gjk, support_point, witness_points
+from .gjk import Core, Simplex, empty_simplex, gjk, support_point, witness_points
 
 #: polytope capacity
 MAX_VERTICES = 96
@@ -51,17 +53,23 @@ _BLOW_UP_DIRECTIONS = np.array([(1.0, 0.0, 0.0), (-1.0, 0.0, 0.0), (0.0, 1.0, 0.
                                 (0.0, 0.0, 1.0), (0.0, 0.0, -1.0)])
 
 
+class Penetration(NamedTuple):
+    """What :func:`epa` gives (see the module docstring for the sign conventions)."""
+
+    depth: float          # penetration depth of the cores [m] (≥ 0)
+    normal: np.ndarray    # (3,) unit, from A to B
+    point_a: np.ndarray   # (3,) witness point on A
+    point_b: np.ndarray   # (3,) witness point on B (point_a − point_b = depth · normal)
+    converged: bool       # False: the polytope's capacity was reached (the best face so far)
+
+
 @njit
-def _support(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
-             vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b, dx, dy, dz,
-             pa, pb, pia, pib, slot):
-    """Support point of A − B along d into polytope slot ``slot``."""
+def _support(core_a, core_b, dx, dy, dz, pa, pb, pia, pib, slot):
+    """Support point of A − B (:class:`.gjk.Core` each) along d into polytope slot ``slot``."""
     start_a = pia[0] if slot > 0 else 0
     start_b = pib[0] if slot > 0 else 0
-    ia, ax, ay, az = support_point(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
-                                   dx, dy, dz, start_a)
-    ib, bx, by, bz = support_point(vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b,
-                                   -dx, -dy, -dz, start_b)
+    ia, ax, ay, az = support_point(core_a, dx, dy, dz, start_a)
+    ib, bx, by, bz = support_point(core_b, -dx, -dy, -dz, start_b)
     pa[slot, 0], pa[slot, 1], pa[slot, 2] = ax, ay, az
     pb[slot, 0], pb[slot, 1], pb[slot, 2] = bx, by, bz
     pia[slot], pib[slot] = ia, ib
@@ -92,13 +100,11 @@ def _w(pa, pb, i, r):
 
 
 @njit
-def epa(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
-        vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b,
-        simplex_a, simplex_b, simplex_ia, simplex_ib, count):
-    """EPA from GJK's final simplex (``count`` points, see :func:`.gjk.gjk`) of two overlapping cores.
-
-    Returns ``(depth, normal (3,), point_a (3,), point_b (3,), converged)`` (see the module docstring).
+def epa(core_a, core_b, simplex, count):
+    """EPA from GJK's final :class:`.gjk.Simplex` (``count`` points, see :func:`.gjk.gjk`) of two overlapping
+    cores (:class:`.gjk.Core`).  Returns a :class:`Penetration` (see the module docstring).
     """
+    simplex_a, simplex_b, simplex_ia, simplex_ib = simplex.a, simplex.b, simplex.ia, simplex.ib
     pa, pb = np.empty((MAX_VERTICES, 3)), np.empty((MAX_VERTICES, 3))
     pia, pib = np.empty(MAX_VERTICES, np.int64), np.empty(MAX_VERTICES, np.int64)
     for i in range(count):
@@ -115,8 +121,7 @@ def epa(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
     if n == 1:
         for k in range(6):
             d = _BLOW_UP_DIRECTIONS[k]
-            _support(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a, vertices_b,
-                     adjacency_start_b, adjacency_b, position_b, rotation_b, d[0], d[1], d[2], pa, pb, pia, pib, 1)
+            _support(core_a, core_b, d[0], d[1], d[2], pa, pb, pia, pib, 1)
             ex, ey, ez = _w(pa, pb, 1, 0) - _w(pa, pb, 0, 0), _w(pa, pb, 1, 1) - _w(pa, pb, 0, 1), \
                 _w(pa, pb, 1, 2) - _w(pa, pb, 0, 2)
             reach = abs(ex) + abs(ey) + abs(ez)
@@ -143,8 +148,7 @@ def epa(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
         normal_out[0], normal_out[1], normal_out[2] = px, py, pz
         for k in range(6):
             c, s = math.cos(k * math.pi / 3.0), math.sin(k * math.pi / 3.0)
-            _support(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a, vertices_b,
-                     adjacency_start_b, adjacency_b, position_b, rotation_b, c * px + s * qx, c * py + s * qy,
+            _support(core_a, core_b, c * px + s * qx, c * py + s * qy,
                      c * pz + s * qz, pa, pb, pia, pib, 2)
             # distance of the new point from the segment's line
             rx, ry, rz = _w(pa, pb, 2, 0) - _w(pa, pb, 0, 0), _w(pa, pb, 2, 1) - _w(pa, pb, 0, 1), \
@@ -163,8 +167,7 @@ def epa(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
         nx, ny, nz = nx / ln, ny / ln, nz / ln
         normal_out[0], normal_out[1], normal_out[2] = nx, ny, nz
         for sign in (1.0, -1.0):
-            _support(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a, vertices_b,
-                     adjacency_start_b, adjacency_b, position_b, rotation_b, sign * nx, sign * ny, sign * nz,
+            _support(core_a, core_b, sign * nx, sign * ny, sign * nz,
                      pa, pb, pia, pib, 3)
             h = sign * (nx * (_w(pa, pb, 3, 0) - _w(pa, pb, 0, 0)) + ny * (_w(pa, pb, 3, 1) - _w(pa, pb, 0, 1))
                         + nz * (_w(pa, pb, 3, 2) - _w(pa, pb, 0, 2)))
@@ -173,12 +176,13 @@ def epa(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
                 break
     if n < 4:
         # A − B has no volume (or GJK's simplex could not be extended): the depth is 0
-        ax, ay, az, bx, by, bz = witness_points(simplex_a, simplex_b, np.full(count, 1.0 / count), count)
+        ax, ay, az, bx, by, bz = witness_points(Simplex(simplex_a, simplex_b, simplex_ia, simplex_ib,
+                                                        np.full(count, 1.0 / count)), count)
         point_a[0], point_a[1], point_a[2] = ax, ay, az
         point_b[0], point_b[1], point_b[2] = bx, by, bz
         if n == 1:
             normal_out[2] = 1.0
-        return 0.0, normal_out, point_a, point_b, False
+        return Penetration(0.0, normal_out, point_a, point_b, False)
 
     # -- the tetrahedron's four faces, outward
     face = np.empty((MAX_FACES, 3), np.int64)
@@ -220,8 +224,7 @@ def epa(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
             break
         nx, ny, nz = normal[best, 0], normal[best, 1], normal[best, 2]
         # 2. the support point along its normal
-        _support(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a, vertices_b, adjacency_start_b,
-                 adjacency_b, position_b, rotation_b, nx, ny, nz, pa, pb, pia, pib, nverts)
+        _support(core_a, core_b, nx, ny, nz, pa, pb, pia, pib, nverts)
         wx, wy, wz = _w(pa, pb, nverts, 0), _w(pa, pb, nverts, 1), _w(pa, pb, nverts, 2)
         # 3. converged: no further than the face, or a vertex already in the polytope
         if nx * wx + ny * wy + nz * wz - best_d <= TOLERANCE * scale:
@@ -299,13 +302,13 @@ def epa(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
         point_a[r] = bu * pa[i, r] + bv * pa[j, r] + bw * pa[k, r]
         point_b[r] = bu * pb[i, r] + bv * pb[j, r] + bw * pb[k, r]
     normal_out[0], normal_out[1], normal_out[2] = nx, ny, nz
-    return depth, normal_out, point_a, point_b, converged
+    return Penetration(depth, normal_out, point_a, point_b, converged)
 
 
 @njit
-def penetration(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a, radius_a,
-                vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b, radius_b):
-    """Signed distance of two rounded cores (GJK, and EPA when the cores overlap).
+def penetration(core_a, radius_a, core_b, radius_b):
+    """Signed distance of two rounded cores (:class:`.gjk.Core` + radius; from Python the cores may be plain
+    tuples, see "Bundles" in :mod:`cgp_core.jit`): GJK, and EPA when the cores overlap.
 
     Returns ``(separation, normal (3,), point_a (3,), point_b (3,))``: ``separation`` > 0 apart (the distance),
     < 0 overlapping (minus the penetration depth: the cores' EPA depth plus both radii, or the radii's overlap
@@ -313,21 +316,17 @@ def penetration(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation
     −separation to just touch; ``point_a``, ``point_b`` the surface points of A and B along it
     (``point_b − point_a = separation · normal``).
     """
-    simplex_a, simplex_b = np.empty((4, 3)), np.empty((4, 3))
-    simplex_ia, simplex_ib, weights = np.empty(4, np.int64), np.empty(4, np.int64), np.empty(4)
-    count, intersecting, _ = gjk(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
-                                 vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b, 0, 0,
-                                 simplex_a, simplex_b, simplex_ia, simplex_ib, weights)
+    core_a, core_b = Core(*core_a), Core(*core_b)
+    simplex = empty_simplex()
+    count, intersecting, _ = gjk(core_a, core_b, 0, 0, simplex)
     normal, point_a, point_b = np.zeros(3), np.empty(3), np.empty(3)
-    ax, ay, az, bx, by, bz = witness_points(simplex_a, simplex_b, weights, count)
+    ax, ay, az, bx, by, bz = witness_points(simplex, count)
     core = math.sqrt((bx - ax) ** 2 + (by - ay) ** 2 + (bz - az) ** 2)
     if not intersecting and core > 0.0:
         normal[0], normal[1], normal[2] = (bx - ax) / core, (by - ay) / core, (bz - az) / core
         separation = core
     else:
-        depth, n, pa, pb, _ = epa(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
-                                  vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b,
-                                  simplex_a, simplex_b, simplex_ia, simplex_ib, count)
+        depth, n, pa, pb, _ = epa(core_a, core_b, simplex, count)
         normal[:] = n
         ax, ay, az, bx, by, bz = pa[0], pa[1], pa[2], pb[0], pb[1], pb[2]
         separation = -depth

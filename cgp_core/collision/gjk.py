@@ -35,15 +35,15 @@ criteria) when
 Degenerate simplices (collinear triangles, flat tetrahedra) are handled in :func:`closest_on_simplex`: a flat
 tetrahedron is never taken to contain the origin, a collinear triangle falls back to its edges.
 
-Arrays: ``vertices (k, 3)``, ``adjacency_start (k + 1,)`` / ``adjacency (a,)`` (the hull's, or empty arrays for
-the small cores), ``position (3,)``, ``rotation (3, 3)``.  The simplex buffers a kernel passes around:
-``simplex_a (4, 3)``, ``simplex_b (4, 3)`` (world support points on A and B), ``simplex_ia (4,)``,
-``simplex_ib (4,)`` (their vertex indices), ``weights (4,)`` (barycentric weights of v).
+Bundles (``typing.NamedTuple``, see "Bundles" in :mod:`cgp_core.jit`): each side is a :class:`Core` (its vertices,
+their adjacency — a hull's, or empty arrays for the small cores — position and rotation); GJK's simplex travels as
+a :class:`Simplex` of buffers; :func:`gjk_distance` gives a :class:`Distance`.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -60,6 +60,54 @@ MAX_ITERATIONS = 128
 
 #: an empty adjacency (cores without one: sphere, capsule, box, triangle — brute-force support)
 NO_ADJACENCY = np.zeros(0, np.int64)
+
+
+class Core(NamedTuple):
+    """A posed convex core (see the module docstring): what GJK, EPA and the time of impact take for each side."""
+
+    vertices: np.ndarray         # (k, 3) in the shape's own frame
+    adjacency_start: np.ndarray  # (k + 1,) int64 — offsets into ``adjacency`` (a hull's), or zeros (small cores)
+    adjacency: np.ndarray        # (a,) int64 — neighbour vertex indices (empty: brute-force support)
+    position: np.ndarray         # (3,) world position of the frame's origin [m]
+    rotation: np.ndarray         # (3, 3) the shape's axes (columns) in world
+
+
+class Simplex(NamedTuple):
+    """GJK's simplex W (up to 4 points of A − B, each remembered with its points on A and B), kept in buffers a
+    kernel allocates once and passes around (so that an iteration allocates nothing)."""
+
+    a: np.ndarray        # (4, 3) world support points on A
+    b: np.ndarray        # (4, 3) world support points on B
+    ia: np.ndarray       # (4,) int64 their vertex indices on A
+    ib: np.ndarray       # (4,) int64 their vertex indices on B
+    weights: np.ndarray  # (4,) barycentric weights of v, the point of W's hull closest to the origin
+
+
+@njit
+def empty_simplex():
+    """A :class:`Simplex` of uninitialised buffers."""
+    return Simplex(np.empty((4, 3)), np.empty((4, 3)), np.empty(4, np.int64), np.empty(4, np.int64), np.empty(4))
+
+
+class WitnessPoints(NamedTuple):
+    """The cores' closest points (world)."""
+
+    ax: float
+    ay: float
+    az: float
+    bx: float
+    by: float
+    bz: float
+
+
+class Distance(NamedTuple):
+    """What :func:`gjk_distance` gives."""
+
+    distance: float          # between the rounded shapes [m] (cores' distance minus both radii)
+    intersecting: bool       # the cores overlap (or touch within round-off): the rest is meaningless
+    closest_a: np.ndarray    # (3,) closest point on A's rounded surface
+    closest_b: np.ndarray    # (3,) closest point on B's rounded surface
+    normal: np.ndarray       # (3,) unit direction from A to B (zeros when intersecting)
 
 
 def point_core() -> np.ndarray:
@@ -86,14 +134,15 @@ def no_adjacency(vertices: np.ndarray) -> np.ndarray:
 # ---- the support mapping of a posed core --------------------------------------------------------------------
 
 @njit
-def support_point(vertices, adjacency_start, adjacency, position, rotation, dx, dy, dz, start):
-    """The core's support vertex in the world direction d: ``(index, x, y, z)`` with x, y, z = position +
+def support_point(core, dx, dy, dz, start):
+    """The :class:`Core`'s support vertex in the world direction d: ``(index, x, y, z)`` with x, y, z = position +
     rotation · vertices[index] and index maximizing d · (that point) (Ericson 9.1.2; d is turned into the
     shape's frame, d' = Rᵀ d, so the vertices are never transformed all at once)."""
+    vertices, position, rotation = core.vertices, core.position, core.rotation
     lx = rotation[0, 0] * dx + rotation[1, 0] * dy + rotation[2, 0] * dz
     ly = rotation[0, 1] * dx + rotation[1, 1] * dy + rotation[2, 1] * dz
     lz = rotation[0, 2] * dx + rotation[1, 2] * dy + rotation[2, 2] * dz
-    i = support_index(vertices, adjacency_start, adjacency, lx, ly, lz, start)
+    i = support_index(vertices, core.adjacency_start, core.adjacency, lx, ly, lz, start)
     v0, v1, v2 = vertices[i, 0], vertices[i, 1], vertices[i, 2]
     return (i, position[0] + rotation[0, 0] * v0 + rotation[0, 1] * v1 + rotation[0, 2] * v2,
             position[1] + rotation[1, 0] * v0 + rotation[1, 1] * v1 + rotation[1, 2] * v2,
@@ -170,9 +219,11 @@ def closest_on_triangle(ax, ay, az, bx, by, bz, cx, cy, cz):
 
 
 @njit
-def _origin_outside(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
-    """Is the origin on the other side of plane abc than d (Ericson 5.1.6, PointOutsideOfPlane), or is the
-    tetrahedron flat (then every face is tested)?"""
+def _origin_outside(w, i, j, k, o):
+    """Is the origin on the other side of plane abc than d (a, b, c, d = the rows ``i, j, k, o`` of ``w``; Ericson
+    5.1.6, PointOutsideOfPlane), or is the tetrahedron flat (then every face is tested)?"""
+    ax, ay, az, bx, by, bz = w[i, 0], w[i, 1], w[i, 2], w[j, 0], w[j, 1], w[j, 2]
+    cx, cy, cz, dx, dy, dz = w[k, 0], w[k, 1], w[k, 2], w[o, 0], w[o, 1], w[o, 2]
     nx = (by - ay) * (cz - az) - (bz - az) * (cy - ay)
     ny = (bz - az) * (cx - ax) - (bx - ax) * (cz - az)
     nz = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
@@ -183,11 +234,12 @@ def _origin_outside(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
 
 
 @njit
-def closest_on_simplex(simplex_a, simplex_b, simplex_ia, simplex_ib, count, weights, w, lam):
-    """Reduce the simplex W = {a_i − b_i, i < count} to the smallest sub-simplex whose hull holds the point of
+def closest_on_simplex(simplex, count, w, lam):
+    """Reduce the :class:`Simplex` W = {a_i − b_i, i < count} to the smallest sub-simplex whose hull holds the point of
     W's hull closest to the origin, in place (kept entries first, ``weights`` their barycentric weights), and
     return the new count; 4 means the tetrahedron contains the origin (the shapes overlap).  ``w (4, 3)`` and
     ``lam (4,)`` are scratch (the caller's, so that a GJK iteration allocates nothing)."""
+    simplex_a, simplex_b, simplex_ia, simplex_ib, weights = simplex
     for i in range(count):
         for r in range(3):
             w[i, r] = simplex_a[i, r] - simplex_b[i, r]
@@ -216,8 +268,7 @@ def closest_on_simplex(simplex_a, simplex_b, simplex_ia, simplex_ib, count, weig
                 i, j, k, o = 0, 3, 1, 2
             else:
                 i, j, k, o = 1, 3, 2, 0
-            if _origin_outside(w[i, 0], w[i, 1], w[i, 2], w[j, 0], w[j, 1], w[j, 2], w[k, 0], w[k, 1], w[k, 2],
-                               w[o, 0], w[o, 1], w[o, 2]):
+            if _origin_outside(w, i, j, k, o):
                 inside = False
                 u, v, s = closest_on_triangle(w[i, 0], w[i, 1], w[i, 2], w[j, 0], w[j, 1], w[j, 2],
                                               w[k, 0], w[k, 1], w[k, 2])
@@ -250,25 +301,24 @@ def closest_on_simplex(simplex_a, simplex_b, simplex_ia, simplex_ib, count, weig
 # ---- GJK ---------------------------------------------------------------------------------------------------
 
 @njit
-def gjk(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
-        vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b,
-        start_a, start_b, simplex_a, simplex_b, simplex_ia, simplex_ib, weights):
-    """GJK on two posed cores (see the module docstring for the algorithm and the stopping criteria).
+def gjk(core_a, core_b, start_a, start_b, simplex):
+    """GJK on two posed cores (:class:`Core`; see the module docstring for the algorithm and the stopping
+    criteria).
 
     ``start_a``, ``start_b``: hill-climbing start vertices (the previous query's, or 0).  The final simplex is
-    left in the buffers (for :mod:`.epa`).  Returns ``(count, intersecting, iterations)``; the closest points are
-    ``Σ weights[i] simplex_a[i]`` and ``Σ weights[i] simplex_b[i]`` over ``i < count``.
+    left in the :class:`Simplex` buffers (for :mod:`.epa`).  Returns ``(count, intersecting, iterations)``; the
+    closest points are ``Σ weights[i] a[i]`` and ``Σ weights[i] b[i]`` over ``i < count``.
     """
+    simplex_a, simplex_b, simplex_ia, simplex_ib, weights = simplex
+    position_a, position_b = core_a.position, core_b.position
     # first support pair: A's point towards B, B's towards A (a good guess of the closest points)
     dx = position_b[0] - position_a[0]
     dy = position_b[1] - position_a[1]
     dz = position_b[2] - position_a[2]
     if dx * dx + dy * dy + dz * dz == 0.0:
         dx = 1.0
-    ia, ax, ay, az = support_point(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
-                                   dx, dy, dz, start_a)
-    ib, bx, by, bz = support_point(vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b,
-                                   -dx, -dy, -dz, start_b)
+    ia, ax, ay, az = support_point(core_a, dx, dy, dz, start_a)
+    ib, bx, by, bz = support_point(core_b, -dx, -dy, -dz, start_b)
     simplex_a[0, 0], simplex_a[0, 1], simplex_a[0, 2] = ax, ay, az
     simplex_b[0, 0], simplex_b[0, 1], simplex_b[0, 2] = bx, by, bz
     simplex_ia[0], simplex_ib[0] = ia, ib
@@ -286,10 +336,8 @@ def gjk(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
         if vv <= ABSOLUTE_TOLERANCE * max_w2:
             return count, True, iterations  # criterion 4: touching within round-off
         # support point of A − B in the direction −v
-        ia, ax, ay, az = support_point(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
-                                       -vx, -vy, -vz, ia)
-        ib, bx, by, bz = support_point(vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b,
-                                       vx, vy, vz, ib)
+        ia, ax, ay, az = support_point(core_a, -vx, -vy, -vz, ia)
+        ib, bx, by, bz = support_point(core_b, vx, vy, vz, ib)
         duplicate = False
         for i in range(count):
             if simplex_ia[i] == ia and simplex_ib[i] == ib:
@@ -310,8 +358,7 @@ def gjk(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
         simplex_ia[count], simplex_ib[count] = ia, ib
         count += 1
         max_w2 = max(max_w2, _dot(wx, wy, wz, wx, wy, wz))
-        count = closest_on_simplex(simplex_a, simplex_b, simplex_ia, simplex_ib, count, weights, scratch_w,
-                                   scratch_lam)
+        count = closest_on_simplex(simplex, count, scratch_w, scratch_lam)
         if count == 4:
             return count, True, iterations  # criterion 4: the origin is inside the tetrahedron
         nx = ny = nz = 0.0
@@ -333,8 +380,10 @@ def gjk(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
 
 
 @njit
-def witness_points(simplex_a, simplex_b, weights, count):
-    """The closest points ``(ax, ay, az, bx, by, bz)``: Σ weights[i] simplex_a[i], Σ weights[i] simplex_b[i]."""
+def witness_points(simplex, count):
+    """The closest points (:class:`WitnessPoints`): Σ weights[i] a[i], Σ weights[i] b[i] over the
+    :class:`Simplex`'s first ``count`` points."""
+    simplex_a, simplex_b, weights = simplex.a, simplex.b, simplex.weights
     ax = ay = az = bx = by = bz = 0.0
     for i in range(count):
         ax += weights[i] * simplex_a[i, 0]
@@ -343,36 +392,34 @@ def witness_points(simplex_a, simplex_b, weights, count):
         bx += weights[i] * simplex_b[i, 0]
         by += weights[i] * simplex_b[i, 1]
         bz += weights[i] * simplex_b[i, 2]
-    return ax, ay, az, bx, by, bz
+    return WitnessPoints(ax, ay, az, bx, by, bz)
 
 
 @njit
-def gjk_distance(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a, radius_a,
-                 vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b, radius_b):
-    """Distance between two rounded cores and their closest points.
+def gjk_distance(core_a, radius_a, core_b, radius_b):
+    """Distance between two rounded cores (:class:`Core` + radius) and their closest points; from Python, the
+    cores may be plain tuples (see "Bundles" in :mod:`cgp_core.jit`).
 
-    Returns ``(distance, intersecting, closest_a (3,), closest_b (3,), normal (3,))``: ``distance`` between the
+    Returns a :class:`Distance`: ``distance`` between the
     rounded shapes (the cores' distance minus both radii; negative only when the cores are apart but the
     spheres around them overlap), ``normal`` the unit direction from A to B (from closest_a to closest_b on the
     cores).  ``intersecting``: the cores overlap (or touch within round-off) — distance, points and normal are
     then meaningless and :func:`.epa.penetration` gives the depth.
     """
-    simplex_a, simplex_b = np.empty((4, 3)), np.empty((4, 3))
-    simplex_ia, simplex_ib, weights = np.empty(4, np.int64), np.empty(4, np.int64), np.empty(4)
-    count, intersecting, _ = gjk(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
-                                 vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b, 0, 0,
-                                 simplex_a, simplex_b, simplex_ia, simplex_ib, weights)
-    ax, ay, az, bx, by, bz = witness_points(simplex_a, simplex_b, weights, count)
+    core_a, core_b = Core(*core_a), Core(*core_b)
+    simplex = empty_simplex()
+    count, intersecting, _ = gjk(core_a, core_b, 0, 0, simplex)
+    ax, ay, az, bx, by, bz = witness_points(simplex, count)
     closest_a, closest_b, normal = np.empty(3), np.empty(3), np.zeros(3)
     nx, ny, nz = bx - ax, by - ay, bz - az
     core = math.sqrt(nx * nx + ny * ny + nz * nz)
     if intersecting or core == 0.0:
         closest_a[0], closest_a[1], closest_a[2] = ax, ay, az
         closest_b[0], closest_b[1], closest_b[2] = bx, by, bz
-        return 0.0, True, closest_a, closest_b, normal
+        return Distance(0.0, True, closest_a, closest_b, normal)
     normal[0], normal[1], normal[2] = nx / core, ny / core, nz / core
     closest_a[0], closest_a[1], closest_a[2] = ax + radius_a * normal[0], ay + radius_a * normal[1], \
         az + radius_a * normal[2]
     closest_b[0], closest_b[1], closest_b[2] = bx - radius_b * normal[0], by - radius_b * normal[1], \
         bz - radius_b * normal[2]
-    return core - radius_a - radius_b, False, closest_a, closest_b, normal
+    return Distance(core - radius_a - radius_b, False, closest_a, closest_b, normal)

@@ -1,8 +1,7 @@
 """Contact manifolds of convex hulls: hull–hull, hull–ground plane, hull–sphere / capsule, hull–triangle (a static
-mesh's triangle).  Compiled kernels writing into the narrow phase's output buffers, as :mod:`.narrowphase` and
-:mod:`.box_box` do (``normal (cap, 3)``, ``separation (cap,)``, ``point (cap, 3)``, ``feature (cap,)`` from row
-``m`` on; each returns the next free row; normal from A to B; the point midway between the surfaces; a point is
-kept only if its separation is below ``margin``).
+mesh's triangle).  Compiled kernels writing into the narrow phase's :class:`.narrowphase.ContactBuffer`, as
+:mod:`.narrowphase` and :mod:`.box_box` do (from row ``m`` on; each returns the next free row; normal from A to B; the
+point midway between the surfaces; a point is kept only if its separation is below ``margin``).
 
 **Hull–hull** (:func:`hull_hull_contacts`) — the box–box kernel's scheme (:mod:`.box_box`) for any two hulls, with
 GJK/EPA in place of the 9 edge axes:
@@ -43,24 +42,25 @@ plane, the contact normal that face's) gives two, its segment clipped to the fac
 triangle is a flat hull with two faces; see :func:`triangle_hull_contacts` for the internal-edge ("ghost")
 treatment.
 
-Hull arrays (per hull, as :meth:`.convex.HullSet.hull` slices them): ``vertices (k, 3)`` in the hull's frame,
-``adjacency_start (k + 1,)`` / ``adjacency (a,)``, ``face_plane (f, 4)`` in the hull's frame,
-``face_vertex_start (f + 1,)`` / ``face_vertices (fv,)`` (local vertex indices); posed by ``position (3,)``,
-``rotation (3, 3)``.
+Bundles: each hull is a :class:`.convex.PosedHull` (its arrays as :meth:`.convex.HullSet.hull` slices them —
+``vertices (k, 3)`` in the hull's frame, ``adjacency_start (k + 1,)`` / ``adjacency (a,)``, ``face_plane (f, 4)``
+in the hull's frame, ``face_vertex_start (f + 1,)`` / ``face_vertices (fv,)`` (local vertex indices) — posed by
+``position (3,)``, ``rotation (3, 3)``); the points go into a :class:`.narrowphase.ContactBuffer` ``out``.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from ..jit import njit
 from .box_box import AXIS_ABSOLUTE_TOLERANCE, AXIS_RELATIVE_TOLERANCE
-from .convex import BRUTE_FORCE_SUPPORT_VERTICES
+from .convex import BRUTE_FORCE_SUPPORT_VERTICES, PosedHull
 from .epa import epa
-from .gjk import gjk, support_point
-from .narrowphase import CAPSULE_PARALLEL_SINE, ContactBuffer, write_point
+from .gjk import Core, empty_simplex, gjk, support_point
+from .narrowphase import CAPSULE_PARALLEL_SINE, write_point
 
 FACE_FEATURE = np.int64(1) << np.int64(62)
 EDGE_FEATURE = np.int64(1) << np.int64(61)
@@ -68,10 +68,27 @@ EDGE_FEATURE = np.int64(1) << np.int64(61)
 _REFERENCE_SIDE = 256
 
 
+class SignedDistance(NamedTuple):
+    """What :func:`signed_distance` gives: the separation of two cores along the unit normal from A to B, the
+    witness points a (on A) and b (on B), and an edge-contact feature id from the witness features' vertices."""
+
+    separation: float
+    nx: float
+    ny: float
+    nz: float
+    ax: float
+    ay: float
+    az: float
+    bx: float
+    by: float
+    bz: float
+    feature: np.int64
+
+
 @njit
-def _write_point(normal, separation, point, feature, m, nx, ny, nz, sep, px, py, pz, feat):
-    """narrowphase.write_point on this module's loose output arrays (until they travel as one ContactBuffer)."""
-    return write_point(ContactBuffer(normal, separation, point, feature), m, nx, ny, nz, sep, px, py, pz, feat)
+def core_of(hull):
+    """The :class:`.gjk.Core` of a :class:`.convex.PosedHull` (what GJK / EPA need of it)."""
+    return Core(hull.vertices, hull.adjacency_start, hull.adjacency, hull.position, hull.rotation)
 
 
 #: hull–triangle: a contact normal within this angle of the triangle's face normal is replaced by it (rad)
@@ -131,23 +148,24 @@ def _world_vertex(vertices, i, position, rotation):
 
 
 @njit
-def best_face(face_plane, position, rotation, vertices_o, adjacency_start_o, adjacency_o, position_o, rotation_o,
-              stop):
-    """SAT over one hull's faces (Ericson 4.4): the face whose plane the other hull (``_o``) is farthest beyond,
+def best_face(hull, other, stop):
+    """SAT over the faces of ``hull`` (a :class:`.convex.PosedHull`; the other side is a :class:`.gjk.Core`) (Ericson
+    4.4): the face whose plane the other hull (``_o``) is farthest beyond,
     ``(face, separation)``; separation = n · support_other(−n) − d (negative: overlap along n).  Returns at the
     first face whose separation exceeds ``stop`` (a separating axis: the caller needs no more).
 
     Computed in this hull's frame: the other's vertices are turned into it once (Rᵀ (R_o v + p_o − p)), so a face
     costs one dot product per vertex; an other hull of more than
     :data:`.convex.BRUTE_FORCE_SUPPORT_VERTICES` vertices is asked for its support point by hill climbing."""
+    face_plane, position, rotation = hull.face_plane, hull.position, hull.rotation
+    vertices_o, adjacency_o, position_o, rotation_o = other.vertices, other.adjacency, other.position, other.rotation
     k = len(vertices_o)
     best_f, best = np.int64(0), -np.inf
     if k > BRUTE_FORCE_SUPPORT_VERTICES and len(adjacency_o) > 0:
         start = np.int64(0)
         for f in range(len(face_plane)):
             nx, ny, nz, d = _world_plane(face_plane, f, position, rotation)
-            start, sx, sy, sz = support_point(vertices_o, adjacency_start_o, adjacency_o, position_o, rotation_o,
-                                              -nx, -ny, -nz, start)
+            start, sx, sy, sz = support_point(other, -nx, -ny, -nz, start)
             s = nx * sx + ny * sy + nz * sz - d
             if s > best:
                 best_f, best = f, s
@@ -181,14 +199,19 @@ def best_face(face_plane, position, rotation, vertices_o, adjacency_start_o, adj
 
 
 @njit
-def face_contact(vertices_r, face_plane_r, face_vertex_start_r, face_vertices_r, position_r, rotation_r, face_r,
-                 vertices_i, face_plane_i, face_vertex_start_i, face_vertices_i, position_i, rotation_i,
-                 flip, best, margin, normal, separation, point, feature, m):
-    """Face contact: face ``face_r`` of hull R is the reference face, hull I's face most anti-parallel to it the
+def face_contact(reference, face_r, incident, flip, best, margin, out, m):
+    """Face contact: face ``face_r`` of hull R (``reference``, a :class:`.convex.PosedHull`) is the reference face, hull
+    I's face most anti-parallel to it the
     incident face; Sutherland–Hodgman clipping of the incident polygon by the reference face's side planes
     (Ericson 8.3.4), points below ``margin`` kept, at most 4 (:func:`reduce_to_four`).  ``flip``: R is B (the
     normal written is reversed so that it still points from A to B).  ``best``: the reference face's SAT
     separation (the points are lowered to it when apart)."""
+    vertices_r, face_plane_r, position_r, rotation_r = (reference.vertices, reference.face_plane, reference.position,
+                                                        reference.rotation)
+    face_vertex_start_r, face_vertices_r = reference.face_vertex_start, reference.face_vertices
+    vertices_i, face_plane_i, position_i, rotation_i = (incident.vertices, incident.face_plane, incident.position,
+                                                        incident.rotation)
+    face_vertex_start_i, face_vertices_i = incident.face_vertex_start, incident.face_vertices
     nx, ny, nz, d_ref = _world_plane(face_plane_r, face_r, position_r, rotation_r)
     # incident face: the most anti-parallel
     face_i, most = np.int64(0), np.inf
@@ -224,32 +247,34 @@ def face_contact(vertices_r, face_plane_r, face_vertex_start_r, face_vertices_r,
         ex, ey, ez = rx[e] - rx[side], ry[e] - ry[side], rz[e] - rz[side]
         sx, sy, sz = ny * ez - nz * ey, nz * ex - nx * ez, nx * ey - ny * ex
         offset = sx * rx[side] + sy * ry[side] + sz * rz[side]
-        out = 0
+        clipped = 0
         for s in range(k):
-            if out + 2 > capacity:
+            if clipped + 2 > capacity:
                 break  # never for a convex polygon (see above)
             t = (s + 1) % k
             ds = sx * px[s] + sy * py[s] + sz * pz[s] - offset
             dt = sx * px[t] + sy * py[t] + sz * pz[t] - offset
             if ds >= 0.0 and dt >= 0.0:  # both inside: keep the edge's end
-                qx[out], qy[out], qz[out], qin[out], qout[out] = px[t], py[t], pz[t], lin[t], lout[t]
-                out += 1
+                qx[clipped], qy[clipped], qz[clipped] = px[t], py[t], pz[t]
+                qin[clipped], qout[clipped] = lin[t], lout[t]
+                clipped += 1
             elif ds >= 0.0 or dt >= 0.0:  # crossing: the crossing point, then the end if it is inside
                 u = ds / (ds - dt)
-                qx[out] = px[s] + u * (px[t] - px[s])
-                qy[out] = py[s] + u * (py[t] - py[s])
-                qz[out] = pz[s] + u * (pz[t] - pz[s])
+                qx[clipped] = px[s] + u * (px[t] - px[s])
+                qy[clipped] = py[s] + u * (py[t] - py[s])
+                qz[clipped] = pz[s] + u * (pz[t] - pz[s])
                 if ds >= 0.0:  # leaving through this side
-                    qin[out], qout[out] = lout[s], _REFERENCE_SIDE + side
+                    qin[clipped], qout[clipped] = lout[s], _REFERENCE_SIDE + side
                 else:  # entering
-                    qin[out], qout[out] = _REFERENCE_SIDE + side, lin[t]
-                out += 1
+                    qin[clipped], qout[clipped] = _REFERENCE_SIDE + side, lin[t]
+                clipped += 1
                 if dt >= 0.0:
-                    qx[out], qy[out], qz[out], qin[out], qout[out] = px[t], py[t], pz[t], lin[t], lout[t]
-                    out += 1
-        for s in range(out):
+                    qx[clipped], qy[clipped], qz[clipped] = px[t], py[t], pz[t]
+                    qin[clipped], qout[clipped] = lin[t], lout[t]
+                    clipped += 1
+        for s in range(clipped):
             px[s], py[s], pz[s], lin[s], lout[s] = qx[s], qy[s], qz[s], qin[s], qout[s]
-        k = out
+        k = clipped
     if k == 0:
         return m
     # the reference face's 2-D frame: u along its first edge, v = n × u; half spans hu, hv of the face
@@ -282,7 +307,28 @@ def face_contact(vertices_r, face_plane_r, face_vertex_start_r, face_vertices_r,
     _lower_to(Z, valid, best, apart)
     for s in range(k):
         valid[s] = valid[s] and Z[s] < margin
+    # the reduction, in the reference face's units (box–box's rule, which this then reproduces for boxes); where
+    # that keeps fewer than 4 of more candidates — a small hull on a big face, whose diagonal extremes in the
+    # face's units fall on the same two points: a line of support, on which it would rock — in the units of the
+    # contact polygon's own half spans, if that keeps more
+    before = valid.copy()
     reduce_to_four(X, Y, hu, hv, valid)
+    candidates = kept = 0
+    cu_lo = cv_lo = np.inf
+    cu_hi = cv_hi = -np.inf
+    for s in range(k):
+        if before[s]:
+            candidates += 1
+            cu_lo, cu_hi, cv_lo, cv_hi = min(cu_lo, X[s]), max(cu_hi, X[s]), min(cv_lo, Y[s]), max(cv_hi, Y[s])
+        kept += valid[s]
+    if kept < min(candidates, 4):
+        first = valid.copy()
+        for s in range(k):
+            valid[s] = before[s]
+        reduce_to_four(X, Y, max(0.5 * (cu_hi - cu_lo), 1e-12), max(0.5 * (cv_hi - cv_lo), 1e-12), valid)
+        if valid.sum() <= kept:  # no better: the first
+            for s in range(k):
+                valid[s] = first[s]
     _lower_to(Z, valid, best, apart)
     sign = -1.0 if flip else 1.0
     base = FACE_FEATURE | (np.int64(1 if flip else 0) << np.int64(60)) | (np.int64(face_r) << np.int64(40)) \
@@ -290,9 +336,8 @@ def face_contact(vertices_r, face_plane_r, face_vertex_start_r, face_vertices_r,
     for s in range(k):
         if valid[s]:
             half = 0.5 * Zg[s]
-            m = _write_point(normal, separation, point, feature, m, sign * nx, sign * ny, sign * nz, Z[s],
-                            px[s] - half * nx, py[s] - half * ny, pz[s] - half * nz,
-                            base | (lin[s] * 512 + lout[s]))
+            m = write_point(out, m, sign * nx, sign * ny, sign * nz, Z[s], px[s] - half * nx, py[s] - half * ny,
+                            pz[s] - half * nz, base | (lin[s] * 512 + lout[s]))
     return m
 
 
@@ -312,16 +357,13 @@ def _lower_to(Z, valid, best, apart):
 
 
 @njit
-def signed_distance(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
-                    vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b):
-    """GJK, and EPA if the cores overlap: ``(separation, nx, ny, nz, ax, ay, az, bx, by, bz, feature)`` with the
-    witness points a (on A), b (on B), the normal from A to B and an edge-contact feature id built from the
-    witness features' vertex indices."""
-    simplex_a, simplex_b = np.empty((4, 3)), np.empty((4, 3))
-    simplex_ia, simplex_ib, weights = np.empty(4, np.int64), np.empty(4, np.int64), np.empty(4)
-    count, intersecting, _ = gjk(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
-                                 vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b, 0, 0,
-                                 simplex_a, simplex_b, simplex_ia, simplex_ib, weights)
+def signed_distance(core_a, core_b):
+    """GJK, and EPA if the cores (:class:`.gjk.Core`) overlap: a :class:`SignedDistance` (the witness points a on A,
+    b on B, the normal from A to B and an edge-contact feature id built from the witness features' vertex
+    indices)."""
+    simplex = empty_simplex()
+    simplex_a, simplex_b, simplex_ia, simplex_ib, weights = simplex
+    count, intersecting, _ = gjk(core_a, core_b, 0, 0, simplex)
     ax = ay = az = bx = by = bz = 0.0
     for i in range(count):
         ax += weights[i] * simplex_a[i, 0]
@@ -339,60 +381,49 @@ def signed_distance(vertices_a, adjacency_start_a, adjacency_a, position_a, rota
         sep = dist
         nx, ny, nz = (bx - ax) / dist, (by - ay) / dist, (bz - az) / dist
     else:
-        depth, n, pa, pb, _ = epa(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
-                                  vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b,
-                                  simplex_a, simplex_b, simplex_ia, simplex_ib, count)
+        depth, n, pa, pb, _ = epa(core_a, core_b, simplex, count)
         sep = -depth
         nx, ny, nz = n[0], n[1], n[2]
         ax, ay, az, bx, by, bz = pa[0], pa[1], pa[2], pb[0], pb[1], pb[2]
     feature = EDGE_FEATURE | (np.int64(a_lo) << np.int64(45)) | (np.int64(a_hi) << np.int64(30)) \
         | (np.int64(b_lo) << np.int64(15)) | np.int64(b_hi)
-    return sep, nx, ny, nz, ax, ay, az, bx, by, bz, feature
+    return SignedDistance(sep, nx, ny, nz, ax, ay, az, bx, by, bz, feature)
 
 
 # ---- hull–hull ------------------------------------------------------------------------------------------
 
 @njit
-def hull_hull_contacts(vertices_a, adjacency_start_a, adjacency_a, face_plane_a, face_vertex_start_a,
-                       face_vertices_a, position_a, rotation_a,
-                       vertices_b, adjacency_start_b, adjacency_b, face_plane_b, face_vertex_start_b,
-                       face_vertices_b, position_b, rotation_b,
-                       margin, normal, separation, point, feature, m):
-    """Hull A vs hull B: up to 4 points (see the module docstring), normal from A to B; returns the next free
-    row."""
-    fa, best_a = best_face(face_plane_a, position_a, rotation_a, vertices_b, adjacency_start_b, adjacency_b,
-                           position_b, rotation_b, margin)
+def hull_hull_contacts(hull_a, hull_b, margin, out, m):
+    """Hull A vs hull B (:class:`.convex.PosedHull` each): up to 4 points (see the module docstring) into ``out``
+    from row ``m``, normal from A to B; returns the next free row."""
+    core_a, core_b = core_of(hull_a), core_of(hull_b)
+    fa, best_a = best_face(hull_a, core_b, margin)
     if not best_a < margin:
         return m
-    fb, best_b = best_face(face_plane_b, position_b, rotation_b, vertices_a, adjacency_start_a, adjacency_a,
-                           position_a, rotation_a, margin)
+    fb, best_b = best_face(hull_b, core_a, margin)
     if not best_b < margin:
         return m
-    sep, nx, ny, nz, ax, ay, az, bx, by, bz, edge_feature = signed_distance(
-        vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a,
-        vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b)
+    sep, nx, ny, nz, ax, ay, az, bx, by, bz, edge_feature = signed_distance(core_a, core_b)
     if not sep < margin:
         return m
     use_b = best_b > best_a + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(best_a)
     face_sep = best_b if use_b else best_a
     if sep > face_sep + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(face_sep):
-        return _write_point(normal, separation, point, feature, m, nx, ny, nz, sep, 0.5 * (ax + bx),
-                           0.5 * (ay + by), 0.5 * (az + bz), edge_feature)
+        return write_point(out, m, nx, ny, nz, sep, 0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * (az + bz),
+                           edge_feature)
     if use_b:
-        return face_contact(vertices_b, face_plane_b, face_vertex_start_b, face_vertices_b, position_b, rotation_b,
-                            fb, vertices_a, face_plane_a, face_vertex_start_a, face_vertices_a, position_a,
-                            rotation_a, True, best_b, margin, normal, separation, point, feature, m)
-    return face_contact(vertices_a, face_plane_a, face_vertex_start_a, face_vertices_a, position_a, rotation_a,
-                        fa, vertices_b, face_plane_b, face_vertex_start_b, face_vertices_b, position_b, rotation_b,
-                        False, best_a, margin, normal, separation, point, feature, m)
+        return face_contact(hull_b, fb, hull_a, True, best_b, margin, out, m)
+    return face_contact(hull_a, fa, hull_b, False, best_a, margin, out, m)
 
 
 # ---- hull–plane --------------------------------------------------------------------------------------------
 
 @njit
-def plane_hull_contacts(vertices, position, rotation, margin, normal, separation, point, feature, m):
-    """Ground z = 0 (A) vs hull (B): the hull's vertices below ``margin``, at most 4 (:func:`reduce_to_four` in the
+def plane_hull_contacts(hull, margin, out, m):
+    """Ground z = 0 (A) vs hull (B, a :class:`.convex.PosedHull`): the hull's vertices below ``margin``, at most 4
+    (:func:`reduce_to_four` in the
     world's x, y over the candidates' half spans); normal +z, feature = vertex index."""
+    vertices, position, rotation = hull.vertices, hull.position, hull.rotation
     k = len(vertices)
     X, Y, Z = np.empty(k), np.empty(k), np.empty(k)
     valid = np.zeros(k, np.bool_)
@@ -408,23 +439,25 @@ def plane_hull_contacts(vertices, position, rotation, margin, normal, separation
     reduce_to_four(X, Y, hu, hv, valid)
     for i in range(k):
         if valid[i]:
-            m = _write_point(normal, separation, point, feature, m, 0.0, 0.0, 1.0, Z[i], X[i], Y[i], 0.5 * Z[i], i)
+            m = write_point(out, m, 0.0, 0.0, 1.0, Z[i], X[i], Y[i], 0.5 * Z[i], i)
     return m
 
 
 # ---- hull–sphere / capsule ------------------------------------------------------------------------------
 
 @njit
-def hull_capsule_contacts(vertices, adjacency_start, adjacency, face_plane, face_vertex_start, face_vertices,
-                          position, rotation, segment, radius, margin, normal, separation, point, feature, m):
-    """Hull A vs capsule or sphere B: ``segment (2, 3)`` the core's ends in world (equal for a sphere) and its
+def hull_capsule_contacts(hull, segment, radius, margin, out, m):
+    """Hull A (a :class:`.convex.PosedHull`) vs capsule or sphere B: ``segment (2, 3)`` the core's ends in world (equal
+    for a sphere) and its
     ``radius``.  One point (feature 2) from GJK / EPA; two (features 0, 1: the ends of the segment clipped to the
     face) when the capsule lies along the hull face the contact normal is."""
+    vertices, face_plane, position, rotation = hull.vertices, hull.face_plane, hull.position, hull.rotation
+    face_vertex_start, face_vertices = hull.face_vertex_start, hull.face_vertices
     identity = np.eye(3)
     origin = np.zeros(3)
     none = np.zeros(3, np.int64)
-    sep, nx, ny, nz, ax, ay, az, bx, by, bz, _ = signed_distance(
-        vertices, adjacency_start, adjacency, position, rotation, segment, none, none[:0], origin, identity)
+    sep, nx, ny, nz, ax, ay, az, bx, by, bz, _ = signed_distance(core_of(hull),
+                                                                 Core(segment, none, none[:0], origin, identity))
     sep -= radius
     if not sep < margin:
         return m
@@ -466,13 +499,12 @@ def hull_capsule_contacts(vertices, adjacency_start, adjacency, face_plane, face
                     s_end = fx * cx + fy * cy + fz * cz - d - radius
                     if s_end < margin:
                         reach = radius + 0.5 * s_end
-                        m = _write_point(normal, separation, point, feature, m, fx, fy, fz, s_end,
-                                        cx - reach * fx, cy - reach * fy, cz - reach * fz, end)
+                        m = write_point(out, m, fx, fy, fz, s_end, cx - reach * fx, cy - reach * fy,
+                                        cz - reach * fz, end)
                 return m
     # one point: midway between the hull's surface point and the rounded core's
     bx, by, bz = bx - radius * nx, by - radius * ny, bz - radius * nz
-    return _write_point(normal, separation, point, feature, m, nx, ny, nz, sep, 0.5 * (ax + bx), 0.5 * (ay + by),
-                       0.5 * (az + bz), 2)
+    return write_point(out, m, nx, ny, nz, sep, 0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * (az + bz), 2)
 
 
 # ---- hull–triangle ---------------------------------------------------------------------------------------
@@ -500,20 +532,18 @@ def on_active_feature(triangle, active_edges, x, y, z):
 
 
 @njit
-def triangle_hull_contacts(triangle, active_edges, two_sided,
-                           vertices, adjacency_start, adjacency, face_plane, face_vertex_start, face_vertices,
-                           position, rotation, margin, normal, separation, point, feature, m):
+def triangle_hull_contacts(triangle, active_edges, two_sided, hull, margin, out, m):
     """A static mesh's triangle (A: ``triangle (3, 3)`` world vertices, counter-clockwise seen from its front) vs
-    hull B.  The triangle is a flat hull with two faces (front and back) and the contact is
-    :func:`hull_hull_contacts`'s, except for internal edges ("ghost" collisions: a hull sliding across a flat
-    mesh catching on the edge between two coplanar triangles, whose own normal is tilted): when the contact is
-    an edge contact whose triangle feature is an *inactive* edge or vertex (``active_edges``: bit e for edge
-    (v_e, v_e+1), from :func:`cgp_core.collision.bvh.active_edges`, computed at load), or whose normal is within
-    :data:`GHOST_NORMAL_ANGLE` of the triangle's face normal, the contact becomes a face contact with the
-    triangle's face as reference (Jolt's "active edges"; Bullet's internal-edge utility does the same with the
-    normal).  A one-sided triangle (``two_sided`` False: a closed mesh or a terrain) always pushes towards its
-    front (an edge contact whose normal points behind it becomes a face contact too); a two-sided one towards the
-    side the hull's centre is on."""
+    hull B (a :class:`.convex.PosedHull`).  The triangle is a flat hull with two faces (front and back) and the contact
+    is :func:`hull_hull_contacts`'s, except for internal edges ("ghost" collisions: a hull sliding across a flat mesh
+    catching on the edge between two coplanar triangles, whose own normal is tilted): when the contact is an edge
+    contact whose triangle feature is an *inactive* edge or vertex (``active_edges``: bit e for edge (v_e, v_e+1), from
+    :func:`cgp_core.collision.bvh.active_edges`, computed at load), or whose normal is within :data:`GHOST_NORMAL_ANGLE`
+    of the triangle's face normal, the contact becomes a face contact with the triangle's face as reference (Jolt's
+    "active edges"; Bullet's internal-edge utility does the same with the normal).  A one-sided triangle (``two_sided``
+    False: a closed mesh or a terrain) always pushes towards its front (an edge contact whose normal points behind it
+    becomes a face contact too); a two-sided one towards the side the hull's centre is on."""
+    face_plane, position, rotation = hull.face_plane, hull.position, hull.rotation
     ex, ey, ez = triangle[1, 0] - triangle[0, 0], triangle[1, 1] - triangle[0, 1], triangle[1, 2] - triangle[0, 2]
     fx, fy, fz = triangle[2, 0] - triangle[0, 0], triangle[2, 1] - triangle[0, 1], triangle[2, 2] - triangle[0, 2]
     nx, ny, nz = ey * fz - ez * fy, ez * fx - ex * fz, ex * fy - ey * fx
@@ -534,19 +564,17 @@ def triangle_hull_contacts(triangle, active_edges, two_sided,
     identity = np.eye(3)
     origin = np.zeros(3)
     no_adjacency = np.zeros(4, np.int64)
+    flat = PosedHull(triangle, no_adjacency, no_adjacency[:0], planes, loop_start, loops, origin, identity)
+    core, flat_core = core_of(hull), core_of(flat)
     # the front face's SAT separation (one-sided: the only face of the triangle that counts)
-    _, sx, sy, sz = support_point(vertices, adjacency_start, adjacency, position, rotation,
-                                  -planes[front, 0], -planes[front, 1], -planes[front, 2], 0)
+    _, sx, sy, sz = support_point(core, -planes[front, 0], -planes[front, 1], -planes[front, 2], 0)
     front_sep = planes[front, 0] * sx + planes[front, 1] * sy + planes[front, 2] * sz - planes[front, 3]
     if not front_sep < margin:
         return m
-    fb, best_b = best_face(face_plane, position, rotation, triangle, no_adjacency, no_adjacency[:0], origin,
-                           identity, margin)
+    fb, best_b = best_face(hull, flat_core, margin)
     if not best_b < margin:
         return m
-    sep, cx, cy, cz, ax, ay, az, bx, by, bz, edge_feature = signed_distance(
-        triangle, no_adjacency, no_adjacency[:0], origin, identity, vertices, adjacency_start, adjacency, position,
-        rotation)
+    sep, cx, cy, cz, ax, ay, az, bx, by, bz, edge_feature = signed_distance(flat_core, core)
     if not sep < margin:
         return m
     use_b = best_b > front_sep + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(front_sep)
@@ -565,12 +593,8 @@ def triangle_hull_contacts(triangle, active_edges, two_sided,
         elif edge:
             edge = False  # nearly the face normal: the face contact
     if edge:
-        return _write_point(normal, separation, point, feature, m, cx, cy, cz, sep, 0.5 * (ax + bx), 0.5 * (ay + by),
-                           0.5 * (az + bz), edge_feature)
+        return write_point(out, m, cx, cy, cz, sep, 0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * (az + bz),
+                           edge_feature)
     if use_b:
-        return face_contact(vertices, face_plane, face_vertex_start, face_vertices, position, rotation, fb,
-                            triangle, planes, loop_start, loops, origin, identity, True, best_b, margin, normal,
-                            separation, point, feature, m)
-    return face_contact(triangle, planes, loop_start, loops, origin, identity, front, vertices, face_plane,
-                        face_vertex_start, face_vertices, position, rotation, False, front_sep, margin, normal,
-                        separation, point, feature, m)
+        return face_contact(hull, fb, flat, True, best_b, margin, out, m)
+    return face_contact(flat, front, hull, False, front_sep, margin, out, m)

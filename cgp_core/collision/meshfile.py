@@ -1,11 +1,12 @@
 """Reading triangle meshes from STL (ASCII and binary) and OBJ files, bounded, into plain arrays.
 
 Parsing is trimesh's (``trimesh.load`` on the bytes, ``process=False``); what this module adds is the bounds and
-the errors a scene needs: only a regular file (after resolving symbolic links), its size checked before a byte
-is read (:data:`MAX_FILE_BYTES`), at most :data:`MAX_VERTICES` vertices and :data:`MAX_TRIANGLES` triangles, and
-every error a :class:`MeshFileError` naming the file and the reason — cannot read, not a mesh, empty, too big,
-not closed (asked for where closure matters: the mass properties of a movable body need a closed surface, a
-static terrain need not be closed).
+the errors a scene needs: the file read by :func:`cgp_core.user_input.read_user_file` (only a regular file after
+resolving symbolic links, its size checked before a byte is read: :data:`MAX_FILE_BYTES`), at most
+:data:`MAX_VERTICES` vertices and :data:`MAX_TRIANGLES` triangles (the caps are :mod:`cgp_core.limits`'), and every
+error a :class:`MeshFileError` naming the file and the reason — cannot read, not a mesh, empty, too big, not
+closed (asked for where closure matters: the mass properties of a movable body need a closed surface, a static
+terrain need not be closed).
 
 The result is plain arrays: ``vertices (V, 3)`` float64 and ``triangles (T, 3)`` int64, vertices merged where
 their coordinates are equal (an STL file stores each triangle's corners separately), triangles that repeat a
@@ -20,12 +21,13 @@ from pathlib import Path
 import numpy as np
 
 from ..inertia import closed_surface_problem
+from ..limits import MAX_MESH_FILE_BYTES, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES
+from ..user_input import UserInputError, read_user_file
 
-#: file size read at most (32 MiB: a binary STL of ~670k triangles)
-MAX_FILE_BYTES = 32 * 1024 * 1024
-#: vertices and triangles accepted after merging
-MAX_VERTICES = 500_000
-MAX_TRIANGLES = 500_000
+#: file size read at most, vertices and triangles accepted after merging (:mod:`cgp_core.limits`)
+MAX_FILE_BYTES = MAX_MESH_FILE_BYTES
+MAX_VERTICES = MAX_MESH_VERTICES
+MAX_TRIANGLES = MAX_MESH_TRIANGLES
 #: the file types read (by suffix, case-insensitive)
 FILE_TYPES = {".stl": "stl", ".obj": "obj"}
 
@@ -48,29 +50,24 @@ def load_mesh(path, *, closed: bool = False) -> tuple[np.ndarray, np.ndarray]:
     given = Path(path)
     name = str(given)
     try:
-        resolved = given.resolve(strict=True)
-    except FileNotFoundError:
-        raise MeshFileError(f"mesh file {name}: cannot read: no such file") from None
-    except (OSError, RuntimeError) as error:  # a link loop, a permission error on a directory
-        raise MeshFileError(f"mesh file {name}: cannot read: {error}") from None
-    if not resolved.is_file():
-        raise MeshFileError(f"mesh file {name}: cannot read: not a regular file")
+        resolved = given.expanduser().resolve()
+    except (OSError, RuntimeError):  # a link loop: the reader says so
+        resolved = given
     file_type = FILE_TYPES.get(resolved.suffix.lower()) or FILE_TYPES.get(given.suffix.lower())
     if file_type is None:
         raise MeshFileError(f"mesh file {name}: unknown file type {resolved.suffix!r} (read: "
                             f"{', '.join(FILE_TYPES)})")
     try:
-        size = resolved.stat().st_size
-        if size > MAX_FILE_BYTES:
-            raise MeshFileError(f"mesh file {name}: too big: {size} bytes, more than the {MAX_FILE_BYTES} read")
-        if size == 0:
-            raise MeshFileError(f"mesh file {name}: empty (0 bytes)")
-        with open(resolved, "rb") as stream:
-            data = stream.read(MAX_FILE_BYTES + 1)  # the file may have grown since stat
-    except OSError as error:
-        raise MeshFileError(f"mesh file {name}: cannot read: {error.strerror or error}") from None
-    if len(data) > MAX_FILE_BYTES:
-        raise MeshFileError(f"mesh file {name}: too big: more than the {MAX_FILE_BYTES} bytes read")
+        data = read_user_file(given, max_bytes=MAX_FILE_BYTES)
+    except UserInputError as error:
+        reason = str(error)
+        if "bytes; files are limited" in reason:
+            reason = f"too big: {reason}"
+        elif not reason.startswith("cannot"):
+            reason = f"cannot read: {reason}"
+        raise MeshFileError(f"mesh file {name}: {reason}") from None
+    if not data:
+        raise MeshFileError(f"mesh file {name}: empty (0 bytes)")
     vertices, faces = _parse(data, file_type, name)
     if len(vertices) == 0 or len(faces) == 0:
         raise MeshFileError(f"mesh file {name}: empty: no triangles")

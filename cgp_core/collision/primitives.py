@@ -5,6 +5,12 @@ lecture's discrete body) is one small sphere of ``model.radius`` per particle, a
 offset — so a particle body collides exactly as it is drawn.  The broad and narrow phases work on primitives;
 contacts are reported per body.
 
+The shapes of issue 25 (convex hulls, compound bodies — each part a primitive with its own offset *and rotation* —
+and static meshes) are not in this :class:`CollisionModel`: they are the primitives of
+:mod:`.convex_phase` (:class:`~.convex_phase.ShapeModel`), numbered after these, which takes every pair one of
+them is in.  Keeping them apart keeps this model, its bounds and :func:`.detector.narrow_phase` exactly as they
+were for the scenes without them.
+
 Built once per :class:`~cgp_core.bodies.BodyModel` (the model is static); :func:`primitive_bounds` places the
 primitives at the bodies' current poses and bounds them.
 
@@ -73,12 +79,15 @@ def build_collision_model(model: BodyModel) -> CollisionModel:
             elif s == Shape.CAPSULE:
                 he[:2] = 0.0
             half.append(he[None, :])
+        elif s in (Shape.CONVEX, Shape.COMPOUND, Shape.MESH):
+            continue  # primitives of collision.convex_phase (see the module docstring)
         else:
             raise ValueError(f"body {model.names[i]!r}: unknown shape code {s}")
     friction, restitution = np.asarray(model.friction, dtype=float), np.asarray(model.restitution, dtype=float)
-    if not body:
+    if not body:  # (a model of hulls, compounds and meshes alone has none of these primitives)
         return CollisionModel(np.zeros(0, np.intp), np.zeros(0, np.int8), np.zeros((0, 3)), np.zeros(0),
-                              np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0, bool), friction, restitution)
+                              np.zeros((0, 3)), np.zeros(0), np.zeros(model.count),
+                              np.asarray(model.inv_mass) <= 0.0, friction, restitution)
     body_a = np.concatenate(body).astype(np.intp)
     shape_a = np.concatenate(shape).astype(np.int8)
     offset_a = np.concatenate(offset)

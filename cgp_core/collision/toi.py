@@ -29,14 +29,39 @@ rotation (tested with a spinning plank and a thin wall).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from ..jit import njit
 from .epa import penetration
+from .gjk import Core
 
 #: advancement steps before giving up (the time reached so far is returned, flagged as a hit)
 MAX_ITERATIONS = 64
+
+
+class MovingCore(NamedTuple):
+    """A rounded convex core (as :class:`.gjk.Core`, plus its radius) at the step's start and how it moves."""
+
+    vertices: np.ndarray          # (k, 3) in the shape's frame (about its centre: the point it turns about)
+    adjacency_start: np.ndarray   # (k + 1,) int64 (zeros: brute-force support)
+    adjacency: np.ndarray         # (a,) int64
+    position: np.ndarray          # (3,) at the step's start [m]
+    rotation: np.ndarray          # (3, 3) at the step's start
+    velocity: np.ndarray          # (3,) constant over the step [m/s]
+    angular_velocity: np.ndarray  # (3,) constant over the step, world [rad/s]
+    radius: float                 # the rounding [m]
+
+
+class Impact(NamedTuple):
+    """What :func:`time_of_impact` gives."""
+
+    t: float              # fraction of the step at which the shapes come within target + tolerance (1: none)
+    separation: float     # at t [m]
+    normal: np.ndarray    # (3,) unit, A to B, at t
+    hit: bool             # they came that close within the step
+    iterations: int       # advancement steps taken
 
 
 @njit
@@ -71,20 +96,19 @@ def reach(vertices, radius):
 
 
 @njit
-def time_of_impact(vertices_a, adjacency_start_a, adjacency_a, position_a, rotation_a, velocity_a,
-                   angular_velocity_a, radius_a,
-                   vertices_b, adjacency_start_b, adjacency_b, position_b, rotation_b, velocity_b,
-                   angular_velocity_b, radius_b, duration, target, tolerance):
-    """Conservative advancement over a step of ``duration`` (see the module docstring).
-
-    Shapes as in :mod:`.gjk` (cores + radii), at the step's start, with ``velocity (3,)`` [m/s] and
-    ``angular_velocity (3,)`` [rad/s].  ``target``: the separation to stop at (> 0: a little short of contact);
+def time_of_impact(a, b, duration, target, tolerance):
+    """Conservative advancement over a step of ``duration`` (see the module docstring) of two
+    :class:`MovingCore` ``a`` and ``b``.  ``target``: the separation to stop at (> 0: a little short of contact);
     ``tolerance``: how far above it still counts.
 
-    Returns ``(t, separation, normal (3,), hit, iterations)``: the fraction of the step at which the shapes come
-    within ``target + tolerance`` (``hit``), or ``t = 1`` and ``hit`` False if they do not within the step;
-    ``separation`` and ``normal`` (A to B) at t.
+    Returns an :class:`Impact`: the fraction ``t`` of the step at which the shapes come within ``target +
+    tolerance`` (``hit``), or ``t = 1`` and ``hit`` False if they do not within the step; ``separation`` and
+    ``normal`` (A to B) at t.
     """
+    vertices_a, position_a, rotation_a, velocity_a, angular_velocity_a, radius_a = (
+        a.vertices, a.position, a.rotation, a.velocity, a.angular_velocity, a.radius)
+    vertices_b, position_b, rotation_b, velocity_b, angular_velocity_b, radius_b = (
+        b.vertices, b.position, b.rotation, b.velocity, b.angular_velocity, b.radius)
     r_a = reach(vertices_a, radius_a)
     r_b = reach(vertices_b, radius_b)
     spin = math.sqrt(angular_velocity_a[0] ** 2 + angular_velocity_a[1] ** 2 + angular_velocity_a[2] ** 2) * r_a \
@@ -102,15 +126,15 @@ def time_of_impact(vertices_a, adjacency_start_a, adjacency_a, position_a, rotat
             pb[r] = position_b[r] + velocity_b[r] * duration * t
         Ra = rotated(rotation_a, angular_velocity_a[0], angular_velocity_a[1], angular_velocity_a[2], duration * t)
         Rb = rotated(rotation_b, angular_velocity_b[0], angular_velocity_b[1], angular_velocity_b[2], duration * t)
-        separation, n, _, _ = penetration(vertices_a, adjacency_start_a, adjacency_a, pa, Ra, radius_a,
-                                          vertices_b, adjacency_start_b, adjacency_b, pb, Rb, radius_b)
+        separation, n, _, _ = penetration(Core(vertices_a, a.adjacency_start, a.adjacency, pa, Ra), radius_a,
+                                          Core(vertices_b, b.adjacency_start, b.adjacency, pb, Rb), radius_b)
         normal[:] = n
         if separation <= target + tolerance:
-            return t, separation, normal, True, iteration + 1
+            return Impact(t, separation, normal, True, iteration + 1)
         bound = abs(dvx * n[0] + dvy * n[1] + dvz * n[2]) + spin
         if bound <= 0.0:
-            return 1.0, separation, normal, False, iteration + 1
+            return Impact(1.0, separation, normal, False, iteration + 1)
         t += (separation - target) / (bound * duration)
         if t >= 1.0:
-            return 1.0, separation, normal, False, iteration + 1
-    return t, separation, normal, True, MAX_ITERATIONS
+            return Impact(1.0, separation, normal, False, iteration + 1)
+    return Impact(t, separation, normal, True, MAX_ITERATIONS)

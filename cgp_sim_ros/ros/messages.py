@@ -5,7 +5,14 @@ Markers (``~/markers``, frame ``world``), with stable namespaces and ids:
 
 - ``ground`` / 0: a thin grey CUBE under z = 0 (only when the scene has a ground plane);
 - ``bodies/<body>`` / 0: the body's shape — SPHERE, CUBE (box), CYLINDER (capsule shaft; ids 1 and 2 are the
-  capsule's end SPHEREs), SPHERE_LIST (particle set, drawn in the body frame);
+  capsule's end SPHEREs), SPHERE_LIST (particle set, drawn in the body frame), TRIANGLE_LIST (a convex hull:
+  its triangles in the body frame, the marker's pose the body's; a static mesh likewise, re-sent only every
+  :data:`STATIC_MESH_EVERY` ticks and when its pose changed: it is big and does not move);
+- ``bodies/<body>`` / 3k, 3k + 1, 3k + 2: part k of a compound body, at the part's own pose (the body's pose
+  times the part's): SPHERE, CUBE, CYLINDER (+ its two end SPHEREs at 3k + 1 and 3k + 2) or TRIANGLE_LIST.
+  TRIANGLE_LIST markers carry no per-vertex colours (the marker's colour; RViz and Foxglove both draw a
+  TRIANGLE_LIST in the marker's pose, scaled by ``scale`` = 1, with the triangles' winding — counter-clockwise
+  seen from outside — as their front);
 - ``flocks/<flock>`` / 0 … K−1: SPHERE_LIST of boids (``model: sphere``) or TRIANGLE_LIST of fish (``model:
   fish``, :mod:`cgp_sim_ros.drawing.shapes`; full or low detail as :mod:`cgp_sim_ros.drawing.detail` chose),
   points rounded to 1/1024 m (a view: the poses are exact).  A flock redrawn every K ticks (``markers_every``)
@@ -30,7 +37,7 @@ from rosgraph_msgs.msg import Clock
 from visualization_msgs.msg import MarkerArray
 
 from cgp_core.bodies import Shape
-from cgp_core.rotation import quat_rotate
+from cgp_core.rotation import matrix_to_quat, quat_multiply, quat_rotate
 
 from ..drawing.detail import DetailPlan
 from ..drawing.shapes import FISH_DETAILS, fish_triangles, quantized_points
@@ -40,6 +47,24 @@ from ..wire import cdr
 GROUND_SIZE = 60.0  # m, edge of the drawn ground tile
 GROUND_COLOR = (0.55, 0.57, 0.6, 1.0)
 FLOCK_COLORS = ((0.95, 0.6, 0.15, 1.0), (0.2, 0.6, 0.95, 1.0), (0.55, 0.85, 0.3, 1.0), (0.85, 0.35, 0.75, 1.0))
+#: a static mesh's marker (thousands of triangles, never moving while its pose does not change) is re-sent every
+#: this many ticks (a late subscriber, a new bag file, a DELETEALL get it back within a second at 60 Hz)
+STATIC_MESH_EVERY = 60
+
+
+def part_marker_ids(parts) -> set[int]:
+    """The marker ids of a compound body's parts: 3k for part k, 3k + 1 and 3k + 2 for a capsule part's caps."""
+    ids = set()
+    for k in range(parts.count):
+        ids.add(3 * k)
+        if int(parts.shape[k]) == int(Shape.CAPSULE):
+            ids.update((3 * k + 1, 3 * k + 2))
+    return ids
+
+
+def hull_triangle_points(hull) -> np.ndarray:
+    """(3t, 3) a hull's (or mesh's) triangles as TRIANGLE_LIST points, counter-clockwise seen from outside."""
+    return np.ascontiguousarray(hull.vertices[hull.triangles].reshape(-1, 3))
 
 
 class TickMessages:
@@ -65,6 +90,8 @@ class TickMessages:
         self.parts = 1
         self._flock_markers: dict[tuple, tuple] = {}  # (flock index, part) -> (key, MarkerPointsSerializer)
         self._body_templates: dict[tuple, cdr.MarkerPoseSerializer] = {}  # (body, part, frame) -> template
+        self._part_orientations: dict[int, np.ndarray] = {}  # compound body -> its parts' quaternions (k, 4)
+        self._mesh_poses: dict[int, tuple] = {}  # static mesh body -> the pose its marker was last sent with
         if plan is not None:
             self.set_plan(plan)
 
@@ -86,8 +113,9 @@ class TickMessages:
         """Marker namespace -> the ids :meth:`markers` draws (over its ticks): a body's shape (0) and a capsule's
         end caps (1, 2); every part of a flock's marker."""
         model = self.world.body_model
-        ids = {f"bodies/{name}": ({0, 1, 2} if int(shape) == int(Shape.CAPSULE) else {0})
-               for name, shape in zip(model.names, model.shape)}
+        ids = {f"bodies/{name}": ({0, 1, 2} if int(shape) == int(Shape.CAPSULE) else
+                                  part_marker_ids(parts) if int(shape) == int(Shape.COMPOUND) else {0})
+               for name, shape, parts in zip(model.names, model.shape, model.parts)}
         ids.update({f"flocks/{f.params.name}": set(range(self.flock_parts(f))) for f in self.world.flocks})
         return ids
 
@@ -131,16 +159,16 @@ class TickMessages:
             out.append(cdr.marker(cdr.MarkerFields(
                 marker_type=cdr.CUBE, ns="ground", id=0, position=(0.0, 0.0, -0.025),
                 scale=(GROUND_SIZE, GROUND_SIZE, 0.05), color=GROUND_COLOR, **common)))
-        out.extend(self._body_markers(common))
+        out.extend(self._body_markers(common, delete_all_first or tick % STATIC_MESH_EVERY == 0))
         for index, flock in enumerate(self.world.flocks):
             parts = self.flock_parts(flock)
             for part in (range(parts) if delete_all_first else (tick % parts,)):
                 out.append(self._flock_marker(index, flock, part, common))
         return cdr.marker_array(out)
 
-    def _body_markers(self, common: dict) -> list[bytes]:
+    def _body_markers(self, common: dict, static_meshes_due: bool = True) -> list[bytes]:
         """Every body's marker(s) at its current pose (from templates laid out on first use: only the stamp and
-        the pose change from tick to tick)."""
+        the pose change from tick to tick); a static mesh's when ``static_meshes_due`` or it moved."""
         model, state = self.world.body_model, self.world.body_state
         capsules = np.flatnonzero(model.shape == Shape.CAPSULE)
         # capsules' end caps: the body position ± the half-length along the body z axis (all capsules at once)
@@ -150,6 +178,15 @@ class TickMessages:
         stamp, frame_id = common["stamp_ns"], common["frame_id"]
         out = []
         for i in range(model.count):
+            shape = int(model.shape[i])
+            if shape == Shape.COMPOUND:
+                out.extend(self._part_markers(i, stamp, frame_id))
+                continue
+            if shape == Shape.MESH:
+                pose = (tuple(positions[i]), tuple(orientations[i]))
+                if not static_meshes_due and self._mesh_poses.get(i) == pose:
+                    continue
+                self._mesh_poses[i] = pose
             out.append(self._body_marker(i, 0, frame_id).serialize(stamp, positions[i], orientations[i]))
             if i in caps:
                 for part, position in ((1, caps[i][0]), (2, caps[i][1])):
@@ -157,25 +194,51 @@ class TickMessages:
                                                                               orientations[i]))
         return out
 
+    def _part_markers(self, i: int, stamp: int, frame_id: str) -> list[bytes]:
+        """Compound body i's parts at their poses now: position x + R oₖ, orientation q ⊗ qₖ (capsule caps at the
+        part's centre ± its half length along its axis)."""
+        model, state = self.world.body_model, self.world.body_state
+        parts = model.parts[i]
+        part_q = self._part_orientations.get(i)
+        if part_q is None:
+            part_q = self._part_orientations[i] = matrix_to_quat(parts.rotation)
+        q = np.asarray(state.orientation[i])
+        centres = state.position[i] + quat_rotate(np.broadcast_to(q, (parts.count, 4)), parts.position)
+        turned = quat_multiply(np.broadcast_to(q, (parts.count, 4)), part_q)
+        out = []
+        for k in range(parts.count):
+            orientation = turned[k].tolist()
+            out.append(self._body_marker(i, 3 * k, frame_id).serialize(stamp, centres[k].tolist(), orientation))
+            if int(parts.shape[k]) == int(Shape.CAPSULE):
+                half_axis = quat_rotate(turned[k], np.array([0.0, 0.0, parts.half_extents[k, 2]]))
+                for cap, sign in ((1, 1.0), (2, -1.0)):
+                    out.append(self._body_marker(i, 3 * k + cap, frame_id).serialize(
+                        stamp, (centres[k] + sign * half_axis).tolist(), orientation))
+        return out
+
     def _body_marker(self, i: int, part: int, frame_id: str) -> cdr.MarkerPoseSerializer:
-        """Body i's marker ``part`` (0: the shape; 1, 2: a capsule's end caps), laid out once."""
+        """Body i's marker ``part`` (0: the shape; 1, 2: a capsule's end caps; a compound's: see the module
+        docstring), laid out once."""
         key = (i, part, frame_id)
         serializer = self._body_templates.get(key)
         if serializer is None:
             model = self.world.body_model
             ns = f"bodies/{model.names[i]}"
             shape = Shape(int(model.shape[i]))
-            r = model.radius[i]
             fields = {"ns": ns, "id": part, "color": model.color[i], "frame_id": frame_id}
-            if shape == Shape.SPHERE or part > 0:  # a sphere, or a capsule's end cap
-                fields.update(marker_type=cdr.SPHERE, scale=(2 * r, 2 * r, 2 * r))
-            elif shape == Shape.BOX:
-                fields.update(marker_type=cdr.CUBE, scale=2 * model.half_extents[i])
-            elif shape == Shape.CAPSULE:
-                fields.update(marker_type=cdr.CYLINDER, scale=(2 * r, 2 * r, 2 * model.half_extents[i, 2]))
-            else:  # particles, in the body frame
+            if shape == Shape.COMPOUND:
+                parts = model.parts[i]
+                k, piece = divmod(part, 3)
+                fields.update(_shape_fields(Shape(int(parts.shape[k])), parts.radius[k], parts.half_extents[k],
+                                            parts.hulls[k], piece))
+            elif shape == Shape.MESH:
+                fields.update(marker_type=cdr.TRIANGLE_LIST, points=hull_triangle_points(model.meshes[i]))
+            elif shape == Shape.PARTICLES:  # in the body frame
+                r = model.radius[i]
                 fields.update(marker_type=cdr.SPHERE_LIST, scale=(2 * r, 2 * r, 2 * r),
                               points=model.particles[i][:, :3])
+            else:
+                fields.update(_shape_fields(shape, model.radius[i], model.half_extents[i], model.hulls[i], part))
             serializer = self._body_templates[key] = cdr.MarkerPoseSerializer(**fields)
         return serializer
 
@@ -201,3 +264,14 @@ class TickMessages:
         else:
             quantized_points(flock.positions[first:last], out=serializer.points)
         return serializer.serialize(common["stamp_ns"])
+
+
+def _shape_fields(shape: Shape, r: float, half_extents, hull, piece: int) -> dict:
+    """Marker type, scale and points of a sphere, box, capsule (piece 1, 2: its end caps) or hull."""
+    if shape == Shape.SPHERE or piece > 0:
+        return {"marker_type": cdr.SPHERE, "scale": (2 * r, 2 * r, 2 * r)}
+    if shape == Shape.BOX:
+        return {"marker_type": cdr.CUBE, "scale": 2 * np.asarray(half_extents)}
+    if shape == Shape.CAPSULE:
+        return {"marker_type": cdr.CYLINDER, "scale": (2 * r, 2 * r, 2 * half_extents[2])}
+    return {"marker_type": cdr.TRIANGLE_LIST, "points": hull_triangle_points(hull)}

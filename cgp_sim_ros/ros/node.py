@@ -491,4 +491,11 @@ class WorldReports:
         self._repeats.clear()
 
     def _log(self, level: str, text: str) -> None:
-        (self._logger.error if level == "error" else self._logger.warn)(text)
+        # one call per severity: rclpy's logger refuses a call site whose severity changes between calls
+        # ("Logger severity cannot be changed between calls": an info after a warn from one line stopped the node)
+        if level == "error":
+            self._logger.error(text)
+        elif level == "info":  # e.g. a static mesh's BVH built (issue 25)
+            self._logger.info(text)
+        else:
+            self._logger.warn(text)

@@ -87,11 +87,13 @@ FEATURES = (
     SimulatorFeatures.STEP_SIMULATION_SINGLE, SimulatorFeatures.STEP_SIMULATION_MULTIPLE,
     SimulatorFeatures.STEP_SIMULATION_ACTION,
 )
-SPAWN_FORMATS = ("yaml",)
+SPAWN_FORMATS = ("yaml", "stl", "obj")
 CUSTOM_INFO = (
     "cgp_sim: spawn_entity takes YAML (resource_string, or a .yaml file as uri: a path or file:// URI) with "
     "exactly one key, body or flock, whose value is a scene-file entry without name (the request's) and, for a "
-    "body, without position/orientation (initial_pose; for a flock initial_pose.position is the spawn centre). "
+    "body, without position/orientation (initial_pose; for a flock initial_pose.position is the spawn centre); "
+    "a mesh: in it is read from the .yaml file's directory (else the built-in meshes) or a file:// URI. An .stl / "
+    ".obj file as uri spawns a convex body, the hull of the mesh (density 1000 kg/m3). "
     "Entity states: a body's COM pose, twist in world axes, last tick's acceleration; a flock's centroid and "
     "mean velocity (set moves it rigidly). Reset scopes STATE, SPAWNED, ALL; time keeps running (no "
     "SCOPE_TIME). get_entities filters: POSIX ERE on names, TYPE_SPHERE bounds. See docs/simulation-interfaces.md."
@@ -413,11 +415,12 @@ class SimulationInterfaces:
                        taken: set[str], position, orientation):
         """The spawn worker thread: the YAML (read from ``uri`` or ``resource``), parsed and validated, the entity
         built (:meth:`cgp_core.world.World.prepare_spawn`).  Raises _Refused, SceneError or EditError."""
-        if uri:
-            text, source = _read_uri(uri)
+        mesh = _mesh_uri(uri) if uri else None
+        if mesh is not None:  # a mesh file: a convex body, its hull (the file read bounded by the scene loader)
+            data, source = {"body": {"shape": "convex", "mesh": str(mesh)}}, str(mesh)
         else:
-            text = resource
-        data = parse_yaml(text, source)
+            text, source = _read_uri(uri) if uri else (resource, source)
+            data = parse_yaml(text, source)
         kind = next(iter(data)) if isinstance(data, dict) and len(data) == 1 and next(iter(data)) in SPAWN_KINDS \
             else "entity"
         if allow_renaming and (not name or name in taken):
@@ -596,6 +599,17 @@ class _Refused(Exception):
         self.code = code
 
 
+def _mesh_uri(uri: str) -> Path | None:
+    """The mesh file a ``uri`` names (a path or ``file://`` URI ending in .stl / .obj), or None.  It is read by the
+    scene loader, bounded (:func:`cgp_core.collision.meshfile.load_mesh`: regular files only, size and count caps,
+    errors naming the file and the reason)."""
+    parsed = urlparse(uri)
+    if parsed.scheme not in ("", "file"):
+        return None
+    path = Path(unquote(parsed.path) if parsed.scheme == "file" else uri).expanduser()
+    return path if path.suffix.lower() in (".stl", ".obj") else None
+
+
 def _read_uri(uri: str) -> tuple[str, str]:
     """The YAML text and its source name for a ``uri`` (a path or ``file://`` URI of a .yaml file, read as every
     user file is: :func:`cgp_core.user_input.read_user_text`, a regular file only, size-capped); raises
@@ -603,12 +617,13 @@ def _read_uri(uri: str) -> tuple[str, str]:
     R = SpawnEntity.Response
     parsed = urlparse(uri)
     if parsed.scheme not in ("", "file"):
-        raise _Refused(R.UNSUPPORTED_FORMAT, f"uri {_brief(uri)}: only local YAML files are spawned (a path or "
+        raise _Refused(R.UNSUPPORTED_FORMAT, f"uri {_brief(uri)}: only local files are spawned (a path or "
                                              f"file:// URI; spawn_formats: {', '.join(SPAWN_FORMATS)})")
     path = Path(unquote(parsed.path) if parsed.scheme == "file" else uri).expanduser()
     if path.suffix.lower() not in (".yaml", ".yml"):
-        raise _Refused(R.UNSUPPORTED_FORMAT, f"uri {_brief(uri)}: not a .yaml file; cgp_sim spawns YAML "
-                                             f"(spawn_formats: {', '.join(SPAWN_FORMATS)})")
+        raise _Refused(R.UNSUPPORTED_FORMAT, f"uri {_brief(uri)}: not a .yaml, .stl or .obj file; cgp_sim spawns "
+                                             f"YAML, or a mesh as a convex body (spawn_formats: "
+                                             f"{', '.join(SPAWN_FORMATS)})")
     try:
         return read_user_text(path), str(path)
     except UserInputError as exc:
