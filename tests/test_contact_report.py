@@ -13,7 +13,8 @@ G, M, HALF = 9.81, 2.0, 0.2
 RESTING = """
 world: {{gravity: [0, 0, -9.81], ground: true, sleep: {sleep}}}
 bodies:
-  - {{name: box, shape: box, size: [0.4, 0.4, 0.4], mass: 2.0, position: [0.3, -0.1, 0.2], orientation: [0, 0, 0.2, 0.98]}}
+  - {{name: box, shape: box, size: [0.4, 0.4, 0.4], mass: 2.0, position: [0.3, -0.1, 0.2],
+     orientation: [0, 0, 0.2, 0.98]}}
 """
 
 

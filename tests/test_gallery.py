@@ -20,8 +20,8 @@ from cgp_core.inertia import shape_mass_properties
 from cgp_core.rotation import quat_rotate, quat_to_matrix
 from cgp_core.scene import builtin_scene_names, scene_description
 
-GALLERY = ["box_stack", "couzin_torus", "default", "fish_school", "predator", "pyramid", "ramp", "sphere_pile",
-           "tennis_racket", "zero_g"]
+GALLERY = ["box_stack", "contacts", "couzin_torus", "default", "fish_school", "predator", "pyramid", "ramp",
+           "sphere_pile", "tennis_racket", "zero_g"]
 
 
 def test_the_gallery_is_built_in_and_every_scene_says_what_it_shows():
