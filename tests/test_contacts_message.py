@@ -1,7 +1,7 @@
 """~/contacts and the contact markers without a node: the numpy-built cgp_sim_msgs/Contacts bytes are the message
-rclpy builds from the same report (rclpy's building took ~7-10 ms for a 100-box pile's 360 contacts, ours ~0.2 ms,
-measured once side by side; not in benchmarks/ yet), the markers draw every contact's point and force and retire the arrows of contacts gone,
-and cgp-sim-render draws the arrows."""
+rclpy builds from the same report (rclpy's building took ~7-10 ms for a 100-box pile's 360 contacts, ours
+~0.2 ms, measured once side by side; not in benchmarks/ yet), the markers draw every contact's point and force
+and retire the arrows of contacts gone, and cgp-sim-render draws the arrows."""
 
 from __future__ import annotations
 
