@@ -167,7 +167,7 @@ class World:
         self.report_contacts = False
         #: the last reported tick's :class:`~cgp_core.solver.report.ContactReport` (with ``report_contacts``)
         self.contacts = ContactReport.empty()
-        self._contacts_model = None  # the body model `contacts` indexes
+        self._contacts_of = (None, -1)  # the body model `contacts` indexes and the tick it is of
         self.remember_tick_start()
 
     @classmethod
@@ -218,9 +218,9 @@ class World:
         the contacts of the islands that slept through them, held from the tick before."""
         report = self.solver.finish_report(self.dt)
         previous = self.contacts
-        if islands is not None and previous.duration > 0.0 and self._contacts_model is model:
+        if islands is not None and self._contacts_of == (model, self.ticks - 1):  # the tick before, same bodies
             report = carry_sleeping(report, previous, islands.asleep, model.fixed, self.body_state.position)
-        self.contacts, self._contacts_model = report, model
+        self.contacts, self._contacts_of = report, (model, self.ticks)
 
     @property
     def time(self) -> float:

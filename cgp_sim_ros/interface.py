@@ -213,7 +213,8 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
     ParameterSpec("contacts", True, "Publish (and record) ~/contacts every tick: every contact point with its "
                   "entities, normal, separation, normal and friction impulse over the tick, and every touching "
                   "body's mean contact force and torque about its COM (cgp_sim_msgs/Contacts; "
-                  "cgp_core/solver/report.py). false: the topic does not exist and the report is not computed.",
+                  "cgp_core/solver/report.py); computed only while someone takes it (a subscriber, the bag, the live "
+                  "view, the contact markers). false: the topic does not exist.",
                   read_only=True, flag="--contacts"),
     ParameterSpec("contact_markers", False, "Draw the contacts on ~/markers: namespace contacts/points (a "
                   "SPHERE_LIST of the contact points) and contacts/forces (one ARROW per contact: the contact force "

@@ -139,16 +139,14 @@ def tally_contacts(manifolds, rows, lam, impulse, tally):
 
 
 def finish_report(tally: ContactTally, dt: float) -> ContactReport:
-    """The :class:`ContactReport` of a tick of ``dt`` seconds from its :class:`ContactTally`."""
-    listed = (tally.separation <= 0.0) | (tally.normal_impulse > 0.0)
-    order = np.lexsort((tally.body_a[listed], tally.body_b[listed]))  # by body B, then A: stable to read
-    pick = np.flatnonzero(listed)[order]
+    """The :class:`ContactReport` of a tick of ``dt`` seconds from its :class:`ContactTally` (the contacts in the
+    solver's order: by primitive pair, then feature)."""
+    pick = np.flatnonzero((tally.separation <= 0.0) | (tally.normal_impulse > 0.0))
     rows = np.flatnonzero(tally.touched[:-1])  # row n is the ground: not a body
-    sums = tally.body_impulse[rows] / dt
-    return ContactReport(tally.body_a[pick].astype(np.intp), tally.body_b[pick].astype(np.intp), tally.point[pick],
-                         tally.normal[pick], tally.separation[pick], tally.normal_impulse[pick],
-                         tally.friction_impulse[pick], rows.astype(np.intp), sums[:, :3].copy(),
-                         sums[:, 3:].copy(), float(dt))
+    sums = tally.body_impulse[rows] * (1.0 / dt)
+    return ContactReport(tally.body_a[pick], tally.body_b[pick], tally.point[pick], tally.normal[pick],
+                         tally.separation[pick], tally.normal_impulse[pick], tally.friction_impulse[pick], rows,
+                         sums[:, :3], sums[:, 3:], float(dt))
 
 
 def carry_sleeping(report: ContactReport, previous: ContactReport, asleep: np.ndarray, fixed: np.ndarray,
@@ -157,28 +155,33 @@ def carry_sleeping(report: ContactReport, previous: ContactReport, asleep: np.nd
     added: a contact whose movable sides all sleep, a sleeping body's force and torque, and the reaction of such
     contacts on fixed bodies (force −(λₙ n + friction) / dt at the contact point, torque about the fixed body's
     ``position``).  ``asleep``, ``fixed`` (n,) bool; ``position`` (n, 3) the bodies' COMs."""
-    if not asleep.any() or previous.count == 0 and len(previous.body) == 0:
+    if not asleep.any() or (previous.count == 0 and len(previous.body) == 0):
         return report
     a, b = previous.body_a, previous.body_b
-    side_a_rests = (a < 0) | asleep[np.maximum(a, 0)] | fixed[np.maximum(a, 0)]
-    keep = side_a_rests & (asleep[b] | fixed[b]) & (asleep[b] | ((a >= 0) & asleep[np.maximum(a, 0)]))
+    a_index = np.maximum(a, 0)
+    at_rest = asleep | fixed
+    keep = ((a < 0) | at_rest[a_index]) & at_rest[b] & (asleep[b] | ((a >= 0) & asleep[a_index]))
     scale = report.duration / previous.duration  # the same force over a tick of another length (rate_hz changed)
     carried = ContactReport(*(field[keep] for field in previous[:5]), previous.normal_impulse[keep] * scale,
                             previous.friction_impulse[keep] * scale, *report[7:])
     contacts = [np.concatenate((new, old)) for new, old in zip(report[:7], carried[:7])]
-    # per body: the sleeping bodies' last wrenches, the fixed bodies' reactions from the carried contacts
-    force = dict(zip(report.body.tolist(), report.force))
-    torque = dict(zip(report.body.tolist(), report.torque))
-    for i, f, t in zip(previous.body.tolist(), previous.force, previous.torque):
-        if asleep[i]:
-            force[i], torque[i] = f, t
-    on_b = carried.contact_force() if carried.count else np.zeros((0, 3))
+    # per body: this tick's sums, the sleeping bodies' last ones, the fixed bodies' reactions to carried contacts
+    n = len(asleep)
+    listed = np.zeros(n, bool)
+    wrench = np.zeros((n, 6))
+    listed[report.body] = True
+    wrench[report.body, :3], wrench[report.body, 3:] = report.force, report.torque
+    held = previous.body[asleep[previous.body]]
+    listed[held] = True
+    wrench[held, :3] = previous.force[asleep[previous.body]]
+    wrench[held, 3:] = previous.torque[asleep[previous.body]]
+    on_b = carried.contact_force()
     for side, sign in ((carried.body_a, -1.0), (carried.body_b, 1.0)):
-        for c in np.flatnonzero((side >= 0) & fixed[np.maximum(side, 0)]):
-            i = int(side[c])
-            f = sign * on_b[c]
-            force[i] = force.get(i, np.zeros(3)) + f
-            torque[i] = torque.get(i, np.zeros(3)) + np.cross(carried.point[c] - position[i], f)
-    body = np.array(sorted(force), np.intp)
-    return ContactReport(*contacts, body, np.array([force[i] for i in body]).reshape(-1, 3),
-                         np.array([torque[i] for i in body]).reshape(-1, 3), report.duration)
+        hit = np.flatnonzero((side >= 0) & fixed[np.maximum(side, 0)])
+        if hit.size:
+            body, force = side[hit], sign * on_b[hit]
+            listed[body] = True
+            np.add.at(wrench, (body, slice(0, 3)), force)
+            np.add.at(wrench, (body, slice(3, 6)), np.cross(carried.point[hit] - position[body], force))
+    body = np.flatnonzero(listed)
+    return ContactReport(*contacts, body, wrench[body, :3], wrench[body, 3:], report.duration)

@@ -42,7 +42,8 @@ class TickPublisher:
         self._node = node
         self.world = node.world
         params = node.params
-        # the world sums its contact report only if someone takes it (~/contacts, the contact markers)
+        # the world sums its contact report only while someone takes it (prepare_tick); on for the throwaway
+        # tick that loads the kernels
         self.world.report_contacts = bool(params["contacts"] or params["contact_markers"])
         #: metres per newton of the contact force arrows, None without contact markers
         self._force_scale = params["contact_force_scale"] if params["contact_markers"] else None
@@ -147,6 +148,16 @@ class TickPublisher:
         msg = String(data=json.dumps(payload, separators=(",", ":")))
         self.publish(self.pub_events, serialize_message(msg), self.world.time_ns)
 
+    def prepare_tick(self) -> None:
+        """Before the world's step: whether it sums its contact report this tick — only while someone takes it
+        (the contact markers; the bag; a subscriber of ``~/contacts``, in DDS or in the live view), so that
+        ``contacts:=true`` costs nothing while nobody listens.  (A body asleep when the report starts is
+        reported from when it wakes: its contacts were not summed while it slept.)"""
+        pub, node = self.pub_contacts, self._node
+        self.world.report_contacts = self._force_scale is not None or (pub is not None and (
+            node.recorder is not None or pub.get_subscription_count() > 0
+            or (node.foxglove is not None and node.foxglove.listening(pub))))
+
     def publish_tick(self) -> None:
         """Everything one tick publishes (after the world's step)."""
         t = self.world.time_ns
@@ -169,7 +180,7 @@ class TickPublisher:
             yield pub, data, record_poses
         for pub, data in zip(self.pub_flock_stats, messages.flock_stats(t)):  # tiny: recorded on every tick
             yield pub, data, True
-        if self.pub_contacts is not None:
+        if self.pub_contacts is not None and world.report_contacts:  # (nobody listens otherwise)
             yield self.pub_contacts, messages.contacts(t), True
         dynamic = tf.dynamic(t)
         if dynamic is not None:
