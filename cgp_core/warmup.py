@@ -47,6 +47,7 @@ def warm_up(ticks: int = 24, *, complete: bool = True, flocks: bool = True) -> W
 
     scene = load_scene("default")
     world = World(scene if flocks else dataclasses.replace(scene, flocks=[]))
+    world.report_contacts = True  # the contact report's kernel too (the node's ~/contacts, on by default)
     state, names = world.body_state, world.body_model.names
     # ground under a sphere, a box, a capsule and a particle body; box–box against the pillar; box–capsule;
     # sphere against the particle body

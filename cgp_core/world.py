@@ -69,6 +69,7 @@ from .rotation import quat_conjugate, quat_rotate, quat_to_matrix
 from .scene import MAX_BODIES, MAX_NAME_LENGTH, ROS_SAFE_NAME, Scene, body_reach, load_scene, spawn_entry
 from .sleep import SLEEP_SPEED, SLEEP_TIME, Islands
 from .solver import make_solver
+from .solver.report import ContactReport, carry_sleeping
 from .wrenches import DEFAULT_LIMITS, CommandLimits, WrenchCommand, WrenchSchedule, make_command
 
 #: a body moving faster than BLOWUP_SPEED [m/s] or spinning faster than BLOWUP_SPIN [rad/s] has blown up
@@ -167,6 +168,11 @@ class World:
         self.model_version = 0
         for body in scene.bodies:  # what loading the bodies had to say (a hull of non-convex points, a BVH built)
             self._report_notes(body)
+        #: sum each tick's contacts into :attr:`contacts` (off by default: it costs a compiled call per sub-step)
+        self.report_contacts = False
+        #: the last reported tick's :class:`~cgp_core.solver.report.ContactReport` (with ``report_contacts``)
+        self.contacts = ContactReport.empty()
+        self._contacts_of = (None, -1)  # the body model `contacts` indexes and the tick it is of
         self.remember_tick_start()
 
     def _report_notes(self, spec) -> None:
@@ -191,13 +197,19 @@ class World:
             # An extreme (but accepted) force can overflow a body's state to inf / NaN within the sub-steps;
             # numpy's warnings about it would only repeat, on stderr, what _contain_blowups reports right
             # after as an event naming the body.
+            if self.report_contacts:
+                self.solver.start_report()
             with np.errstate(over="ignore", invalid="ignore"):
                 for _ in range(self.substeps):
                     self.wrenches.apply(state)
                     contacts = step_bodies(model, state, self.integrator, self.solver, h, gravity=self.gravity,
                                            ground=self.ground, linear_damping=self.scene.world.linear_damping,
                                            angular_damping=self.scene.world.angular_damping, islands=islands)
+            if self.report_contacts:
+                self._report_contacts(model, islands)  # before sleep: who slept *during* the sub-steps
             self._update_sleep(contacts, *self._contain_blowups())
+        elif self.report_contacts:
+            self._report_contacts(model, islands)  # everything asleep (or no bodies): the last contacts hold
         if self.flocks:
             obstacles = Obstacles.from_bodies(model, state, ground=self.ground is not None) \
                 if model.count or self.ground is not None else None
@@ -208,6 +220,15 @@ class World:
         self.wrenches.end_tick()
         self.ticks += 1
         self.time_ns += self.dt_ns
+
+    def _report_contacts(self, model, islands) -> None:
+        """The tick's :attr:`contacts` (:mod:`cgp_core.solver.report`): the solver's sums over the sub-steps, and
+        the contacts of the islands that slept through them, held from the tick before."""
+        report = self.solver.finish_report(self.dt)
+        previous = self.contacts
+        if islands is not None and self._contacts_of == (model, self.ticks - 1):  # the tick before, same bodies
+            report = carry_sleeping(report, previous, islands.asleep, model.fixed, self.body_state.position)
+        self.contacts, self._contacts_of = report, (model, self.ticks)
 
     @property
     def time(self) -> float:

@@ -23,7 +23,13 @@ simulation time):
                                                                  neighbour distance, speeds), every tick
 ``~/markers``                   visualization_msgs/MarkerArray   bodies as their shapes, flocks as spheres or fish;
                                                                  namespaces ``ground``, ``bodies/<body>``,
-                                                                 ``flocks/<flock>``; DELETEALL first after a reset
+                                                                 ``flocks/<flock>``, ``contacts/points`` and
+                                                                 ``contacts/forces`` (``contact_markers``);
+                                                                 DELETEALL first after a reset
+``~/contacts``                  cgp_sim_msgs/Contacts            every contact of the tick (entities, point, normal,
+                                                                 separation, normal and friction impulse) and each
+                                                                 touching body's contact force and torque
+                                                                 (parameter ``contacts``)
 ``~/events``                    std_msgs/String                  one line per service call, rejected command
                                                                  batch and world event (audit trail; recorded)
 ``/clock``                      rosgraph_msgs/Clock              simulation time, once per tick
@@ -120,6 +126,8 @@ TOPIC_FLOCK_POSES = "~/flocks/{flock}/poses"
 # cgp_sim_msgs/FlockStats (cgp_core/boids/order.py, cdr.FlockStatsSerializer)
 TOPIC_FLOCK_STATS = "~/flocks/{flock}/stats"
 TOPIC_MARKERS = "~/markers"
+# cgp_sim_msgs/Contacts (cgp_core/solver/report.py, cdr.ContactsSerializer)
+TOPIC_CONTACTS = "~/contacts"
 TOPIC_EVENTS = "~/events"
 TOPIC_CLOCK = "/clock"
 TOPIC_APPLY_WRENCH = "~/apply_wrench"
@@ -202,6 +210,20 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "on the others (Linux, 2 CPUs or more; cgp_core/jit.py ThreadPlacement: on 2 cores it cut the "
                   "15k-fish real-time tick's p99 from ~13 to ~10 ms). false: the OS places every thread. Logged "
                   "when it changes.", flag="--pin-threads"),
+    ParameterSpec("contacts", True, "Publish (and record) ~/contacts every tick: every contact point with its "
+                  "entities, normal, separation, normal and friction impulse over the tick, and every touching "
+                  "body's mean contact force and torque about its COM (cgp_sim_msgs/Contacts; "
+                  "cgp_core/solver/report.py); computed only while someone takes it (a subscriber, the bag, the live "
+                  "view, the contact markers). false: the topic does not exist.",
+                  read_only=True, flag="--contacts"),
+    ParameterSpec("contact_markers", False, "Draw the contacts on ~/markers: namespace contacts/points (a "
+                  "SPHERE_LIST of the contact points) and contacts/forces (one ARROW per contact: the contact force "
+                  "on entity_b, contact_force_scale metres per newton); drawn by RViz, Foxglove and cgp-sim-render.",
+                  read_only=True,
+                  flag="--contact-markers"),
+    ParameterSpec("contact_force_scale", 0.01, "Length of the contact force arrows (contact_markers) per newton "
+                  "[m/N]: 0.01 draws a 2 kg box's m g (19.6 N) as 0.2 m.", read_only=True, minimum=1e-9,
+                  maximum=1e3, flag="--contact-force-scale"),
     ParameterSpec("frame_prefix", "", "Prepended to every TF frame id the node publishes (world, the bodies' "
                   "frames; headers and child_frame_id) and accepted in front of the frame ids it is sent, as "
                   "robot_state_publisher's frame_prefix: several simulators on one ROS graph (one /tf) keep their "

@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 import pytest
-from cgp_sim_msgs.msg import FlockStats
+from cgp_sim_msgs.msg import Contacts, FlockStats
 from foxglove_client import FoxgloveClient, ServiceCallFailed
 from geometry_msgs.msg import PoseArray, WrenchStamped
 from mcap.reader import make_reader
@@ -46,6 +46,7 @@ PUBLISHED = {
     "/cgp_sim/bodies/spinner/odom": Odometry,
     "/cgp_sim/flocks/birds/poses": PoseArray,
     "/cgp_sim/flocks/birds/stats": FlockStats,
+    "/cgp_sim/contacts": Contacts,
     "/cgp_sim/markers": MarkerArray,
     "/cgp_sim/events": String,
     "/tf": TFMessage,

@@ -27,6 +27,7 @@ PUBLISHED = {
     "/cgp_sim/bodies/spinner/odom": "nav_msgs/msg/Odometry",
     "/cgp_sim/flocks/birds/poses": "geometry_msgs/msg/PoseArray",
     "/cgp_sim/flocks/birds/stats": "cgp_sim_msgs/msg/FlockStats",
+    "/cgp_sim/contacts": "cgp_sim_msgs/msg/Contacts",
     "/cgp_sim/markers": "visualization_msgs/msg/MarkerArray",
     "/cgp_sim/events": "std_msgs/msg/String",
     "/tf": "tf2_msgs/msg/TFMessage",

@@ -113,6 +113,7 @@ def test_every_topic_arrives_with_its_type_frames_and_counts(zero_g, probe):
         "/cgp_sim/bodies/box/odom": "nav_msgs/msg/Odometry", "/cgp_sim/bodies/spinner/odom": "nav_msgs/msg/Odometry",
         "/cgp_sim/flocks/birds/poses": "geometry_msgs/msg/PoseArray",
         "/cgp_sim/markers": "visualization_msgs/msg/MarkerArray", "/cgp_sim/events": "std_msgs/msg/String",
+        "/cgp_sim/contacts": "cgp_sim_msgs/msg/Contacts",
         "/cgp_sim/apply_wrench": "cgp_sim_msgs/msg/ApplyWrench",
         "/cgp_sim/bodies/box/wrench": "geometry_msgs/msg/WrenchStamped",
         "/cgp_sim/bodies/spinner/wrench": "geometry_msgs/msg/WrenchStamped",

@@ -129,6 +129,8 @@ class Solved(NamedTuple):
     targets: Targets
     sweeps: int       # sweeps run (regular and impact)
     deepest: float    # deepest penetration among all the contacts given [m] (0 if none)
+    lam: np.ndarray      # (m, 3) the accumulated impulses [N s] of the manifolds' contacts (normal, t₁, t₂)
+    impulse: np.ndarray  # (n + 1, 6) each body row's contact impulse [ΔP, ΔL about its COM] (what the report sums)
 
 
 class RecoveryBodies(NamedTuple):

@@ -110,6 +110,7 @@ from .arrays import (
 )
 from .base import SolverSettings
 from .manifold import MAX_BLOCK, solve_manifold_lcp
+from .report import ContactReport, ContactTally, finish_report, tally_contacts
 
 #: extra sweeps over the manifolds holding a bouncing point (see solve_contacts)
 IMPACT_SWEEPS = 16
@@ -591,7 +592,9 @@ def apply_restitution(manifolds, rows, targets, bodies, h):
 def apply_impulses(manifolds, rows, lam, bodies, momenta, rolling_resistance):
     """Add the accumulated impulses to the momenta, equal and opposite at the same point: ΔP = Σ J_linᵀ λ,
     ΔL = Σ J_angᵀ λ (= Σ r × impulse); with rolling resistance (:func:`resist_rolling`) on top.  ``momenta``:
-    the :class:`BodyArrays` whose ``linear_momentum`` / ``angular_momentum`` (n rows) change in place."""
+    the :class:`BodyArrays` whose ``linear_momentum`` / ``angular_momentum`` (n rows) change in place (the dynamic
+    rows').  Returns every row's impulse ``(n + 1, 6)`` [ΔP, ΔL about its COM] — the fixed bodies' and the
+    ground's too, the reactions the contact report (:mod:`.report`) sums."""
     a, b, J = manifolds.a, manifolds.b, rows.J
     n1 = len(bodies.velocity)
     impulse = np.zeros((n1, 6))
@@ -602,13 +605,12 @@ def apply_impulses(manifolds, rows, lam, bodies, momenta, rolling_resistance):
                 impulse[b[c], k] += J[c, r, 6 + k] * lam[c, r]
     if rolling_resistance > 0.0:
         resist_rolling(manifolds, rows, lam, bodies, rolling_resistance, impulse)
-    for i in range(n1):
-        if not bodies.dynamic[i]:
-            impulse[i, :] = 0.0
     for i in range(n1 - 1):
-        for k in range(3):
-            momenta.linear_momentum[i, k] += impulse[i, k]
-            momenta.angular_momentum[i, k] += impulse[i, 3 + k]
+        if bodies.dynamic[i]:
+            for k in range(3):
+                momenta.linear_momentum[i, k] += impulse[i, k]
+                momenta.angular_momentum[i, k] += impulse[i, 3 + k]
+    return impulse
 
 
 @njit
@@ -710,11 +712,11 @@ def solve_step(contacts, bodies, memory, settings, profile):
     start = lap(profile, SOLVE, start)
     apply_restitution(manifolds, rows, targets, solver_bodies, settings.h)
     start = lap(profile, RESTITUTION, start)
-    apply_impulses(manifolds, rows, lam, solver_bodies, bodies, settings.rolling_resistance)
+    impulse = apply_impulses(manifolds, rows, lam, solver_bodies, bodies, settings.rolling_resistance)
     start = lap(profile, APPLY_IMPULSES, start)
     memory = store_impulses(manifolds, rows, lam)
     lap(profile, STORE_IMPULSES, start)
-    return Solved(manifolds, rows, targets, sweeps, deepest), memory
+    return Solved(manifolds, rows, targets, sweeps, deepest, lam, impulse), memory
 
 
 # ---- the position stage ("recover penetration") --------------------------------------------------------------
@@ -841,6 +843,8 @@ class SequentialImpulseSolver:
         self.stats: dict = {}
         self.profile = StageProfile(STAGES)
         self._step_settings: tuple | None = None  # (h, the settings object, StepSettings as a plain tuple)
+        self._reporting = False  # a contact report is being summed (start_report ... finish_report)
+        self._tally: ContactTally | None = None
         self.reset()
 
     def reset(self) -> None:
@@ -849,6 +853,17 @@ class SequentialImpulseSolver:
         self._warm_model = None  # the model the warm-start keys refer to (they index its primitives)
         self._warm_count = -1
         self._pending: PendingRecovery | None = None
+
+    def start_report(self) -> None:
+        """Sum the contact report (:mod:`.report`) over the sub-steps from here on: call it at the start of a tick
+        whose contacts are wanted, and :meth:`finish_report` after its sub-steps.  Costs nothing otherwise."""
+        self._reporting, self._tally = True, None
+
+    def finish_report(self, dt: float) -> ContactReport:
+        """The :class:`~.report.ContactReport` of the sub-steps since :meth:`start_report`, a tick of ``dt``
+        seconds; stops summing."""
+        tally, self._tally, self._reporting = self._tally, None, False
+        return ContactReport.empty(dt) if tally is None else finish_report(tally, dt)
 
     def _settings_for(self, h: float) -> tuple:
         """The :class:`StepSettings` of sub-step ``h``, as the plain tuple the kernels take (kept while neither
@@ -879,9 +894,16 @@ class SequentialImpulseSolver:
         settings = self._settings_for(float(h))
         bodies = (model.inv_mass, movable, np.ascontiguousarray(inv_inertia), state.position, state.linear_momentum,
                   state.angular_momentum, state.force, state.torque)  # a BodyArrays, as a plain tuple
+        remembered = len(self._memory.key)
         solved, self._memory = solve_step(tuple(contacts), bodies, tuple(self._memory), settings,
                                           self.profile.seconds)
         self.profile.calls += 1
+        if self._reporting:
+            tally = self._tally
+            if tally is None or len(tally.touched) != n + 1:
+                tally = ContactTally.start(n, remembered)
+            self._tally = ContactTally(*tally_contacts(tuple(solved.manifolds), tuple(solved.rows), solved.lam,
+                                                       solved.impulse, tuple(tally)))
         self.stats = {"contacts": contacts.count, "manifolds": len(solved.manifolds.group_start) - 1,
                       "sweeps": solved.sweeps, "max_penetration": solved.deepest}
         if len(solved.manifolds.a):

@@ -15,9 +15,12 @@ expire).
 - CYLINDER → :data:`CYLINDER_SEGMENTS` side quads and two caps (the node's capsules are a CYLINDER and two
   SPHEREs);
 - TRIANGLE_LIST → its triangles (the fish), coloured per triangle, per vertex (the first vertex's) or by the
-  marker colour.
+  marker colour;
+- ARROW → a shaft (:data:`ARROW_SEGMENTS` side quads) and a cone, as RViz draws it: from ``points[0]`` to
+  ``points[1]`` with shaft diameter ``scale.x``, head diameter ``scale.y`` and head length ``scale.z`` (the contact
+  force arrows); without points, along the pose's x axis, ``scale.x`` long and ``scale.y`` wide.
 
-Other types (arrows, lines, points, text, meshes) are not drawn; :attr:`Primitives.skipped` names them.
+Other types (lines, points, text, meshes) are not drawn; :attr:`Primitives.skipped` names them.
 A marker with alpha 0 is invisible; other alphas are drawn opaque.
 """
 
@@ -38,6 +41,9 @@ TILE = 2.0
 #: how much lighter / darker the two tile colours are (the ground's checkerboard)
 CHECKER_CONTRAST = 0.06
 CYLINDER_SEGMENTS = 24
+ARROW_SEGMENTS = 12
+#: head length / arrow length where the marker does not give it (RViz's proportion for pose arrows)
+ARROW_HEAD_SHARE = 0.23
 TYPE_NAMES = {0: "ARROW", 1: "CUBE", 2: "SPHERE", 3: "CYLINDER", 4: "LINE_STRIP", 5: "LINE_LIST", 6: "CUBE_LIST",
               7: "SPHERE_LIST", 8: "POINTS", 9: "TEXT_VIEW_FACING", 10: "MESH_RESOURCE", 11: "TRIANGLE_LIST",
               12: "ARROW_STRIP"}
@@ -133,6 +139,31 @@ def _cylinder_triangles(rx: float, ry: float, half_h: float, segments: int) -> n
     return np.concatenate([side1, side2, top, bottom])
 
 
+def _arrow_triangles(start: np.ndarray, end: np.ndarray, shaft: float, head: float, head_length: float,
+                     segments: int) -> np.ndarray:
+    """An arrow from ``start`` to ``end`` (3,): a shaft of diameter ``shaft`` and a cone of diameter ``head`` and
+    length ``head_length`` (at most the arrow's), as triangles (T, 3, 3); none for a zero-length arrow."""
+    axis = end - start
+    length = float(np.linalg.norm(axis))
+    if length <= 0.0:
+        return np.zeros((0, 3, 3))
+    z = axis / length
+    x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    cone = min(head_length, length)
+    angle = np.linspace(0.0, 2 * np.pi, segments + 1)
+    ring = np.outer(np.cos(angle), x) + np.outer(np.sin(angle), y)  # (segments + 1, 3) unit ring
+    base, neck = start, start + (length - cone) * z
+    s0, s1 = base + 0.5 * shaft * ring, neck + 0.5 * shaft * ring
+    c0 = neck + 0.5 * head * ring
+    a, b = slice(0, segments), slice(1, segments + 1)
+    rep = lambda p: np.broadcast_to(p, (segments, 3))  # noqa: E731
+    return np.concatenate([np.stack([s0[a], s0[b], s1[b]], 1), np.stack([s0[a], s1[b], s1[a]], 1),  # shaft
+                           np.stack([rep(base), s0[b], s0[a]], 1),  # its end
+                           np.stack([c0[a], c0[b], rep(end)], 1), np.stack([rep(neck), c0[b], c0[a]], 1)])  # cone
+
+
 def _to_world(m: cdr.MarkerData, local: np.ndarray) -> np.ndarray:
     """Marker-frame points (..., 3) to the world: p + R(q) local."""
     q = m.orientation
@@ -213,6 +244,16 @@ def primitives(markers: MarkerSet | list[cdr.MarkerData], tile: float = TILE) ->
                 tri_colors.append(m.colors[:, :3].astype(np.float64))
             else:
                 tri_colors.append(_rgb(m.color, n))
+        elif kind == cdr.ARROW:
+            sx, sy, sz = (float(v) for v in m.scale)
+            if len(m.points) >= 2:
+                start, end = _to_world(m, m.points[:2])
+                local = _arrow_triangles(start, end, sx, sy, sz, ARROW_SEGMENTS)
+            else:
+                start, end = _to_world(m, np.array([[0.0, 0.0, 0.0], [sx, 0.0, 0.0]]))
+                local = _arrow_triangles(start, end, sy, 2.0 * sy, ARROW_HEAD_SHARE * sx, ARROW_SEGMENTS)
+            tris.append(local)
+            tri_colors.append(_rgb(m.color, len(local)))
         else:
             skipped.add(TYPE_NAMES.get(kind, str(kind)))
         drawn = sum(len(t) for t in tris) - sum(len(c) for c in closed)

@@ -195,6 +195,11 @@ class FoxgloveServer:
 
     # ---- outbound (the node's thread, per message) ------------------------------------------------------
 
+    def listening(self, publisher) -> bool:
+        """Whether a client is subscribed to ``publisher``'s channel (what the node computes only on demand)."""
+        channel = self._by_publisher.get(publisher)
+        return channel is not None and channel.has_sinks()
+
     def publish(self, publisher, data: bytes, stamp_ns: int) -> None:
         """The bytes ``publisher`` just published, to the clients subscribed to its channel (if any)."""
         channel = self._by_publisher.get(publisher)

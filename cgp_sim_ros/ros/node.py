@@ -336,6 +336,7 @@ class SimNode(Node):
             # it works beside the ticks)
             self.recorder.begin_tick()
         self.commands.apply_pending(self.world)
+        self.outputs.prepare_tick()
         self.world.step()
         for event in self.world.take_events():
             self._world_reports.add(event)

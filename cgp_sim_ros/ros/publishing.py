@@ -5,9 +5,10 @@ bag (:class:`~cgp_sim_ros.ros.recorder.Recorder`) and shown in the Foxglove live
 What a tick publishes, in order (:meth:`TickPublisher.tick_messages`; the bytes are built by
 :class:`~cgp_sim_ros.ros.messages.TickMessages` and :class:`~cgp_sim_ros.ros.tf.BodyTransforms`): ``/clock``,
 ``~/bodies/poses``, every body's ``~/bodies/<body>/odom``, every flock's ``~/flocks/<flock>/poses`` (recorded
-on the ticks the level-of-detail plan says) and ``~/flocks/<flock>/stats``, ``/tf``, the first ``/tf_static``,
-``~/markers``.  Besides the ticks: ``~/events`` (:meth:`TickPublisher.event`), ``/tf_static`` again when the
-fixed bodies change, DELETE markers for what is no longer drawn.
+on the ticks the level-of-detail plan says) and ``~/flocks/<flock>/stats``, ``~/contacts`` (parameter
+``contacts``), ``/tf``, the first ``/tf_static``, ``~/markers``.  Besides the ticks: ``~/events``
+(:meth:`TickPublisher.event`), ``/tf_static`` again when the fixed bodies change, DELETE markers for what is no
+longer drawn.
 
 The per-body and per-flock publishers follow the world's entities (:meth:`TickPublisher.follow_entities`).
 They are made without rclpy's default QoS-event handlers (the "incompatible QoS / type" warnings).  Each
@@ -40,12 +41,20 @@ class TickPublisher:
     def __init__(self, node):
         self._node = node
         self.world = node.world
+        params = node.params
+        # the world sums its contact report only while someone takes it (prepare_tick); on for the throwaway
+        # tick that loads the kernels
+        self.world.report_contacts = bool(params["contacts"] or params["contact_markers"])
+        #: metres per newton of the contact force arrows, None without contact markers
+        self._force_scale = params["contact_force_scale"] if params["contact_markers"] else None
         #: the per-tick serializers (rebuilt by :meth:`rebuild` after the world's entities changed)
-        self.messages = TickMessages(self.world, node.frames)
+        self.messages = TickMessages(self.world, node.frames, contact_force_scale=self._force_scale)
         self.tf = BodyTransforms(self.world, node.frames)
         self.pub_clock = node.create_publisher(TickMessages.Clock, itf.TOPIC_CLOCK, CLOCK_QOS)
         self.pub_body_poses = node.create_publisher(TickMessages.PoseArray, itf.TOPIC_BODY_POSES, STATE_QOS)
         self.pub_markers = node.create_publisher(TickMessages.MarkerArray, itf.TOPIC_MARKERS, STATE_QOS)
+        self.pub_contacts = (node.create_publisher(TickMessages.Contacts, itf.TOPIC_CONTACTS, STATE_QOS)
+                             if params["contacts"] else None)
         self.pub_events = node.create_publisher(String, itf.TOPIC_EVENTS, COMMAND_QOS)
         self.pub_tf = node.create_publisher(BodyTransforms.TFMessage, itf.TOPIC_TF, TF_QOS)
         self.pub_tf_static = node.create_publisher(BodyTransforms.TFMessage, itf.TOPIC_TF_STATIC, TF_STATIC_QOS)
@@ -88,7 +97,7 @@ class TickPublisher:
     def rebuild(self) -> None:
         """New per-tick serializers for the world's bodies and flocks now (the plan is set again by the
         caller: :meth:`set_plan`)."""
-        self.messages = TickMessages(self.world, self._node.frames)
+        self.messages = TickMessages(self.world, self._node.frames, contact_force_scale=self._force_scale)
 
     def set_plan(self, plan) -> None:
         """Draw as the level-of-detail ``plan`` (:class:`~cgp_sim_ros.drawing.detail.DetailPlan`) says (what is
@@ -139,6 +148,16 @@ class TickPublisher:
         msg = String(data=json.dumps(payload, separators=(",", ":")))
         self.publish(self.pub_events, serialize_message(msg), self.world.time_ns)
 
+    def prepare_tick(self) -> None:
+        """Before the world's step: whether it sums its contact report this tick — only while someone takes it
+        (the contact markers; the bag; a subscriber of ``~/contacts``, in DDS or in the live view), so that
+        ``contacts:=true`` costs nothing while nobody listens.  (A body asleep when the report starts is
+        reported from when it wakes: its contacts were not summed while it slept.)"""
+        pub, node = self.pub_contacts, self._node
+        self.world.report_contacts = self._force_scale is not None or (pub is not None and (
+            node.recorder is not None or pub.get_subscription_count() > 0
+            or (node.foxglove is not None and node.foxglove.listening(pub))))
+
     def publish_tick(self) -> None:
         """Everything one tick publishes (after the world's step)."""
         t = self.world.time_ns
@@ -161,6 +180,8 @@ class TickPublisher:
             yield pub, data, record_poses
         for pub, data in zip(self.pub_flock_stats, messages.flock_stats(t)):  # tiny: recorded on every tick
             yield pub, data, True
+        if self.pub_contacts is not None and world.report_contacts:  # (nobody listens otherwise)
+            yield self.pub_contacts, messages.contacts(t), True
         dynamic = tf.dynamic(t)
         if dynamic is not None:
             yield self.pub_tf, dynamic, True
@@ -176,6 +197,6 @@ class TickPublisher:
         """Build (and drop: nothing is published) everything a tick of ``world`` — a copy of the node's —
         publishes, every marker part included: what the first real tick will run, run once before it."""
         frames = self._node.frames
-        for _ in self.tick_messages(world, TickMessages(world, frames, self._node.detail),
+        for _ in self.tick_messages(world, TickMessages(world, frames, self._node.detail, self._force_scale),
                                     BodyTransforms(world, frames), delete_all_markers=True):
             pass

@@ -47,6 +47,9 @@ __all__ = [
     "TFMessageSerializer",
     "FLOCK_STATS_FIELDS",
     "FlockStatsSerializer",
+    "CONTACT_FIELDS",
+    "GROUND_ENTITY",
+    "ContactsSerializer",
     "MarkerFields",
     "marker",
     "MarkerPointsSerializer",
@@ -474,6 +477,83 @@ class FlockStatsSerializer:
         self._words[self._count] = int(count)
         self._values[:] = values
         return bytes(self._view)
+
+
+# -------------------------------------------------------------------------------------------- Contacts
+#: ``cgp_sim_msgs/Contact`` after its two strings: these float64, in the order of the .msg
+CONTACT_FIELDS = ("position_x", "position_y", "position_z", "normal_x", "normal_y", "normal_z", "separation",
+                  "normal_impulse", "friction_impulse_x", "friction_impulse_y", "friction_impulse_z")
+#: the entity name of the ground plane in ``cgp_sim_msgs/Contact`` (side A of its contacts)
+GROUND_ENTITY = "ground"
+
+
+class ContactsSerializer:
+    """``cgp_sim_msgs/Contacts`` (the tick's :class:`cgp_core.solver.report.ContactReport`), one per tick.
+
+    A ``Contact`` is two strings (the entities' names) and 11 float64 (:data:`CONTACT_FIELDS`), an
+    ``EntityWrench`` a string and 6 float64; the floats are 8-aligned after the strings, so every element after
+    the first of a sequence starts 8-aligned and its bytes before the floats depend only on its names.  Those
+    are encoded once per name pair (and start phase) and kept; a tick appends, per contact, that prefix and a
+    view of its 88 bytes of floats.  Entities are body indices into ``entity_names``; −1 is the ground
+    (:data:`GROUND_ENTITY`).  Not thread-safe.
+    """
+
+    _PREFIXES_KEPT = 100_000  # name pairs remembered (bounded: a long run with many spawned bodies starts over)
+
+    def __init__(self, frame_id: str, entity_names: Sequence[str]) -> None:
+        self._frame = _encode_string(frame_id, "frame_id")
+        # index i → the encoded name of body i; index −1 (the last) → the ground
+        self._names = [_encode_string(n, f"entity_names[{i}]") for i, n in enumerate(entity_names)]
+        self._names.append(_encode_string(GROUND_ENTITY, "ground"))
+        self._prefixes: dict[tuple, bytes] = {}
+
+    def _prefix(self, names: tuple, phase: int) -> bytes:
+        """The strings of ``names`` (entity indices) and the padding that puts the floats after them on 8, for
+        an element starting at body offset ≡ ``phase`` (mod 8)."""
+        key = (names, phase)
+        prefix = self._prefixes.get(key)
+        if prefix is None:
+            if len(self._prefixes) >= self._PREFIXES_KEPT:
+                self._prefixes.clear()
+            w = _Writer([], phase)
+            for i in names:
+                w.string(self._names[i])
+            w.align(8)
+            prefix = self._prefixes[key] = b"".join(w.parts)
+        return prefix
+
+    def serialize(self, stamp_ns: int, duration: float, body_a, body_b, values, body, wrenches) -> bytes:
+        """``body_a``, ``body_b`` (k,) entity indices (−1: the ground), ``values (k, 11)`` (:data:`CONTACT_FIELDS`),
+        ``body (b,)`` the bodies with a wrench, ``wrenches (b, 6)`` their force and torque."""
+        contacts = _float_rows(values, len(CONTACT_FIELDS), "values")
+        sums = _float_rows(wrenches, 6, "wrenches")
+        a, b, owner = (np.asarray(x, dtype=np.int64).tolist() for x in (body_a, body_b, body))
+        if not len(a) == len(b) == len(contacts) or len(owner) != len(sums):
+            raise ValueError(f"{len(a)} body_a, {len(b)} body_b and {len(contacts)} value rows; {len(owner)} bodies "
+                             f"and {len(sums)} wrenches: each pair must match")
+        w = _Writer()
+        w.raw(_pack_stamp(stamp_ns))
+        w.string(self._frame)
+        w.align(8)
+        w.raw(struct.pack("<dI", float(duration), len(a)))
+        parts, pos = w.parts, w.pos
+        rows = memoryview(contacts.tobytes())
+        for k in range(len(a)):
+            prefix = self._prefix((a[k], b[k]), pos % 8)
+            parts.append(prefix)
+            parts.append(rows[88 * k:88 * k + 88])
+            pos += len(prefix) + 88
+        w.pos = pos
+        w.align(4)
+        w.raw(_U32.pack(len(owner)))
+        pos = w.pos
+        rows = memoryview(sums.tobytes())
+        for k in range(len(owner)):
+            prefix = self._prefix((owner[k],), pos % 8)
+            parts.append(prefix)
+            parts.append(rows[48 * k:48 * k + 48])
+            pos += len(prefix) + 48
+        return b"".join(parts)
 
 
 # ---------------------------------------------------------------------------------------------- Marker
