@@ -58,7 +58,7 @@ setup(
         # `cgp-sim-sweep plot` (the figures from a sweep's table); running a sweep never needs it
         "plot": ["matplotlib"],
     },
-    entry_points={"console_scripts": ["cgp-sim = cgp_sim_ros.ros.cli:main",
+    entry_points={"console_scripts": ["cgp-sim = cgp_sim_ros.ros.cli:entry",
                                       "cgp-sim-render = cgp_sim_ros.render.cli:main",
                                       "cgp-sim-sweep = cgp_sim_ros.sweep.cli:main"]},
     zip_safe=False,

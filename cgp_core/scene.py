@@ -124,6 +124,9 @@ from .rotation import quat_normalize, quat_rotate
 from .user_input import YAML12_FLOAT, SceneLoader, UserInputError, load_yaml, read_user_text
 
 ROS_SAFE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+#: the ground plane's entity name in contact reports (cgp_core.solver.report, the node's ~/contacts): no body or
+#: flock may take it, or a contact with the ground could not be told from one with that entity
+GROUND_NAME = "ground"
 #: the largest scene file (cgp_core.limits.MAX_FILE_BYTES); every other limit is in cgp_core.limits too
 MAX_SCENE_BYTES = MAX_FILE_BYTES
 #: the scene loader (PyYAML's safe loader, duplicate keys refused, YAML 1.2 floats): cgp_core.user_input
@@ -530,6 +533,8 @@ class _Validator:
             self.fail(key, f"{_show(s)} is not a ROS-safe name (letters, digits, _; starting with a letter)")
         elif len(s) > MAX_NAME_LENGTH:
             self.fail(key, f"{_show(s)} is {len(s)} characters long; names are at most {MAX_NAME_LENGTH}")
+        elif s == GROUND_NAME:
+            self.fail(key, f"{s!r} is reserved: it names the ground plane in contact reports")
         elif s in seen:
             self.fail(key, f"duplicate name {s!r} (body and flock names must be unique)")
         seen.add(s)

@@ -66,7 +66,7 @@ from .editing import (
 from .integrators import make_integrator
 from .limits import BLOWUP_SPEED, BLOWUP_SPIN, MAX_BOIDS, MAX_COORDINATE, MAX_SPEED, MAX_SPIN
 from .rotation import quat_conjugate, quat_rotate, quat_to_matrix
-from .scene import MAX_BODIES, MAX_NAME_LENGTH, ROS_SAFE_NAME, Scene, body_reach, load_scene, spawn_entry
+from .scene import GROUND_NAME, MAX_BODIES, MAX_NAME_LENGTH, ROS_SAFE_NAME, Scene, body_reach, load_scene, spawn_entry
 from .sleep import SLEEP_SPEED, SLEEP_TIME, Islands
 from .solver import make_solver
 from .solver.report import ContactReport, carry_sleeping
@@ -103,11 +103,14 @@ def check_name(name) -> None:
         raise EditError("name_invalid", f"name {shown!r} is not usable: names are ROS-safe (letters, digits, _; "
                         f"starting with a letter) and at most {MAX_NAME_LENGTH} characters (they become parts of "
                         "topic names)")
+    if name == GROUND_NAME:
+        raise EditError("name_invalid", f"name {name!r} is reserved: it names the ground plane in contact reports")
 
 
 def unique_name(base: str, taken: set[str]) -> str:
     """``base`` if not in ``taken``, else ``base_2``, ``base_3``, ... (the first free one)."""
     base = base[:MAX_NAME_LENGTH - 8]
+    taken = taken | {GROUND_NAME}
     if base not in taken:
         return base
     k = 2

@@ -108,3 +108,24 @@ def test_two_colliding_bodies_get_equal_and_opposite_sums_that_are_their_momentu
         np.testing.assert_allclose(r.torque * w.dt, w.body_state.angular_momentum - L_before,
                                    atol=1e-3 * np.abs(r.torque * w.dt).max() + 1e-12)
     assert touched >= 1
+
+
+def test_the_ground_planes_name_is_reserved_in_scenes_spawns_and_renaming():
+    """A contact with the ground names it ``ground`` (cdr.GROUND_ENTITY): no entity may take that name, or the
+    report could not tell the two apart."""
+    from cgp_core.editing import EditError
+    from cgp_core.scene import GROUND_NAME, SceneError
+    from cgp_sim_ros.wire.cdr import GROUND_ENTITY
+
+    assert GROUND_ENTITY == GROUND_NAME == "ground"
+    for entry in ("bodies: [{name: ground, shape: sphere, radius: 0.1, mass: 1}]",
+                  "flocks: [{name: ground, count: 3}]"):
+        with pytest.raises(SceneError, match=r"(bodies|flocks)\[0\]\.name: 'ground' is reserved"):
+            parse_scene(entry)
+    w = World(parse_scene(RESTING.format(sleep="false")), dt=1 / 60)
+    with pytest.raises(EditError, match="reserved"):
+        w.spawn({"body": {"shape": "sphere", "radius": 0.1, "mass": 1.0}}, name="ground")
+    with pytest.raises(EditError, match="reserved"):
+        w.check_new_name("ground")
+    assert w.unique_name("ground") == "ground_2"  # allow_renaming picks the next free name
+    assert "ground" not in w.entity_names()

@@ -229,5 +229,27 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def entry() -> None:
+    """The ``cgp-sim`` command and ``sim_node``: :func:`main`, then the process ends at once with its status.
+
+    By the time ``main`` returns everything of ours is finished — the bag closed and synced, the node and its DDS
+    participant destroyed, rclpy shut down, our threads joined — and what an ordinary exit would still run are
+    native libraries' static destructors: Fast DDS's participant factory (a known crash at exit: rosbag2#1311,
+    Fast-DDS#1906/#3495) and numba's TBB pool (numba#10556).  One of them crashed a node with SIGSEGV after
+    "duration ... reached; shutting down" in CI (the gallery test, 13 nodes stopping at once).  Exiting with
+    ``os._exit`` (``exit_now``) skips them; stdout and stderr are flushed first.  ``faulthandler`` is on for the
+    whole run, so a crash before this point still prints every thread's Python stack to stderr."""
+    import faulthandler
+
+    faulthandler.enable()
+    status = main()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:  # noqa: BLE001 - a closed stream must not keep the process alive
+            pass
+    exit_now(status)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

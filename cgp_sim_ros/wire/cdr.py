@@ -483,7 +483,8 @@ class FlockStatsSerializer:
 #: ``cgp_sim_msgs/Contact`` after its two strings: these float64, in the order of the .msg
 CONTACT_FIELDS = ("position_x", "position_y", "position_z", "normal_x", "normal_y", "normal_z", "separation",
                   "normal_impulse", "friction_impulse_x", "friction_impulse_y", "friction_impulse_z")
-#: the entity name of the ground plane in ``cgp_sim_msgs/Contact`` (side A of its contacts)
+#: the entity name of the ground plane in ``cgp_sim_msgs/Contact`` (side A of its contacts); reserved: no body or
+#: flock may take it (cgp_core.scene.GROUND_NAME, the same text: not imported, this module stays light)
 GROUND_ENTITY = "ground"
 
 
