@@ -238,9 +238,8 @@ def _boxes_overlap(alo, ahi, k, lo, hi):
 @njit
 def bvh_overlap(mesh, lo, hi, out):
     """Triangles of the :class:`TriangleMesh` ``mesh`` whose boxes overlap the box ``lo, hi (3,)`` (touching counts),
-    written into ``out (cap,)`` in
-    tree order; returns how many there are (may exceed ``cap``: then only the first ``cap`` were written — call
-    again with a bigger buffer)."""
+    written into ``out (cap,)`` in tree order; returns how many there are (may exceed ``cap``: then only the first
+    ``cap`` were written — call again with a bigger buffer)."""
     mesh = TriangleMesh(*mesh)
     node_lo, node_hi, node_child_or_first, node_count = mesh.node_lo, mesh.node_hi, mesh.node_child_or_first, \
         mesh.node_count
@@ -388,8 +387,7 @@ def _slab(node_lo, node_hi, k, ox, oy, oz, ix, iy, iz, t_max):
 @njit
 def bvh_raycast(mesh, origin, direction, max_t):
     """First hit on the :class:`TriangleMesh` ``mesh`` of the segment ``origin + t direction``, 0 ≤ t ≤ ``max_t``:
-    ``(triangle, t, u, v)``, triangle −1
-    if none (ties: the lowest triangle index)."""
+    ``(triangle, t, u, v)``, triangle −1 if none (ties: the lowest triangle index)."""
     mesh = TriangleMesh(*mesh)
     node_lo, node_hi, node_child_or_first, node_count = mesh.node_lo, mesh.node_hi, mesh.node_child_or_first, \
         mesh.node_count

@@ -400,11 +400,10 @@ def gjk_distance(core_a, radius_a, core_b, radius_b):
     """Distance between two rounded cores (:class:`Core` + radius) and their closest points; from Python, the
     cores may be plain tuples (see "Bundles" in :mod:`cgp_core.jit`).
 
-    Returns a :class:`Distance`: ``distance`` between the
-    rounded shapes (the cores' distance minus both radii; negative only when the cores are apart but the
-    spheres around them overlap), ``normal`` the unit direction from A to B (from closest_a to closest_b on the
-    cores).  ``intersecting``: the cores overlap (or touch within round-off) — distance, points and normal are
-    then meaningless and :func:`.epa.penetration` gives the depth.
+    Returns a :class:`Distance`: ``distance`` between the rounded shapes (the cores' distance minus both radii;
+    negative only when the cores are apart but the spheres around them overlap), ``normal`` the unit direction
+    from A to B (from closest_a to closest_b on the cores).  ``intersecting``: the cores overlap (or touch within
+    round-off) — distance, points and normal are then meaningless and :func:`.epa.penetration` gives the depth.
     """
     core_a, core_b = Core(*core_a), Core(*core_b)
     simplex = empty_simplex()

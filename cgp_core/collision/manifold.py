@@ -200,12 +200,11 @@ def best_face(hull, other, stop):
 
 @njit
 def face_contact(reference, face_r, incident, flip, best, margin, out, m):
-    """Face contact: face ``face_r`` of hull R (``reference``, a :class:`.convex.PosedHull`) is the reference face, hull
-    I's face most anti-parallel to it the
-    incident face; Sutherland–Hodgman clipping of the incident polygon by the reference face's side planes
-    (Ericson 8.3.4), points below ``margin`` kept, at most 4 (:func:`reduce_to_four`).  ``flip``: R is B (the
-    normal written is reversed so that it still points from A to B).  ``best``: the reference face's SAT
-    separation (the points are lowered to it when apart)."""
+    """Face contact: face ``face_r`` of hull R (``reference``, a :class:`.convex.PosedHull`) is the reference face,
+    hull I's face most anti-parallel to it the incident face; Sutherland–Hodgman clipping of the incident polygon
+    by the reference face's side planes (Ericson 8.3.4), points below ``margin`` kept, at most 4
+    (:func:`reduce_to_four`).  ``flip``: R is B (the normal written is reversed so that it still points from A to
+    B).  ``best``: the reference face's SAT separation (the points are lowered to it when apart)."""
     vertices_r, face_plane_r, position_r, rotation_r = (reference.vertices, reference.face_plane, reference.position,
                                                         reference.rotation)
     face_vertex_start_r, face_vertices_r = reference.face_vertex_start, reference.face_vertices
@@ -421,8 +420,8 @@ def hull_hull_contacts(hull_a, hull_b, margin, out, m):
 @njit
 def plane_hull_contacts(hull, margin, out, m):
     """Ground z = 0 (A) vs hull (B, a :class:`.convex.PosedHull`): the hull's vertices below ``margin``, at most 4
-    (:func:`reduce_to_four` in the
-    world's x, y over the candidates' half spans); normal +z, feature = vertex index."""
+    (:func:`reduce_to_four` in the world's x, y over the candidates' half spans); normal +z, feature = vertex
+    index."""
     vertices, position, rotation = hull.vertices, hull.position, hull.rotation
     k = len(vertices)
     X, Y, Z = np.empty(k), np.empty(k), np.empty(k)
