@@ -8,7 +8,7 @@ no branch.  The order of the stages is :func:`.sequential_impulse.solve_step`'s:
 
     prepare_bodies → prepare_contacts → warm_start_contacts → solve_contacts → apply_restitution
     → apply_impulses → store_impulses              (the velocity stage; after the integrator:)
-    recover_penetration_kernel                       (the position stage)
+    recover_penetration_kernel                       (the position stage, from the velocity stage's Handover)
 
 A new per-contact array (a contact's rolling radius, a material's torsional friction ...) is a field of
 :class:`Manifolds` (or :class:`Targets`) filled in ``prepare_contacts``; no signature changes.
@@ -122,7 +122,8 @@ class Scratch(NamedTuple):
 
 
 class Solved(NamedTuple):
-    """What the velocity stage leaves for the position stage and for the statistics."""
+    """Everything the velocity stage's contacts end with (inside the compiled step; Python gets a
+    :class:`Handover`)."""
 
     manifolds: Manifolds
     rows: Rows
@@ -131,6 +132,24 @@ class Solved(NamedTuple):
     deepest: float    # deepest penetration among all the contacts given [m] (0 if none)
     lam: np.ndarray      # (m, 3) the accumulated impulses [N s] of the manifolds' contacts (normal, t₁, t₂)
     impulse: np.ndarray  # (n + 1, 6) each body row's contact impulse [ΔP, ΔL about its COM] (what the report sums)
+
+
+class Handover(NamedTuple):
+    """What the velocity stage hands back to Python: the position stage's inputs (the manifolds' body pairs, runs
+    and gaps, their rows, the time-of-impact targets) and the statistics.  Narrower than :class:`Solved` on
+    purpose: every array a kernel returns to Python is boxed one by one (~0.5–1 µs each: numba unpickles the array
+    type for each), and a 5-body scene's whole sub-step is ~50 µs — returning all of :class:`Solved` (24 arrays)
+    cost it 15–25 %.  The contact report, which needs the rest, is summed inside the kernel
+    (:func:`.sequential_impulse.solve_step_reporting`)."""
+
+    a: np.ndarray            # (m,) int64 = Manifolds.a
+    b: np.ndarray            # (m,) int64 = Manifolds.b
+    group_start: np.ndarray  # (G + 1,) int64 = Manifolds.group_start
+    separation: np.ndarray   # (m,) = Manifolds.separation
+    rows: Rows               # the contacts' rows (the position stage solves the normal rows again)
+    toi_shift: np.ndarray    # (m,) = Targets.toi_shift
+    sweeps: int              # = Solved.sweeps
+    deepest: float           # = Solved.deepest
 
 
 class RecoveryBodies(NamedTuple):

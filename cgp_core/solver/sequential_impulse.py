@@ -98,6 +98,7 @@ from ..rotation import (
 )
 from .arrays import (
     BodyArrays,
+    Handover,
     Manifolds,
     RecoveryBodies,
     Rows,
@@ -693,13 +694,9 @@ def store_impulses(manifolds, rows, lam):
 # ---- the velocity stage, in order ---------------------------------------------------------------------------
 
 @njit
-def solve_step(contacts, bodies, memory, settings, profile):
-    """The pipeline stage "solve contacts" of one sub-step: Box2D's stages in order, each timed into ``profile``
-    (:data:`STAGES`).  ``contacts``: a :class:`ContactSet`; ``bodies``: :class:`BodyArrays` (its momenta get the
-    impulses, in place); ``memory``: the previous sub-step's :class:`WarmStart`; ``settings``:
-    :class:`StepSettings` — each as a plain tuple from Python (see "Bundles" in :mod:`cgp_core.jit`).
-
-    Returns what the position stage needs (:class:`Solved`) and the new warm-start memory."""
+def _velocity_stage(contacts, bodies, memory, settings, profile):
+    """Box2D's stages in order, each timed into ``profile`` (:data:`STAGES`); bundles as :func:`solve_step`
+    takes them.  Returns :class:`Solved` and the new warm-start memory."""
     contacts, bodies, memory, settings = (ContactSet(*contacts), BodyArrays(*bodies), WarmStart(*memory),
                                           StepSettings(*settings))
     start = clock()
@@ -719,26 +716,57 @@ def solve_step(contacts, bodies, memory, settings, profile):
     return Solved(manifolds, rows, targets, sweeps, deepest, lam, impulse), memory
 
 
+@njit(inline="always")
+def _handover(solved):
+    m = solved.manifolds
+    return Handover(m.a, m.b, m.group_start, m.separation, solved.rows, solved.targets.toi_shift, solved.sweeps,
+                    solved.deepest)
+
+
+@njit
+def solve_step(contacts, bodies, memory, settings, profile):
+    """The pipeline stage "solve contacts" of one sub-step: Box2D's stages in order, each timed into ``profile``
+    (:data:`STAGES`).  ``contacts``: a :class:`ContactSet`; ``bodies``: :class:`BodyArrays` (its momenta get the
+    impulses, in place); ``memory``: the previous sub-step's :class:`WarmStart`; ``settings``:
+    :class:`StepSettings` — each as a plain tuple from Python (see "Bundles" in :mod:`cgp_core.jit`).
+
+    Returns what the position stage needs (:class:`Handover`) and the new warm-start memory."""
+    solved, memory = _velocity_stage(contacts, bodies, memory, settings, profile)
+    return _handover(solved), memory
+
+
+@njit
+def solve_step_reporting(contacts, bodies, memory, settings, tally, profile):
+    """:func:`solve_step` for a tick whose contact report is wanted: also the :class:`~.report.ContactTally`
+    ``tally`` (a plain tuple) summed with this sub-step's contacts (:func:`~.report.tally_contacts`), returned
+    third."""
+    solved, memory = _velocity_stage(contacts, bodies, memory, settings, profile)
+    tally = tally_contacts(solved.manifolds, solved.rows, solved.lam, solved.impulse, tally)
+    return _handover(solved), memory, tally
+
+
 # ---- the position stage ("recover penetration") --------------------------------------------------------------
 
 @njit
-def recover_penetration_kernel(manifolds, rows, targets, bodies, settings, profile):
+def recover_penetration_kernel(handover, bodies, settings, profile):
     """Split-impulse penetration recovery (see the module docstring) for the contacts of the last
-    :func:`solve_step` (``manifolds``, ``rows``, ``targets``: its :class:`Solved`), in place on the
-    :class:`RecoveryBodies` ``bodies`` (position, orientation, angular momentum of the dynamic ones); timed into
-    ``profile[RECOVER]``.  Bundles as plain tuples from Python.  Returns the turn quaternions ``(n, 4)`` applied
-    (identity where none) and the deepest penetration after the step, before recovery."""
-    manifolds, rows, targets, bodies, settings = (Manifolds(*manifolds), Rows(*rows), Targets(*targets),
-                                                  RecoveryBodies(*bodies), StepSettings(*settings))
+    :func:`solve_step` (its :class:`Handover`), in place on the :class:`RecoveryBodies` ``bodies`` (position,
+    orientation, angular momentum of the dynamic ones); timed into ``profile[RECOVER]``.  Bundles as plain tuples
+    from Python.  Returns the turn quaternions ``(n, 4)`` applied (identity where none) and the deepest
+    penetration after the step, before recovery."""
+    h = Handover(*handover)
+    handover = Handover(h.a, h.b, h.group_start, h.separation, Rows(*h.rows), h.toi_shift, h.sweeps, h.deepest)
+    bodies, settings = RecoveryBodies(*bodies), StepSettings(*settings)
     start = clock()
-    turn, deepest = _recover_penetration(manifolds, rows, targets, bodies, settings)
+    turn, deepest = _recover_penetration(handover, bodies, settings)
     lap(profile, RECOVER, start)
     return turn, deepest
 
 
 @njit
-def _recover_penetration(manifolds, rows, targets, bodies, settings):
-    a, b, group_start, separation = manifolds.a, manifolds.b, manifolds.group_start, manifolds.separation
+def _recover_penetration(handover, bodies, settings):
+    a, b, group_start, separation, rows = (handover.a, handover.b, handover.group_start, handover.separation,
+                                           handover.rows)
     position, orientation = bodies.position, bodies.orientation
     n = len(position)
     m = len(a)
@@ -758,8 +786,8 @@ def _recover_penetration(manifolds, rows, targets, bodies, settings):
         s = separation[c] + _row_velocity(rows.J, c, NORMAL, disp, a[c], b[c])
         deepest = max(deepest, -s)
         target[c] = min(settings.position_correction * (-s - settings.penetration_slop), settings.max_correction)
-        if not math.isnan(targets.toi_shift[c]):
-            target[c] = targets.toi_shift[c]
+        if not math.isnan(handover.toi_shift[c]):
+            target[c] = handover.toi_shift[c]
             lower[c] = -np.inf
             needed = True
         elif target[c] > 0.0:
@@ -777,7 +805,7 @@ def _recover_penetration(manifolds, rows, targets, bodies, settings):
             if hi - lo == 1:
                 _push_normal_row(lo, rows, lam, target, lower, correction, a[lo], b[lo])
             else:
-                _solve_normal_rows(g, manifolds, rows, lam, target, lower, correction, scratch)
+                _solve_normal_rows(g, handover, rows, lam, target, lower, correction, scratch)  # (its a, b, runs)
     for i in range(n):
         if not bodies.dynamic[i]:
             continue
@@ -802,7 +830,7 @@ class PendingRecovery(NamedTuple):
     """What :meth:`SequentialImpulseSolver.recover_penetration` needs from the last ``solve_velocities``."""
 
     model: BodyModel                # the model the contacts index (a new model: nothing to recover)
-    solved: Solved                  # the velocity stage's manifolds, rows, targets
+    handover: tuple                 # the velocity stage's Handover, as the plain tuple the kernel takes
     position_before: np.ndarray     # (n, 3) x̄ when the contacts were found
     orientation_before: np.ndarray  # (n, 4) q then
     dynamic: np.ndarray             # (n,) bool: the bodies the stage may move
@@ -894,20 +922,23 @@ class SequentialImpulseSolver:
         settings = self._settings_for(float(h))
         bodies = (model.inv_mass, movable, np.ascontiguousarray(inv_inertia), state.position, state.linear_momentum,
                   state.angular_momentum, state.force, state.torque)  # a BodyArrays, as a plain tuple
-        remembered = len(self._memory.key)
-        solved, self._memory = solve_step(tuple(contacts), bodies, tuple(self._memory), settings,
-                                          self.profile.seconds)
-        self.profile.calls += 1
         if self._reporting:
             tally = self._tally
             if tally is None or len(tally.touched) != n + 1:
-                tally = ContactTally.start(n, remembered)
-            self._tally = ContactTally(*tally_contacts(tuple(solved.manifolds), tuple(solved.rows), solved.lam,
-                                                       solved.impulse, tuple(tally)))
-        self.stats = {"contacts": contacts.count, "manifolds": len(solved.manifolds.group_start) - 1,
-                      "sweeps": solved.sweeps, "max_penetration": solved.deepest}
-        if len(solved.manifolds.a):
-            self._pending = PendingRecovery(model, solved, state.position.copy(), state.orientation.copy(), movable,
+                tally = ContactTally.start(n, len(self._memory.key))
+            handover, memory, tally = solve_step_reporting(tuple(contacts), bodies, tuple(self._memory), settings,
+                                                           tuple(tally), self.profile.seconds)
+            self._tally = ContactTally(*tally)
+        else:
+            handover, memory = solve_step(tuple(contacts), bodies, tuple(self._memory), settings,
+                                          self.profile.seconds)
+        self._memory = memory
+        self.profile.calls += 1
+        self.stats = {"contacts": contacts.count, "manifolds": len(handover.group_start) - 1,
+                      "sweeps": handover.sweeps, "max_penetration": handover.deepest}
+        if len(handover.a):
+            plain = handover[:4] + (tuple(handover.rows),) + handover[5:]  # plain tuples at the border (cgp_core.jit)
+            self._pending = PendingRecovery(model, plain, state.position.copy(), state.orientation.copy(), movable,
                                             settings)
 
     def recover_penetration(self, model: BodyModel, state: BodyState, h: float) -> None:
@@ -918,8 +949,7 @@ class SequentialImpulseSolver:
             return
         bodies = (p.position_before, p.orientation_before, state.position, state.orientation, state.angular_momentum,
                   p.dynamic)  # a RecoveryBodies, as a plain tuple
-        turn, deepest = recover_penetration_kernel(tuple(p.solved.manifolds), tuple(p.solved.rows),
-                                                   tuple(p.solved.targets), bodies, p.settings, self.profile.seconds)
+        turn, deepest = recover_penetration_kernel(p.handover, bodies, p.settings, self.profile.seconds)
         self.stats["max_penetration_after_step"] = float(max(deepest, 0.0))
         if state.rotation is not None:  # an integrator that keeps its own matrix (explicit Euler)
             state.rotation[p.dynamic] = quat_to_matrix(turn[p.dynamic]) @ state.rotation[p.dynamic]
