@@ -43,7 +43,8 @@ from common import RESULTS, format_figures, format_value, load_average, machine,
 BENCHMARKS = {"tick": "bench_tick.py", "realtime": "bench_realtime.py", "rigid": "bench_rigid.py",
               "boids": "bench_boids.py", "cdr": "bench_cdr.py", "contacts": "bench_contacts.py",
               "foxglove": "bench_foxglove.py", "spawn": "bench_spawn.py",
-              "sweep": "bench_sweep.py", "convex_pile": "bench_convex_pile.py", "gjk": "bench_gjk.py"}
+              "sweep": "bench_sweep.py", "convex_pile": "bench_convex_pile.py", "gjk": "bench_gjk.py",
+              "contact_report": "bench_contact_report.py"}
 EXTRAS = {"bag": "bench_bag.py", "integrators": "bench_integrators.py", "scenes": "bench_scenes.py",
           "render": "bench_render.py", "flock_stats": "bench_flock_stats.py", "recording": "bench_recording.py"}
 
