@@ -118,6 +118,23 @@ def test_sweep_file_errors_name_the_file_key_and_reason(text, key, reason):
     assert reason in line, message
 
 
+def test_a_sweep_file_is_read_only_if_it_is_a_regular_file_and_with_a_bound(tmp_path):
+    """Issue 27's rule for every file a user names: a FIFO would block the read forever, a link to /dev/zero
+    would never end; both are refused by kind before anything is opened, and a big file by its size."""
+    import os
+
+    fifo = tmp_path / "fifo.yaml"
+    os.mkfifo(fifo)
+    zero = tmp_path / "zero.yaml"
+    zero.symlink_to("/dev/zero")
+    big = tmp_path / "big.yaml"
+    big.write_text("# " + "x" * (5 << 20) + "\n")  # over MAX_SWEEP_BYTES (4 MiB)
+    for path, reason in ((fifo, "FIFO"), (zero, "device"), (big, "bytes")):
+        with pytest.raises(SweepError) as error:
+            load_sweep(path)
+        assert str(error.value).startswith(f"{path}: ") and reason in str(error.value), str(error.value)
+
+
 def test_the_cli_reports_a_bad_sweep_file_with_exit_2(tmp_path):
     path = tmp_path / "bad.yaml"
     path.write_text("scene: default\nduration: 1\ngrid:\n  bodies[ball].mas: [1, 2]\n")

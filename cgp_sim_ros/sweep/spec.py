@@ -71,6 +71,7 @@ from pathlib import Path
 from typing import Any
 
 from cgp_core.scene import SceneError, parse_yaml, resolve_scene, scene_from_dict
+from cgp_core.user_input import UserInputError, read_user_text
 
 #: the node's default tick (rate_hz: 60)
 DEFAULT_DT = 1.0 / 60.0
@@ -320,10 +321,10 @@ def resolve_sweep(name_or_path: str) -> Path:
     if not text:
         raise SweepError("<sweep>", [f"empty sweep name; built-in sweeps: {builtins}"])
     path = Path(text).expanduser()
-    if path.is_file():
-        return path
     if path.is_dir():
         raise SweepError(text, ["is a directory, not a sweep file"])
+    if path.exists():  # a file, or a FIFO / device that load_sweep refuses by name (never opened: issue 27)
+        return path
     candidate = builtin_sweep_dir() / (path.name if path.suffix in (".yaml", ".yml") else f"{path.name}.yaml")
     if candidate.is_file() and (path.suffix in (".yaml", ".yml") or "/" not in text):
         return candidate
@@ -339,15 +340,10 @@ def load_sweep(name_or_path: str | Path, seeds: int | None = None) -> Sweep:
     problem at once)."""
     path = resolve_sweep(str(name_or_path))
     source = str(path)
-    try:
-        if path.stat().st_size > MAX_SWEEP_BYTES:
-            raise SweepError(source, [f"file is {path.stat().st_size} bytes; sweep files are limited to "
-                                      f"{MAX_SWEEP_BYTES}"])
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise SweepError(source, [f"not UTF-8 text ({exc.reason})"]) from None
-    except OSError as exc:
-        raise SweepError(source, [f"cannot read: {exc.strerror}"]) from None
+    try:  # a regular file (links resolved), read with a bound: never a FIFO or a device (issue 27)
+        text = read_user_text(path, max_bytes=MAX_SWEEP_BYTES)
+    except UserInputError as exc:
+        raise SweepError(source, [str(exc)]) from None
     return parse_sweep(text, source, base_dir=path.parent, seeds=seeds)
 
 
@@ -442,10 +438,10 @@ def _base_scene(raw: Any, base_dir: Path | None, fail) -> tuple[str, dict | None
         fail(f"scene: {error}")
         return name, None
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_user_text(path)  # bounded, regular files only, as a scene file given to cgp-sim
         data = parse_yaml(text, str(path))
         scene_from_dict(copy.deepcopy(data), str(path))  # the base scene itself must load
-    except (OSError, UnicodeDecodeError) as exc:
+    except UserInputError as exc:
         fail(f"scene: cannot read {path}: {exc}")
         return name, None
     except SceneError as exc:
