@@ -30,13 +30,14 @@ def load_kernels(world, build_tick: Callable, log_debug: Callable[[str], None]) 
     That tick runs the kernels of the scene's first instant only: the contact kernels of shapes that touch
     later were loaded when they first touched — the default scene's ball lands 0.7 s in, and that tick
     took ~16 ms (the penetration recovery's kernel loading).  So the core's warm-up scenario (its own
-    world: bodies of every shape placed in contact, no flock) takes one tick here too: every rigid-body
-    kernel is loaded before the first tick, also for bodies spawned later (~0.1 s more start-up)."""
+    world: bodies of every shape placed in contact, no flock) takes two ticks here too, one with the contact
+    report and one without (the solver's two entry points): every rigid-body kernel is loaded before the first
+    tick, also for bodies spawned later (~0.1 s more start-up)."""
     from cgp_core.warmup import warm_up
 
     world = copy.deepcopy(world)
     try:
-        warm_up(ticks=1, complete=False, flocks=False)
+        warm_up(ticks=2, complete=False, flocks=False)  # two: one with the contact report, one without
         world.step()
         build_tick(world)
     except Exception as exc:  # noqa: BLE001 - the real first tick reports it
