@@ -25,10 +25,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the rclpy reference message
 
 from bench_cdr import interleaved  # noqa: E402
 from bench_rigid import pile_scene  # noqa: E402
 from common import Results, speed_probe  # noqa: E402
+from test_contacts_message import rclpy_message  # noqa: E402
 
 from cgp_core import World  # noqa: E402
 from cgp_core.scene import load_scene, parse_scene  # noqa: E402
@@ -56,28 +58,6 @@ def tick_costs(make_world, ticks: int, block: int = 10) -> dict:
     out["contacts"] = int(worlds["on"].contacts.count)
     out["world"] = worlds["on"]
     return out
-
-
-def rclpy_contacts(report, names, stamp_ns):
-    from cgp_sim_msgs.msg import Contact, Contacts, EntityWrench
-
-    msg = Contacts(duration=report.duration)
-    msg.header.frame_id = "world"
-    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
-    for i in range(report.count):
-        c = Contact(entity_a=cdr.GROUND_ENTITY if report.body_a[i] < 0 else names[report.body_a[i]],
-                    entity_b=names[report.body_b[i]], separation=float(report.separation[i]),
-                    normal_impulse=float(report.normal_impulse[i]))
-        c.position.x, c.position.y, c.position.z = map(float, report.point[i])
-        c.normal.x, c.normal.y, c.normal.z = map(float, report.normal[i])
-        c.friction_impulse.x, c.friction_impulse.y, c.friction_impulse.z = map(float, report.friction_impulse[i])
-        msg.contacts.append(c)
-    for j, i in enumerate(report.body):
-        e = EntityWrench(entity=names[i])
-        e.wrench.force.x, e.wrench.force.y, e.wrench.force.z = map(float, report.force[j])
-        e.wrench.torque.x, e.wrench.torque.y, e.wrench.torque.z = map(float, report.torque[j])
-        msg.wrenches.append(e)
-    return msg
 
 
 def main(argv=None) -> int:
@@ -111,8 +91,8 @@ def main(argv=None) -> int:
                                     np.concatenate((report.force, report.torque), axis=1))
 
     # the same message (rclpy leaves its padding bytes uninitialised: compared as messages, as the tests do too)
-    assert deserialize_message(bytes(ours()), Contacts) == rclpy_contacts(report, names, 5)
-    times = interleaved({"rclpy objects": lambda: serialize_message(rclpy_contacts(report, names, 5)),
+    assert deserialize_message(bytes(ours()), Contacts) == rclpy_message(report, names, 5)
+    times = interleaved({"rclpy objects": lambda: serialize_message(rclpy_message(report, names, 5)),
                          "numpy (ContactsSerializer)": ours}, 3 if args.quick else 7)
     out.data["message"] = {"contacts": report.count, "wrenches": len(report.body),
                            **{name: t * 1e3 for name, t in times.items()}}

@@ -60,9 +60,10 @@ summary: {{window: {window}}}
 """
 
 
-def in_process(sweep, runs) -> tuple[list[float], list[float]]:
+def in_process(sweep, runs, *, with_bare: bool = True) -> tuple[list[float], list[float]]:
     """Seconds per run, here in this process: (the sweep's own run function, ``run_task``: the same stepping
-    and measurements a worker does; ``World.step`` x ticks and nothing else)."""
+    and measurements a worker does; ``World.step`` x ticks and nothing else — an empty list without
+    ``with_bare``)."""
     e = sweep.experiments[0]
     measured, bare = [], []
     tasks = {t.runs[0].id: t for t in sweep.tasks}
@@ -71,6 +72,8 @@ def in_process(sweep, runs) -> tuple[list[float], list[float]]:
         result = run_task(tasks[run.id].payload(sweep.source, code_version()))
         assert result["results"][0]["status"] == "done", result
         measured.append(time.perf_counter() - started)
+        if not with_bare:
+            continue
         started = time.perf_counter()
         world = World(scene_from_dict(copy.deepcopy(run.scene)), dt=e.dt, seed=run.seed)
         for _ in range(e.ticks):
@@ -96,8 +99,8 @@ def _run_tasks(path: str) -> list[float]:
     """In a process of its own: ``run_task`` (what a worker runs) on every run of the sweep file ``path``, after
     one untimed run that loads the kernels; the seconds of each."""
     sweep = load_sweep(path)
-    in_process(sweep, sweep.runs[:1])
-    return in_process(sweep, sweep.runs)[0]
+    in_process(sweep, sweep.runs[:1], with_bare=False)
+    return in_process(sweep, sweep.runs, with_bare=False)[0]
 
 
 def machine_ceiling(path: Path, count: int) -> float:

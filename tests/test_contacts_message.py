@@ -35,11 +35,11 @@ def stepped(ticks: int) -> World:
     return w
 
 
-def rclpy_message(world: World, stamp_ns: int, frame_id: str = "world"):
-    """The same report, built field by field as an rclpy user would."""
+def rclpy_message(r, names, stamp_ns: int, frame_id: str = "world"):
+    """The :class:`~cgp_core.solver.report.ContactReport` ``r`` of bodies ``names``, built field by field as an
+    rclpy user would (also benchmarks/bench_contact_report.py's reference)."""
     from cgp_sim_msgs.msg import Contact, Contacts, EntityWrench
 
-    r, names = world.contacts, list(world.body_model.names)
     msg = Contacts(duration=r.duration)
     msg.header.frame_id = frame_id
     msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
@@ -70,7 +70,8 @@ def test_contacts_bytes_are_the_message_rclpy_builds(ticks):
     stamp = 12_345_678_901
     for prefix in ("", "sim1/"):  # two phases of the header
         frames = Frames(prefix)
-        assert_equivalent(TickMessages(w, frames).contacts(stamp), rclpy_message(w, stamp, frames.world))
+        expected = rclpy_message(w.contacts, list(w.body_model.names), stamp, frames.world)
+        assert_equivalent(TickMessages(w, frames).contacts(stamp), expected)
 
 
 def test_contact_markers_draw_points_and_force_arrows_and_retire_the_gone_ones():
