@@ -41,7 +41,7 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.common import Results, format_figures, speed_probe  # noqa: E402
 from cgp_core.scene import scene_from_dict  # noqa: E402
 from cgp_core.world import World  # noqa: E402
-from cgp_sim_ros.sweep.engine import run_sweep  # noqa: E402
+from cgp_sim_ros.sweep.engine import local_cluster, run_sweep  # noqa: E402
 from cgp_sim_ros.sweep.runner import run_task  # noqa: E402
 from cgp_sim_ros.sweep.spec import code_version, load_sweep  # noqa: E402
 
@@ -121,10 +121,10 @@ def machine_ceiling(path: Path, count: int) -> float:
 def start_cluster(workers: int, work: Path):
     """A LocalCluster of ``workers`` processes, its workers warmed (each has loaded the kernels); returns
     (cluster, client, seconds it took)."""
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     started = time.perf_counter()
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+    cluster = local_cluster(workers)  # the command's own LocalCluster (its workers' settings included)
     client = Client(cluster)
     run_sweep(load_sweep(work / "warm.yaml"), work / f"warm_{workers}", client=client, quiet=True)
     return cluster, client, time.perf_counter() - started

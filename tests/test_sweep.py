@@ -70,10 +70,13 @@ def sweep_command() -> list[str]:
 
 @pytest.fixture(scope="module")
 def client():
-    """A real LocalCluster of two single-threaded worker processes, shared by the in-process tests."""
-    from distributed import Client, LocalCluster
+    """The command's own LocalCluster (engine.local_cluster: real worker processes) of two, shared by the
+    in-process tests."""
+    from distributed import Client
 
-    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+    from cgp_sim_ros.sweep.engine import local_cluster
+
+    cluster = local_cluster(2)
     client = Client(cluster)
     yield client
     client.close()
@@ -251,6 +254,20 @@ def test_a_local_sweep_writes_tidy_tables_that_pyarrow_alone_reads(client, tmp_p
     sweep = load_sweep(small(tmp_path, widths="[0.5, 2.0, 13.0]", duration=2, every=5))
     outcome = run_sweep(sweep, tmp_path / "out", client=client, quiet=True)
     assert (outcome.ran, outcome.failed, outcome.exit_code) == (6, 0, 0)
+    # every worker ran with the quiet settings and with its objects frozen out of the collector's way
+    from cgp_sim_ros.sweep.engine import QUIET_WORKERS
+
+    def worker_settings():
+        import gc
+
+        import dask
+
+        return {key: dask.config.get(key) for key in QUIET_WORKERS}, gc.get_freeze_count()
+
+    settings = client.run(worker_settings)
+    assert len(settings) == 2
+    for config, frozen in settings.values():
+        assert config == QUIET_WORKERS and frozen > 10_000, (config, frozen)
     code = _block_cgp_sim(f"""
         import json, pyarrow.parquet as pq
         out = {str(tmp_path / 'out')!r}
