@@ -17,9 +17,9 @@ machine's drifting speed cannot favour one side:
 
 Figures: the wall time with 1 and 2 workers and the speed-up (goal >= 1.8x on this 2-core machine), and the
 overhead per run of the 1-worker sweep (its wall time / runs) over the same runs stepped by ``run_task`` in a
-plain process beside it, at the same time, on the other core (an extra run of half 0 after the A B B A order;
-goal <= 5 %; also, as before, against in-process runs before and after the sweeps, which the machine's drift
-between them skews by ±10 %):
+plain process beside it, at the same time, on the other core (extra runs of half 0 after the A B B A order;
+the median of 3 such trials; goal <= 5 %; also, as before, against in-process runs before and after the
+sweeps, which the machine's drift between them skews by ±10 %):
 the Parquet fragments and tables, Dask's scheduling and the transfer of the results to the client; and, as a
 supporting figure, what the runs' measurements (order parameters at every tick of the summary's window) cost
 next to bare stepping.  Writes ``benchmarks/results/sweep.json``.
@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import copy
 import shutil
+import statistics
 import sys
 import tempfile
 import time
@@ -45,6 +46,7 @@ from cgp_sim_ros.sweep.engine import local_cluster, run_sweep  # noqa: E402
 from cgp_sim_ros.sweep.runner import run_task  # noqa: E402
 from cgp_sim_ros.sweep.spec import code_version, load_sweep  # noqa: E402
 
+SIDE_TRIALS = 3  # side-by-side overhead trials (half 0 each)
 WIDTHS = [0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 7.0, 10.0, 13.0]
 SWEEP = """
 scene: couzin_torus
@@ -175,12 +177,16 @@ def main(argv=None) -> int:
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
 
-        print("half 0 on 1 worker, beside a plain process running the same runs", flush=True)
+        # One such trial moves by +-10 % with what the two cores happen to share in it: the median of
+        # SIDE_TRIALS is the figure, every trial is in the JSON.
+        print(f"half 0 on 1 worker, beside a plain process running the same runs, {SIDE_TRIALS} times", flush=True)
+        side_trials = []
         with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as plain:
             plain.submit(_run_tasks, str(work / "warm.yaml")).result()  # started and its kernels loaded
-            alongside = plain.submit(_run_tasks, str(halves[0]))
-            side_sweep = sweep_on(clusters[1][1], halves[0], work / "out_beside")
-            side_plain = sum(alongside.result())
+            for trial in range(SIDE_TRIALS):
+                alongside = plain.submit(_run_tasks, str(halves[0]))
+                side_sweep = sweep_on(clusters[1][1], halves[0], work / f"out_beside_{trial}")
+                side_trials.append({"sweep_s": side_sweep, "plain_s": sum(alongside.result())})
         probes.append(speed_probe())
         for cluster, client, _ in clusters.values():
             client.close()
@@ -207,10 +213,12 @@ def main(argv=None) -> int:
                speedup >= 1.8, issue26=True)
     out.figure("sweep_machine_speedup_2_processes", "the same stepping in 2 plain processes over 1 (no Dask): "
                "this machine's ceiling", ceiling, "x", "", None)
-    side_overhead = side_sweep / side_plain - 1.0
-    out.figure("sweep_overhead_per_run", "sweep (1 worker) per run over the same runs in a plain process beside it",
-               100 * side_overhead, "%", "<= 5", side_overhead <= 0.05, issue26=True,
-               sweep_s=side_sweep, plain_s=side_plain)
+    for trial in side_trials:
+        trial["overhead_percent"] = 100 * (trial["sweep_s"] / trial["plain_s"] - 1.0)
+    side_overhead = statistics.median(t["overhead_percent"] for t in side_trials) / 100
+    out.figure("sweep_overhead_per_run", f"sweep (1 worker) per run over the same runs in a plain process beside "
+               f"it (median of {SIDE_TRIALS} trials)", 100 * side_overhead, "%", "<= 5", side_overhead <= 0.05,
+               issue26=True, trials=side_trials)
     out.figure("sweep_overhead_vs_before_after", "the same, against in-process runs before and after the sweeps "
                "(the machine's drift between them counts)", 100 * overhead, "%", "", None)
     out.figure("sweep_in_process_per_run", "a run in-process (run_task: steps + measurements)", per_run_local, "s", "",
