@@ -49,9 +49,11 @@ WORKER_TIMEOUT_S = 60.0
 #: small world thousands of times a second in pure Python, and the worker's event loop takes the GIL from it at
 #: every periodic callback: Dask's defaults wake it ~70 times a second (the blocked-loop check every 20 ms, the
 #: statistical profiler every 10 ms, the memory and system monitors).  Measured side by side with a plain
-#: process running the same runs (bench_sweep's method, 12 runs of 30 s, 15-18 trials each): the sweep's
-#: overhead per run was 10.7 % (median) with the defaults, 2.5 % with these plus :func:`runner.prepare_worker`.
-#: A cluster you bring (``--scheduler``) keeps its own configuration: set these in its dask config (README).
+#: process running the same runs (bench_sweep's method, 12 runs of 30 s, 27 trials each): the sweep's
+#: overhead per run was ~9 % (median) with the defaults, ~2.3 % with these plus :func:`runner.prepare_worker`.
+#: The memory monitor's 5 s also means a worker near its memory limit is paused or restarted up to 5 s later.
+#: A cluster you bring (``--scheduler``) keeps its own configuration: set these in its Dask configuration
+#: (docs/sweeps.md).
 QUIET_WORKERS = {
     "distributed.admin.tick.interval": "2s",
     "distributed.worker.profile.enabled": False,
@@ -129,6 +131,9 @@ def run_sweep(sweep: Sweep, out: Path, *, scheduler: str | None = None, workers:
         if client is None:
             client, owned = _connect(scheduler, workers)
         outcome.workers = check_workers(client)
+        from .runner import prepare_worker
+
+        client.run(prepare_worker)  # every worker's objects out of the collector's way (QUIET_WORKERS says why)
         shared = str(out.resolve()) if (workers_write or needs_bags) else None
         total_ticks = sum(t.ticks for t in todo)
         runs_to_do = sum(len(t.runs) for t in todo)
@@ -262,7 +267,4 @@ def check_workers(client) -> int:
     if wrong:
         raise EngineError("the cluster's workers do not run this client's cgp_sim (install the same version "
                           "on every worker, README: Sweeps on a cluster):\n  " + "\n  ".join(wrong))
-    from .runner import prepare_worker
-
-    client.run(prepare_worker)
     return len(answers)
