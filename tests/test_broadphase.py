@@ -127,6 +127,50 @@ def test_structures_agree_on_a_random_scene_of_mixed_shapes():
     assert len(reference) > 100
     assert as_set(grid_pairs(lo, hi)) == reference
     assert as_set(sweep_and_prune_pairs(lo, hi)) == reference
+    # grouped by body (as the collision detector calls them): exactly the pairs of two different bodies
+    between_bodies = {(i, j) for i, j in reference if cm.body[i] != cm.body[j]}
+    assert len(between_bodies) < len(reference)  # the particle bodies' own particles overlap
+    for name, pairs in BROAD_PHASES.items():
+        assert as_set(pairs(lo, hi, group=cm.body)) == between_bodies, name
+    with pytest.raises(ValueError, match="group must be"):
+        grid_pairs(lo, hi, group=cm.body[:-1])
+
+
+@pytest.mark.parametrize("broad_phase", sorted(BROAD_PHASES))
+def test_every_broad_phase_keeps_a_particle_bodys_own_particles_apart(broad_phase):
+    """A pile of particle bodies whose particles overlap each other (the lecture's discrete bodies): whichever
+    broad phase the detector is given, it hands over no pair of one body's own particles (the grid and brute
+    force used to: candidates the narrow phase then threw away, O(k²) of them for a body of k particles under
+    brute force), and the contacts are the default's."""
+    from _bodies import make_bodies, particles
+
+    from cgp_core.collision.detector import SMALL_SCENE, CollisionDetector
+    from cgp_core.world import Ground
+
+    rng = np.random.default_rng(3)
+    offsets = np.array([(x, y, z) for x in range(3) for y in range(3) for z in range(2)], float) * 0.06
+    grains = np.column_stack((offsets, np.ones(len(offsets))))  # 18 particles of r 0.05, 6 cm apart
+    specs = [particles(grains, radius=0.05, position=(rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), 0.05 + 0.1 * k))
+             for k in range(8)]
+    model, state = make_bodies(specs)
+    assert 18 * 8 > SMALL_SCENE  # the configured broad phase runs, not the small-scene path
+    detector = CollisionDetector(broad_phase)
+    handed_over = []
+
+    def recorded(lo, hi, **kw):
+        pairs = BROAD_PHASES[broad_phase](lo, hi, **kw)
+        handed_over.append(pairs)
+        return pairs
+
+    if broad_phase != "sweep_and_prune":  # (the default is called as its compiled kernel, tested above)
+        detector.broad_phase = recorded
+    found = detector.detect(model, state, 1.0 / 240.0, ground=Ground())
+    body = detector.collision_model(model).body
+    for i, j in handed_over:
+        assert len(i) > 0 and np.all(body[i] != body[j])
+    reference = CollisionDetector("sweep_and_prune").detect(model, state, 1.0 / 240.0, ground=Ground())
+    assert found.count > 8 and np.all(found.body_a != found.body_b)
+    assert set(found.key.tolist()) == set(reference.key.tolist())
 
 
 def test_primitive_aabbs_are_tight_bounds():

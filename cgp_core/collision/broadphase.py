@@ -1,8 +1,10 @@
 """Broad phase: which axis-aligned bounding boxes (AABBs) overlap (Ericson ch. 7).
 
-Every function takes ``lo, hi (p, 3)`` (box corners) and returns the overlapping pairs as two index arrays
-``(i, j)`` with ``i < j``, each pair once, sorted by ``(i, j)``; boxes that merely touch count as
-overlapping.  Three implementations behind that one signature:
+Every function takes ``lo, hi (p, 3)`` (box corners) and, optionally, ``group (p,)`` (the collision detector's
+groups are the bodies: a body's primitives never collide with each other, so a pair within one group is never
+reported), and returns the overlapping pairs as two index arrays ``(i, j)`` with ``i < j``, each pair once,
+sorted by ``(i, j)``; boxes that merely touch count as overlapping.  Three implementations behind that one
+signature:
 
 - :func:`brute_force_pairs` — every pair tested, O(p²): the reference the others are tested against.
 - :func:`grid_pairs` — a uniform grid, stored as a sorted array of cell keys instead of a hash
@@ -43,14 +45,27 @@ _HALF_NEIGHBOURHOOD = np.array(
 )
 
 
-def _check(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _check(lo: np.ndarray, hi: np.ndarray, group=None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     lo = np.asarray(lo, dtype=float)
     hi = np.asarray(hi, dtype=float)
     if lo.ndim != 2 or lo.shape[1] != 3 or lo.shape != hi.shape:
         raise ValueError(f"AABB corners must both be (p, 3) arrays, got {lo.shape} and {hi.shape}")
     if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
         raise ValueError("AABB corners must be finite (a body position or orientation is NaN/inf)")
-    return lo, hi
+    if group is not None:
+        group = np.asarray(group)
+        if group.shape != (len(lo),) or group.dtype.kind not in "iu":
+            raise ValueError(f"group must be a ({len(lo)},) integer array (one group per box), got "
+                             f"{group.shape} {group.dtype}")
+    return lo, hi, group
+
+
+def _other_groups(i: np.ndarray, j: np.ndarray, group: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs ``(i, j)`` whose boxes are of different groups (all of them without groups)."""
+    if group is None:
+        return i, j
+    keep = group[i] != group[j]
+    return i[keep], j[keep]
 
 
 def _overlap(lo, hi, i, j) -> np.ndarray:
@@ -77,9 +92,11 @@ def _expand_ranges(owner: np.ndarray, start: np.ndarray, count: np.ndarray):
     return rep_owner, rep_index
 
 
-def brute_force_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """All overlapping pairs by testing every pair (O(p²) memory and time: the reference)."""
-    lo, hi = _check(lo, hi)
+def brute_force_pairs(lo: np.ndarray, hi: np.ndarray, group: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """All overlapping pairs (of different ``group``) by testing every pair (O(p²) memory and time: the
+    reference)."""
+    lo, hi, group = _check(lo, hi, group)
     p = len(lo)
     if p < 2:
         return _EMPTY
@@ -89,16 +106,18 @@ def brute_force_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.nd
     overlap &= overlap.transpose(1, 0, 2)
     i, j = np.nonzero(overlap[:, :, 0] & overlap[:, :, 1] & overlap[:, :, 2])
     upper = i < j
-    return i[upper].astype(np.intp), j[upper].astype(np.intp)
+    return _other_groups(i[upper].astype(np.intp), j[upper].astype(np.intp), group)
 
 
-def sweep_and_prune_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def sweep_and_prune_pairs(lo: np.ndarray, hi: np.ndarray, group: np.ndarray | None = None
+                          ) -> tuple[np.ndarray, np.ndarray]:
     """Single-axis sweep and prune along the axis of largest spread of the box centres (compiled:
     :func:`sweep_and_prune_kernel`), in the canonical pair order."""
-    lo, hi = _check(lo, hi)
+    lo, hi, group = _check(lo, hi, group)
     if len(lo) < 2:
         return _EMPTY
-    i, j = sweep_and_prune_kernel(np.ascontiguousarray(lo), np.ascontiguousarray(hi), np.arange(len(lo)))
+    group = np.arange(len(lo)) if group is None else np.ascontiguousarray(group, np.int64)
+    i, j = sweep_and_prune_kernel(np.ascontiguousarray(lo), np.ascontiguousarray(hi), group)
     return _sorted_pairs(i, j)
 
 
@@ -181,10 +200,12 @@ def grid_cell_size(lo: np.ndarray, hi: np.ndarray) -> float:
     return cell if cell > 0.0 else 1.0
 
 
-def grid_pairs(lo: np.ndarray, hi: np.ndarray, cell_size: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def grid_pairs(lo: np.ndarray, hi: np.ndarray, cell_size: float | None = None, group: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
     """Uniform-grid broad phase (see the module docstring).  ``cell_size`` defaults to
-    :func:`grid_cell_size`; boxes larger than a cell are handled by brute force against all boxes."""
-    lo, hi = _check(lo, hi)
+    :func:`grid_cell_size`; boxes larger than a cell are handled by brute force against all boxes.  Candidates
+    of one ``group`` are dropped before their overlap test (a particle body's particles share cells)."""
+    lo, hi, group = _check(lo, hi, group)
     p = len(lo)
     if p < 2:
         return _EMPTY
@@ -204,7 +225,7 @@ def grid_pairs(lo: np.ndarray, hi: np.ndarray, cell_size: float | None = None) -
         if float(np.prod(cells_per_axis)) > 2.0 ** 62:
             # a scene spread over more cells than an int64 key can number (a body flung kilometres away):
             # sweep and prune needs no keys
-            i, j = sweep_and_prune_pairs(lo[small], hi[small])
+            i, j = sweep_and_prune_pairs(lo[small], hi[small], None if group is None else group[small])
             pairs_i.append(small[i])
             pairs_j.append(small[j])
     if small.size >= 2 and not pairs_i:
@@ -232,7 +253,7 @@ def grid_pairs(lo: np.ndarray, hi: np.ndarray, cell_size: float | None = None) -
         # within the own cell (offset 0, the first block) each pair appears twice and each box with itself
         own_cell = np.repeat(np.arange(len(targets)) < small.size, last - first)
         keep = ~own_cell | (a < b)
-        a, b = small[a[keep]], small[b[keep]]
+        a, b = _other_groups(small[a[keep]], small[b[keep]], group)
         hit = _overlap(lo, hi, a, b)
         pairs_i.append(a[hit])
         pairs_j.append(b[hit])
@@ -244,8 +265,9 @@ def grid_pairs(lo: np.ndarray, hi: np.ndarray, cell_size: float | None = None) -
         ov = np.all((lo[big][:, None, :] <= hi[None, :, :]) & (lo[None, :, :] <= hi[big][:, None, :]), axis=2)
         ov &= ~(large[None, :] & (others[None, :] <= big[:, None]))
         bi, oj = np.nonzero(ov)
-        pairs_i.append(big[bi])
-        pairs_j.append(others[oj])
+        a, b = _other_groups(big[bi], others[oj], group)
+        pairs_i.append(a)
+        pairs_j.append(b)
 
     if not pairs_i:
         return _EMPTY

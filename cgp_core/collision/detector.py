@@ -217,9 +217,9 @@ class CollisionDetector:
             return sweep_and_prune_kernel(lo, hi, prim_body)
         sane = np.flatnonzero(np.isfinite(lo).all(1) & np.isfinite(hi).all(1))
         if sane.size == count:
-            i, j = self.broad_phase(lo, hi)
+            i, j = self.broad_phase(lo, hi, group=prim_body)
         else:
-            i, j = self.broad_phase(lo[sane], hi[sane])
+            i, j = self.broad_phase(lo[sane], hi[sane], group=prim_body[sane])
             i, j = sane[i], sane[j]
         return np.ascontiguousarray(i, np.int64), np.ascontiguousarray(j, np.int64)
 
