@@ -79,6 +79,14 @@ class CompoundParts:
         return len(self.shape)
 
 
+def rigid_work(parts: list, particles: list) -> tuple[int, int]:
+    """``(shapes, particles)`` of bodies given by their parts (a :class:`CompoundParts` or None each) and their
+    particles (a (k, 4) array or None each): a body is one shape, a compound body one per part; the particles of
+    every particle body together.  See :data:`cgp_core.limits.MAX_SHAPE_SUBSTEPS`."""
+    shapes = sum(1 if p is None else p.count for p in parts)
+    return shapes, sum(len(k) for k in particles if k is not None)
+
+
 @dataclass
 class BodyModel:
     """Static description of ``n`` bodies.  Arrays are indexed by body in scene order.
@@ -151,6 +159,11 @@ class BodyModel:
     @property
     def count(self) -> int:
         return len(self.names)
+
+    def rigid_work(self) -> tuple[int, int]:
+        """``(shapes, particles)`` of these bodies, the counts a tick's work is bounded by
+        (:func:`cgp_core.limits.rigid_work_refusal`)."""
+        return rigid_work(self.parts, self.particles)
 
     def index(self, name: str) -> int:
         """Index of the body called ``name``; ``KeyError`` naming the known bodies otherwise."""

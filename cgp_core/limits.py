@@ -64,6 +64,20 @@ MAX_MESH_VERTICES = 500_000
 MAX_MESH_TRIANGLES = 500_000
 #: parts of one compound body (each is a collision primitive of its own)
 MAX_PARTS_PER_BODY = 256
+#: a tick's rigid-body work, which grows with the sub-steps (``world.substeps``, the node's ``substeps``): issue 27
+#: measured 10,000 bodies × 1,000 sub-steps at minutes a tick, inside every other limit.  Two products are
+#: bounded, checked when a scene is loaded, when a world is made with its own sub-steps and when a body is
+#: spawned (:func:`rigid_work_refusal`):
+#:
+#: - sub-steps × *shapes*: a body is one shape, a compound body one per part (the solver, the integrator and
+#:   the narrow phase work per shape).  40,000 = 10,000 bodies at the default 4 sub-steps, or 40 bodies at the
+#:   most sub-steps (1,000).  Measured (speed probe python 15-23 ms, a slow phase): 10,000 spheres in a 22³ pile
+#:   at 4 sub-steps 0.45-0.63 s a tick; 2,000 compound bodies of 16 parts at 4 sub-steps (128,000: refused)
+#:   0.58 s.
+#: - sub-steps × *particles* (of every particle body together): 400,000 = a 100,000-particle body at 4
+#:   sub-steps, 0.12 s a tick; a particle costs the broad phase and the ground contact only.
+MAX_SHAPE_SUBSTEPS = 40_000
+MAX_PARTICLE_SUBSTEPS = 400_000
 
 # ---- ranges of physical quantities --------------------------------------------------------------------------
 
@@ -103,3 +117,15 @@ MAX_ROLLING_RESISTANCE = 1.0
 MIN_INERTIA_RATIO = 1e-6
 #: any other number of a scene (rule weights, gains, time constants) in magnitude
 MAX_MAGNITUDE = 1e6
+
+
+def rigid_work_refusal(shapes: int, particles: int, substeps: int) -> str | None:
+    """Why a world of ``shapes`` shapes and ``particles`` particles (see :data:`MAX_SHAPE_SUBSTEPS`) may not step
+    ``substeps`` sub-steps a tick; None if it may."""
+    if shapes * substeps > MAX_SHAPE_SUBSTEPS:
+        return (f"{shapes:,} shapes (bodies, a compound body's parts) × {substeps:,} sub-steps = "
+                f"{shapes * substeps:,} a tick; at most {MAX_SHAPE_SUBSTEPS:,} (cgp_core.limits: a tick's work)")
+    if particles * substeps > MAX_PARTICLE_SUBSTEPS:
+        return (f"{particles:,} particles × {substeps:,} sub-steps = {particles * substeps:,} a tick; at most "
+                f"{MAX_PARTICLE_SUBSTEPS:,} (cgp_core.limits: a tick's work)")
+    return None

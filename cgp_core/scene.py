@@ -90,7 +90,7 @@ from typing import Any
 
 import numpy as np
 
-from .bodies import BodyModel, BodyState, CompoundParts, Shape
+from .bodies import BodyModel, BodyState, CompoundParts, Shape, rigid_work
 from .inertia import compound_mass_properties, particle_mass_properties, shape_mass_properties
 from .integrators import DEFAULT_INTEGRATOR, INTEGRATORS
 from .limits import (
@@ -119,6 +119,7 @@ from .limits import (
     MIN_INERTIA_RATIO,
     MIN_LENGTH,
     MIN_MASS,
+    rigid_work_refusal,
 )
 from .rotation import quat_normalize, quat_rotate
 from .user_input import YAML12_FLOAT, SceneLoader, UserInputError, load_yaml, read_user_text
@@ -332,6 +333,10 @@ def scene_from_dict(data: Any, source: str = "<dict>") -> Scene:
     v.no_unknown_keys(data, {"world", "bodies", "flocks", "description"}, "")
     world = _parse_world(v, data.get("world", {}))
     bodies = _parse_bodies(v, data.get("bodies", []))
+    refusal = rigid_work_refusal(*rigid_work([b.parts for b in bodies], [b.particles for b in bodies]),
+                                 world.substeps)
+    if refusal:
+        v.fail("world.substeps", refusal)
     flocks = _parse_flocks(v, data.get("flocks", []), reserved={b.name for b in bodies})
     total = sum(f.count for f in flocks)
     if total > MAX_BOIDS:

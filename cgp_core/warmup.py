@@ -72,7 +72,20 @@ def warm_up(ticks: int = 24, *, complete: bool = True, flocks: bool = True) -> W
             run()
     if complete:
         warm_up_convex(flocks=flocks)
+        _warm_up_grid()
     return world
+
+
+def _warm_up_grid() -> None:
+    """The broad phase's grid, which the collision detector runs for scenes too dense for the sweep (thousands of
+    bodies in a pile: :data:`cgp_core.collision.detector.SWEEP_TESTS_PER_BOX`), with the detector's argument
+    types: (p, 3) float64 bounds, (p,) intp bodies, the cell edge."""
+    import numpy as np
+
+    from .collision.broadphase import grid_kernel
+
+    lo = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [-4.0, -4.0, -1.0]])
+    grid_kernel(lo, lo + 1.0 + 7.0 * (lo < -1.0), np.arange(3, dtype=np.intp), 0.0)
 
 
 #: issue 25's shapes placed so that every pair of the convex stage runs within a few ticks: hull–ground,

@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .bodies import tensor_times, world_tensor
+from .bodies import rigid_work, tensor_times, world_tensor
 from .boids import Flock, Obstacles
 from .boids.predators import Predators
 from .dynamics import Ground, step_bodies
@@ -64,9 +64,19 @@ from .editing import (
     select_bodies,
 )
 from .integrators import make_integrator
-from .limits import BLOWUP_SPEED, BLOWUP_SPIN, MAX_BOIDS, MAX_COORDINATE, MAX_SPEED, MAX_SPIN
+from .limits import BLOWUP_SPEED, BLOWUP_SPIN, MAX_BOIDS, MAX_COORDINATE, MAX_SPEED, MAX_SPIN, rigid_work_refusal
 from .rotation import quat_conjugate, quat_rotate, quat_to_matrix
-from .scene import GROUND_NAME, MAX_BODIES, MAX_NAME_LENGTH, ROS_SAFE_NAME, Scene, body_reach, load_scene, spawn_entry
+from .scene import (
+    GROUND_NAME,
+    MAX_BODIES,
+    MAX_NAME_LENGTH,
+    ROS_SAFE_NAME,
+    Scene,
+    SceneError,
+    body_reach,
+    load_scene,
+    spawn_entry,
+)
 from .sleep import SLEEP_SPEED, SLEEP_TIME, Islands
 from .solver import make_solver
 from .solver.report import ContactReport, carry_sleeping
@@ -157,6 +167,11 @@ class World:
                              restitution=scene.world.ground_restitution) if scene.world.ground else None
         self.integrator = make_integrator(scene.world.integrator)
         self.solver = make_solver(rolling_resistance=scene.world.rolling_resistance)
+        # a scene file's own sub-steps were checked when it was loaded; these may be the caller's (the node's)
+        refusal = rigid_work_refusal(*rigid_work([b.parts for b in scene.bodies], [b.particles for b in scene.bodies]),
+                                     self.substeps)
+        if refusal:
+            raise SceneError(scene.source, [f"{'world.' if substeps is None else ''}substeps: {refusal}"])
         self.body_model, self._initial_body_state = scene.build_bodies()
         self.body_state = self._initial_body_state.copy()
         self._scene_flock_params = [p if seed is None else p.with_seed(seed + i) for i, p in enumerate(scene.flocks)]
@@ -480,6 +495,10 @@ class World:
             if self.body_model.count + 1 > MAX_BODIES:
                 raise EditError("not_possible", f"the world has {self.body_model.count} bodies, the most it "
                                 f"holds ({MAX_BODIES})")
+            (shapes, particles), (new_shapes, new_particles) = self.body_model.rigid_work(), prepared.model.rigid_work()
+            refusal = rigid_work_refusal(shapes + new_shapes, particles + new_particles, self.substeps)
+            if refusal:
+                raise EditError("not_possible", f"with {prepared.name!r} the world would have {refusal}")
             model, state = prepared.model, prepared.state.copy()
             if self.body_state.rotation is not None:  # the integrator keeps R: the new body needs one too
                 state.rotation = state.rotation_matrices()

@@ -206,3 +206,30 @@ def test_a_body_flung_far_away_does_not_break_the_grid():
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no integer overflow in the cell keys
         assert as_set(grid_pairs(lo, hi)) == as_set(brute_force_pairs(lo, hi))
+
+
+def test_a_pile_too_dense_for_the_sweep_goes_to_the_grid_with_the_same_contacts():
+    """A 12³ lattice of touching spheres: along any axis a slab of it holds ~300 boxes, so the sweep would test
+    ~300 candidates per box (~1,000 at 10,000 spheres: 156 ms a call, the grid 29 ms).  The default broad phase
+    gives up past SWEEP_TESTS_PER_BOX and the grid finds the pairs: the contacts are brute force's, a body whose
+    state went NaN takes part in none, and a sparse scene keeps the sweep."""
+    from _bodies import make_bodies, sphere
+
+    from cgp_core.collision.detector import SWEEP_TESTS_PER_BOX, CollisionDetector
+    from cgp_core.world import Ground
+
+    side = 12
+    lattice = np.array([(x, y, z) for x in range(side) for y in range(side) for z in range(side)], float)
+    model, state = make_bodies([sphere(0.1, position=p) for p in lattice * 0.199 + [0, 0, 0.1]])
+    state.position[5] = np.nan  # a blown-up body (World resets it after the tick)
+    default = CollisionDetector()
+    found = default.detect(model, state, 1.0 / 240.0, ground=Ground())
+    assert default.dense and side ** 2 > SWEEP_TESTS_PER_BOX
+    reference = CollisionDetector("brute_force").detect(model, state, 1.0 / 240.0, ground=Ground())
+    assert found.count > 2.5 * side ** 3 and set(found.key.tolist()) == set(reference.key.tolist())
+    assert 5 not in found.body_a and 5 not in found.body_b
+    # the same spheres in one row: the sweep tests a candidate or two per box and keeps the scene
+    model, state = make_bodies([sphere(0.1, position=(0.199 * k, 0, 0.1)) for k in range(side ** 3)])
+    sparse = CollisionDetector()
+    sparse.detect(model, state, 1.0 / 240.0, ground=Ground())
+    assert not sparse.dense

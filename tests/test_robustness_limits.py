@@ -175,7 +175,8 @@ def test_a_particle_body_costs_nothing_among_its_own_particles():
     lo = np.vstack([lo, [[0.1, 0.1, 0.1]]])
     hi = np.vstack([hi, [[0.3, 0.3, 0.3]]])
     group = np.append(np.zeros(3000, np.int64), 1)
-    i, j = sweep_and_prune_kernel(lo, hi, group)
+    i, j, complete = sweep_and_prune_kernel(lo, hi, group, -1)
+    assert complete
     assert len(i) > 0 and np.all(group[i] != group[j])  # only particle-vs-sphere pairs
     expected = np.flatnonzero(np.all((lo[:3000] <= hi[3000]) & (lo[3000] <= hi[:3000]), axis=1))
     assert sorted(np.minimum(i, j)) == sorted(expected)
@@ -187,6 +188,48 @@ def test_a_particle_body_costs_nothing_among_its_own_particles():
     for _ in range(2):
         world.step()
     assert np.isfinite(world.body_state.position).all() and world.take_events() == []
+
+
+def test_a_ticks_rigid_work_is_bounded_where_scenes_worlds_and_spawns_are_made():
+    """10,000 bodies × 1,000 sub-steps was inside every limit and ticked for minutes.  Sub-steps × shapes (a
+    compound body's parts count each) and sub-steps × particles are bounded (cgp_core.limits.MAX_SHAPE_SUBSTEPS,
+    MAX_PARTICLE_SUBSTEPS) when a scene is loaded, when a world is made with the caller's sub-steps (the node's
+    ``substeps``) and when a body is spawned: refused naming the counts, nothing built, the world unchanged."""
+    top = limits.MAX_SHAPE_SUBSTEPS // 1000  # bodies at 1,000 sub-steps
+
+    def spheres(n):
+        return [{"name": f"s{k}", "shape": "sphere", "radius": 0.1, "position": [0.3 * k, 0, 0.1]} for k in range(n)]
+
+    def scene(bodies, substeps):
+        return {"world": {"substeps": substeps}, "bodies": bodies}
+
+    with pytest.raises(SceneError) as refused:
+        scene_from_dict(scene(spheres(top + 1), 1000), "s.yaml")
+    (problem,) = refused.value.problems
+    assert problem.startswith("world.substeps: ") and f"{top + 1} shapes" in problem and "at most 40,000" in problem
+    # a compound body's parts are shapes; the particles of every particle body add up
+    parts = [{"shape": "sphere", "radius": 0.05, "position": [0.1 * k, 0, 0]} for k in range(5)]
+    compounds = [{"name": f"c{k}", "shape": "compound", "mass": 1, "parts": parts, "position": [k, 0, 1]}
+                 for k in range(top // 5 + 1)]
+    with pytest.raises(SceneError, match="shapes .bodies, a compound body's parts. × 1,000 sub-steps"):
+        scene_from_dict(scene(compounds, 1000))
+    grains = [[0.01 * (k % 50), 0.01 * (k // 50), 0, 0.01] for k in range(1000)]
+    cloud = [{"name": f"p{k}", "shape": "particles", "radius": 0.005, "particles": grains, "position": [k, 0, 1]}
+             for k in range(limits.MAX_PARTICLE_SUBSTEPS // (1000 * 100) + 1)]
+    with pytest.raises(SceneError, match=r"5,000 particles × 100 sub-steps = 500,000 a tick; at most 400,000"):
+        scene_from_dict(scene(cloud, 100))
+    # the caller's sub-steps (the node's parameter): the same bound, named as the caller's
+    accepted = scene_from_dict(scene(spheres(top), 4))
+    with pytest.raises(SceneError, match=f"substeps: {top} shapes .* × 1,001 sub-steps"):
+        World(accepted, substeps=1001)
+    # at the bound: it loads, steps and refuses one more body, unchanged
+    world = World(scene_from_dict(scene(spheres(top), 1000)))
+    world.step()
+    with pytest.raises(EditError, match=f"with 'extra' the world would have {top + 1} shapes") as refused:
+        world.spawn({"body": {"shape": "sphere", "radius": 0.1}}, name="extra", position=(0, 2, 1))
+    assert refused.value.kind == "not_possible" and world.body_model.count == top
+    world.step()
+    assert np.isfinite(world.body_state.position).all()
 
 
 def test_a_flock_too_dense_or_too_big_to_step_is_refused_naming_the_count():

@@ -8,20 +8,22 @@ signature:
 
 - :func:`brute_force_pairs` — every pair tested, O(p²): the reference the others are tested against.
 - :func:`grid_pairs` — a uniform grid, stored as a sorted array of cell keys instead of a hash
-  table (Ericson 7.1.2 / 7.1.5: the "sort the objects by cell" variant, which numpy does in one argsort).
+  table (Ericson 7.1.2 / 7.1.5: the "sort the objects by cell" variant), a compiled loop (:func:`grid_kernel`).
   The cell edge is the largest extent among the ordinary-sized boxes, so each box is filed under the one
   cell holding its lower corner and any box it overlaps lies in that cell or one of its 26 neighbours;
   visiting the cell itself and 13 of the neighbours (one of each opposite pair) meets every pair exactly
-  once.  The few boxes much larger than the typical one (walls, floors) are tested against everything by
-  brute force.  O(p log p) for the sort, O(p) work per box for the typical scene.
+  once.  The few boxes much larger than the typical one (walls, floors) are tested against everything.
+  O(p log p) for the sort, O(1) work per box for boxes of similar size, however they are arranged.
 - :func:`sweep_and_prune_pairs` — sort by the lower bound along the axis of largest spread and pair each box
   with those that start before it ends (Ericson 7.5.2, single axis), a compiled loop
   (:func:`sweep_and_prune_kernel`); **default**, the collision detector's above a few dozen primitives (one call,
-  no per-call numpy overhead).  Its candidate count grows as p² · (box size / world size), so very large
-  dense scenes favour the grid.
+  no per-call numpy overhead).  Its candidate count grows as p² · (box size / world size): a dense 3-D pile of
+  thousands of bodies (10,000 spheres in a 22³ lattice: ~1,000 candidates per box) is the grid's, and the
+  detector hands such a scene to the grid once the sweep's candidates pass a bound
+  (:data:`~cgp_core.collision.detector.SWEEP_TESTS_PER_BOX`).
 
-The grid and brute force are vectorized numpy: the variable-length candidate lists are generated with the
-``repeat + arange`` idiom, never with a Python loop over boxes.
+Brute force is vectorized numpy (the reference, kept simple); the two structures are compiled loops, which skip
+a box's own group (a body's own primitives) a run at a time.
 """
 
 from __future__ import annotations
@@ -35,14 +37,6 @@ _EMPTY = (np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp))
 #: a box whose largest extent exceeds this multiple of the median extent is "large" for the grid and is
 #: tested by brute force instead of being filed in cells (keeps the cells small when a scene has walls)
 LARGE_FACTOR = 4.0
-
-# the cell itself plus 13 of its 26 neighbours: one of each pair of opposite offsets
-_HALF_NEIGHBOURHOOD = np.array(
-    [(0, 0, 0)]
-    + [(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)
-       if (dx, dy, dz) > (0, 0, 0)],
-    dtype=np.int64,
-)
 
 
 def _check(lo: np.ndarray, hi: np.ndarray, group=None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -68,28 +62,12 @@ def _other_groups(i: np.ndarray, j: np.ndarray, group: np.ndarray | None) -> tup
     return i[keep], j[keep]
 
 
-def _overlap(lo, hi, i, j) -> np.ndarray:
-    return np.all((lo[i] <= hi[j]) & (lo[j] <= hi[i]), axis=1)
-
-
 def _sorted_pairs(i: np.ndarray, j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Canonical order: i < j, sorted lexicographically (so results compare equal across methods)."""
     a = np.minimum(i, j).astype(np.int64)
     b = np.maximum(i, j).astype(np.int64)
     order = np.argsort(a * (int(b.max(initial=0)) + 1) + b)
     return a[order].astype(np.intp), b[order].astype(np.intp)
-
-
-def _expand_ranges(owner: np.ndarray, start: np.ndarray, count: np.ndarray):
-    """For each k, the pairs (owner[k], start[k] + r) for r in range(count[k]) — without a Python loop."""
-    total = int(count.sum())
-    if total == 0:
-        return _EMPTY
-    rep_owner = np.repeat(owner, count)
-    # position within each run: arange(total) minus the run's first output index
-    run_first = np.repeat(np.cumsum(count) - count, count)
-    rep_index = np.repeat(start, count) + (np.arange(total) - run_first)
-    return rep_owner, rep_index
 
 
 def brute_force_pairs(lo: np.ndarray, hi: np.ndarray, group: np.ndarray | None = None
@@ -117,12 +95,12 @@ def sweep_and_prune_pairs(lo: np.ndarray, hi: np.ndarray, group: np.ndarray | No
     if len(lo) < 2:
         return _EMPTY
     group = np.arange(len(lo)) if group is None else np.ascontiguousarray(group, np.int64)
-    i, j = sweep_and_prune_kernel(np.ascontiguousarray(lo), np.ascontiguousarray(hi), group)
+    i, j, _ = sweep_and_prune_kernel(np.ascontiguousarray(lo), np.ascontiguousarray(hi), group, -1)
     return _sorted_pairs(i, j)
 
 
 @njit
-def sweep_and_prune_kernel(lo, hi, group):
+def sweep_and_prune_kernel(lo, hi, group, max_tests):
     """Every overlapping pair of AABBs ``lo, hi (p, 3)`` of different ``group`` (p,) once (the collision
     detector's groups are the bodies: a body's primitives never collide with each other), as ``(i, j)`` with
     ``i < j``, in sweep order (Ericson 7.5.2, single axis): sort the boxes by their lower bound along the axis of
@@ -133,7 +111,12 @@ def sweep_and_prune_kernel(lo, hi, group):
     Boxes of the box's own group are skipped a run at a time (``next_other``: the next position in sweep order
     of another group), so a particle body's particles, which overlap each other, cost nothing among
     themselves: issue 27 measured a particle body's tick growing as N^2.2 (5,000 particles 0.46 s, 20,000 6.5 s,
-    100,000 never) when every same-body pair was found here and rejected only in the narrow phase."""
+    100,000 never) when every same-body pair was found here and rejected only in the narrow phase.
+
+    Returns ``(i, j, complete)``.  ``max_tests`` >= 0 bounds the candidates tested (boxes of other groups that
+    start within a box's extent): past it the sweep gives up and returns no pairs and ``complete`` False — the
+    scene is dense along every axis and the grid (:func:`grid_kernel`) finds its pairs in O(p) instead; -1: no
+    bound."""
     p = len(lo)
     mean = np.zeros(3)
     spread = np.zeros(3)
@@ -161,6 +144,7 @@ def sweep_and_prune_kernel(lo, hi, group):
     pi = np.empty(cap, np.int64)
     pj = np.empty(cap, np.int64)
     count = 0
+    tests = 0
     for a in range(p):
         i = order[a]
         end = hi[i, axis]
@@ -172,6 +156,9 @@ def sweep_and_prune_kernel(lo, hi, group):
             if group[j] == group[i]:
                 b = next_other[b]  # the rest of this run of i's own group
                 continue
+            tests += 1
+            if max_tests >= 0 and tests > max_tests:
+                return pi[:0], pj[:0], False
             if lo[i, 0] <= hi[j, 0] and lo[j, 0] <= hi[i, 0] and lo[i, 1] <= hi[j, 1] and lo[j, 1] <= hi[i, 1] \
                     and lo[i, 2] <= hi[j, 2] and lo[j, 2] <= hi[i, 2]:
                 if count == cap:
@@ -182,7 +169,7 @@ def sweep_and_prune_kernel(lo, hi, group):
                 pj[count] = max(i, j)
                 count += 1
             b += 1
-    return pi[:count], pj[:count]
+    return pi[:count], pj[:count], True
 
 
 @njit
@@ -202,76 +189,191 @@ def grid_cell_size(lo: np.ndarray, hi: np.ndarray) -> float:
 
 def grid_pairs(lo: np.ndarray, hi: np.ndarray, cell_size: float | None = None, group: np.ndarray | None = None
                ) -> tuple[np.ndarray, np.ndarray]:
-    """Uniform-grid broad phase (see the module docstring).  ``cell_size`` defaults to
-    :func:`grid_cell_size`; boxes larger than a cell are handled by brute force against all boxes.  Candidates
-    of one ``group`` are dropped before their overlap test (a particle body's particles share cells)."""
+    """Uniform-grid broad phase (see the module docstring; compiled: :func:`grid_kernel`).  ``cell_size``
+    defaults to :func:`grid_cell_size`; boxes larger than a cell are tested against all boxes instead."""
     lo, hi, group = _check(lo, hi, group)
     p = len(lo)
     if p < 2:
         return _EMPTY
-    cell = grid_cell_size(lo, hi) if cell_size is None else float(cell_size)
-    if not (np.isfinite(cell) and cell > 0.0):
+    cell = grid_cell_size(lo, hi) if cell_size is None else cell_size
+    if not (isinstance(cell, (int, float, np.floating)) and np.isfinite(cell) and cell > 0.0):
         raise ValueError(f"grid cell size must be a positive number, got {cell_size!r}")
+    group = np.arange(p) if group is None else np.ascontiguousarray(group, np.int64)
+    i, j = grid_kernel(np.ascontiguousarray(lo), np.ascontiguousarray(hi), group, float(cell))
+    return _sorted_pairs(i, j)
+
+
+@njit
+def grid_kernel(lo, hi, group, cell):
+    """Every overlapping pair of AABBs ``lo, hi (p, 3)`` of different ``group`` (p,) once, as ``(i, j)`` with
+    ``i < j``, unordered: a uniform grid of edge ``cell`` [m] (``<= 0``: :func:`grid_cell_size`'s rule).  A box
+    with a non-finite bound overlaps nothing.
+
+    The grid is a sorted array (Ericson 7.1.5): each box no larger than a cell is filed under the cell of its
+    lower corner, and the boxes are sorted by (cell, group).  A box then visits its own cell after itself and 13
+    of the 26 neighbours (one of each opposite pair): a box it overlaps has its lower corner there, and each
+    pair is met once.  Within a cell, a run of the box's own group is skipped at once (``skip``: the end of the
+    run), so a particle body's particles, which share cells, cost nothing among themselves — as in
+    :func:`sweep_and_prune_kernel`.  Larger boxes (walls, floors) are tested against every box.  O(p) work for
+    boxes of similar size, whatever their arrangement: the sweep's candidates grow as p² · (box / world) along
+    its axis, so a dense 3-D pile of thousands of bodies is the grid's (:mod:`.detector` switches)."""
+    p = len(lo)
+    finite = np.empty(p, np.bool_)
+    extent = np.empty(p)
+    for k in range(p):
+        ok = True
+        e = 0.0
+        for d in range(3):
+            if not (np.isfinite(lo[k, d]) and np.isfinite(hi[k, d])):
+                ok = False
+            e = max(e, hi[k, d] - lo[k, d])
+        finite[k] = ok
+        extent[k] = e if ok else 0.0
+    if cell <= 0.0:  # grid_cell_size's rule, over the finite boxes
+        ext = extent[finite]
+        cell = 1.0
+        if len(ext):
+            top = LARGE_FACTOR * np.median(ext)
+            cell = 0.0
+            for e in ext:
+                if e <= top and e > cell:
+                    cell = e
+            if cell <= 0.0:
+                cell = max(ext.max(), 0.0)
+            if cell <= 0.0:
+                cell = 1.0
     # a hair larger, so two boxes whose lower corners are exactly one cell apart cannot land two cells apart
     # through the rounding of lo / cell
     cell *= 1.0 + 1e-9
-    extent = np.max(hi - lo, axis=1)
-    large = extent > cell
-    small = np.flatnonzero(~large)
-    pairs_i, pairs_j = [], []
-
-    if small.size >= 2:
-        cells_per_axis = np.floor((lo[small].max(axis=0) - lo[small].min(axis=0)) / cell) + 3
-        if float(np.prod(cells_per_axis)) > 2.0 ** 62:
-            # a scene spread over more cells than an int64 key can number (a body flung kilometres away):
-            # sweep and prune needs no keys
-            i, j = sweep_and_prune_pairs(lo[small], hi[small], None if group is None else group[small])
-            pairs_i.append(small[i])
-            pairs_j.append(small[j])
-    if small.size >= 2 and not pairs_i:
-        coords = np.floor(lo[small] / cell).astype(np.int64)
-        coords -= coords.min(axis=0) - 1  # >= 1, so neighbour offsets of -1 stay >= 0
-        span = coords.max(axis=0) + 2
-        stride = np.array([span[1] * span[2], span[2], 1], dtype=np.int64)
-        key = coords @ stride
-        order = np.argsort(key, kind="stable")
-        targets = (key[None, :] + (_HALF_NEIGHBOURHOOD @ stride)[:, None]).ravel()  # (14 * s,)
-        cells = int(span.prod())
-        if cells <= 8 * small.size + 4096:
-            # few enough cells for a dense table: start of each cell's run in `order`, by direct indexing
-            start = np.zeros(cells + 1, dtype=np.int64)
-            np.cumsum(np.bincount(key, minlength=cells), out=start[1:])
-            first, last = start[targets], start[targets + 1]
+    small = np.empty(p, np.bool_)
+    for k in range(p):
+        small[k] = finite[k] and extent[k] <= cell
+    base = np.full(3, np.inf)
+    top = np.full(3, -np.inf)
+    for k in range(p):
+        if small[k]:
+            for d in range(3):
+                base[d] = min(base[d], lo[k, d])
+                top[d] = max(top[d], lo[k, d])
+    cap = 8 * p + 16
+    pi = np.empty(cap, np.int64)
+    pj = np.empty(cap, np.int64)
+    count = 0
+    members = np.flatnonzero(small)
+    m = len(members)
+    if m >= 2:
+        span = np.empty(3, np.int64)
+        cells = 1.0
+        for d in range(3):
+            cells *= np.floor((top[d] - base[d]) / cell) + 3.0
+        if cells > 2.0 ** 62:
+            # spread over more cells than an int64 key can number (a body flung kilometres away): the sweep
+            # needs no keys
+            sub_i, sub_j, _ = sweep_and_prune_kernel(lo[members], hi[members], group[members], -1)
+            count = len(sub_i)
+            if count > cap:
+                cap = count
+                pi = np.empty(cap, np.int64)
+                pj = np.empty(cap, np.int64)
+            for k in range(count):
+                a, b = members[sub_i[k]], members[sub_j[k]]
+                pi[k] = min(a, b)
+                pj[k] = max(a, b)
         else:
-            # sparse: binary search in the sorted keys (the "hash table" of Ericson 7.1.3 as a sorted array)
+            coords = np.empty((m, 3), np.int64)
+            for k in range(m):
+                for d in range(3):
+                    coords[k, d] = np.int64(np.floor((lo[members[k], d] - base[d]) / cell)) + 1  # >= 1
+            for d in range(3):
+                span[d] = coords[:, d].max() + 2  # neighbours at -1 / +1 stay inside [0, span)
+            stride0, stride1 = span[1] * span[2], span[2]
+            key = coords[:, 0] * stride0 + coords[:, 1] * stride1 + coords[:, 2]
+            by_group = np.argsort(group[members], kind="mergesort")
+            order = by_group[np.argsort(key[by_group], kind="mergesort")]  # by cell, then by group
             sorted_key = key[order]
-            first = np.searchsorted(sorted_key, targets, side="left")
-            last = np.searchsorted(sorted_key, targets, side="right")
-        owner = np.tile(np.arange(small.size), len(_HALF_NEIGHBOURHOOD))
-        a, k = _expand_ranges(owner, first, last - first)
-        b = order[k]
-        # within the own cell (offset 0, the first block) each pair appears twice and each box with itself
-        own_cell = np.repeat(np.arange(len(targets)) < small.size, last - first)
-        keep = ~own_cell | (a < b)
-        a, b = _other_groups(small[a[keep]], small[b[keep]], group)
-        hit = _overlap(lo, hi, a, b)
-        pairs_i.append(a[hit])
-        pairs_j.append(b[hit])
-
-    big = np.flatnonzero(large)
-    if big.size:
-        # large vs everything (large-large pairs once: only against higher-index large boxes)
-        others = np.arange(p)
-        ov = np.all((lo[big][:, None, :] <= hi[None, :, :]) & (lo[None, :, :] <= hi[big][:, None, :]), axis=2)
-        ov &= ~(large[None, :] & (others[None, :] <= big[:, None]))
-        bi, oj = np.nonzero(ov)
-        a, b = _other_groups(big[bi], others[oj], group)
-        pairs_i.append(a)
-        pairs_j.append(b)
-
-    if not pairs_i:
-        return _EMPTY
-    return _sorted_pairs(np.concatenate(pairs_i), np.concatenate(pairs_j))
+            box = members[order]  # the box at each sorted position
+            # the boxes' bounds and groups in sorted order: a cell's boxes lie next to each other in memory
+            slo = np.empty((m, 3))
+            shi = np.empty((m, 3))
+            sgroup = np.empty(m, np.int64)
+            for a in range(m):
+                slo[a] = lo[box[a]]
+                shi[a] = hi[box[a]]
+                sgroup[a] = group[box[a]]
+            skip = np.empty(m, np.int64)  # position -> the end of its run of one cell and one group
+            for a in range(m - 1, -1, -1):
+                if a + 1 < m and sorted_key[a + 1] == sorted_key[a] and sgroup[a + 1] == sgroup[a]:
+                    skip[a] = skip[a + 1]
+                else:
+                    skip[a] = a + 1
+            offsets = np.empty(13, np.int64)
+            n_off = 0
+            for dx in range(-1, 2):
+                for dy in range(-1, 2):
+                    for dz in range(-1, 2):
+                        if dx > 0 or (dx == 0 and (dy > 0 or (dy == 0 and dz > 0))):
+                            offsets[n_off] = dx * stride0 + dy * stride1 + dz
+                            n_off += 1
+            # where each cell's run starts in the sorted order: a dense table for a compact grid (direct
+            # indexing), else a binary search in the sorted keys (the "hash table" of Ericson 7.1.3)
+            n_cells = span[0] * span[1] * span[2]
+            dense = n_cells <= 8 * m + 4096
+            start = np.zeros(n_cells + 1 if dense else 1, np.int64)
+            if dense:
+                for a in range(m):
+                    start[sorted_key[a] + 1] += 1
+                for c in range(n_cells):
+                    start[c + 1] += start[c]
+            run = 0
+            while run < m:  # cell by cell: its neighbours' runs are looked up once for all its boxes
+                run_end = run + 1
+                while run_end < m and sorted_key[run_end] == sorted_key[run]:
+                    run_end += 1
+                for o in range(14):
+                    if o == 0:
+                        first, last = run, run_end  # the own cell: each box with the boxes after it
+                    else:
+                        target = sorted_key[run] + offsets[o - 1]
+                        if dense:
+                            first, last = start[target], start[target + 1]
+                        else:
+                            first = np.searchsorted(sorted_key, target)
+                            last = np.searchsorted(sorted_key, target, side="right")
+                    for a in range(run, run_end):
+                        ga = sgroup[a]
+                        b = a + 1 if o == 0 else first
+                        while b < last:
+                            if sgroup[b] == ga:
+                                b = skip[b]  # the rest of this cell's run of a's own group
+                                continue
+                            if slo[a, 0] <= shi[b, 0] and slo[b, 0] <= shi[a, 0] and slo[a, 1] <= shi[b, 1] \
+                                    and slo[b, 1] <= shi[a, 1] and slo[a, 2] <= shi[b, 2] and slo[b, 2] <= shi[a, 2]:
+                                if count == cap:
+                                    cap *= 2
+                                    pi = _grow(pi, cap)
+                                    pj = _grow(pj, cap)
+                                i, j = box[a], box[b]
+                                pi[count] = min(i, j)
+                                pj[count] = max(i, j)
+                                count += 1
+                            b += 1
+                run = run_end
+    for i in range(p):  # the large boxes against every box (two large ones once: from the lower index)
+        if small[i] or not finite[i]:
+            continue
+        for j in range(p):
+            if j == i or not finite[j] or group[j] == group[i] or (not small[j] and j < i):
+                continue
+            if lo[i, 0] <= hi[j, 0] and lo[j, 0] <= hi[i, 0] and lo[i, 1] <= hi[j, 1] and lo[j, 1] <= hi[i, 1] \
+                    and lo[i, 2] <= hi[j, 2] and lo[j, 2] <= hi[i, 2]:
+                if count == cap:
+                    cap *= 2
+                    pi = _grow(pi, cap)
+                    pj = _grow(pj, cap)
+                pi[count] = min(i, j)
+                pj[count] = max(i, j)
+                count += 1
+    return pi[:count], pj[:count]
 
 
 BROAD_PHASES = {

@@ -7,7 +7,8 @@ Three compiled stages, called in order from :meth:`CollisionDetector.detect`, wh
    primitives at the bodies' :class:`~.primitives.BodyMotion` → :class:`PrimitivePoses` (centres, AABBs grown by
    the speculative margins);
 2. ``broad_phase`` — :func:`small_scene_pairs` for a handful of primitives, else the configured
-   :mod:`.broadphase` function → :class:`Pairs`;
+   :mod:`.broadphase` function → :class:`Pairs` (the default, sweep and prune, hands a scene too dense for it to
+   the grid: :data:`SWEEP_TESTS_PER_BOX`);
 3. ``narrow_phase`` — :func:`narrow_phase`: one loop over the ground (:class:`GroundPlane`) and the candidate
    pairs, each handed to its shape pair's kernel in :mod:`.narrowphase` / :mod:`.box_box` → a
    :class:`ContactSet`;
@@ -48,7 +49,7 @@ import numpy as np
 from ..bodies import BodyModel, BodyState, Shape
 from ..jit import StageProfile, njit
 from .box_box import box_box_contacts
-from .broadphase import DEFAULT_BROAD_PHASE, get_broad_phase, sweep_and_prune_kernel, sweep_and_prune_pairs
+from .broadphase import DEFAULT_BROAD_PHASE, get_broad_phase, grid_kernel, sweep_and_prune_kernel, sweep_and_prune_pairs
 from .contacts import FEATURE_SLOTS, GROUND, ContactSet
 from .convex_phase import (
     TOI_TARGET,
@@ -84,6 +85,16 @@ DEFAULT_SPECULATIVE_DISTANCE = 0.002
 
 #: up to this many primitives the broad phase tests every pair (compiled) whatever is configured
 SMALL_SCENE = 64
+
+#: the default broad phase's bound on the sweep's candidates, per box: past it the scene is dense along every axis
+#: (a 3-D pile of thousands of bodies), the sweep gives up and the grid finds the pairs (the same pairs: both are
+#: exact).  Measured on 10,000 spheres in a 22³ lattice: the sweep tests ~1,000 candidates per box, 156 ms a
+#: call, the grid 29 ms; 2,000 compound bodies of 16 parts (32,000 boxes) ticked in 6.4 s with the sweep alone.
+#: A sparse scene or a pile of a few thousand tests fewer than 64 a box and keeps the sweep (which is faster there).
+SWEEP_TESTS_PER_BOX = 64
+#: calls the grid then keeps the scene before the sweep is tried again (a pile that spreads out goes back to it):
+#: one second of sub-steps at 60 Hz with 4 of them
+GRID_CALLS = 240
 
 #: most contact points one primitive pair (or a primitive and the ground) can give (box–box, box–plane)
 MAX_POINTS_PER_PAIR = 4
@@ -140,6 +151,10 @@ class CollisionDetector:
         self._shapes: ShapeModel | None = None  # the convex stage's primitives (None: the model has none)
         self._plain_shapes: tuple = ()
         self._sweeps = None  # what sweep_fast_rotation needs from the last detect
+        #: whether the last broad phase found the scene too dense for the sweep and ran the grid (the default
+        #: broad phase only; see SWEEP_TESTS_PER_BOX)
+        self.dense = False
+        self._grid_calls_left = 0
         self.profile = StageProfile(STAGES)
 
     def collision_model(self, model: BodyModel) -> CollisionModel:
@@ -213,8 +228,17 @@ class CollisionDetector:
         if count <= SMALL_SCENE:
             return small_scene_pairs(lo, hi, prim_body, active)
         if self.broad_phase is sweep_and_prune_pairs:
-            # one compiled call, no same-body pair; the order of the pairs does not matter here
-            return sweep_and_prune_kernel(lo, hi, prim_body)
+            # one compiled call, no same-body pair; the order of the pairs does not matter here.  A scene too
+            # dense for the sweep goes to the grid (SWEEP_TESTS_PER_BOX) for GRID_CALLS calls
+            if self._grid_calls_left == 0:
+                i, j, complete = sweep_and_prune_kernel(lo, hi, prim_body, SWEEP_TESTS_PER_BOX * count)
+                if complete:
+                    self.dense = False
+                    return i, j
+                self._grid_calls_left = GRID_CALLS
+            self._grid_calls_left -= 1
+            self.dense = True
+            return grid_kernel(lo, hi, prim_body, 0.0)
         sane = np.flatnonzero(np.isfinite(lo).all(1) & np.isfinite(hi).all(1))
         if sane.size == count:
             i, j = self.broad_phase(lo, hi, group=prim_body)
