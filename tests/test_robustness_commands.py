@@ -549,6 +549,8 @@ def test_invalid_startup_configuration_exits_2_with_the_reason(start_node, probe
         (["--realtime", "maybe"], "expected true or false, got 'maybe'"),
         (["--markers-every", "1.5"], "invalid int value: '1.5'"),
         (["--ros-args", "-p", "substeps:=abc"], "substeps must be int, got str 'abc'"),
+        (["--scene", "sphere_pile", "--substeps", "1000"], "substeps: 1,004 shapes (bodies, a compound body's "
+         "parts) × 1,000 sub-steps = 1,004,000 a tick; at most 40,000"),
         (["--ros-args", "-p", "realtime:=1"], "realtime must be bool, got int 1"),
         (["--ros-args", "-p", "max_torque:=-1.0"], "max_torque must be >= 0"),
         (["--ros-args", "-p", "rate_hz:=[60, 120]"], "rate_hz must be float"),

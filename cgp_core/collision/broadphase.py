@@ -12,7 +12,8 @@ signature:
   The cell edge is the largest extent among the ordinary-sized boxes, so each box is filed under the one
   cell holding its lower corner and any box it overlaps lies in that cell or one of its 26 neighbours;
   visiting the cell itself and 13 of the neighbours (one of each opposite pair) meets every pair exactly
-  once.  The few boxes much larger than the typical one (walls, floors) are tested against everything.
+  once.  The few boxes much larger than the typical one (walls, floors) are tested against the boxes in their
+  slab along x and against each other by the sweep.
   O(p log p) for the sort, O(1) work per box for boxes of similar size, however they are arranged.
 - :func:`sweep_and_prune_pairs` — sort by the lower bound along the axis of largest spread and pair each box
   with those that start before it ends (Ericson 7.5.2, single axis), a compiled loop
@@ -214,7 +215,8 @@ def grid_kernel(lo, hi, group, cell):
     of the 26 neighbours (one of each opposite pair): a box it overlaps has its lower corner there, and each
     pair is met once.  Within a cell, a run of the box's own group is skipped at once (``skip``: the end of the
     run), so a particle body's particles, which share cells, cost nothing among themselves — as in
-    :func:`sweep_and_prune_kernel`.  Larger boxes (walls, floors) are tested against every box.  O(p) work for
+    :func:`sweep_and_prune_kernel`.  Larger boxes (walls, floors) are tested against the small boxes in their slab
+    along x (a small box starts at most a cell before) and against each other by the sweep.  O(p) work for
     boxes of similar size, whatever their arrangement: the sweep's candidates grow as p² · (box / world) along
     its axis, so a dense 3-D pile of thousands of bodies is the grid's (:mod:`.detector` switches)."""
     p = len(lo)
@@ -358,18 +360,35 @@ def grid_kernel(lo, hi, group, cell):
                                 count += 1
                             b += 1
                 run = run_end
-    for i in range(p):  # the large boxes against every box (two large ones once: from the lower index)
-        if small[i] or not finite[i]:
-            continue
-        for j in range(p):
-            if j == i or not finite[j] or group[j] == group[i] or (not small[j] and j < i):
-                continue
-            if lo[i, 0] <= hi[j, 0] and lo[j, 0] <= hi[i, 0] and lo[i, 1] <= hi[j, 1] and lo[j, 1] <= hi[i, 1] \
-                    and lo[i, 2] <= hi[j, 2] and lo[j, 2] <= hi[i, 2]:
+    # the boxes larger than a cell (walls, floors; a heavy tail of sizes): against the small boxes in the slab
+    # along x where one can overlap them (a small box starts at most one cell before the large box does), and
+    # against each other by the sweep
+    large = np.flatnonzero(finite & ~small)
+    if len(large):
+        by_x = members[np.argsort(lo[members, 0])]
+        start_x = lo[by_x, 0]
+        for i in large:
+            first = np.searchsorted(start_x, lo[i, 0] - cell)
+            last = np.searchsorted(start_x, hi[i, 0], side="right")
+            for k in range(first, last):
+                j = by_x[k]
+                if group[j] != group[i] and lo[i, 0] <= hi[j, 0] and lo[j, 0] <= hi[i, 0] and lo[i, 1] <= hi[j, 1] \
+                        and lo[j, 1] <= hi[i, 1] and lo[i, 2] <= hi[j, 2] and lo[j, 2] <= hi[i, 2]:
+                    if count == cap:
+                        cap *= 2
+                        pi = _grow(pi, cap)
+                        pj = _grow(pj, cap)
+                    pi[count] = min(i, j)
+                    pj[count] = max(i, j)
+                    count += 1
+        if len(large) >= 2:
+            sub_i, sub_j, _ = sweep_and_prune_kernel(lo[large], hi[large], group[large], -1)
+            for k in range(len(sub_i)):
                 if count == cap:
                     cap *= 2
                     pi = _grow(pi, cap)
                     pj = _grow(pj, cap)
+                i, j = large[sub_i[k]], large[sub_j[k]]
                 pi[count] = min(i, j)
                 pj[count] = max(i, j)
                 count += 1
