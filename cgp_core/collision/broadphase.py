@@ -160,15 +160,8 @@ def sweep_and_prune_kernel(lo, hi, group, max_tests):
             tests += 1
             if max_tests >= 0 and tests > max_tests:
                 return pi[:0], pj[:0], False
-            if lo[i, 0] <= hi[j, 0] and lo[j, 0] <= hi[i, 0] and lo[i, 1] <= hi[j, 1] and lo[j, 1] <= hi[i, 1] \
-                    and lo[i, 2] <= hi[j, 2] and lo[j, 2] <= hi[i, 2]:
-                if count == cap:
-                    cap *= 2
-                    pi = _grow(pi, cap)
-                    pj = _grow(pj, cap)
-                pi[count] = min(i, j)
-                pj[count] = max(i, j)
-                count += 1
+            if _overlap(lo, hi, i, j):
+                pi, pj, count = _add_pair(pi, pj, count, i, j)
             b += 1
     return pi[:count], pj[:count], True
 
@@ -178,6 +171,25 @@ def _grow(values, cap):
     out = np.empty(cap, values.dtype)
     out[:len(values)] = values
     return out
+
+
+@njit(inline="always")
+def _overlap(lo, hi, i, j):
+    """Whether boxes ``i`` and ``j`` of ``lo, hi`` overlap (touching counts; a NaN bound never does)."""
+    return lo[i, 0] <= hi[j, 0] and lo[j, 0] <= hi[i, 0] and lo[i, 1] <= hi[j, 1] and lo[j, 1] <= hi[i, 1] \
+        and lo[i, 2] <= hi[j, 2] and lo[j, 2] <= hi[i, 2]
+
+
+@njit(inline="always")
+def _add_pair(pi, pj, count, i, j):
+    """Append the pair ``(min, max)`` of ``i, j`` at ``count`` (the arrays doubled when full); returns them and the
+    new count."""
+    if count == len(pi):
+        pi = _grow(pi, 2 * len(pi))
+        pj = _grow(pj, 2 * len(pj))
+    pi[count] = min(i, j)
+    pj[count] = max(i, j)
+    return pi, pj, count + 1
 
 
 def grid_cell_size(lo: np.ndarray, hi: np.ndarray) -> float:
@@ -272,15 +284,8 @@ def grid_kernel(lo, hi, group, cell):
             # spread over more cells than an int64 key can number (a body flung kilometres away): the sweep
             # needs no keys
             sub_i, sub_j, _ = sweep_and_prune_kernel(lo[members], hi[members], group[members], -1)
-            count = len(sub_i)
-            if count > cap:
-                cap = count
-                pi = np.empty(cap, np.int64)
-                pj = np.empty(cap, np.int64)
-            for k in range(count):
-                a, b = members[sub_i[k]], members[sub_j[k]]
-                pi[k] = min(a, b)
-                pj[k] = max(a, b)
+            for k in range(len(sub_i)):
+                pi, pj, count = _add_pair(pi, pj, count, members[sub_i[k]], members[sub_j[k]])
         else:
             coords = np.empty((m, 3), np.int64)
             for k in range(m):
@@ -348,16 +353,8 @@ def grid_kernel(lo, hi, group, cell):
                             if sgroup[b] == ga:
                                 b = skip[b]  # the rest of this cell's run of a's own group
                                 continue
-                            if slo[a, 0] <= shi[b, 0] and slo[b, 0] <= shi[a, 0] and slo[a, 1] <= shi[b, 1] \
-                                    and slo[b, 1] <= shi[a, 1] and slo[a, 2] <= shi[b, 2] and slo[b, 2] <= shi[a, 2]:
-                                if count == cap:
-                                    cap *= 2
-                                    pi = _grow(pi, cap)
-                                    pj = _grow(pj, cap)
-                                i, j = box[a], box[b]
-                                pi[count] = min(i, j)
-                                pj[count] = max(i, j)
-                                count += 1
+                            if _overlap(slo, shi, a, b):
+                                pi, pj, count = _add_pair(pi, pj, count, box[a], box[b])
                             b += 1
                 run = run_end
     # the boxes larger than a cell (walls, floors; a heavy tail of sizes): against the small boxes in the slab
@@ -372,26 +369,12 @@ def grid_kernel(lo, hi, group, cell):
             last = np.searchsorted(start_x, hi[i, 0], side="right")
             for k in range(first, last):
                 j = by_x[k]
-                if group[j] != group[i] and lo[i, 0] <= hi[j, 0] and lo[j, 0] <= hi[i, 0] and lo[i, 1] <= hi[j, 1] \
-                        and lo[j, 1] <= hi[i, 1] and lo[i, 2] <= hi[j, 2] and lo[j, 2] <= hi[i, 2]:
-                    if count == cap:
-                        cap *= 2
-                        pi = _grow(pi, cap)
-                        pj = _grow(pj, cap)
-                    pi[count] = min(i, j)
-                    pj[count] = max(i, j)
-                    count += 1
+                if group[j] != group[i] and _overlap(lo, hi, i, j):
+                    pi, pj, count = _add_pair(pi, pj, count, i, j)
         if len(large) >= 2:
             sub_i, sub_j, _ = sweep_and_prune_kernel(lo[large], hi[large], group[large], -1)
             for k in range(len(sub_i)):
-                if count == cap:
-                    cap *= 2
-                    pi = _grow(pi, cap)
-                    pj = _grow(pj, cap)
-                i, j = large[sub_i[k]], large[sub_j[k]]
-                pi[count] = min(i, j)
-                pj[count] = max(i, j)
-                count += 1
+                pi, pj, count = _add_pair(pi, pj, count, large[sub_i[k]], large[sub_j[k]])
     return pi[:count], pj[:count]
 
 
