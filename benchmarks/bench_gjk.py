@@ -37,7 +37,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from common import Results, format_figures  # noqa: E402
+from common import Results, format_figures, format_speed_probe  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 from cgp_core.collision.bvh import StaticMesh  # noqa: E402
@@ -245,9 +245,7 @@ def main(argv=None) -> int:
     out.data["rates"] = rate
     path = out.write()
     print(format_figures(out.data["figures"]))
-    probe = out.data["speed_probe"]
-    print(f"speed probe (numpy / python ms): before {probe['before']['numpy_ms']} / {probe['before']['python_ms']}, "
-          f"after {probe['after']['numpy_ms']} / {probe['after']['python_ms']}; load {os.getloadavg()[0]:.2f}")
+    print(format_speed_probe(out.data["speed_probe"]) + f"; load {os.getloadavg()[0]:.2f}")
     print(f"wrote {path.relative_to(ROOT)}")
     return 0 if math.isfinite(rate["ours_loop"]) else 1
 

@@ -36,7 +36,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from common import Results, format_figures  # noqa: E402
+from common import Results, format_figures, format_speed_probe  # noqa: E402
 
 from cgp_core import limits  # noqa: E402
 from cgp_core.scene import scene_from_dict  # noqa: E402
@@ -148,9 +148,7 @@ def main(argv=None) -> int:
     out.data["rows"] = rows
     path = out.write()
     print(format_figures(out.data["figures"]))
-    probe = out.data["speed_probe"]
-    print(f"speed probe (numpy / python ms): before {probe['before']['numpy_ms']} / {probe['before']['python_ms']}, "
-          f"after {probe['after']['numpy_ms']} / {probe['after']['python_ms']}")
+    print(format_speed_probe(out.data["speed_probe"]))
     print(f"wrote {path.relative_to(ROOT)}")
     return 0
 

@@ -135,6 +135,12 @@ def format_stage_times(times: dict[str, float]) -> str:
     return "\n".join(lines)
 
 
+def format_speed_probe(probe: dict) -> str:
+    """A result's ``speed_probe`` (before / after, :func:`speed_probe`) on one line, to print beside its figures."""
+    return (f"speed probe (numpy / python ms): before {probe['before']['numpy_ms']} / {probe['before']['python_ms']}, "
+            f"after {probe['after']['numpy_ms']} / {probe['after']['python_ms']}")
+
+
 def format_figures(figures: list[dict], width: int = 62) -> str:
     """The figures as a plain-text table (value, target, pass / SHORT)."""
     lines = [f"{'figure':{width}} {'value':>10} {'unit':7} {'target':>28}  result"]

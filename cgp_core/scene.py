@@ -202,6 +202,11 @@ class Scene:
     bodies: list[BodySpec]
     flocks: list[Any]  # cgp_core.boids.FlockParams
 
+    def rigid_work(self) -> tuple[int, int]:
+        """``(shapes, particles)`` of the bodies, the counts a tick's work is bounded by
+        (:func:`cgp_core.limits.rigid_work_refusal`)."""
+        return rigid_work([b.parts for b in self.bodies], [b.particles for b in self.bodies])
+
     def build_bodies(self) -> tuple[BodyModel, BodyState]:
         """Static model and initial state arrays of the bodies (see cgp_core.bodies for every shape)."""
         n = len(self.bodies)
@@ -333,16 +338,16 @@ def scene_from_dict(data: Any, source: str = "<dict>") -> Scene:
     v.no_unknown_keys(data, {"world", "bodies", "flocks", "description"}, "")
     world = _parse_world(v, data.get("world", {}))
     bodies = _parse_bodies(v, data.get("bodies", []))
-    refusal = rigid_work_refusal(*rigid_work([b.parts for b in bodies], [b.particles for b in bodies]),
-                                 world.substeps)
+    flocks = _parse_flocks(v, data.get("flocks", []), reserved={b.name for b in bodies})
+    scene = Scene(source=source, world=world, bodies=bodies, flocks=flocks)
+    refusal = rigid_work_refusal(*scene.rigid_work(), world.substeps)
     if refusal:
         v.fail("world.substeps", refusal)
-    flocks = _parse_flocks(v, data.get("flocks", []), reserved={b.name for b in bodies})
     total = sum(f.count for f in flocks)
     if total > MAX_BOIDS:
         v.fail("flocks", f"{total} boids in all; a world holds at most {MAX_BOIDS} (cgp_core.limits)")
     v.raise_if_any()
-    return Scene(source=source, world=world, bodies=bodies, flocks=flocks)
+    return scene
 
 
 #: what a spawned entity may be: one scene-file entry of ``bodies`` or ``flocks``

@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .bodies import rigid_work, tensor_times, world_tensor
+from .bodies import tensor_times, world_tensor
 from .boids import Flock, Obstacles
 from .boids.predators import Predators
 from .dynamics import Ground, step_bodies
@@ -168,8 +168,7 @@ class World:
         self.integrator = make_integrator(scene.world.integrator)
         self.solver = make_solver(rolling_resistance=scene.world.rolling_resistance)
         # a scene file's own sub-steps were checked when it was loaded; these may be the caller's (the node's)
-        refusal = rigid_work_refusal(*rigid_work([b.parts for b in scene.bodies], [b.particles for b in scene.bodies]),
-                                     self.substeps)
+        refusal = rigid_work_refusal(*scene.rigid_work(), self.substeps)
         if refusal:
             raise SceneError(scene.source, [f"{'world.' if substeps is None else ''}substeps: {refusal}"])
         self.body_model, self._initial_body_state = scene.build_bodies()

@@ -35,8 +35,8 @@ from ..jit import njit
 
 _EMPTY = (np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp))
 
-#: a box whose largest extent exceeds this multiple of the median extent is "large" for the grid and is
-#: tested by brute force instead of being filed in cells (keeps the cells small when a scene has walls)
+#: a box whose largest extent exceeds this multiple of the median extent is "large" for the grid and is not
+#: filed in cells (:func:`grid_kernel` tests it apart; keeps the cells small when a scene has walls)
 LARGE_FACTOR = 4.0
 
 
@@ -193,17 +193,29 @@ def _add_pair(pi, pj, count, i, j):
 
 
 def grid_cell_size(lo: np.ndarray, hi: np.ndarray) -> float:
-    """The grid's cell edge: the largest extent among boxes no larger than ``LARGE_FACTOR`` × the median."""
-    extent = np.max(hi - lo, axis=1)
-    ordinary = extent[extent <= LARGE_FACTOR * np.median(extent)]
-    cell = float(ordinary.max()) if ordinary.size else float(extent.max())
+    """The grid's cell edge: the largest extent among boxes no larger than ``LARGE_FACTOR`` × the median
+    (:func:`cell_edge`)."""
+    return float(cell_edge(np.max(np.asarray(hi, float) - np.asarray(lo, float), axis=1)))
+
+
+@njit
+def cell_edge(extent):
+    """The grid's cell edge from the boxes' largest extents ``(n,)`` (finite): the largest among those no larger
+    than ``LARGE_FACTOR`` × the median; 1 m when there are none or all are points."""
+    if len(extent) == 0:
+        return 1.0
+    top = LARGE_FACTOR * np.median(extent)
+    cell = 0.0
+    for e in extent:
+        if cell < e <= top:
+            cell = e
     return cell if cell > 0.0 else 1.0
 
 
 def grid_pairs(lo: np.ndarray, hi: np.ndarray, cell_size: float | None = None, group: np.ndarray | None = None
                ) -> tuple[np.ndarray, np.ndarray]:
     """Uniform-grid broad phase (see the module docstring; compiled: :func:`grid_kernel`).  ``cell_size``
-    defaults to :func:`grid_cell_size`; boxes larger than a cell are tested against all boxes instead."""
+    defaults to :func:`grid_cell_size`; boxes larger than a cell are tested apart (see :func:`grid_kernel`)."""
     lo, hi, group = _check(lo, hi, group)
     p = len(lo)
     if p < 2:
@@ -219,7 +231,7 @@ def grid_pairs(lo: np.ndarray, hi: np.ndarray, cell_size: float | None = None, g
 @njit
 def grid_kernel(lo, hi, group, cell):
     """Every overlapping pair of AABBs ``lo, hi (p, 3)`` of different ``group`` (p,) once, as ``(i, j)`` with
-    ``i < j``, unordered: a uniform grid of edge ``cell`` [m] (``<= 0``: :func:`grid_cell_size`'s rule).  A box
+    ``i < j``, unordered: a uniform grid of edge ``cell`` [m] (``<= 0``: :func:`cell_edge` of the finite boxes).  A box
     with a non-finite bound overlaps nothing.
 
     The grid is a sorted array (Ericson 7.1.5): each box no larger than a cell is filed under the cell of its
@@ -243,19 +255,8 @@ def grid_kernel(lo, hi, group, cell):
             e = max(e, hi[k, d] - lo[k, d])
         finite[k] = ok
         extent[k] = e if ok else 0.0
-    if cell <= 0.0:  # grid_cell_size's rule, over the finite boxes
-        ext = extent[finite]
-        cell = 1.0
-        if len(ext):
-            top = LARGE_FACTOR * np.median(ext)
-            cell = 0.0
-            for e in ext:
-                if e <= top and e > cell:
-                    cell = e
-            if cell <= 0.0:
-                cell = max(ext.max(), 0.0)
-            if cell <= 0.0:
-                cell = 1.0
+    if cell <= 0.0:
+        cell = cell_edge(extent[finite])
     # a hair larger, so two boxes whose lower corners are exactly one cell apart cannot land two cells apart
     # through the rounding of lo / cell
     cell *= 1.0 + 1e-9
