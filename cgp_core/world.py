@@ -64,12 +64,20 @@ from .editing import (
     select_bodies,
 )
 from .integrators import make_integrator
-from .limits import BLOWUP_SPEED, BLOWUP_SPIN, MAX_BOIDS, MAX_COORDINATE, MAX_SPEED, MAX_SPIN, rigid_work_refusal
+from .limits import (
+    BLOWUP_SPEED,
+    BLOWUP_SPIN,
+    MAX_BODIES,
+    MAX_BOIDS,
+    MAX_COORDINATE,
+    MAX_NAME_LENGTH,
+    MAX_SPEED,
+    MAX_SPIN,
+    rigid_work_refusal,
+)
 from .rotation import quat_conjugate, quat_rotate, quat_to_matrix
 from .scene import (
     GROUND_NAME,
-    MAX_BODIES,
-    MAX_NAME_LENGTH,
     ROS_SAFE_NAME,
     Scene,
     SceneError,

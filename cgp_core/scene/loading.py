@@ -1,0 +1,193 @@
+"""Loading a scene: finding it (a file or a built-in name), reading it bounded (:mod:`cgp_core.user_input`),
+validating every section (``world`` here; ``bodies`` in :mod:`.bodies`, ``flocks`` in :mod:`.flocks`) into a
+:class:`~.specs.Scene`, and one entity to spawn into a running world (:func:`spawn_entry`)."""
+
+from __future__ import annotations
+
+from dataclasses import fields
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from ..integrators import DEFAULT_INTEGRATOR, INTEGRATORS
+from ..limits import (
+    MAX_BOIDS,
+    MAX_DAMPING,
+    MAX_FILE_BYTES,
+    MAX_FRICTION,
+    MAX_GRAVITY,
+    MAX_ROLLING_RESISTANCE,
+    rigid_work_refusal,
+)
+from ..user_input import SceneLoader, UserInputError, load_yaml, read_user_text
+from .bodies import parse_bodies, parse_body
+from .flocks import parse_flock, parse_flocks
+from .specs import Scene, WorldSpec
+from .validation import SceneError, Validator, kind_of
+
+#: the largest scene file (cgp_core.limits.MAX_FILE_BYTES); every other limit is in cgp_core.limits too
+MAX_SCENE_BYTES = MAX_FILE_BYTES
+#: the scene loader (PyYAML's safe loader, duplicate keys refused, YAML 1.2 floats): cgp_core.user_input
+_SceneLoader = SceneLoader
+
+
+def builtin_scene_dir() -> Path:
+    return Path(str(resources.files("msgs_config") / "scenes"))
+
+
+def builtin_scene_names() -> list[str]:
+    return sorted(p.stem for p in builtin_scene_dir().glob("*.yaml"))
+
+
+def scene_description(name_or_path: str | Path) -> str:
+    """The ``description:`` of a scene file or built-in scene (whitespace collapsed; "" when it has none)."""
+    path = resolve_scene(str(name_or_path))
+    try:
+        data = load_yaml(read_user_text(path))
+    except UserInputError as exc:
+        raise SceneError(str(path), [f"cannot read the description: {exc}"]) from None
+    text = data.get("description", "") if isinstance(data, dict) else ""
+    return " ".join(str(text).split())
+
+
+def resolve_scene(name_or_path: str) -> Path:
+    """A scene file path, or the name of a built-in scene (``default``, ...)."""
+    text = str(name_or_path).strip()
+    if not text:
+        raise SceneError("<scene>", [f"empty scene name; built-in scenes: {', '.join(builtin_scene_names())}"])
+    path = Path(text).expanduser()
+    if path.suffix in (".yaml", ".yml") or "/" in text:
+        if path.is_dir():
+            raise SceneError(text, ["is a directory, not a scene file"])
+        if not path.exists():
+            raise SceneError(text, ["no such scene file"])
+        return path  # read_user_file refuses what is not a regular file (a FIFO, a device), naming it
+    candidate = builtin_scene_dir() / f"{text}.yaml"
+    if candidate.is_file():
+        return candidate
+    raise SceneError(
+        text, [f"no built-in scene of that name; built-in scenes: {', '.join(builtin_scene_names())}"]
+    )
+
+
+def load_scene(name_or_path: str | Path) -> Scene:
+    """Read, parse (safe_load) and validate a scene file or built-in scene name."""
+    path = resolve_scene(str(name_or_path))
+    source = str(path)
+    try:  # a regular file only (no FIFO, no device), size-capped before and while reading
+        text = read_user_text(path, max_bytes=MAX_SCENE_BYTES)
+    except UserInputError as exc:
+        raise SceneError(source, [str(exc).replace("files are limited", "scenes are limited")]) from None
+    return parse_scene(text, source)
+
+
+def parse_yaml(text: str, source: str = "<string>") -> Any:
+    """YAML text as plain data, read as scenes are (:func:`cgp_core.user_input.load_yaml`: safe subset, YAML 1.2
+    floats, duplicate keys rejected, bounded in bytes, depth and nodes); ``SceneError`` with the line and
+    column of malformed YAML (never quoting the text)."""
+    try:
+        return load_yaml(text)
+    except UserInputError as exc:
+        raise SceneError(source, [str(exc)]) from None
+
+
+def parse_scene(text: str, source: str = "<string>") -> Scene:
+    return scene_from_dict(parse_yaml(text, source), source)
+
+
+def scene_from_dict(data: Any, source: str = "<dict>") -> Scene:
+    """Validate a parsed scene (e.g. from YAML) and return the :class:`Scene`; raises :class:`SceneError`."""
+    v = Validator(source)
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise SceneError(source, [f"top level must be a mapping with keys world/bodies/flocks, got {kind_of(data)}"])
+    v.no_unknown_keys(data, {"world", "bodies", "flocks", "description"}, "")
+    world = parse_world(v, data.get("world", {}))
+    bodies = parse_bodies(v, data.get("bodies", []))
+    flocks = parse_flocks(v, data.get("flocks", []), reserved={b.name for b in bodies})
+    scene = Scene(source=source, world=world, bodies=bodies, flocks=flocks)
+    refusal = rigid_work_refusal(*scene.rigid_work(), world.substeps)
+    if refusal:
+        v.fail("world.substeps", refusal)
+    total = sum(f.count for f in flocks)
+    if total > MAX_BOIDS:
+        v.fail("flocks", f"{total} boids in all; a world holds at most {MAX_BOIDS} (cgp_core.limits)")
+    v.raise_if_any()
+    return scene
+
+
+#: what a spawned entity may be: one scene-file entry of ``bodies`` or ``flocks``
+SPAWN_KINDS = ("body", "flock")
+
+
+def spawn_entry(data: Any, source: str, *, name: str, taken: set[str] = frozenset(),
+                position=(0.0, 0.0, 0.0), orientation=(0.0, 0.0, 0.0, 1.0)):
+    """Validate an entity to spawn into a running world: ``{body: <entry>}`` or ``{flock: <entry>}``, where the
+    entry is what a scene file's ``bodies`` / ``flocks`` list holds, without ``name`` (``name`` here) and, for a
+    body, without ``position`` / ``orientation`` (``position`` (3,), ``orientation`` (4,) xyzw here: the pose of
+    the body origin, as a scene gives it); for a flock ``position`` is the spawn centre (``spawn.center``).
+
+    Returns ``("body", BodySpec)`` or ``("flock", FlockParams)``.  Raises :class:`SceneError` with the same
+    texts as a scene file, key paths starting at ``body`` / ``flock`` (``body (box1).size[1]: must be > 0``)."""
+    v = Validator(source)
+    if not isinstance(data, dict) or len(data) != 1 or next(iter(data)) not in SPAWN_KINDS:
+        # not an entry of ours: its keys are not quoted (a uri may name any readable file, /etc/shadow)
+        keys = kind_of(data)
+        if isinstance(data, dict) and data:
+            ours = [k for k in SPAWN_KINDS if k in data]
+            keys = f"a mapping of {len(data)} keys" + (f" ({' and '.join(ours)} among them)" if ours
+                                                       else ", none of them body or flock")
+        raise SceneError(source, [f"must be a mapping with exactly one key, body or flock (a scene file's "
+                                  f"bodies / flocks entry), got {keys}"])
+    kind, raw = next(iter(data.items()))
+    if not isinstance(raw, dict):
+        raise SceneError(source, [f"{kind}: must be a mapping (a scene file's {kind} entry), got {kind_of(raw)}"])
+    given_by_request = {"name": "the request's name"}
+    if kind == "body":
+        given_by_request.update(position="the request's initial_pose", orientation="the request's initial_pose")
+    for key, where in given_by_request.items():
+        if key in raw:
+            v.fail(f"{kind}.{key}", f"given by {where}; leave it out")
+    spawn = raw.get("spawn")
+    if kind == "flock" and isinstance(spawn, dict) and "center" in spawn:
+        v.fail(f"{kind}.spawn.center", "given by the request's initial_pose (the spawn centre); leave it out")
+    v.raise_if_any()
+    entry = dict(raw, name=name)
+    if kind == "body":
+        entry.update(position=[float(x) for x in position], orientation=[float(x) for x in orientation])
+        spec = parse_body(v, entry, kind, set(taken))
+    else:
+        if spawn is None or isinstance(spawn, dict):
+            entry["spawn"] = {**(spawn or {}), "center": [float(x) for x in position]}
+        spec = parse_flock(v, entry, kind, set(taken))
+    v.raise_if_any()
+    return kind, spec
+
+
+def parse_world(v: Validator, raw: Any) -> WorldSpec:
+    d = v.mapping(raw, "world")
+    spec = WorldSpec()
+    v.no_unknown_keys(d, {f.name for f in fields(WorldSpec)}, "world")
+    if "gravity" in d:
+        spec.gravity = v.vector(d["gravity"], "world.gravity", 3, max_norm=MAX_GRAVITY, unit="m/s²",
+                                within=(-MAX_GRAVITY, MAX_GRAVITY))
+    if "ground" in d:
+        spec.ground = v.boolean(d["ground"], "world.ground", True)
+    if "sleep" in d:
+        spec.sleep = v.boolean(d["sleep"], "world.sleep", True)
+    if "ground_friction" in d:
+        spec.ground_friction = v.number(d["ground_friction"], "world.ground_friction", minimum=0.0, default=0.6,
+                                        within=(0.0, MAX_FRICTION))
+    if "ground_restitution" in d:
+        spec.ground_restitution = v.number(d["ground_restitution"], "world.ground_restitution", minimum=0.0,
+                                           maximum=1.0)
+    if "integrator" in d:
+        spec.integrator = v.choice(d["integrator"], "world.integrator", sorted(INTEGRATORS), DEFAULT_INTEGRATOR)
+    if "substeps" in d:
+        spec.substeps = v.integer(d["substeps"], "world.substeps", minimum=1, maximum=1000, default=4)
+    for key, top, unit in (("linear_damping", MAX_DAMPING, "1/s"), ("angular_damping", MAX_DAMPING, "1/s"),
+                           ("rolling_resistance", MAX_ROLLING_RESISTANCE, "")):
+        if key in d:
+            setattr(spec, key, v.number(d[key], f"world.{key}", minimum=0.0, within=(0.0, top), unit=unit))
+    return spec
