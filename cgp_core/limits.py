@@ -62,6 +62,10 @@ MAX_HULL_VERTICES = 1024
 MAX_MESH_FILE_BYTES = 32 * 1024 * 1024
 MAX_MESH_VERTICES = 500_000
 MAX_MESH_TRIANGLES = 500_000
+#: the mesh files one scene or one spawn request reads, together, in bytes (each file counted once, by its size,
+#: before it is read): parsing costs ~1 s per 30 MB (issue 38: a compound body's 256 parts could each name a
+#: different 32 MB file)
+MAX_MESH_BYTES_PER_REQUEST = 4 * MAX_MESH_FILE_BYTES
 #: parts of one compound body (each is a collision primitive of its own)
 MAX_PARTS_PER_BODY = 256
 #: a tick's rigid-body work, which grows with the sub-steps (``world.substeps``, the node's ``substeps``): issue 27

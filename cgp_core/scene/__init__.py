@@ -80,8 +80,9 @@ addition: a key given twice in one mapping is an error, not silently "the last o
 The package, one file per part of that: :mod:`.validation` (``SceneError``, the ``Validator`` every part checks
 its keys with), :mod:`.specs` (the parsed scene as plain data), :mod:`.loading` (finding and reading a scene,
 the ``world`` block, spawn entries), :mod:`.bodies` (``bodies`` entries and the closed-form shapes),
-:mod:`.particles` (the particle set), :mod:`.shapes` (issue 25's convex, compound and mesh shapes and the mesh
-files they read) and :mod:`.flocks` (``flocks`` entries).
+:mod:`.particles` (the particle set), :mod:`.shapes` (issue 25's convex, compound and mesh shapes),
+:mod:`.mesh_files` (the mesh files they read: once per request, their numbers held to the scene's ranges after
+the scale) and :mod:`.flocks` (``flocks`` entries).
 """
 
 from .bodies import body_reach
@@ -100,7 +101,8 @@ from .loading import (
     scene_from_dict,
     spawn_entry,
 )
-from .shapes import builtin_mesh_dir, compound_half_extents
+from .mesh_files import builtin_mesh_dir
+from .shapes import compound_half_extents
 from .specs import BodySpec, Scene, WorldSpec
 from .validation import COORDINATES, GROUND_NAME, LENGTHS, MAX_REPORTED_PROBLEMS, ROS_SAFE_NAME, SceneError, Validator
 

@@ -1,11 +1,10 @@
 """Issue 25's shapes: convex hulls (of ``points`` or of a mesh file's vertices), compound bodies (parts at
-relative poses) and static meshes (a BVH over a mesh file's triangles); the mesh files they read (where a
-``mesh:`` value points, ``scale``, a bounded cache of what was read and built)."""
+relative poses) and static meshes (a BVH over a mesh file's triangles); the mesh files they read are
+:mod:`.mesh_files`'."""
 
 from __future__ import annotations
 
-from importlib import resources
-from pathlib import Path
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -14,14 +13,9 @@ from ..bodies import CompoundParts, Shape
 from ..inertia import compound_mass_properties, shape_mass_properties
 from ..limits import MAX_PARTS_PER_BODY
 from ..rotation import quat_normalize
+from .mesh_files import cached, parse_scale, read_mesh, scaled_points_problem
 from .specs import PART_KEYS, PART_SHAPES, SHAPE_KEYS, BodySpec
-from .validation import COORDINATES, LENGTHS, Validator, kind_of, short_repr
-
-
-def builtin_mesh_dir() -> Path:
-    """The meshes shipped with the package (``msgs_config/meshes``): where a relative ``mesh:`` not found next to
-    the scene file is looked for."""
-    return Path(str(resources.files("msgs_config") / "meshes"))
+from .validation import COORDINATES, LENGTHS, Validator, kind_of
 
 
 def parse_issue25_shape(v: Validator, raw: dict, key: str, shape_name: str, spec: BodySpec, mass, density) -> None:
@@ -55,112 +49,53 @@ def parse_issue25_shape(v: Validator, raw: dict, key: str, shape_name: str, spec
         spec.half_extents = np.abs(mesh.vertices).max(axis=0)
 
 
-def _scale(v: Validator, raw: dict, key: str) -> np.ndarray | None:
-    """``scale``: a positive factor or three ([sx, sy, sz]); (3,)."""
-    if "scale" not in raw:
-        return np.ones(3)
-    value = raw["scale"]
-    if isinstance(value, (list, tuple)):
-        before = len(v.problems)
-        scale = v.vector(value, f"{key}.scale", 3, minimum=0.0, exclusive_min=True)
-        return scale if len(v.problems) == before else None
-    before = len(v.problems)
-    factor = v.number(value, f"{key}.scale", minimum=0.0, exclusive_min=True, default=1.0)
-    return np.full(3, factor) if len(v.problems) == before else None
-
-
-def _mesh_path(v: Validator, value: Any, key: str) -> Path | None:
-    """Where a ``mesh:`` value points: a ``file://`` URI or an absolute path as given; a relative path from the
-    scene file's directory (a spawn request's ``uri``: that file's), else from the built-in meshes
-    (:func:`builtin_mesh_dir`)."""
-    from urllib.parse import unquote, urlparse
-
-    text = v.string(value, key)
-    if not text.strip():
-        v.fail(key, "must name a mesh file (.stl or .obj): a path, or a file:// URI")
-        return None
-    parsed = urlparse(text)
-    if parsed.scheme == "file":
-        return Path(unquote(parsed.path))
-    if parsed.scheme and len(parsed.scheme) > 1:
-        v.fail(key, f"{short_repr(text)}: only local files are read (a path, or a file:// URI), not {parsed.scheme}:")
-        return None
-    path = Path(text).expanduser()
-    if path.is_absolute():
-        return path
-    source = Path(v.source)
-    candidates = ([source.parent / path] if source.is_file() else []) + [builtin_mesh_dir() / path]
-    return next((c for c in candidates if c.exists()), candidates[0])
-
-
-#: meshes already read and hulls / BVHs already built, by (file, its size and mtime, scale, what): a pile of
-#: rocks from one STL file reads it once (bounded: the oldest entries go)
-_MESH_CACHE: dict = {}
-_MESH_CACHE_SIZE = 32
-
-
-def _cached(path: Path, scale: np.ndarray, what: str, build):
-    try:
-        stat = path.stat()
-        ident = (str(path.resolve()), stat.st_size, stat.st_mtime_ns, tuple(scale), what)
-    except OSError:
-        return build()  # (the loader names the problem)
-    if ident not in _MESH_CACHE:
-        if len(_MESH_CACHE) >= _MESH_CACHE_SIZE:
-            del _MESH_CACHE[next(iter(_MESH_CACHE))]
-        _MESH_CACHE[ident] = build()
-    return _MESH_CACHE[ident]
-
-
-def _read_mesh(v: Validator, raw: dict, key: str, *, closed: bool = False):
-    """``(path, vertices (V, 3) scaled, triangles (T, 3))`` of the ``mesh`` key, or None (the problem recorded)."""
-    from ..collision.meshfile import MeshFileError, load_mesh
-
-    scale = _scale(v, raw, key)
-    path = _mesh_path(v, raw.get("mesh"), f"{key}.mesh")
-    if path is None or scale is None:
-        return None
-    try:
-        vertices, triangles = _cached(path, scale, "mesh", lambda: load_mesh(path, closed=closed))
-    except MeshFileError as exc:
-        v.fail(f"{key}.mesh", str(exc))
-        return None
-    return path, vertices * scale, triangles
-
-
 def _convex_hull_of(v: Validator, raw: dict, key: str, name: str, notes: list):
     """The :class:`~cgp_core.collision.convex.ConvexPolyhedron` of a convex body or part: of ``points`` or of the
-    vertices of ``mesh`` (exactly one), scaled; a non-convex input gives its hull and a note says so."""
+    vertices of ``mesh`` (exactly one), scaled; a non-convex input gives its hull and a note says so.
+
+    A mesh file's hull is built once per file (cached with the file, :mod:`.mesh_files`) from its vertices as
+    read, and the scaled hull is the hull of its vertices scaled (a scale is linear: the hull of the scaled
+    points is the scaled hull), which costs a few hundred points, not the file's (a compound body's parts may
+    name one file at many scales)."""
     from ..collision.convex import MAX_INPUT_POINTS, HullError, convex_hull
 
     if ("points" in raw) == ("mesh" in raw):
         v.fail(key, "give points (a list of [x, y, z]) or mesh (an .stl / .obj file): exactly one")
         return None
-    if "mesh" in raw:
-        loaded = _read_mesh(v, raw, key)
-        if loaded is None:
-            return None
-        path, points, _ = loaded
-        what, given = f"{key}.mesh ({path.name})", f"{len(points)} vertices of {path.name}"
-    else:
-        scale = _scale(v, raw, key)
-        points = raw["points"]
-        if not isinstance(points, list):
-            v.fail(f"{key}.points", f"must be a list of [x, y, z] points, got {kind_of(points)}")
-            return None
-        if len(points) > MAX_INPUT_POINTS:
-            v.fail(f"{key}.points", f"{len(points)} points; at most {MAX_INPUT_POINTS}")
-            return None
-        before = len(v.problems)
-        rows = [v.vector(p, f"{key}.points[{i}]", 3, within=COORDINATES, unit="m") for i, p in enumerate(points)]
-        if len(v.problems) > before or scale is None:
-            return None
-        points = np.array(rows, dtype=float).reshape(-1, 3) * scale
-        what, given = f"{key}.points", f"{len(points)} points"
     try:
-        hull = convex_hull(points, what=what)
+        if "mesh" in raw:
+            loaded = read_mesh(v, raw, key, solid=True)
+            if loaded is None:
+                return None
+            what = f"{key}.mesh ({loaded.path.name})"
+            given = f"{len(loaded.vertices)} vertices of {loaded.path.name}"
+            unscaled = cached(("hull", loaded.identity), lambda: convex_hull(loaded.file_vertices, what=_WHAT))
+            hull = unscaled
+            if loaded.scale != (1.0, 1.0, 1.0):
+                scaled = convex_hull(unscaled.vertices * loaded.scale, what=_WHAT)
+                hull = replace(scaled, interior_points=len(loaded.vertices) - len(scaled.vertices))
+        else:
+            scale = parse_scale(v, raw, key)
+            points = raw["points"]
+            if not isinstance(points, list):
+                v.fail(f"{key}.points", f"must be a list of [x, y, z] points, got {kind_of(points)}")
+                return None
+            if len(points) > MAX_INPUT_POINTS:
+                v.fail(f"{key}.points", f"{len(points)} points; at most {MAX_INPUT_POINTS}")
+                return None
+            before = len(v.problems)
+            rows = [v.vector(p, f"{key}.points[{i}]", 3, within=COORDINATES, unit="m") for i, p in enumerate(points)]
+            if len(v.problems) > before or scale is None:
+                return None
+            points = np.array(rows, dtype=float).reshape(-1, 3) * scale
+            what, given = f"{key}.points", f"{len(points)} points"
+            problem = scaled_points_problem(points, solid=True)
+            if problem:
+                v.fail(f"{key}.scale" if "scale" in raw else f"{key}.points", problem)
+                return None
+            hull = convex_hull(points, what=what)
     except HullError as exc:
-        v.fail("", str(exc))
+        v.fail("", str(exc).replace(_WHAT, what, 1))
         return None
     if hull.interior_points:
         notes.append(("warn", f"{v.source}: {key}: {hull.interior_points} of the {given} are not vertices of their "
@@ -169,21 +104,24 @@ def _convex_hull_of(v: Validator, raw: dict, key: str, name: str, notes: list):
     return hull
 
 
+#: what a cached hull's refusal names, replaced by the key path of the request that meets it
+_WHAT = "<mesh>"
+
+
 def _static_mesh(v: Validator, raw: dict, key: str, notes: list, name: str):
-    """A fixed body's :class:`~cgp_core.collision.bvh.StaticMesh` (its BVH built once, here), and a note with the
-    build time and memory."""
+    """A fixed body's :class:`~cgp_core.collision.bvh.StaticMesh` (its BVH built once per file and scale, cached),
+    and a note with the build time and memory."""
     from ..collision.bvh import StaticMesh
 
     if "mesh" not in raw:
         v.fail(f"{key}.mesh", "missing (an .stl / .obj file)")
         return None
-    loaded = _read_mesh(v, raw, key)
+    loaded = read_mesh(v, raw, key, solid=False)
     if loaded is None:
         return None
-    path, vertices, triangles = loaded
-    scale = _scale(v, raw, key)
-    mesh = _cached(path, scale, "bvh", lambda: StaticMesh.build(vertices, triangles))
-    notes.append(("info", f"static mesh {name}: {path.name}, {len(mesh.triangles)} triangles, "
+    mesh = cached(("bvh", loaded.identity, loaded.scale), lambda: StaticMesh.build(loaded.vertices,
+                                                                                   loaded.triangles))
+    notes.append(("info", f"static mesh {name}: {loaded.path.name}, {len(mesh.triangles)} triangles, "
                           f"{len(mesh.vertices)} vertices; BVH of {len(mesh.node_count)} nodes built in "
                           f"{mesh.build_seconds * 1e3:.1f} ms, {mesh.nbytes / 1e6:.2f} MB with the mesh"))
     return mesh

@@ -65,9 +65,14 @@ def kind_of(value: Any) -> str:
 
 
 class Validator:
+    """The validation of one scene file or request: ``source`` (its name, and the directory relative files are
+    found from), ``problems`` (every problem found, as ``key: reason``) and ``files`` (the files it has read and
+    what they gave, by identity: each is read once per request, :mod:`.mesh_files`)."""
+
     def __init__(self, source: str):
         self.source = source
         self.problems: list[str] = []
+        self.files: dict[tuple, Any] = {}
 
     def fail(self, key: str, reason: str) -> None:
         self.problems.append(f"{key}: {reason}" if key else reason)
