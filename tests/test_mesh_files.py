@@ -127,7 +127,7 @@ def test_a_malformed_binary_stl_is_refused_with_its_reason(tmp_path):
     (b"solid a\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nendloop\nendfacet\nendsolid a\n",
      "the ASCII STL facet ending on line 7 is not"),
     (b"solid a\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 x1\nvertex 0 1 0\nendloop\nendfacet\n",
-     "an ASCII STL vertex coordinate 'x1' is not a number"),
+     "line 2: a vertex coordinate of the facet there is not a number"),
     (b"solid a\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 " + b"1" * 65
      + b"\nvertex 0 1 0\nendloop\nendfacet\n", "numbers of at most 64 characters"),
 ])
@@ -139,16 +139,32 @@ def test_a_malformed_ascii_stl_is_refused_naming_the_facet(text, reason):
 @pytest.mark.parametrize("text, reason", [
     (b"v 0 0 0\nv 1 0\nv 0 1 0\nf 1 2 3\n", "line 2: a 'v' line needs x y z"),
     (b"v 0 0 0\nv 1 0 0\nv 0 1 0\n\nf 1 2\n", "line 5: an 'f' line needs at least 3 corners"),
-    (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n", "an 'f' corner 'x' is not a vertex index"),
-    (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "names vertex 0, but the file defines 3 vertices"),
-    (b"v 0 0 0\nv 1 0 0\nf -1 -2 -3\nv 0 1 0\n", "names vertex -3, but the file defines 3 vertices, 2 of them "
-                                                   "before that line"),
+    (b"v 0 0 0\nv 1 0 x\nv 0 1 0\nf 1 2 3\n", "line 2: a 'v' coordinate is not a number"),
+    (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n", "line 4: an 'f' corner is not a vertex index"),
+    (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "line 4: an 'f' corner names vertex 0, but the file defines 3 "
+                                                "vertices"),
+    (b"v 0 0 0\nv 1 0 0\nf -1 -2 -3\nv 0 1 0\n", "line 3: an 'f' corner names vertex -3, but the file defines 3 "
+                                                   "vertices, 2 of them before that line"),
     (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -9223372036854775808\n", "names vertex -9223372036854775808"),
-    (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999999\n", r"names vertex 999999999999\.\.\. \(23 digits\)"),
+    (b"v 0 0 0\nv 1 0 0\nv 0 1 0\n# x\nf 1 2 99999999999999999999999\n", "line 5: an 'f' corner is not a vertex "
+                                                                          "index"),
 ])
 def test_a_malformed_obj_is_refused_naming_the_line_or_index(text, reason):
     with pytest.raises(MeshFileError, match=reason):
         parse_mesh(text, "obj", "bad.obj")
+
+
+def test_a_refusal_never_quotes_the_file(tmp_path):
+    """A mesh "file" may be a link to any readable file: what it holds is never in the message."""
+    secret = tmp_path / "secret.txt"
+    secret.write_text("v root:x:0:0 hunter2 s3cret\nf 1 2 3\n")
+    (tmp_path / "link.obj").symlink_to(secret)
+    (tmp_path / "link.stl").symlink_to(secret)
+    for link in ("link.obj", "link.stl"):
+        with pytest.raises(MeshFileError) as refused:
+            load_mesh(tmp_path / link)
+        reason = str(refused.value).split(f"{link}: ", 1)[1]  # (the path itself may hold anything)
+        assert not any(word in reason for word in ("root", "hunter2", "s3cret")), reason
 
 
 # ---- D5: linear parsers -------------------------------------------------------------------------------------
@@ -178,14 +194,14 @@ def test_many_solids_and_groups_parse_within_a_bound():
 def test_triangle_caps_are_checked_before_parsing(monkeypatch):
     """A scan's count refuses the file before a number is converted."""
     monkeypatch.setattr(meshfile, "MAX_TRIANGLES", 10)
-    monkeypatch.setattr(meshfile, "_numbers", lambda *a: pytest.fail("parsed a file a scan refuses"))
+    monkeypatch.setattr(meshfile, "_convert", lambda *a: pytest.fail("parsed a file a scan refuses"))
     vertices, triangles = _triangles(11)
     for text, file_type in ((ascii_stl(vertices[triangles]), "stl"), (obj(vertices, triangles.tolist()), "obj"),
                             (binary_stl(vertices[triangles]), "stl")):
         with pytest.raises(MeshFileError, match="too big: .* 11 triangles, more than the 10 allowed"):
             parse_mesh(text, file_type, "big")
     with pytest.raises(MeshFileError, match="too big: its OBJ's polygons make 12 triangles"):
-        monkeypatch.setattr(meshfile, "_numbers", lambda tokens, *a: np.zeros(len(tokens)))
+        monkeypatch.setattr(meshfile, "_convert", lambda tokens, dtype: np.zeros(len(tokens), dtype))
         parse_mesh(obj(vertices, [[0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13]]), "obj", "fan")
 
 
@@ -215,7 +231,8 @@ def test_a_file_is_read_once_per_request_even_when_refused(tmp_path, monkeypatch
     scene = f"bodies:\n  - {{name: c, shape: compound, parts: [{parts}], mass: 1}}\n"
     with pytest.raises(SceneError) as refused:
         _scene(tmp_path, scene)
-    assert len(refused.value.problems) == 20 and all("names vertex 100000" in p for p in refused.value.problems)
+    last = f"line {len(bad.read_bytes().splitlines())}: an 'f' corner names vertex 100000"
+    assert len(refused.value.problems) == 20 and all(last in p for p in refused.value.problems)
     assert reads == [str(bad)]
     # a good file: once for all its parts at many scales, and not again for the next request while unchanged
     good = tmp_path / "good.obj"

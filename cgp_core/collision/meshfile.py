@@ -197,37 +197,54 @@ def _parse_ascii_stl(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
     count = text.count(b"endfacet")
     if count > MAX_TRIANGLES:
         raise _too_many_triangles(name, count, "its ASCII STL has")
-    ends, chunks, chunk = set(), [], []
-    for match in _ASCII_FACET.finditer(text):
-        ends.add(match.end())
-        chunk += match.groups()
-        if len(chunk) >= _CHUNK_TOKENS:
-            chunks.append(_numbers(chunk, name, "an ASCII STL vertex"))
-            chunk = []
+    ends, chunks, chunk, converted = set(), [], [], 0
+    try:
+        for match in _ASCII_FACET.finditer(text):
+            ends.add(match.end())
+            chunk += match.groups()
+            if len(chunk) >= _CHUNK_TOKENS:
+                chunks.append(_convert(chunk, np.float64))
+                converted, chunk = converted + len(chunk), []
+        if len(ends) == count:
+            chunks.append(_convert(chunk, np.float64))
+    except _BadToken as bad:
+        facet = next(m for k, m in enumerate(_ASCII_FACET.finditer(text)) if k == (converted + bad.index) // 9)
+        line = text.count(b"\n", 0, facet.start()) + 1
+        raise MeshFileError(f"mesh file {name}: not a mesh: line {line}: a vertex coordinate of the facet there is "
+                            "not a number") from None
     if len(ends) != count:
-        bad = next((e.end() for e in _ASCII_END.finditer(text) if e.end() not in ends), len(text))
-        line = text.count(b"\n", 0, bad) + 1
+        end = next((e.end() for e in _ASCII_END.finditer(text) if e.end() not in ends), len(text))
+        line = text.count(b"\n", 0, end) + 1
         raise MeshFileError(f"mesh file {name}: not a mesh: the ASCII STL facet ending on line {line} is not "
                             "'facet normal nx ny nz / outer loop / vertex x y z (three times) / endloop / endfacet' "
                             f"(numbers of at most {MAX_NUMBER_CHARACTERS} characters)")
-    chunks.append(_numbers(chunk, name, "an ASCII STL vertex"))
     corners = np.concatenate(chunks).reshape(-1, 3)
     return corners, np.arange(len(corners), dtype=np.int64).reshape(-1, 3)
 
 
-def _numbers(tokens: list[bytes], name: str, what: str) -> np.ndarray:
+class _BadToken(Exception):
+    """The ``index``-th token of those converted is not a number (an index: not an int64)."""
+
+    def __init__(self, index: int):
+        super().__init__(index)
+        self.index = index
+
+
+def _convert(tokens: list[bytes], dtype) -> np.ndarray:
     """``tokens`` (each at most :data:`MAX_NUMBER_CHARACTERS` bytes, at most :data:`_CHUNK_TOKENS` of them: the
-    array converted is as wide as the widest) as float64 (n,); a token that is not a number is refused, quoted."""
+    array converted is as wide as the widest) as ``dtype`` (float64 or int64) (n,); raises :class:`_BadToken`
+    for the first that is not one.  (Refusals never quote a file: a mesh "file" may be a link to any file.)"""
     try:
-        return np.array(tokens, dtype=np.bytes_).astype(np.float64).reshape(-1)
-    except ValueError:
-        for token in tokens:
+        return np.array(tokens, dtype=np.bytes_).astype(dtype).reshape(-1)
+    except (ValueError, OverflowError):
+        parse = float if dtype == np.float64 else int
+        for k, token in enumerate(tokens):
             try:
-                float(token)
+                value = parse(token)
             except ValueError:
-                shown = token.decode("ascii", "replace")
-                raise MeshFileError(f"mesh file {name}: not a mesh: {what} coordinate {shown!r} is not a "
-                                    "number") from None
+                raise _BadToken(k) from None
+            if parse is int and not -(2**63) <= value < 2**63:
+                raise _BadToken(k) from None
         raise
 
 
@@ -243,11 +260,18 @@ def _parse_obj(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
     if short is not None:
         raise _obj_error(data, _OBJ_V, short, name, "a 'v' line needs x y z")
     coordinates = [x for fields in vertex_fields for x in fields[:3]]
-    if any(len(x) > MAX_NUMBER_CHARACTERS for x in coordinates):
-        raise MeshFileError(f"mesh file {name}: not a mesh: a 'v' coordinate of more than "
-                            f"{MAX_NUMBER_CHARACTERS} characters")
-    points = np.concatenate([np.zeros(0)] + [_numbers(coordinates[i:i + _CHUNK_TOKENS], name, "a 'v'")
-                                             for i in range(0, len(coordinates), _CHUNK_TOKENS)]).reshape(-1, 3)
+    long = next((k for k, x in enumerate(coordinates) if len(x) > MAX_NUMBER_CHARACTERS), None)
+    if long is not None:
+        raise _obj_error(data, _OBJ_V, long // 3, name, f"a 'v' coordinate of more than {MAX_NUMBER_CHARACTERS} "
+                         "characters")
+    chunks = [np.zeros(0)]
+    for first in range(0, len(coordinates), _CHUNK_TOKENS):
+        try:
+            chunks.append(_convert(coordinates[first:first + _CHUNK_TOKENS], np.float64))
+        except _BadToken as bad:
+            raise _obj_error(data, _OBJ_V, (first + bad.index) // 3, name, "a 'v' coordinate is not a number") \
+                from None
+    points = np.concatenate(chunks).reshape(-1, 3)
     vertices = len(points)
     sizes = np.array([len(rest.split()) for rest in face_rests], dtype=np.int64)
     if (sizes < 3).any():
@@ -262,8 +286,15 @@ def _parse_obj(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
     if len(corners) != int(sizes.sum()):  # a corner that is only "/...": no index
         raise MeshFileError(f"mesh file {name}: not a mesh: an 'f' corner without a vertex index (i, i/j, i//k or "
                             "i/j/k)")
-    index = np.concatenate([_indices(corners[i:i + _CHUNK_TOKENS], name)
-                            for i in range(0, len(corners), _CHUNK_TOKENS)])
+    chunks = []
+    for first in range(0, len(corners), _CHUNK_TOKENS):
+        try:
+            chunks.append(_convert(corners[first:first + _CHUNK_TOKENS], np.int64))
+        except _BadToken as bad:
+            face = int(np.searchsorted(np.cumsum(sizes), first + bad.index, side="right"))
+            raise _obj_error(data, _OBJ_F, face, name, "an 'f' corner is not a vertex index (i, i/j, i//k or i/j/k "
+                             "with i an integer within int64)") from None
+    index = np.concatenate(chunks)
     # a positive index may name a vertex defined later (as common readers allow); a negative one counts back
     # from the last vertex defined before its line (compared as index >= -base: -index overflows at -2**63)
     base = np.zeros(len(index), np.int64)
@@ -274,30 +305,11 @@ def _parse_obj(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
     valid = ((index > 0) & (index <= vertices)) | ((index < 0) & (index >= -base))
     if not valid.all():
         k = int(np.flatnonzero(~valid)[0])
-        raise MeshFileError(f"mesh file {name}: not a mesh: an 'f' line names vertex {index[k]}, but the file "
-                            f"defines {vertices} vertices" + (f", {base[k]} of them before that line"
-                                                              if index[k] < 0 else "")
-                            + " (OBJ counts from 1; a negative index counts back from the last one before the "
-                            "line)")
+        face = int(np.searchsorted(np.cumsum(sizes), k, side="right"))
+        raise _obj_error(data, _OBJ_F, face, name, f"an 'f' corner names vertex {index[k]}, but the file defines "
+                         f"{vertices} vertices" + (f", {base[k]} of them before that line" if index[k] < 0 else "")
+                         + " (OBJ counts from 1; a negative index counts back from the last one before the line)")
     return points, _fans(np.where(index > 0, index - 1, base + index), sizes)
-
-
-def _indices(tokens: list[bytes], name: str) -> np.ndarray:
-    """OBJ vertex indices (the text before a corner's first ``/``) as int64 (n,)."""
-    try:
-        return np.array(tokens, dtype=np.bytes_).astype(np.int64).reshape(-1)
-    except (ValueError, OverflowError):
-        for token in tokens:
-            try:
-                value = int(token)
-            except ValueError:
-                shown = token[:MAX_NUMBER_CHARACTERS].decode("ascii", "replace")
-                raise MeshFileError(f"mesh file {name}: not a mesh: an 'f' corner {shown!r} is not a vertex "
-                                    "index (i, i/j, i//k or i/j/k)") from None
-            if not -(2**63) <= value < 2**63:
-                raise MeshFileError(f"mesh file {name}: not a mesh: an 'f' line names vertex {str(value)[:12]}... "
-                                    f"({len(str(value))} digits), beyond any file's vertices") from None
-        raise
 
 
 def _fans(corners: np.ndarray, sizes: np.ndarray) -> np.ndarray:
