@@ -153,3 +153,111 @@ def test_a_million_triangle_mesh_builds_within_a_bound():
     bits = np.unpackbits(mesh.active_edges[:, None], axis=1).sum()
     assert len(mesh.triangles) == 2 * side * side and bits == 4 * side  # flat: only the boundary's edges are active
     assert tree_depth(mesh) + 1 <= bvh.STACK_DEPTH
+
+
+# ---- D4: contacts on fine meshes cost what the contact needs ------------------------------------------------
+
+def test_the_separation_bound_is_never_below_gjk_and_epa():
+    """:func:`.manifold._separation_at_most` stands in for GJK / EPA where it decides the same: it must be an upper
+    bound of their separation (apart: the distance; overlapping: minus the depth), for any triangle and hull."""
+    from scipy.spatial.transform import Rotation
+
+    from cgp_core.collision.convex import HullSet, PosedHull, box_hull, convex_hull, posed
+    from cgp_core.collision.gjk import support_point
+    from cgp_core.collision.manifold import _separation_at_most, core_of, signed_distance
+
+    rng = np.random.default_rng(25)
+    hulls = [HullSet.from_hulls([h]).hull(0) for h in
+             (box_hull([0.5, 0.3, 0.2]), *(convex_hull(rng.normal(size=(k, 3))) for k in (6, 12, 40)))]
+    bounded = 0
+    for trial in range(3000):
+        hull = posed(hulls[trial % len(hulls)], rng.normal(size=3) * 0.4,
+                     Rotation.random(random_state=int(rng.integers(1 << 30))).as_matrix())
+        triangle = rng.normal(size=(3, 3)) * rng.uniform(0.05, 2.0)
+        normal = np.cross(triangle[1] - triangle[0], triangle[2] - triangle[0])
+        if np.linalg.norm(normal) < 1e-6:
+            continue
+        normal /= np.linalg.norm(normal)
+        planes = np.array([[*normal, normal @ triangle[0]], [*-normal, -normal @ triangle[0]]])
+        _, sx, sy, sz = support_point(core_of(hull), *-normal, 0)
+        front_sep = normal @ [sx, sy, sz] - planes[0, 3]
+        bound = _separation_at_most(triangle, hull, planes[0], sx, sy, sz, front_sep)
+        flat = PosedHull(triangle, np.zeros(4, np.int64), np.zeros(0, np.int64), planes, np.array([0, 3, 6]),
+                         np.array([0, 1, 2, 0, 2, 1]), np.zeros(3), np.eye(3))
+        separation = signed_distance(core_of(flat), core_of(hull))[0]
+        if bound < np.inf:
+            bounded += 1
+            assert separation <= bound + 1e-12, (trial, separation, bound)
+    assert bounded > 1000  # (the bound is found for most pairs: it is what spares GJK)
+
+
+def test_merging_near_duplicates_equals_the_pairwise_rule():
+    """The hash grid finds exactly what comparing each row with every kept row found (old code, O(n²))."""
+    from cgp_core.collision.convex_phase import merge_close_rows
+    from cgp_core.collision.narrowphase import ContactBuffer
+
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        centres = rng.uniform(-1, 1, (int(rng.integers(1, 30)), 3)) * 10.0 ** rng.uniform(-4, 2)
+        points = centres[rng.integers(0, len(centres), 200)] + rng.normal(size=(200, 3)) * 10.0 ** rng.uniform(-9, -3)
+        separation = rng.uniform(-1e-3, 1e-3, 200)
+        out = ContactBuffer(rng.normal(size=(200, 3)), separation.copy(), points.copy(), np.arange(200))
+        m = merge_close_rows(out, 0, 200)
+        span = np.ptp(points, axis=0).max()
+        close = (1e-3 * span + 1e-5) ** 2
+        kept, deepest = [], {}
+        for s in range(200):
+            twin = next((t for t in kept if ((points[s] - points[t]) ** 2).sum() <= close), None)
+            if twin is None:
+                kept.append(s)
+                deepest[s] = s
+            elif separation[s] < separation[deepest[twin]]:
+                deepest[twin] = s
+        assert m == len(kept)
+        np.testing.assert_array_equal(out.feature[:m], [deepest[t] for t in kept])
+
+
+def _box_on_grid(cells: int, tmp_path):
+    from cgp_core.scene import parse_scene
+    from cgp_core.world import World
+
+    xs = (np.arange(cells + 1) - cells / 2) * 0.01
+    x, y = np.meshgrid(xs, xs, indexing="ij")
+    vertices = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], 1)
+    i = np.arange((cells + 1) ** 2).reshape(cells + 1, cells + 1)
+    a, b, c, d = i[:-1, :-1].ravel(), i[1:, :-1].ravel(), i[1:, 1:].ravel(), i[:-1, 1:].ravel()
+    triangles = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    lines = [f"v {p[0]!r} {p[1]!r} 0.0" for p in vertices.tolist()] + [f"f {p + 1} {q + 1} {r + 1}"
+                                                                       for p, q, r in triangles.tolist()]
+    (tmp_path / "grid.obj").write_text("\n".join(lines) + "\n")
+    text = """
+world: {ground: false, substeps: 4, sleep: false}
+bodies:
+  - {name: grid, shape: mesh, mesh: grid.obj, fixed: true}
+  - {name: box, shape: box, size: [1, 1, 1], mass: 1.0, position: [0.003, 0.002, 0.5]}
+"""
+    (tmp_path / "s.yaml").write_text(text)
+    world = World(parse_scene(text, str(tmp_path / "s.yaml")), dt=1 / 60)
+    world.report_contacts = True
+    return world
+
+
+@pytest.mark.timeout(60)
+def test_a_box_rests_on_an_80k_triangle_grid_with_one_reduced_manifold(tmp_path):
+    """A hang guard besides the physics (the bound is ~30x what it takes): old code took ~6.8 s a tick here."""
+    world = _box_on_grid(200, tmp_path)
+    for _ in range(30):
+        world.step()
+    box = world.body_model.names.index("box")
+    report = world.contacts
+    on_box = report.body_b == box
+    assert on_box.sum() == 4  # one reduced manifold of 4 points (of the ~60,000 the triangles under it give)
+    # ... spanning the box's bottom face: one near each corner (the deepest point, here any, replaces the nearest
+    # extreme: cgp_core.collision.convex_phase.reduce_mesh_rows)
+    offsets = report.point[on_box, :2] - [0.003, 0.002]
+    assert (np.abs(offsets) <= 0.5 + 1e-9).all() and (np.abs(offsets) >= 0.47).all()
+    assert len({(bool(x > 0), bool(y > 0)) for x, y in offsets}) == 4
+    # at rest: its weight carried (m g over the tick), no sinking beyond the solver's slop, no drift
+    np.testing.assert_allclose(report.force[list(report.body).index(box)], [0, 0, 9.81], rtol=1e-6, atol=1e-6)
+    assert abs(world.body_state.position[box, 2] - 0.5) < 1e-3
+    np.testing.assert_allclose(world.body_state.position[box, :2], [0.003, 0.002], atol=1e-6)

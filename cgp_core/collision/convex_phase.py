@@ -75,7 +75,7 @@ from .contacts import FEATURE_SLOTS, GROUND, ContactSet
 from .convex import ConvexPolyhedron, HullSet, box_hull, hull_of, posed
 from .manifold import hull_capsule_contacts, hull_hull_contacts, plane_hull_contacts, reduce_to_four
 from .materials import combine_friction, combine_restitution
-from .mesh_contacts import mesh_capsule_contacts, mesh_hull_contacts
+from .mesh_contacts import add_point, cells_near, first_item, mesh_capsule_contacts, mesh_hull_contacts, near_points
 from .narrowphase import (
     Box,
     Capsule,
@@ -106,8 +106,9 @@ TOI_ANGLE = 0.1
 TOI_TARGET = 1e-3
 TOI_TOLERANCE = 2.5e-4
 
-#: mesh pairs: the BVH query's first scratch size (grown when a query finds more triangles)
-MESH_CANDIDATES = 64
+#: mesh pairs: the BVH query's first scratch size, grown 8x when a query finds more triangles (a box resting on a
+#: 1 cm grid has 20,000 under it: two queries more)
+MESH_CANDIDATES = 4096
 
 
 # ---- the static data: hulls, meshes, primitives ---------------------------------------------------------------
@@ -431,23 +432,29 @@ def merge_close_rows(out, start, m):
             lo[r] = min(lo[r], at[s, r])
             hi[r] = max(hi[r], at[s, r])
     span = max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2])
-    close = (1e-3 * span + 1e-5) ** 2
+    radius = 1e-3 * span + 1e-5
+    close = radius ** 2
     kept = start
     kept_at = np.empty((k, 3))
+    grid = near_points(k, lo, radius, span)  # the kept rows (item: kept row − start), found in O(1)
+    cells = np.empty((8, 3), np.int64)
     for s in range(start, m):
         twin = -1
         q = s - start
-        for t in range(start, kept):
-            u = t - start
-            d2 = (at[q, 0] - kept_at[u, 0]) ** 2 + (at[q, 1] - kept_at[u, 1]) ** 2 \
-                + (at[q, 2] - kept_at[u, 2]) ** 2
-            if d2 <= close:
-                twin = t
-                break
+        for c in range(cells_near(grid, at[q, 0], at[q, 1], at[q, 2], radius, cells)):  # the first close kept row
+            u = first_item(grid, cells, c)
+            while u >= 0:
+                if twin < 0 or start + u < twin:
+                    d2 = (at[q, 0] - kept_at[u, 0]) ** 2 + (at[q, 1] - kept_at[u, 1]) ** 2 \
+                        + (at[q, 2] - kept_at[u, 2]) ** 2
+                    if d2 <= close:
+                        twin = start + u
+                u = grid.next[u]
         if twin < 0:
             if kept != s:
                 _copy_row(out, kept, s)
             kept_at[kept - start] = at[q]
+            add_point(grid, kept - start, at[q, 0], at[q, 1], at[q, 2])
             kept += 1
         elif separation[s] < separation[twin]:
             _copy_row(out, twin, s)
@@ -682,7 +689,7 @@ def convex_phase(shapes, poses, pairs, active, ground, key_base):
                 m, done = _mesh_contacts(a, b, shapes, poses, candidates, work, out, m)
                 if not done:  # more triangles than scratch, or too few free rows: bigger buffers, again
                     m = start
-                    candidates = np.empty(4 * len(candidates), np.int64)
+                    candidates = np.empty(8 * len(candidates), np.int64)
                     out, prim_a, prim_b = _grown(out, prim_a, prim_b, m, 4 * len(candidates))
             m = reduce_mesh_rows(out, start, m)
         else:

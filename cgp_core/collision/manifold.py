@@ -225,17 +225,20 @@ def face_contact(reference, face_r, incident, flip, best, margin, out, m):
     i0, i1 = face_vertex_start_i[face_i], face_vertex_start_i[face_i + 1]
     k = i1 - i0
     capacity = 2 * (k + face_vertex_start_r[face_r + 1] - face_vertex_start_r[face_r]) + 4
-    px, py, pz = np.empty(capacity), np.empty(capacity), np.empty(capacity)
-    lin, lout = np.empty(capacity, np.int64), np.empty(capacity, np.int64)
-    qx, qy, qz = np.empty(capacity), np.empty(capacity), np.empty(capacity)
-    qin, qout = np.empty(capacity, np.int64), np.empty(capacity, np.int64)
+    # the scratch arrays as rows of three allocations, not eighteen (issue 38: a box on a fine mesh calls this
+    # once per triangle under it, and each allocation costs ~30 ns)
+    real = np.empty((13, capacity))
+    label = np.empty((4, capacity), np.int64)
+    flags = np.empty((3, capacity), np.bool_)
+    px, py, pz, qx, qy, qz = real[0], real[1], real[2], real[3], real[4], real[5]
+    lin, lout, qin, qout = label[0], label[1], label[2], label[3]
     for s in range(k):
         px[s], py[s], pz[s] = _world_vertex(vertices_i, face_vertices_i[i0 + s], position_i, rotation_i)
         lin[s], lout[s] = (s - 1) % k, s
     # the reference face's loop in world
     r0, r1 = face_vertex_start_r[face_r], face_vertex_start_r[face_r + 1]
     nref = r1 - r0
-    rx, ry, rz = np.empty(nref), np.empty(nref), np.empty(nref)
+    rx, ry, rz = real[6, :nref], real[7, :nref], real[8, :nref]  # (nref < capacity)
     for s in range(nref):
         rx[s], ry[s], rz[s] = _world_vertex(vertices_r, face_vertices_r[r0 + s], position_r, rotation_r)
     # clip by each side plane: inward normal n × (edge), through the edge's start
@@ -288,8 +291,9 @@ def face_contact(reference, face_r, incident, flip, best, margin, out, m):
         b = vx * rx[s] + vy * ry[s] + vz * rz[s]
         umin, umax, vmin, vmax = min(umin, a), max(umax, a), min(vmin, b), max(vmax, b)
     hu, hv = 0.5 * (umax - umin), 0.5 * (vmax - vmin)
-    X, Y, Z, Zg = np.empty(k), np.empty(k), np.empty(k), np.empty(k)
-    valid = np.ones(k, np.bool_)
+    X, Y, Z, Zg = real[9, :k], real[10, :k], real[11, :k], real[12, :k]  # (k <= capacity)
+    valid = flags[0, :k]
+    valid[:] = True
     for s in range(k):
         X[s] = ux * px[s] + uy * py[s] + uz * pz[s]
         Y[s] = vx * px[s] + vy * py[s] + vz * pz[s]
@@ -310,7 +314,8 @@ def face_contact(reference, face_r, incident, flip, best, margin, out, m):
     # that keeps fewer than 4 of more candidates — a small hull on a big face, whose diagonal extremes in the
     # face's units fall on the same two points: a line of support, on which it would rock — in the units of the
     # contact polygon's own half spans, if that keeps more
-    before = valid.copy()
+    before = flags[1, :k]
+    before[:] = valid
     reduce_to_four(X, Y, hu, hv, valid)
     candidates = kept = 0
     cu_lo = cv_lo = np.inf
@@ -321,7 +326,8 @@ def face_contact(reference, face_r, incident, flip, best, margin, out, m):
             cu_lo, cu_hi, cv_lo, cv_hi = min(cu_lo, X[s]), max(cu_hi, X[s]), min(cv_lo, Y[s]), max(cv_hi, Y[s])
         kept += valid[s]
     if kept < min(candidates, 4):
-        first = valid.copy()
+        first = flags[2, :k]
+        first[:] = valid
         for s in range(k):
             valid[s] = before[s]
         reduce_to_four(X, Y, max(0.5 * (cu_hi - cu_lo), 1e-12), max(0.5 * (cv_hi - cv_lo), 1e-12), valid)
@@ -530,6 +536,76 @@ def on_active_feature(triangle, active_edges, x, y, z):
         or (w1 <= eps and (active_edges & 4) != 0)
 
 
+#: hull–triangle: what the upper bound of :func:`_separation_at_most` is padded by before it may stand in for GJK /
+#: EPA's separation [m] (their own tolerance, 1e-11 of the shapes' size, with room to spare; the decisions it
+#: replaces have tolerances of :data:`.box_box.AXIS_ABSOLUTE_TOLERANCE`, 5e-5 m)
+SEPARATION_BOUND_SLACK = 1e-7
+#: hulls of more faces than this skip the bound (its cost grows with the faces)
+SEPARATION_BOUND_FACES = 32
+
+
+@njit
+def _separation_at_most(triangle, hull, front_plane, sx, sy, sz, front_sep):
+    """An upper bound of the true separation (GJK's distance, or minus EPA's depth) of ``triangle (3, 3)`` and
+    the :class:`.convex.PosedHull` ``hull``, or inf if none is found cheaply.  The true separation is at most
+    |a − b| for any a of the triangle and b of the hull (apart: the distance is the smallest such), and at most
+    −δ for a corner a inside the hull at distance δ from its boundary (overlapping: moving the triangle by less
+    than δ leaves a inside, so the depth is at least δ).  Tried: each corner (inside: −δ, the largest of its
+    face-plane distances; outside: its height over the face it is farthest above, if its foot on that plane is
+    in the hull), and the hull's support point along −n of the triangle's front ``(sx, sy, sz)``, ``front_sep``
+    above it, if its foot is in the triangle."""
+    face_plane, position, rotation = hull.face_plane, hull.position, hull.rotation
+    faces = len(face_plane)
+    best = np.inf
+    if faces <= SEPARATION_BOUND_FACES:
+        for c in range(3):
+            # the corner in the hull's frame, where its planes are
+            dx, dy, dz = triangle[c, 0] - position[0], triangle[c, 1] - position[1], triangle[c, 2] - position[2]
+            lx = rotation[0, 0] * dx + rotation[1, 0] * dy + rotation[2, 0] * dz
+            ly = rotation[0, 1] * dx + rotation[1, 1] * dy + rotation[2, 1] * dz
+            lz = rotation[0, 2] * dx + rotation[1, 2] * dy + rotation[2, 2] * dz
+            top, f_top = -np.inf, 0
+            for f in range(faces):
+                h = face_plane[f, 0] * lx + face_plane[f, 1] * ly + face_plane[f, 2] * lz - face_plane[f, 3]
+                if h > top:
+                    top, f_top = h, f
+            if top <= 0.0:
+                best = min(best, top)
+                continue
+            fx = lx - top * face_plane[f_top, 0]  # the foot on that face's plane
+            fy = ly - top * face_plane[f_top, 1]
+            fz = lz - top * face_plane[f_top, 2]
+            inside = True
+            for f in range(faces):
+                if f != f_top and face_plane[f, 0] * fx + face_plane[f, 1] * fy + face_plane[f, 2] * fz \
+                        - face_plane[f, 3] > 0.0:
+                    inside = False
+                    break
+            if inside:
+                best = min(best, top)
+    if front_sep >= 0.0:
+        # the support point's foot on the triangle's plane, in the triangle (the same-side test on each edge)
+        nx, ny, nz = front_plane[0], front_plane[1], front_plane[2]
+        px, py, pz = sx - front_sep * nx, sy - front_sep * ny, sz - front_sep * nz
+        inside = True
+        for e in range(3):
+            a, b = e, (e + 1) % 3
+            ex, ey = triangle[b, 0] - triangle[a, 0], triangle[b, 1] - triangle[a, 1]
+            ez = triangle[b, 2] - triangle[a, 2]
+            qx, qy, qz = px - triangle[a, 0], py - triangle[a, 1], pz - triangle[a, 2]
+            # (e × q) · n: which side of edge e p is on; p is in the (closed) triangle if on the same side of all
+            # three, whichever way the loop turns about n
+            side = (ey * qz - ez * qy) * nx + (ez * qx - ex * qz) * ny + (ex * qy - ey * qx) * nz
+            if e == 0:
+                sign = 1.0 if side >= 0.0 else -1.0
+            elif side * sign < 0.0:
+                inside = False
+                break
+        if inside:
+            best = min(best, front_sep)
+    return best
+
+
 @njit
 def triangle_hull_contacts(triangle, active_edges, two_sided, hull, margin, out, m):
     """A static mesh's triangle (A: ``triangle (3, 3)`` world vertices, counter-clockwise seen from its front) vs
@@ -558,12 +634,13 @@ def triangle_hull_contacts(triangle, active_edges, two_sided, hull, margin, out,
     planes = np.empty((2, 4))
     planes[0, 0], planes[0, 1], planes[0, 2], planes[0, 3] = nx, ny, nz, d
     planes[1, 0], planes[1, 1], planes[1, 2], planes[1, 3] = -nx, -ny, -nz, -d
-    loop_start = np.array([0, 3, 6], np.int64)
-    loops = np.array([0, 1, 2, 0, 2, 1], np.int64)
-    identity = np.eye(3)
-    origin = np.zeros(3)
-    no_adjacency = np.zeros(4, np.int64)
-    flat = PosedHull(triangle, no_adjacency, no_adjacency[:0], planes, loop_start, loops, origin, identity)
+    # its loops (front, back) and the adjacency it does not use in one allocation, its frame in another
+    indices = np.zeros(13, np.int64)
+    indices[1], indices[2] = 3, 6
+    indices[4], indices[5], indices[7], indices[8] = 1, 2, 2, 1
+    frame = np.zeros((4, 3))
+    frame[0, 0] = frame[1, 1] = frame[2, 2] = 1.0
+    flat = PosedHull(triangle, indices[9:13], indices[9:9], planes, indices[0:3], indices[3:9], frame[3], frame[0:3])
     core, flat_core = core_of(hull), core_of(flat)
     # the front face's SAT separation (one-sided: the only face of the triangle that counts)
     _, sx, sy, sz = support_point(core, -planes[front, 0], -planes[front, 1], -planes[front, 2], 0)
@@ -573,12 +650,29 @@ def triangle_hull_contacts(triangle, active_edges, two_sided, hull, margin, out,
     fb, best_b = best_face(hull, flat_core, margin)
     if not best_b < margin:
         return m
+    use_b = best_b > front_sep + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(front_sep)
+    face_sep = best_b if use_b else front_sep
+    edge_above = face_sep + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(face_sep)
+    # GJK / EPA only where they can change the outcome (issue 38: they were 2 of a triangle's ~4 µs, and a box
+    # resting on a fine mesh has thousands of triangles under it): not when a cheap upper bound of the true
+    # separation already shows no edge beats the face and the contact is within the margin, and no witness point
+    # is needed (the hull's face as reference, tilted from the triangle's by more than GHOST_NORMAL_ANGLE, asks
+    # whether the triangle's feature in the contact is an active edge)
+    witness_needed = False
+    if use_b:
+        nx_b, ny_b, nz_b, _ = _world_plane(face_plane, fb, position, rotation)
+        witness_needed = -(nx_b * planes[front, 0] + ny_b * planes[front, 1] + nz_b * planes[front, 2]) \
+            < math.cos(GHOST_NORMAL_ANGLE)
+    if not witness_needed:
+        bound = _separation_at_most(triangle, hull, planes[front], sx, sy, sz, front_sep) + SEPARATION_BOUND_SLACK
+        if bound <= edge_above and bound < margin:
+            if use_b:
+                return face_contact(hull, fb, flat, True, best_b, margin, out, m)
+            return face_contact(flat, front, hull, False, front_sep, margin, out, m)
     sep, cx, cy, cz, ax, ay, az, bx, by, bz, edge_feature = signed_distance(flat_core, core)
     if not sep < margin:
         return m
-    use_b = best_b > front_sep + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(front_sep)
-    face_sep = best_b if use_b else front_sep
-    edge = sep > face_sep + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(face_sep)
+    edge = sep > edge_above
     if edge or use_b:
         # the contact normal (A to B) and how far it is from the triangle's face normal
         if not edge:

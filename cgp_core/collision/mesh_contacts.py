@@ -22,6 +22,9 @@ hull: a :class:`.convex.PosedHull` in world.
 
 from __future__ import annotations
 
+import math
+from typing import NamedTuple
+
 import numpy as np
 
 from ..jit import njit
@@ -69,19 +72,111 @@ def _triangle(mesh_vertices, mesh_triangles, t, out):
             out[k, r] = mesh_vertices[mesh_triangles[t, k], r]
 
 
+# ---- near-duplicate points: a hash grid of the rows kept so far --------------------------------------------
+# Issue 38: comparing each new row with every kept one was O(n²) — a box resting on a 1 cm grid of 20,000
+# triangles under it gets 60,000 rows (3 per triangle), 0.3 s a sub-step.  The grid finds the kept rows near a
+# point in O(1): cells at least twice the distance asked, so a ball of that radius meets at most 8 cells (the
+# point's and, across each side it is that near, the neighbour there).  The cells are hashed into buckets without
+# keys: two cells sharing a bucket only add candidates, which the caller's exact distance test sorts out, and
+# the bucket index is masked, so coordinates of any size (even a NaN) index the table inside its bounds.
+
+class NearPoints(NamedTuple):
+    """A hash grid of points (:func:`near_points`): ``item`` rows of some array, found again by position."""
+
+    origin: np.ndarray  # (3,) [m] where cell (0, 0, 0) starts
+    cell: np.ndarray    # (1,) [m] the cells' edge, ≥ 2 (1 + 1e-6) × the distance asked
+    head: np.ndarray    # (S,) int64 per bucket (S: a power of two, ≥ the items): its newest item, −1: none
+    next: np.ndarray    # (n,) int64 per item: the next (older) item of its bucket, −1 at the end
+
+
 @njit
-def _drop_repeats(out, start, first, m):
-    """Remove the rows first .. m − 1 of ``out`` that repeat a row start .. first − 1 (the same point with the same
-    normal: a shape touching a vertex or an edge shared by several triangles); returns the new end."""
+def near_points(items, origin, radius, span):
+    """An empty :class:`NearPoints` for up to ``items`` items, to find points within ``radius`` [m] of each other
+    among points within ~``span`` [m] of ``origin (3,)``: cells of max(2 radius, 1e-6 span) (1 + 1e-6) (at most
+    ~1e6 cells across the span, so a point's cell coordinate is exact to far better than the margin)."""
+    buckets = 16
+    while buckets < items:
+        buckets *= 2
+    cell = np.empty(1)
+    cell[0] = max(2.0 * radius, 1e-6 * span, 1e-300) * (1.0 + 1e-6)
+    return NearPoints(origin.copy(), cell, np.full(buckets, -1, np.int64), np.empty(max(items, 1), np.int64))
+
+
+@njit
+def _cell_of(grid, x, r):
+    """The cell coordinate of coordinate ``x`` along axis ``r`` and where in the cell it is: (int, [0, 1))."""
+    u = (x - grid.origin[r]) / grid.cell[0]
+    if not abs(u) < 4e18:  # far outside (or NaN): any cell, the mask keeps the bucket in bounds
+        return np.int64(0), 0.5
+    f = math.floor(u)
+    return np.int64(f), u - f
+
+
+@njit
+def _bucket(grid, cx, cy, cz):
+    return ((cx * np.int64(73856093)) ^ (cy * np.int64(19349663)) ^ (cz * np.int64(83492791))) \
+        & (len(grid.head) - 1)
+
+
+@njit
+def add_point(grid, item, x, y, z):
+    """Put ``item`` (< the grid's items) at (x, y, z)."""
+    cx, _ = _cell_of(grid, x, 0)
+    cy, _ = _cell_of(grid, y, 1)
+    cz, _ = _cell_of(grid, z, 2)
+    bucket = _bucket(grid, cx, cy, cz)
+    grid.next[item] = grid.head[bucket]
+    grid.head[bucket] = item
+
+
+@njit
+def cells_near(grid, x, y, z, radius, cells):
+    """The cells ``cells[:k] (8, 3)`` int64 a ball of ``radius`` (at most the grid's) about (x, y, z) can meet,
+    and ``k``: the point's cell, and across each side the ball reaches (with a margin for the rounding of the
+    cell coordinates) its neighbour there — mostly 1 cell for a small ball, at most 8."""
+    cx, fx = _cell_of(grid, x, 0)
+    cy, fy = _cell_of(grid, y, 1)
+    cz, fz = _cell_of(grid, z, 2)
+    reach = radius / grid.cell[0] + 1e-7  # in cells
+    sx = -1 if fx < reach else (1 if fx > 1.0 - reach else 0)
+    sy = -1 if fy < reach else (1 if fy > 1.0 - reach else 0)
+    sz = -1 if fz < reach else (1 if fz > 1.0 - reach else 0)
+    k = 0
+    for i in range(2 if sx != 0 else 1):
+        for j in range(2 if sy != 0 else 1):
+            for n in range(2 if sz != 0 else 1):
+                cells[k, 0], cells[k, 1], cells[k, 2] = cx + i * sx, cy + j * sy, cz + n * sz
+                k += 1
+    return k
+
+
+@njit
+def first_item(grid, cells, k):
+    """The newest item of the bucket of cell ``cells[k]`` (follow ``grid.next``; a bucket may hold items of other
+    cells too), −1 if none."""
+    return grid.head[_bucket(grid, cells[k, 0], cells[k, 1], cells[k, 2])]
+
+
+@njit
+def _drop_repeats(out, grid, start, first, m, cells):
+    """Remove the rows first .. m − 1 of ``out`` (one triangle's) that repeat a row start .. first − 1 (the earlier
+    triangles' rows kept, in ``grid``: item = row − start): the same point with the same normal (within 1e-9 in
+    each, summed over the axes: a shape touching a vertex or an edge shared by several triangles); then adds the
+    rows kept to ``grid``.  Returns the new end."""
     normal, separation, point, feature = out
     kept = first
     for k in range(first, m):
         repeat = False
-        for j in range(start, first):
-            dp = abs(point[k, 0] - point[j, 0]) + abs(point[k, 1] - point[j, 1]) + abs(point[k, 2] - point[j, 2])
-            dn = abs(normal[k, 0] - normal[j, 0]) + abs(normal[k, 1] - normal[j, 1]) + abs(normal[k, 2] - normal[j, 2])
-            if dp <= 1e-9 and dn <= 1e-9:
-                repeat = True
+        for c in range(cells_near(grid, point[k, 0], point[k, 1], point[k, 2], 1e-9, cells)):
+            item = first_item(grid, cells, c)
+            while item >= 0 and not repeat:
+                j = start + item
+                dp = abs(point[k, 0] - point[j, 0]) + abs(point[k, 1] - point[j, 1]) + abs(point[k, 2] - point[j, 2])
+                dn = abs(normal[k, 0] - normal[j, 0]) + abs(normal[k, 1] - normal[j, 1]) \
+                    + abs(normal[k, 2] - normal[j, 2])
+                repeat = dp <= 1e-9 and dn <= 1e-9
+                item = grid.next[item]
+            if repeat:
                 break
         if repeat:
             continue
@@ -92,7 +187,21 @@ def _drop_repeats(out, start, first, m):
             separation[kept] = separation[k]
             feature[kept] = feature[k]
         kept += 1
+    for k in range(first, kept):
+        add_point(grid, k - start, point[k, 0], point[k, 1], point[k, 2])
     return kept
+
+
+@njit
+def _repeat_grid(mesh_position, mesh_rotation, lo, hi, rows):
+    """A :class:`NearPoints` for :func:`_drop_repeats` of up to ``rows`` rows near the query box ``lo, hi`` (mesh
+    frame)."""
+    centre = np.empty(3)
+    for r in range(3):
+        centre[r] = mesh_position[r] + mesh_rotation[r, 0] * 0.5 * (lo[0] + hi[0]) \
+            + mesh_rotation[r, 1] * 0.5 * (lo[1] + hi[1]) + mesh_rotation[r, 2] * 0.5 * (lo[2] + hi[2])
+    span = max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2])
+    return near_points(rows, centre, 1e-9, span if span < np.inf else 0.0)
 
 
 @njit
@@ -110,10 +219,13 @@ def mesh_hull_contacts(mesh, mesh_position, mesh_rotation, two_sided, hull, marg
             lo[r] = min(lo[r], x - max(margin, 0.0))
             hi[r] = max(hi[r], x + max(margin, 0.0))
     found = bvh_overlap(mesh, lo, hi, candidates)
-    complete = found <= len(candidates)
+    if found > len(candidates):
+        return m, False  # (before any triangle's work: the caller calls again with room for them all)
     triangle = np.empty((3, 3))
     start = m
-    for c in range(min(found, len(candidates))):
+    grid = _repeat_grid(mesh_position, mesh_rotation, lo, hi, min(4 * found, len(out.separation) - m))
+    cells = np.empty((8, 3), np.int64)
+    for c in range(found):
         if len(out.separation) - m < 4:
             return m, False
         t = candidates[c]
@@ -121,8 +233,8 @@ def mesh_hull_contacts(mesh, mesh_position, mesh_rotation, two_sided, hull, marg
         first = m
         m = triangle_hull_contacts(triangle, mesh.active_edges[t], two_sided, local_hull, margin, out, m)
         _to_world(mesh_position, mesh_rotation, out, t, first, m)
-        m = _drop_repeats(out, start, first, m)
-    return m, complete
+        m = _drop_repeats(out, grid, start, first, m, cells)
+    return m, True
 
 
 @njit
@@ -147,7 +259,8 @@ def mesh_capsule_contacts(mesh, mesh_position, mesh_rotation, two_sided, segment
         lo[r] = min(local[0, r], local[1, r]) - reach
         hi[r] = max(local[0, r], local[1, r]) + reach
     found = bvh_overlap(mesh, lo, hi, candidates)
-    complete = found <= len(candidates)
+    if found > len(candidates):
+        return m, False  # (before any triangle's work: the caller calls again with room for them all)
     triangle = np.empty((3, 3))
     planes = np.empty((2, 4))
     loop_start = np.array([0, 3, 6], np.int64)
@@ -156,7 +269,9 @@ def mesh_capsule_contacts(mesh, mesh_position, mesh_rotation, two_sided, segment
     identity = np.eye(3)
     origin = np.zeros(3)
     start = m
-    for c in range(min(found, len(candidates))):
+    grid = _repeat_grid(mesh_position, mesh_rotation, lo, hi, min(2 * found, len(separation) - m))
+    cells = np.empty((8, 3), np.int64)
+    for c in range(found):
         if len(separation) - m < 2:
             return m, False
         t = candidates[c]
@@ -213,5 +328,5 @@ def mesh_capsule_contacts(mesh, mesh_position, mesh_rotation, two_sided, segment
             kept += 1
         m = kept
         _to_world(mesh_position, mesh_rotation, out, t, first, m)
-        m = _drop_repeats(out, start, first, m)
-    return m, complete
+        m = _drop_repeats(out, grid, start, first, m, cells)
+    return m, True
