@@ -103,14 +103,19 @@ test: setup
 soak: setup
 	@$(VPY) -m pytest tests -m soak --run-soak -rA  # -rA: show the figures the soak test prints
 
-# Issue 27's fuzzing (tests/test_fuzz_inputs.py: the scene/spawn parser, the command decoders, the Foxglove
-# client-message path, the renderer's marker reader) with FUZZ_EXAMPLES fresh random examples per property
+# Issue 27's fuzzing (tests/test_fuzz_inputs.py: the scene/spawn parser, mesh files, the command decoders, the
+# Foxglove client-message path, the renderer's marker reader) with FUZZ_EXAMPLES fresh random examples per property
 # (`make test` runs a few dozen fixed ones): `make fuzz FUZZ_EXAMPLES=5000`.  A failure prints the smallest
-# input it found and the blob to reproduce it (@reproduce_failure).
+# input it found and the blob to reproduce it (@reproduce_failure).  The kernels run with numba's bounds checks
+# (NUMBA_BOUNDSCHECK=1, issue 38: an index out of bounds is an IndexError, not memory corrupted), compiled into a
+# cache of their own (numba's cache does not tell the two builds apart), first in the warm-up's workers: ~5 min
+# the first time.
 FUZZ_EXAMPLES ?= 2000
+FUZZ_CACHE := $(VENV)/numba-boundscheck
 fuzz: setup
-	@FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(VPY) -m pytest tests/test_fuzz_inputs.py -p no:cacheprovider --timeout=0 -q \
-		--hypothesis-show-statistics
+	@NUMBA_BOUNDSCHECK=1 NUMBA_CACHE_DIR=$(FUZZ_CACHE) $(VPY) -m cgp_sim_ros.warmup
+	@NUMBA_BOUNDSCHECK=1 NUMBA_CACHE_DIR=$(FUZZ_CACHE) FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(VPY) -m pytest \
+		tests/test_fuzz_inputs.py -p no:cacheprovider --timeout=0 -q --hypothesis-show-statistics
 
 # Re-resolve the requirement files (and the benchmark peers) into the lock; commit the result.
 lock: | $(STAMPS)/venv

@@ -303,3 +303,31 @@ def test_a_mesh_within_the_ranges_after_its_scale_is_accepted(tmp_path):
     _tetrahedron(tmp_path / "big.obj", 1e7)  # 10,000 km as written, 1 m as scaled
     scene = _scene(tmp_path, "bodies:\n  - {name: b, shape: convex, mesh: big.obj, scale: 1e-7, mass: 1}\n")
     np.testing.assert_allclose(np.ptp(scene.bodies[0].hull.vertices, axis=0), [1, 1, 1], rtol=1e-12)
+
+
+def _load_and_build(path: str):
+    from cgp_core.collision.bvh import StaticMesh
+
+    vertices, triangles = load_mesh(path)
+    return StaticMesh.build(vertices, triangles)
+
+
+def test_the_expensive_steps_run_in_a_worker_process(tmp_path):
+    """Parsing, the BVH and the active edges are plain functions of picklable inputs, with picklable results:
+    another process can pay for them (what the node does off its tick's thread)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from cgp_core.collision.bvh import StaticMesh
+    from cgp_core.collision.convex import convex_hull
+
+    vertices, triangles = _triangles(500)
+    (tmp_path / "m.stl").write_bytes(binary_stl(vertices[triangles]))
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        theirs = pool.submit(_load_and_build, str(tmp_path / "m.stl")).result(timeout=120)
+        hull = pool.submit(convex_hull, vertices + [0, 0, 1] * (vertices[:, :1] > 0.05)).result(timeout=120)
+    ours = _load_and_build(str(tmp_path / "m.stl"))
+    assert isinstance(theirs, StaticMesh)
+    for name in ("vertices", "triangles", "active_edges", "node_lo", "node_child_or_first", "triangle_order"):
+        np.testing.assert_array_equal(getattr(theirs, name), getattr(ours, name))
+    assert len(hull.vertices) >= 4
