@@ -228,3 +228,42 @@ def test_a_missing_or_broken_bag_is_refused(tmp_path):
     (tmp_path / "junk.mcap").write_bytes(b"not an mcap file at all" * 10)
     out = render(str(tmp_path / "junk.mcap"), "-o", str(tmp_path / "x.gif"), expect=2)
     assert "not a readable MCAP file" in out.stderr
+
+
+def test_bad_bags_are_named_errors_never_tracebacks_and_a_fifo_never_blocks(tmp_path):
+    """Issue 38, D16: a metadata.yaml of random bytes, one whose ``rosbag2_bagfile_information`` is a list, a
+    ``.mcap`` that is a directory, a FIFO as the bag, inside a bag directory or as the output: each is refused
+    with exit 2 naming the file and what it is (a FIFO used to block the renderer for ever; the others were
+    UnicodeDecodeError / AttributeError / IsADirectoryError tracebacks)."""
+    import os
+
+    cases = []
+    garbage = tmp_path / "garbage"
+    garbage.mkdir()
+    (garbage / "metadata.yaml").write_bytes(np.random.default_rng(38).integers(0, 256, 3000, np.uint8).tobytes())
+    cases.append((garbage, "metadata.yaml: not a rosbag2 metadata file"))
+    listed = tmp_path / "listed"
+    listed.mkdir()
+    (listed / "metadata.yaml").write_text("rosbag2_bagfile_information: [1, 2]\n")
+    cases.append((listed, "metadata.yaml: not a rosbag2 metadata file (no mapping rosbag2_bagfile_information)"))
+    paths = tmp_path / "paths"
+    paths.mkdir()
+    (paths / "metadata.yaml").write_text("rosbag2_bagfile_information: {relative_file_paths: 7}\n")
+    cases.append((paths, "relative_file_paths is not a list of file names"))
+    directory = tmp_path / "dir"
+    (directory / "run_0.mcap").mkdir(parents=True)
+    cases.append((directory, "run_0.mcap: is a directory, not a regular file"))
+    fifo_inside = tmp_path / "fifo_inside"
+    fifo_inside.mkdir()
+    os.mkfifo(fifo_inside / "run_0.mcap")
+    cases.append((fifo_inside, "run_0.mcap: is a FIFO (named pipe), not a regular file"))
+    fifo = tmp_path / "bag.mcap"
+    os.mkfifo(fifo)
+    cases.append((fifo, "bag.mcap: is a FIFO (named pipe), not a regular file"))
+    for bag, says in cases:
+        out = render(str(bag), "-o", str(tmp_path / "x.gif"), expect=2)
+        assert out.stderr.startswith("cgp-sim-render: ") and says in out.stderr, out.stderr
+        assert "Traceback" not in out.stderr
+    os.mkfifo(tmp_path / "out.gif")
+    out = render(str(fifo), "-o", str(tmp_path / "out.gif"), expect=2)
+    assert "-o " in out.stderr and "is a FIFO (named pipe), not a regular file" in out.stderr, out.stderr

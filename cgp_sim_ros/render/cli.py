@@ -33,6 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cgp_core.user_input import UserInputError, regular_file
+
 from ..progress import ProgressLine, bar, format_duration
 from ..wire import cdr
 from .bagread import BagError, MarkerStream, open_marker_stream
@@ -284,6 +286,11 @@ def render(args) -> dict:
                           "or .png")
     if not output.parent.is_dir():
         raise RenderError(f"-o {args.output}: directory {output.parent} does not exist")
+    if (output.exists() or output.is_symlink()) and not output.is_file():  # a FIFO would block the writer
+        try:
+            regular_file(output)
+        except UserInputError as exc:
+            raise RenderError(f"-o {args.output}: {exc}; the output must be a regular file") from None
     if not (args.fps > 0 and math.isfinite(args.fps)) or not (args.speed > 0 and math.isfinite(args.speed)):
         raise RenderError("--fps and --speed must be positive numbers")
     if not 1.0 <= args.fov <= 170.0:
@@ -345,6 +352,9 @@ def main(argv: list[str] | None = None) -> int:
         result = render(args)
     except (RenderError, BagError) as exc:
         print(f"cgp-sim-render: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # reading the bag or writing the output failed (permissions, a full disk, ...)
+        print(f"cgp-sim-render: {exc.filename or args.output}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("cgp-sim-render: interrupted", file=sys.stderr)
