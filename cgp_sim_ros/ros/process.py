@@ -35,7 +35,10 @@ def load_kernels(world, build_tick: Callable, log_debug: Callable[[str], None]) 
     tick, also for bodies spawned later (~0.1 s more start-up)."""
     from cgp_core.warmup import warm_up
 
-    world = copy.deepcopy(world)
+    from ..drawing.bodies import model_shapes
+
+    # the hulls and meshes (static data) stay shared with the node's world: their drawings are made already
+    world = copy.deepcopy(world, {id(shape): shape for _, shape in model_shapes(world.body_model)})
     try:
         warm_up(ticks=2, complete=False, flocks=False)  # two: one with the contact report, one without
         world.step()
