@@ -13,7 +13,8 @@ a child process and hands each result back as a ``concurrent.futures.Future``:
   copies their locks in whatever state they are (a child may deadlock in its first malloc).  The fork server is
   a fresh interpreter started with ``fork`` + ``exec``; it imports :data:`PRELOAD` once, and every worker is a
   fork of *it* (no thread in it), ready in milliseconds — also the new worker after one was ended.
-- **Deadline per job** (``timeout``): a job that has not finished by then is ended by ending the process
+- **Deadline per job** (``timeout``, counted from when the job is handed to a ready worker: a new worker's start
+  and warm-up are not the job's): a job that has not finished by then is ended by ending the process
   (SIGKILL: a job cannot be interrupted any other way in the middle of a C call), its future fails with
   :class:`JobFailed` (``reason`` ``"timeout"``), and the next job starts in a new process.  So a request that
   cannot finish is refused and never blocks the ones behind it.
@@ -55,6 +56,10 @@ PRELOAD = ("cgp_sim_ros.spawning",)
 WORKER_NICE = 10
 #: how long :meth:`WorkerProcess.close` waits for a worker to end after SIGKILL [s] (it cannot refuse)
 REAP_TIMEOUT_S = 0.5
+#: how long a new worker may take to start and warm up before its first job [s]; the job's own deadline starts
+#: when the worker is ready (a worker started after a timeout does not eat into the next request's time)
+START_TIMEOUT_S = 120.0
+_READY = b"ready"
 _PR_SET_PDEATHSIG = 1
 
 
@@ -138,7 +143,10 @@ class WorkerProcess:
                     job.future.set_exception(JobFailed("closed", f"{self.name}: shut down"))
                 continue
             if job is None:  # start()
-                self._ensure_process()
+                try:
+                    self._ensure_process()
+                except JobFailed:  # (the next job tries again, and reports it)
+                    pass
                 continue
             if not job.future.set_running_or_notify_cancel():
                 continue
@@ -219,6 +227,16 @@ class WorkerProcess:
             self.started += 1
         if self._closed:  # close() ran meanwhile
             self._end_process()
+            raise JobFailed("closed", f"{self.name}: shut down")
+        try:  # the worker says when it is warmed up; only then do jobs' deadlines start
+            ready = ours.poll(START_TIMEOUT_S) and ours.recv_bytes() == _READY
+        except (EOFError, OSError):
+            ready = False
+        if not ready:
+            code = self._end_process()
+            if self._closed:
+                raise JobFailed("closed", f"{self.name}: shut down")
+            raise JobFailed("died", f"its worker process did not start ({_exit_text(code)})")
         return ours
 
     def _end_process(self) -> int | None:
@@ -271,6 +289,10 @@ def _serve(connection, warm_up) -> None:
             warm_up()
         except Exception:  # noqa: BLE001 - a job will meet (and report) whatever failed here
             pass
+    try:
+        connection.send_bytes(_READY)
+    except (EOFError, OSError):
+        return
     while True:
         try:
             request = connection.recv_bytes()

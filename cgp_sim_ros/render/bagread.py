@@ -48,14 +48,19 @@ class MarkerStream:
     end_ns: int  # log time of the bag's last message
     #: damaged files (read up to the damage): path -> what was recovered and why it stopped
     damaged: dict = None
+    #: the latched companion of ``topic`` in this bag (``~/static_markers`` beside ``~/markers``: the static
+    #: meshes, sent when they change), or None; drawn together with ``topic``
+    static_topic: str | None = None
 
-    def messages(self, start_ns: int | None = None, end_ns: int | None = None) -> Iterator[tuple[int, bytes]]:
-        """``(log_time_ns, CDR bytes)`` of the marker messages logged in [start_ns, end_ns] (default: all), in
-        log-time order (mcap seeks to the chunks that overlap the span)."""
+    def messages(self, start_ns: int | None = None, end_ns: int | None = None,
+                 topic: str | None = None) -> Iterator[tuple[int, bytes]]:
+        """``(log_time_ns, CDR bytes)`` of the marker messages of ``topic`` (default: :attr:`topic`) logged in
+        [start_ns, end_ns] (default: all), in log-time order (mcap seeks to the chunks that overlap the span)."""
+        topic = topic or self.topic
         for path in self.files:
             if self.damaged and path in self.damaged:
                 for log_time, _topic, _schema, data in _stream_messages(path):
-                    if _topic == self.topic and (start_ns is None or log_time >= start_ns) \
+                    if _topic == topic and (start_ns is None or log_time >= start_ns) \
                             and (end_ns is None or log_time <= end_ns):
                         yield log_time, data
                 continue
@@ -63,7 +68,7 @@ class MarkerStream:
                 reader = make_reader(stream)
                 try:
                     for _schema, _channel, message in reader.iter_messages(
-                            topics=[self.topic], start_time=start_ns, end_time=None if end_ns is None else end_ns + 1,
+                            topics=[topic], start_time=start_ns, end_time=None if end_ns is None else end_ns + 1,
                             log_time_order=True):
                         yield message.log_time, message.data
                 except Exception as exc:  # noqa: BLE001 - a damaged chunk in a file with a summary: stop there
@@ -181,6 +186,8 @@ def open_marker_stream(bag: str | Path, topic: str | None = None) -> MarkerStrea
         raise BagError(f"{bag}: no {MARKER_ARRAY_SCHEMA} messages on {topic} (MarkerArray topics: "
                        f"{', '.join(sorted(candidates)) or 'none'})")
     stream = MarkerStream(files, topic, candidates[topic], start, end, damaged)
+    if topic.endswith("/markers") and candidates.get(topic[:-len("markers")] + "static_markers"):
+        stream.static_topic = topic[:-len("markers")] + "static_markers"
     # time 0 is the first picture there is: the first marker message (a bag may start with other topics, e.g. a
     # cgp-sim bag's start-up event on ~/events at t = 0, one tick before the first markers)
     stream.start_ns = next(stream.messages())[0]
