@@ -48,6 +48,7 @@ import time
 import traceback
 from concurrent.futures import Future
 from dataclasses import dataclass
+from os import _exit as exit_now  # a worker whose parent is gone ends at once
 
 #: what the fork server imports once, so that every worker starts with it imported (numpy, scipy, numba, the
 #: scene loader, trimesh through the mesh reader, the drawing of bodies)
@@ -332,4 +333,4 @@ def _die_with_parent() -> None:
     except (OSError, AttributeError):  # not Linux: close() and the pipe's end still end it
         pass
     if os.getppid() == 1:  # the parent already went before the request took effect
-        os._exit(0)
+        exit_now(0)
