@@ -311,7 +311,7 @@ def run_hulls(data: Path, seconds: float) -> dict:
     client.node.create_subscription(MarkerArray, "/cgp_sim/markers", lambda m: sizes.append(len(m)),
                                     QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE), raw=True)
     try:
-        client.spin_until(lambda: len(client.ticks) > 60 and len(sizes) > 10, 180, "the node")
+        client.spin_until(lambda: len(client.ticks) > 60 and len(sizes) > 10, 400, "the node (300 hulls: ~1 min)")
         first = len(sizes)
         t0 = time.monotonic()
         client.spin_for(seconds)

@@ -11,8 +11,9 @@ a child process and hands each result back as a ``concurrent.futures.Future``:
 
 - **Start method** ``forkserver``: the node runs Fast DDS threads, and a ``fork`` of a process with threads
   copies their locks in whatever state they are (a child may deadlock in its first malloc).  The fork server is
-  a fresh interpreter started with ``fork`` + ``exec``; it imports :data:`PRELOAD` once, and every worker is a
-  fork of *it* (no thread in it), ready in milliseconds — also the new worker after one was ended.
+  a fresh interpreter started with ``fork`` + ``exec`` (it imports nothing heavy: :data:`PRELOAD`), and every
+  worker is a fork of *it*, with no thread in it; the worker imports what its jobs need and warms up (a second
+  or two, at its low priority) before it says it is ready.
 - **Deadline per job** (``timeout``, counted from when the job is handed to a ready worker: a new worker's start
   and warm-up are not the job's): a job that has not finished by then is ended by ending the process
   (SIGKILL: a job cannot be interrupted any other way in the middle of a C call), its future fails with
@@ -50,9 +51,9 @@ from concurrent.futures import Future
 from dataclasses import dataclass
 from os import _exit as exit_now  # a worker whose parent is gone ends at once
 
-#: what the fork server imports once, so that every worker starts with it imported (numpy, scipy, numba, the
-#: scene loader, trimesh through the mesh reader, the drawing of bodies)
-PRELOAD = ("cgp_sim_ros.spawning",)
+#: what the fork server imports before it forks workers: nothing heavy (it runs at the node's priority, at the
+#: node's start-up: the workers import what they need themselves, at their lower priority, before they are ready)
+PRELOAD = ("cgp_sim_ros.workers",)
 #: the worker's scheduling priority relative to the node (as the bag writer's)
 WORKER_NICE = 10
 #: how long :meth:`WorkerProcess.close` waits for a worker to end after SIGKILL [s] (it cannot refuse)
@@ -281,6 +282,11 @@ def _serve(connection, warm_up) -> None:
     """The worker process: jobs from ``connection`` until it closes."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the node decides when to stop (close() kills this process)
     _die_with_parent()
+    # The worker starts no process of its own.  With "fork" as its start method the named semaphores made in it
+    # (numba's thread-pool lock, when a flock's state is built) are unlinked at once instead of registered with
+    # the node's resource tracker, so a worker ended by SIGKILL leaves none behind (the tracker warned of a
+    # "leaked semaphore" at the node's exit).
+    multiprocessing.set_start_method("fork", force=True)
     try:
         os.nice(WORKER_NICE)
     except OSError:
