@@ -204,6 +204,8 @@ class SimNode(Node):
     def _prepare_process(self) -> None:
         """The last step of the set-up: the process tuned for the tick (cgp_sim_ros/ros/process.py)."""
         process.load_kernels(self.world, self.outputs.build_throwaway, self.get_logger().debug)
+        #: issue 25's kernels, loaded before the first spawned hull or mesh is added (process.ConvexKernels)
+        self.convex_kernels = process.ConvexKernels(self.world)
         process.freeze_startup_objects()
         process.share_the_gil_finely()
         #: where the threads run (pin_threads); made here, on the thread that ticks

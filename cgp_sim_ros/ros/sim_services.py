@@ -401,6 +401,11 @@ class SimulationInterfaces:
                     return FAILED, self._job_failure(failure, timeout), ""
                 if isinstance(outcome, Refusal):
                     return _REFUSAL_CODES.get(outcome.kind, FAILED), outcome.message, ""
+                loading = self.node.convex_kernels.before_adding(outcome.prepared)
+                while loading is not None and not loading.done():
+                    await _NextTurn()
+                if self.quitting:
+                    return INCORRECT_STATE, "the simulator is quitting", ""
                 try:
                     self.node.add_spawned(outcome.prepared, outcome.drawings)
                 except EditError as exc:
