@@ -82,14 +82,14 @@ def test_ctrl_c_while_a_heavy_spawn_is_prepared_ends_the_node_and_its_worker(sta
     bag = tmp_path / "bag"
     node, sim = start(start_node, probe, "--bag", str(bag))
     wait_ticking(probe, node, clock, 10)
-    assert session_processes(node), "the spawn worker (and its fork server) run beside the node"
     sim.call(SpawnEntity, SpawnEntity.Request())  # warm the client up (refused: no resource)
     client = probe.client(SpawnEntity, "/cgp_sim/spawn_entity")
     request = SpawnEntity.Request(name="heavy", resource_string=hull_yaml(90_000))
     request.initial_pose.pose.position.z = 5.0
     client.call_async(request)  # its reply is not waited for
     ticks = len(clock.messages)
-    probe.spin_until(lambda: len(clock.messages) >= ticks + 20, 30, "20 ticks while the request is prepared")
+    probe.spin_until(lambda: len(clock.messages) >= ticks + 20 and session_processes(node), 30,
+                     "20 ticks, and the spawn worker (and its fork server) running beside the node")
     node.send(signal.SIGINT)
     assert node.wait(15) == 0, node.log()
     log = node.log()

@@ -139,9 +139,9 @@ class SimulationInterfaces:
         self._quit_at: float | None = None
         self._job: _SteppingJob | None = None
         #: the spawn worker process: reads, parses, validates, builds and draws spawned entities off the tick's
-        #: thread and GIL (started now, so that it is ready — its kernels loaded — when the first request comes)
+        #: thread and GIL.  Started by the first request (a second or two, not counted in its spawn_timeout):
+        #: a node nobody spawns into never pays for it (imports, kernels loaded or, after an install, compiled)
         self.spawn_worker = WorkerProcess("cgp-sim-spawn", warm_up=warm_up)
-        self.spawn_worker.start()
         self._spawn_running = False
         self._spawns_waiting = 0
         services = (
