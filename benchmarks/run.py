@@ -42,7 +42,7 @@ from common import RESULTS, format_figures, format_value, load_average, machine,
 #: runs best on a machine that has not been busy for minutes)
 BENCHMARKS = {"tick": "bench_tick.py", "realtime": "bench_realtime.py", "rigid": "bench_rigid.py",
               "boids": "bench_boids.py", "cdr": "bench_cdr.py", "contacts": "bench_contacts.py",
-              "foxglove": "bench_foxglove.py", "spawn": "bench_spawn.py",
+              "foxglove": "bench_foxglove.py", "spawn": "bench_spawn.py", "spawn_rows": "bench_spawn_rows.py",
               "sweep": "bench_sweep.py", "convex_pile": "bench_convex_pile.py", "gjk": "bench_gjk.py",
               "contact_report": "bench_contact_report.py", "work_bounds": "bench_work_bounds.py",
               "mesh": "bench_mesh.py"}

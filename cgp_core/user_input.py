@@ -29,7 +29,8 @@ import yaml
 
 from .limits import MAX_FILE_BYTES, MAX_YAML_BYTES, MAX_YAML_DEPTH, MAX_YAML_NODES
 
-__all__ = ["UserInputError", "read_user_file", "read_user_text", "load_yaml", "YAML12_FLOAT", "SceneLoader"]
+__all__ = ["UserInputError", "regular_file", "open_user_file", "read_user_file", "read_user_text", "load_yaml",
+           "YAML12_FLOAT", "SceneLoader"]
 
 _FILE_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
                (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
@@ -41,9 +42,10 @@ class UserInputError(ValueError):
     content."""
 
 
-def read_user_file(path: str | Path, *, max_bytes: int = MAX_FILE_BYTES) -> bytes:
-    """The bytes of the regular file ``path`` (``~`` expanded, links resolved), at most ``max_bytes`` of them;
-    :class:`UserInputError` otherwise (no such file, not a regular file, too large, unreadable)."""
+def regular_file(path: str | Path) -> Path:
+    """``path`` (``~`` expanded) resolved through its links, if it is a regular file; :class:`UserInputError`
+    naming what it is otherwise (no such file, a link loop, a directory, a FIFO, a device, a socket).  Nothing is
+    opened."""
     given = Path(path).expanduser()
     try:
         resolved = given.resolve(strict=True)
@@ -51,6 +53,36 @@ def read_user_file(path: str | Path, *, max_bytes: int = MAX_FILE_BYTES) -> byte
         raise UserInputError("cannot read: no such file") from None
     except (OSError, RuntimeError) as exc:  # a link loop is a RuntimeError before 3.13
         raise UserInputError(f"cannot resolve the path: {getattr(exc, 'strerror', None) or exc}") from None
+    try:
+        mode = resolved.stat().st_mode
+    except OSError as exc:
+        raise UserInputError(f"cannot read: {exc.strerror or exc}") from None
+    _refuse_unless_regular(mode, resolved, given)
+    return resolved
+
+
+def open_user_file(path: str | Path):
+    """The regular file ``path`` (see :func:`regular_file`) opened for binary reading, non-blocking: a FIFO swapped
+    in after the check cannot block the open, and is refused by the open file's own kind.  For readers that
+    stream a file too big for :func:`read_user_file` (a bag)."""
+    resolved = regular_file(path)
+    try:
+        fd = os.open(resolved, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | getattr(os, "O_CLOEXEC", 0))
+    except OSError as exc:
+        raise UserInputError(f"cannot read: {exc.strerror or exc}") from None
+    try:
+        _refuse_unless_regular(os.fstat(fd).st_mode, resolved, Path(path).expanduser())
+    except BaseException:
+        os.close(fd)
+        raise
+    return os.fdopen(fd, "rb")
+
+
+def read_user_file(path: str | Path, *, max_bytes: int = MAX_FILE_BYTES) -> bytes:
+    """The bytes of the regular file ``path`` (``~`` expanded, links resolved), at most ``max_bytes`` of them;
+    :class:`UserInputError` otherwise (no such file, not a regular file, too large, unreadable)."""
+    given = Path(path).expanduser()
+    resolved = regular_file(given)
     try:
         before = resolved.stat()
     except OSError as exc:

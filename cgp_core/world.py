@@ -114,6 +114,25 @@ class PreparedSpawn:
     notes: list = field(default_factory=list)
 
 
+def prepare_spawn(entry, world_spec, *, name: str, taken: set[str], position=(0.0, 0.0, 0.0),
+                  orientation=(0.0, 0.0, 0.0, 1.0), source: str = "<spawn>") -> PreparedSpawn:
+    """:meth:`World.prepare_spawn` for a world whose scene settings are ``world_spec`` (a
+    :class:`~cgp_core.scene.WorldSpec`): it needs nothing else of the world, so it runs anywhere — another
+    thread, another process — while the world steps."""
+    check_name(name)
+    if name in taken:
+        raise EditError("name_taken", f"name {name!r} is taken")
+    position, orientation = check_pose(position, orientation, "initial_pose")
+    kind, spec = spawn_entry(entry, source, name=name, taken=taken, position=position, orientation=orientation)
+    if kind == "flock":
+        if abs(abs(float(orientation[3])) - 1.0) > 1e-9:
+            raise EditError("invalid_pose", "initial_pose.orientation: a flock has no orientation (the boids "
+                            "have their own); give the identity (0, 0, 0, 1)")
+        return PreparedSpawn(kind, name, flock=Flock(spec))
+    model, state = Scene(source, world_spec, [spec], []).build_bodies()
+    return PreparedSpawn(kind, name, model=model, state=state, notes=list(spec.notes))
+
+
 def check_name(name) -> None:
     """:class:`EditError` ``name_invalid`` unless ``name`` is ROS-safe and at most MAX_NAME_LENGTH characters."""
     if not isinstance(name, str) or len(name) > MAX_NAME_LENGTH or not ROS_SAFE_NAME.match(name):
@@ -471,21 +490,11 @@ class World:
     def prepare_spawn(self, entry, *, name: str, taken: set[str], position=(0.0, 0.0, 0.0),
                       orientation=(0.0, 0.0, 0.0, 1.0), source: str = "<spawn>") -> PreparedSpawn:
         """Validate ``entry`` (see :meth:`spawn`) and build what the world will hold: a body's model and state
-        rows, or a flock with its initial state.  Reads nothing of the world but its scene settings, so it may
-        run on any thread while the world steps; ``taken``: the names in use (a snapshot).  Raises as
-        :meth:`spawn` does; :meth:`add_spawned` adds the result."""
-        check_name(name)
-        if name in taken:
-            raise EditError("name_taken", f"name {name!r} is taken")
-        position, orientation = check_pose(position, orientation, "initial_pose")
-        kind, spec = spawn_entry(entry, source, name=name, taken=taken, position=position, orientation=orientation)
-        if kind == "flock":
-            if abs(abs(float(orientation[3])) - 1.0) > 1e-9:
-                raise EditError("invalid_pose", "initial_pose.orientation: a flock has no orientation (the boids "
-                                "have their own); give the identity (0, 0, 0, 1)")
-            return PreparedSpawn(kind, name, flock=Flock(spec))
-        model, state = Scene(source, self.scene.world, [spec], []).build_bodies()
-        return PreparedSpawn(kind, name, model=model, state=state, notes=list(spec.notes))
+        rows, or a flock with its initial state.  Reads nothing of the world but its scene settings
+        (:func:`prepare_spawn`, which a worker process runs with a copy of them); ``taken``: the names in use (a
+        snapshot).  Raises as :meth:`spawn` does; :meth:`add_spawned` adds the result."""
+        return prepare_spawn(entry, self.scene.world, name=name, taken=taken, position=position,
+                             orientation=orientation, source=source)
 
     def add_spawned(self, prepared: PreparedSpawn) -> str:
         """Add what :meth:`prepare_spawn` built (between ticks, on the thread that steps); the name and the body

@@ -25,9 +25,14 @@ simulation time):
                                                                  namespaces ``ground``, ``bodies/<body>``,
                                                                  ``flocks/<flock>``, ``contacts/points`` and
                                                                  ``contacts/forces`` (``contact_markers``);
-                                                                 DELETEALL first after a reset
-``~/contacts``                  cgp_sim_msgs/Contacts            every contact of the tick (entities, point, normal,
-                                                                 separation, normal and friction impulse) and each
+                                                                 DELETEALL first after a reset; bounded by the
+                                                                 level of detail (drawing/detail.py)
+``~/static_markers``            visualization_msgs/MarkerArray   the static meshes (``bodies/<body>``), latched
+                                                                 (transient local, as ``/tf_static``): sent when
+                                                                 they change, a DELETEALL first
+``~/contacts``                  cgp_sim_msgs/Contacts            the contacts of the tick (entities, point, normal,
+                                                                 separation, normal and friction impulse; at most
+                                                                 MAX_CONTACTS_PER_MESSAGE, the strongest) and each
                                                                  touching body's contact force and torque
                                                                  (parameter ``contacts``)
 ``~/events``                    std_msgs/String                  one line per service call, rejected command
@@ -126,6 +131,8 @@ TOPIC_FLOCK_POSES = "~/flocks/{flock}/poses"
 # cgp_sim_msgs/FlockStats (cgp_core/boids/order.py, cdr.FlockStatsSerializer)
 TOPIC_FLOCK_STATS = "~/flocks/{flock}/stats"
 TOPIC_MARKERS = "~/markers"
+# the static meshes' markers, latched (issue 38: a 500k-triangle mesh was re-sent every second on ~/markers)
+TOPIC_STATIC_MARKERS = "~/static_markers"
 # cgp_sim_msgs/Contacts (cgp_core/solver/report.py, cdr.ContactsSerializer)
 TOPIC_CONTACTS = "~/contacts"
 TOPIC_EVENTS = "~/events"
@@ -231,6 +238,10 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "leading /, at most 64 characters.", read_only=True, flag="--frame-prefix",
                   pattern=FRAME_PREFIX_PATTERN,
                   pattern_text="letters, digits, _ . / - (no leading /), at most 64 characters"),
+    ParameterSpec("spawn_timeout", 30.0, "Seconds a spawn_entity request's preparation (reading, parsing, building "
+                  "and drawing the entity, in the spawn worker process) may take; a longer one is stopped and "
+                  "refused (OPERATION_FAILED, saying so) and the requests behind it go on.", minimum=0.1,
+                  maximum=3600.0, flag="--spawn-timeout"),
     ParameterSpec("foxglove", False, "Serve a live view to the Foxglove app over WebSocket (Foxglove SDK): "
                   "every topic as the same CDR bytes, the simulation time, wrench commands and the services "
                   "(cgp_sim_ros/ros/foxglove_server.py).", read_only=True, flag="--foxglove"),
@@ -271,3 +282,10 @@ REPORT_PERIOD_S = 2.0
 MAX_COMMAND_BYTES = 1024
 #: a command callback goes on taking waiting commands for at most this long (wall seconds)
 COMMAND_BATCH_S = 0.002
+
+# ---- limits on what a tick sends (issue 38; the markers' level of detail: cgp_sim_ros/drawing/detail.py)
+
+#: contacts in one ~/contacts message (and drawn with contact_markers): a tick with more sends the ones with the
+#: largest impulse (normal + friction), in the solver's order; the wrenches are always every body's total
+#: (~150 bytes a contact: 2,048 are ~0.3 MB)
+MAX_CONTACTS_PER_MESSAGE = 2048

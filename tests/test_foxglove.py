@@ -48,6 +48,7 @@ PUBLISHED = {
     "/cgp_sim/flocks/birds/stats": FlockStats,
     "/cgp_sim/contacts": Contacts,
     "/cgp_sim/markers": MarkerArray,
+    "/cgp_sim/static_markers": MarkerArray,
     "/cgp_sim/events": String,
     "/tf": TFMessage,
     "/tf_static": TFMessage,
@@ -475,6 +476,7 @@ def test_the_layout_shows_what_the_default_scene_serves_and_its_kick_works(start
         (three_d,) = [c for key, c in config.items() if key.startswith("3D!")]
         assert three_d["followTf"] == "world"
         assert set(three_d["topics"]) <= set(channels) and three_d["topics"]["/cgp_sim/markers"]["visible"]
+        assert three_d["topics"]["/cgp_sim/static_markers"]["visible"]  # the static meshes (issue 38)
         plots = [c for key, c in config.items() if key.startswith("Plot!")]
         # the bodies' heights and the school's order parameters (issue 14: ~/flocks/<flock>/stats)
         assert {path["value"] for plot in plots for path in plot["paths"]} >= {
@@ -526,3 +528,22 @@ def test_a_spawned_body_gets_its_channels_in_the_live_view(live, probe):
     msg = deserialize_message(data, Odometry)
     assert msg.child_frame_id == "box1" and stamp_of(msg) == stamp
     assert world_velocity(msg)[1] == pytest.approx(4.0 * DT_NS * 1e-9 / 2.0, abs=1e-9)  # one tick of 4 N on 2 kg
+
+
+def test_a_late_client_gets_the_latched_topics(live, probe):
+    """Issue 38: the static meshes are sent once, on the latched ~/static_markers (and the fixed bodies on
+    /tf_static): a Foxglove client that subscribes later gets their last message at once, as a DDS subscriber
+    with transient-local durability does."""
+    from sim_client import SimClient
+
+    node, client = live("--start-paused", "true")
+    sim = SimClient(probe)
+    assert sim.spawn("land", "body: {shape: mesh, mesh: terrain.obj, fixed: true}").result.result == 1
+    step(client)
+    step(client)  # the first tick sent them; this one does not
+    static = client.subscribe("/cgp_sim/static_markers")
+    tf_static = client.subscribe("/tf_static")
+    client.wait(lambda: client.messages[static] and client.messages[tf_static], 20, "the latched messages")
+    (_, data), = client.received(static)
+    markers = deserialize_message(data, MarkerArray).markers
+    assert [m.ns for m in markers] == ["", "bodies/land"] and len(markers[1].points) == 3 * 1152

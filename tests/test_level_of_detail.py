@@ -309,3 +309,66 @@ def test_markers_no_longer_drawn_are_deleted_fewer_parts_or_a_deleted_flock(star
     assert [ids[0][1] for ids in drawn] == [1, 2, 0, 0, 1], fish  # ticks 1-3: id tick % 3; 4-5: tick % 2
     assert deletes == [[2], [0, 1]], fish  # markers_every 3 -> 2: part 2 gone; the flock deleted: parts 0 and 1
     assert fish[-1] == [], "the tick after the delete draws no fish"
+
+
+# ---- bodies (issue 38) --------------------------------------------------------------------------------------------
+
+def test_a_low_detail_hull_is_small_inside_the_hull_and_faces_outward():
+    from cgp_core.collision.convex import convex_hull
+    from cgp_sim_ros.drawing.bodies import hull_drawing
+
+    points = np.random.default_rng(38).normal(size=(1000, 3))
+    points *= 0.2 / np.linalg.norm(points, axis=1)[:, None]
+    hull = convex_hull(points)
+    drawing = hull_drawing(hull)
+    assert len(drawing.full) == 3 * len(hull.triangles) and len(drawing.low) <= 3 * 48
+    inside = ConvexHull(hull.vertices).equations
+    assert np.all(drawing.low @ inside[:, :3].T + inside[:, 3] <= 1e-12)  # its vertices are the hull's
+    tri = drawing.low.reshape(-1, 3, 3)
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    centre = drawing.low.mean(axis=0)
+    assert np.all(np.einsum("ij,ij->i", normal, tri[:, 0] - centre) > 0)  # counter-clockwise seen from outside
+    tetra = convex_hull(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]))
+    small = hull_drawing(tetra)
+    assert small.low is small.full  # a hull of 48 triangles or fewer is drawn as it is
+
+
+def test_a_big_static_mesh_is_clustered_to_its_cap_and_keeps_its_extent():
+    from cgp_sim_ros.drawing.bodies import cluster_vertices
+
+    n = 301  # a 301 x 301 grid: 180,000 triangles
+    x, y = np.meshgrid(np.linspace(0, 30, n), np.linspace(0, 30, n))
+    vertices = np.stack([x.ravel(), y.ravel(), np.sin(x.ravel())], axis=1)
+    index = np.arange(n * n).reshape(n, n)
+    a, b, c, d = index[:-1, :-1].ravel(), index[:-1, 1:].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel()
+    triangles = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])
+    merged_vertices, merged = cluster_vertices(vertices, triangles, 20_000)
+    assert 5_000 < len(merged) <= 20_000
+    assert np.allclose(merged_vertices[merged].reshape(-1, 3).min(axis=0), vertices.min(axis=0), atol=0.3)
+    assert np.allclose(merged_vertices[merged].reshape(-1, 3).max(axis=0), vertices.max(axis=0), atol=0.3)
+    up = np.cross(*(merged_vertices[merged[:, k]] - merged_vertices[merged[:, 0]] for k in (1, 2)))[:, 2]
+    assert np.mean(up > 0) > 0.99  # the winding kept (the grid faces +z)
+
+
+def test_the_body_budget_picks_low_hulls_then_parts():
+    small = detail.plan([], 60.0, body_bytes=(100_000, 20_000))
+    assert (small.hull_detail, small.body_markers_every) == ("full", 1)
+    big = detail.plan([], 60.0, body_bytes=(43_000_000, 1_100_000))  # 300 hulls of 1,000 vertices
+    assert big.hull_detail == "low"
+    assert big.body_markers_every == math.ceil(1_100_000 * 60 / detail.BODY_MARKER_BYTES_PER_S)
+    assert big.body_marker_bytes * 60 / big.body_markers_every <= detail.BODY_MARKER_BYTES_PER_S
+    assert big.event()["hull_detail"] == "low" and "hulls drawn with low detail" in " ".join(big.lines)
+    custom = big.custom_data({}, "/cgp_sim/markers")
+    assert custom["cgp_sim.hull_detail"] == "low"
+    assert custom["cgp_sim.body_markers_redrawn_every_n_ticks"] == str(big.body_markers_every)
+
+
+def test_body_parts_have_about_equal_bytes_and_keep_the_bodies_in_order():
+    from cgp_sim_ros.ros.messages import body_parts
+
+    sizes = np.random.default_rng(1).integers(100, 10_000, 500)
+    part = body_parts(sizes, 7)
+    assert np.all(np.diff(part) >= 0) and set(part.tolist()) == set(range(7))
+    per_part = np.bincount(part, weights=sizes)
+    assert per_part.max() <= sizes.sum() / 7 + sizes.max()
+    assert np.all(body_parts(sizes, 1) == 0)

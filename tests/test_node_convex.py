@@ -10,6 +10,7 @@ import json
 import shutil
 
 import numpy as np
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from sim_client import OK, vec
@@ -19,6 +20,9 @@ from test_node_sim_services import start_paused
 from visualization_msgs.msg import Marker, MarkerArray
 
 from cgp_core.scene import builtin_mesh_dir
+
+#: a late joiner's profile for latched topics (what RViz's "Transient Local" durability asks for)
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 PYRAMID = "body: {shape: convex, mass: 2.0, points: [[0, 0, 0], [0.4, 0, 0], [0, 0.4, 0], [0.4, 0.4, 0], " \
           "[0.2, 0.2, 0.3], [0.2, 0.2, 0.1]]}"  # 5 corners, and a point inside
@@ -85,10 +89,17 @@ def test_spawning_the_new_shapes_and_what_the_node_publishes_of_them(start_node,
     assert np.allclose([top.scale.x, top.scale.y, top.scale.z], [0.6, 0.6, 0.04])
     assert top.pose.position.z - foot.pose.position.z == np.float64(0.35).round(9) or \
         abs(top.pose.position.z - foot.pose.position.z - 0.35) < 1e-6
-    # the static mesh: in the array after a spawn (every STATIC_MESH_EVERY ticks, and when it moves)
-    seen_land = [m for raw in markers.messages for m in deserialize_message(raw, MarkerArray).markers
-                 if m.ns == "bodies/land"]
-    assert seen_land and seen_land[0].type == Marker.TRIANGLE_LIST and len(seen_land[0].points) == 3 * 1152
+    # the static mesh: never on ~/markers (issue 38: re-sent every second there); latched on ~/static_markers,
+    # so a subscriber that comes after the spawn gets it (a DELETEALL, then the whole set)
+    assert not [m for raw in markers.messages for m in deserialize_message(raw, MarkerArray).markers
+                if m.ns == "bodies/land"]
+    static = probe.subscribe("/cgp_sim/static_markers", MarkerArray, qos=LATCHED)
+    (array,) = probe.wait_for_messages("/cgp_sim/static_markers", 1)
+    assert [m.action for m in array.markers] == [Marker.DELETEALL, Marker.ADD]
+    land = array.markers[1]
+    assert land.ns == "bodies/land" and land.type == Marker.TRIANGLE_LIST and len(land.points) == 3 * 1152
+    probe.spin_for(0.5)
+    assert len(static.messages) == 1  # sent once, not every tick
 
     # ~/events: the hull of non-convex points and the BVH built
     texts = [json.loads(m.data).get("text", "") for m in events.messages]

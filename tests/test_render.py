@@ -145,15 +145,45 @@ def test_runs_where_rclpy_cannot_be_imported(default_bag, tmp_path):
     assert len(pixels_of(np.asarray(Image.open(tmp_path / "noros.png").convert("RGB")), BALL)) >= 5
 
 
-def _marker_bag(path, messages):
-    """A bag written with the project's BagWriter: [(time_s, [marker bytes...]), ...] on /cgp_sim/markers."""
+def _marker_bag(path, messages, static=()):
+    """A bag written with the project's BagWriter: [(time_s, [marker bytes...]), ...] on /cgp_sim/markers (and
+    ``static`` likewise on /cgp_sim/static_markers)."""
     from cgp_sim_ros.wire.bag import BagWriter
 
+    timeline = sorted([(t, "/cgp_sim/markers", m) for t, m in messages]
+                      + [(t, "/cgp_sim/static_markers", m) for t, m in static], key=lambda x: x[0])
     with BagWriter(path) as writer:
         writer.add_topic("/cgp_sim/markers", "visualization_msgs/msg/MarkerArray")
-        for t, markers in messages:
+        if static:
+            writer.add_topic("/cgp_sim/static_markers", "visualization_msgs/msg/MarkerArray")
+        for t, topic, markers in timeline:
             stamp = round(t * 1e9)
-            writer.write("/cgp_sim/markers", cdr.marker_array(markers), stamp, stamp)
+            writer.write(topic, cdr.marker_array(markers), stamp, stamp)
+
+
+def test_static_meshes_are_drawn_from_their_latched_topic(tmp_path):
+    """Issue 38: the node sends the static meshes once, on ~/static_markers (a DELETEALL, then the set), not on
+    every ~/markers array.  The renderer draws them with the markers of the same instant; a DELETEALL on
+    ~/markers (a reset) does not remove them, a new ~/static_markers message replaces them."""
+    red = dict(marker_type=cdr.SPHERE, ns="bodies/a", id=0, scale=(1, 1, 1), color=(1.0, 0.1, 0.1, 1.0))
+    land = dict(marker_type=cdr.TRIANGLE_LIST, ns="bodies/land", id=0, color=(0.1, 0.2, 1.0, 1.0),
+                points=np.array([[-3, 0, -1], [3, 0, -1], [0, 0, 1.5]], float))
+    _marker_bag(tmp_path / "bag", [
+        (0.0, [cdr.marker(cdr.MarkerFields(**red, position=(-1.5, -1, 0)))]),
+        (1.0, [cdr.marker_deleteall(), cdr.marker(cdr.MarkerFields(**red, position=(1.5, -1, 0)))]),
+        (2.0, [cdr.marker(cdr.MarkerFields(**red, position=(1.5, -1, 0)))]),
+    ], static=[(0.0, [cdr.marker_deleteall(), cdr.marker(cdr.MarkerFields(**land))]),
+               (1.5, [cdr.marker_deleteall()])])
+    seen = {}
+    for t in (0.5, 1.2, 1.8):
+        png = tmp_path / f"t{t}.png"
+        render(str(tmp_path / "bag"), "-o", str(png), "--from", str(t), "--camera", "0,-8,0:0,0,0",
+               "--size", "200x100", "-q")
+        image = np.asarray(Image.open(png).convert("RGB"))
+        seen[t] = (len(pixels_of(image, (1.0, 0.1, 0.1))), len(pixels_of(image, (0.1, 0.2, 1.0))))
+    assert seen[0.5][0] > 50 and seen[0.5][1] > 50  # the ball and the mesh sent once at t = 0
+    assert seen[1.2][0] > 50 and seen[1.2][1] > 50  # the reset's DELETEALL on ~/markers keeps the mesh
+    assert seen[1.8][0] > 50 and seen[1.8][1] == 0  # the mesh deleted: the new static set is empty
 
 
 def test_markers_as_a_viewer_replays_them(tmp_path):
@@ -228,3 +258,42 @@ def test_a_missing_or_broken_bag_is_refused(tmp_path):
     (tmp_path / "junk.mcap").write_bytes(b"not an mcap file at all" * 10)
     out = render(str(tmp_path / "junk.mcap"), "-o", str(tmp_path / "x.gif"), expect=2)
     assert "not a readable MCAP file" in out.stderr
+
+
+def test_bad_bags_are_named_errors_never_tracebacks_and_a_fifo_never_blocks(tmp_path):
+    """Issue 38, D16: a metadata.yaml of random bytes, one whose ``rosbag2_bagfile_information`` is a list, a
+    ``.mcap`` that is a directory, a FIFO as the bag, inside a bag directory or as the output: each is refused
+    with exit 2 naming the file and what it is (a FIFO used to block the renderer for ever; the others were
+    UnicodeDecodeError / AttributeError / IsADirectoryError tracebacks)."""
+    import os
+
+    cases = []
+    garbage = tmp_path / "garbage"
+    garbage.mkdir()
+    (garbage / "metadata.yaml").write_bytes(np.random.default_rng(38).integers(0, 256, 3000, np.uint8).tobytes())
+    cases.append((garbage, "metadata.yaml: not a rosbag2 metadata file"))
+    listed = tmp_path / "listed"
+    listed.mkdir()
+    (listed / "metadata.yaml").write_text("rosbag2_bagfile_information: [1, 2]\n")
+    cases.append((listed, "metadata.yaml: not a rosbag2 metadata file (no mapping rosbag2_bagfile_information)"))
+    paths = tmp_path / "paths"
+    paths.mkdir()
+    (paths / "metadata.yaml").write_text("rosbag2_bagfile_information: {relative_file_paths: 7}\n")
+    cases.append((paths, "relative_file_paths is not a list of file names"))
+    directory = tmp_path / "dir"
+    (directory / "run_0.mcap").mkdir(parents=True)
+    cases.append((directory, "run_0.mcap: is a directory, not a regular file"))
+    fifo_inside = tmp_path / "fifo_inside"
+    fifo_inside.mkdir()
+    os.mkfifo(fifo_inside / "run_0.mcap")
+    cases.append((fifo_inside, "run_0.mcap: is a FIFO (named pipe), not a regular file"))
+    fifo = tmp_path / "bag.mcap"
+    os.mkfifo(fifo)
+    cases.append((fifo, "bag.mcap: is a FIFO (named pipe), not a regular file"))
+    for bag, says in cases:
+        out = render(str(bag), "-o", str(tmp_path / "x.gif"), expect=2)
+        assert out.stderr.startswith("cgp-sim-render: ") and says in out.stderr, out.stderr
+        assert "Traceback" not in out.stderr
+    os.mkfifo(tmp_path / "out.gif")
+    out = render(str(fifo), "-o", str(tmp_path / "out.gif"), expect=2)
+    assert "-o " in out.stderr and "is a FIFO (named pipe), not a regular file" in out.stderr, out.stderr

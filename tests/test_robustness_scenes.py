@@ -288,6 +288,11 @@ def test_no_eval_exec_pickle_or_unsafe_yaml_in_the_sources():
     so comments and strings do not count and aliases (`from pickle import loads`) do."""
     banned_calls = {"eval", "exec", "compile", "__import__", "execfile"}
     banned_modules = {"pickle", "cPickle", "_pickle", "dill", "cloudpickle", "marshal", "shelve", "jsonpickle"}
+    # The one exception, by file: the node and its own spawn worker process (issue 38) hand each other jobs and
+    # results as pickles over a private pipe — what the node itself made, and what its own code made in the
+    # worker; no file, request or message is ever unpickled (a request's YAML and mesh files are parsed in the
+    # worker by the safe parsers above, and only their result travels back).
+    pickle_allowed = {Path("cgp_sim_ros/workers.py")}
     banned_yaml = {"unsafe_load", "full_load", "unsafe_load_all", "full_load_all", "load_all", "UnsafeLoader",
                    "FullLoader", "Loader"}
     findings = []
@@ -300,7 +305,8 @@ def test_no_eval_exec_pickle_or_unsafe_yaml_in_the_sources():
         for node in ast.walk(tree):
             if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in banned_calls:
                 findings.append(f"{where(node)}: {node.func.id}()")
-            if isinstance(node, ast.Import):
+            if isinstance(node, ast.Import) and not (path.relative_to(REPO) in pickle_allowed
+                                                     and [a.name for a in node.names] == ["pickle"]):
                 findings += [f"{where(node)}: import {a.name}" for a in node.names
                              if a.name.split(".")[0] in banned_modules]
             if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] in banned_modules:

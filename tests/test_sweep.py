@@ -413,6 +413,122 @@ def test_resume_runs_only_what_is_missing_and_a_failing_run_is_a_row(client, tmp
     assert run_sweep(sweep, out, client=client, quiet=True, retry_failed=True).ran == 4
 
 
+# ---- issue 38: every bad input a named error (exit 2), caps before planning, tables that survive ----------------
+
+_TEN = "[" + ", ".join(str(k) for k in range(10)) + "]"
+_HUGE_GRID = "grid:\n" + "".join(f"  flocks[school].couzin.{key}: {_TEN}\n" for key in (
+    "orientation_width", "attraction_width", "noise")) + "".join(
+    f"  flocks[school].{key}: {values}\n" for key, values in (
+        ("count", "[" + ", ".join(str(10 + k) for k in range(10)) + "]"),
+        ("boid_size", "[" + ", ".join(str(0.1 * (k + 1)) for k in range(10)) + "]"),
+        ("radius", "[" + ", ".join(str(k + 1) for k in range(10)) + "]"),
+        ("seed", _TEN), ("fov_deg", "[" + ", ".join(str(100 + 10 * k) for k in range(10)) + "]"))) \
+    + f"  world.substeps: {'[' + ', '.join(str(k + 1) for k in range(10)) + ']'}\n"
+_CHAIN = "grid:\n  flocks[school].couzin.orientation_width: [" + ", ".join(str(k) for k in range(5000)) + \
+    "]\nchain:\n  key: flocks[school].couzin.orientation_width\n"
+_LONG_PATH = "overrides:\n  ? world" + ".a" * 20_000 + "\n  : 1\n"
+
+
+@pytest.mark.parametrize("extra, key, reason", [
+    (_HUGE_GRID, "grid", "= 1,000,000,000 runs; a sweep has at most 100,000"),
+    ("seeds: 1000000000000\n", "seeds", "1000000000000 seeds; a sweep has at most 100,000 runs"),
+    ("seeds: [9223372036854775808]\n", "seeds", "seed 9223372036854775808 is larger than 9223372036854775807"),
+    ("dt: 1.0e-320\n", "dt", "is outside 0.0001 .. 1 s"),
+    ("duration: 1.0e308\n", "duration", "is more than 100,000,000 ticks"),
+    ("duration: " + "9" * 400 + "\n", "duration", "an integer of 1,329 bits is too large"),
+    (_CHAIN, "chain.key", "5,000 values make a chain of as many links; a chain has at most 1,000"),
+    (_LONG_PATH, "overrides.world.a.a", "a key path has at most 256 characters, this one 40,005"),
+])
+def test_caps_are_checked_before_anything_is_planned(extra, key, reason):
+    """Issue 38, D10-D12 and the 540k-link chain: a grid of 10⁹ runs planned for minutes, ``seeds: 10¹²`` ran
+    out of memory, ``dt: 1e-320`` / ``duration: 1e308`` overflowed the tick count, a seed of 2⁶³ broke every
+    later assembly of the tables, a 20,000-segment key path took 84 s and was echoed whole.  Each is now one
+    named problem, found before a run is planned."""
+    text = "scene: couzin_torus\n" + ("" if extra.startswith(("dt", "duration")) else "duration: 1\n") + extra
+    if extra.startswith("dt"):
+        text += "duration: 1\n"
+    with pytest.raises(SweepError) as error:
+        parse_sweep(text, "caps.yaml")
+    message = str(error.value)
+    line = next((li for li in message.splitlines() if li.startswith(f"caps.yaml: {key}")), None)
+    assert line is not None and reason in line, message
+    assert len(message) < 2000  # nothing echoed whole
+
+
+def test_bad_options_and_output_directories_are_refused_before_anything_runs(tmp_path):
+    """Issue 38, D13 and D15: ``-o`` a regular file or a path that cannot be made (``/proc/self/x``) used to fail
+    with a traceback — after the whole sweep had run, for an unwritable directory; ``--scheduler garbage``
+    (``tcp://``, ``tcp://[::1``, ``foo://bar:1``) was a ValueError traceback.  Now: exit 2, the reason, nothing
+    run."""
+    from cgp_sim_ros.sweep.engine import EngineError, scheduler_address
+
+    assert scheduler_address("tcp://127.0.0.1:8786") == "tcp://127.0.0.1:8786"
+    assert scheduler_address("[::1]:8786") == "tcp://[::1]:8786"
+    path = small(tmp_path, duration=0.5, seeds=1, widths="[1.0]", every=1, window=0.5)
+    a_file = tmp_path / "a_file"
+    a_file.write_text("")
+    cases = [(["-o", str(a_file)], f"-o {a_file}: exists and is not a directory"),
+             (["-o", "/proc/self/x"], "-o /proc/self/x: cannot write there"),
+             (["-o", str(tmp_path / "out"), "--scheduler", "garbage"], "expected [SCHEME://]HOST:PORT"),
+             (["-o", str(tmp_path / "out"), "--scheduler", "tcp://"], "expected [SCHEME://]HOST:PORT"),
+             (["-o", str(tmp_path / "out"), "--scheduler", "tcp://[::1"], "Invalid IPv6 URL"),
+             (["-o", str(tmp_path / "out"), "--scheduler", "foo://bar:1"], "unknown transport 'foo'")]
+    for args, says in cases:
+        done = subprocess.run(sweep_command() + ["run", str(path), *args], capture_output=True, text=True,
+                              timeout=120)
+        assert done.returncode == 2 and says in done.stderr and "Traceback" not in done.stderr, done.stderr
+    assert not (tmp_path / "out").exists()
+    with pytest.raises(EngineError):
+        scheduler_address("tcp://host:99999")
+
+
+def test_a_damaged_fragment_is_found_and_its_run_done_again(client, tmp_path):
+    """Issue 38, D14: one truncated ``fragments/*.flocks.parquet`` made every later invocation (``--retry-failed``
+    too) an ArrowInvalid traceback.  A fragment whose footer is gone is found before the sweep starts and its run
+    done again at once; one damaged inside (its footer intact) is found when the tables are assembled: reported
+    as not finished (exit 1), and done by the next invocation."""
+    from cgp_sim_ros.sweep.engine import run_sweep
+
+    sweep = load_sweep(small(tmp_path, duration=1, seeds=2, widths="[0.5, 2.0]", every=5, window=0.5))
+    out = tmp_path / "out"
+    assert run_sweep(sweep, out, client=client, quiet=True).exit_code == 0
+    whole = pq.read_table(out / "flocks.parquet").num_rows
+    first, second = sorted((out / FRAGMENTS).glob("*.flocks.parquet"))[:2]
+    with first.open("r+b") as f:  # cut: no footer
+        f.truncate(100)
+    again = run_sweep(sweep, out, client=client, quiet=True)
+    assert (again.ran, again.exit_code) == (1, 0)
+    assert pq.read_table(out / "flocks.parquet").num_rows == whole
+    data = bytearray(second.read_bytes())
+    data[4:300] = b"\x55" * 296  # the first page's header garbled, the footer intact
+    second.write_bytes(bytes(data))
+    damaged = run_sweep(sweep, out, client=client, quiet=True)
+    assert damaged.exit_code == 1 and len(damaged.not_finished) == 1
+    assert "a fragment does not read" in damaged.not_finished[0]
+    assert pq.read_table(out / "flocks.parquet").num_rows < whole
+    repaired = run_sweep(sweep, out, client=client, quiet=True)
+    assert (repaired.ran, repaired.exit_code) == (1, 0)
+    assert pq.read_table(out / "flocks.parquet").num_rows == whole
+
+
+def test_a_swept_integer_beyond_int64_is_a_text_column(client, tmp_path):
+    """Issue 38, D12's table half: a swept value the int64 column cannot hold (a run the scene loader may refuse:
+    a failed row) makes the key's column JSON text, so the tables are still written and read."""
+    from cgp_sim_ros.sweep.engine import run_sweep
+
+    path = small(tmp_path, duration=0.5, seeds=1, widths="[1.0]", every=5, window=0.5, extra="""
+        experiments:
+          big:
+            grid:
+              flocks[school].seed: [1, 9223372036854775808]
+    """)
+    outcome = run_sweep(load_sweep(path), tmp_path / "out", client=client, quiet=True)
+    assert outcome.ran == 2
+    runs = pq.read_table(tmp_path / "out" / "runs.parquet")
+    assert runs.schema.field("flocks[school].seed").type == "string"
+    assert sorted(runs.column("flocks[school].seed").to_pylist()) == ["1", "9223372036854775808"]
+
+
 def test_the_sweep_code_runs_where_ros_cannot_be_imported(tmp_path):
     """What a worker imports and runs (and the command's modules) without rclpy or any ROS message package."""
     path = small(tmp_path, duration=0.5, seeds=1, widths="[1.0]", every=1, window=0.5)

@@ -30,6 +30,20 @@ Rules, for the parameters' automatic values (``fish_detail: auto``, ``markers_ev
 3. in the bag, ``~/flocks/<flock>/poses`` is recorded every M-th tick, the smallest M that fits the poses
    budget (all flocks together; every message is still published).
 
+The bodies have a budget of their own, :data:`BODY_MARKER_BYTES_PER_S` (issue 38: 300 convex bodies with
+1,000-vertex hulls made ``~/markers`` 43 MB per tick, and the node ran at 13.6 Hz):
+
+4. hulls (convex bodies, compound parts) are drawn ``full`` (their triangles) if every body's markers at full
+   detail fit the body budget on every tick; otherwise ``low``: the hull of their extreme vertices in 26
+   directions, at most 48 triangles (:mod:`cgp_sim_ros.drawing.bodies`);
+5. the bodies' markers are redrawn every B-th tick, the smallest B that fits the body budget — in B parts of
+   about equal bytes (consecutive bodies), one part per tick, as the flocks' are.
+
+Static meshes are not on ``~/markers`` at all: they go on ``~/static_markers``, latched (transient local, as
+``/tf_static``), once when they change, each with at most
+:data:`~cgp_sim_ros.drawing.bodies.STATIC_MESH_TRIANGLES` triangles.  ``~/contacts`` (and the contact markers)
+carry at most :data:`~cgp_sim_ros.interface.MAX_CONTACTS_PER_MESSAGE` contacts, the strongest.
+
 A parameter set to a value overrides its rule; the others still follow theirs.
 """
 
@@ -46,6 +60,8 @@ from .shapes import FISH_DETAILS
 MARKER_BYTES_PER_S = 32e6
 #: flock PoseArray payload per simulated second the bag keeps to [bytes]
 BAG_POSES_BYTES_PER_S = 32e6
+#: body marker payload per simulated second the automatic choices keep to [bytes] (rules 4 and 5)
+BODY_MARKER_BYTES_PER_S = 16e6
 
 _POINT_BYTES = 24  # geometry_msgs/Point: 3 float64
 _POSE_BYTES = 56  # geometry_msgs/Pose: 7 float64
@@ -63,6 +79,9 @@ class DetailPlan:
     pose_bytes:         payload of one tick's flock PoseArrays [bytes].
     rate_hz:            the tick rate the plan was made for.
     lines:              the choices in words, with their reasons (what the node logs).
+    hull_detail:        ``"full"`` | ``"low"``: how hulls are drawn (rule 4).
+    body_markers_every: the bodies' markers redrawn every B ticks, in B parts (rule 5).
+    body_marker_bytes:  payload of every body's markers drawn once, at the chosen detail [bytes].
     """
 
     fish_detail: dict
@@ -72,6 +91,9 @@ class DetailPlan:
     pose_bytes: int
     rate_hz: float
     lines: list = field(default_factory=list)
+    hull_detail: str = "full"
+    body_markers_every: int = 1
+    body_marker_bytes: int = 0
 
     def custom_data(self, flock_topics: dict[str, str], marker_topic: str) -> dict[str, str]:
         """The plan for the bag's ``custom_data`` (str → str): per recorded topic that is not in the bag on
@@ -86,13 +108,22 @@ class DetailPlan:
             "cgp_sim.flock_markers_redrawn_every_n_ticks": json.dumps(
                 {marker_topic: self.markers_every}, sort_keys=True),
             "cgp_sim.fish_detail": json.dumps(self.fish_detail, sort_keys=True),
+            "cgp_sim.hull_detail": self.hull_detail,
+            "cgp_sim.body_markers_redrawn_every_n_ticks": str(self.body_markers_every),
             "cgp_sim.level_of_detail": " ".join(self.lines),
         }
 
     def event(self) -> dict:
         """The plan as an ``~/events`` line."""
         return {"event": "level_of_detail", "fish_detail": self.fish_detail, "markers_every": self.markers_every,
-                "bag_flock_poses_every": self.flock_poses_every, "rate_hz": self.rate_hz}
+                "bag_flock_poses_every": self.flock_poses_every, "hull_detail": self.hull_detail,
+                "body_markers_every": self.body_markers_every, "rate_hz": self.rate_hz}
+
+    def same_choices(self, other: DetailPlan) -> bool:
+        """Whether ``other`` chooses the same (the payloads and words aside)."""
+        return (self.fish_detail, self.markers_every, self.flock_poses_every, self.rate_hz, self.hull_detail,
+                self.body_markers_every) == (other.fish_detail, other.markers_every, other.flock_poses_every,
+                                             other.rate_hz, other.hull_detail, other.body_markers_every)
 
 
 def _every(payload_bytes: float, rate_hz: float, budget: float) -> int:
@@ -109,9 +140,10 @@ def _per_tick(every: int, rate_hz: float) -> str:
 
 
 def plan(flocks, rate_hz: float, fish_detail: str = "auto", markers_every: int = 0,
-         flock_poses_every: int = 0) -> DetailPlan:
-    """The level of detail for ``flocks`` (their :class:`~cgp_core.boids.FlockParams`) at ``rate_hz``; the
-    parameters as the node has them (``"auto"`` / 0 = follow the rules of the module docstring)."""
+         flock_poses_every: int = 0, body_bytes: tuple[int, int] = (0, 0)) -> DetailPlan:
+    """The level of detail for ``flocks`` (their :class:`~cgp_core.boids.FlockParams`) and bodies whose markers,
+    all drawn once, are ``body_bytes`` = (at full hull detail, at low) bytes, at ``rate_hz``; the parameters as
+    the node has them (``"auto"`` / 0 = follow the rules of the module docstring)."""
     if fish_detail not in FISH_DETAIL_CHOICES:
         raise ValueError(f"fish_detail must be one of {', '.join(FISH_DETAIL_CHOICES)}, got {fish_detail!r}")
     fish = [p for p in flocks if p.model == "fish"]
@@ -167,6 +199,27 @@ def plan(flocks, rate_hz: float, fish_detail: str = "auto", markers_every: int =
     else:
         lines.append(f"bag: ~/flocks/*/poses recorded {_per_tick(flock_poses_every, rate_hz)} "
                      "(bag_flock_poses_every parameter; published every tick).")
+    hull_detail, body_every, body_payload = _body_plan(body_bytes, rate_hz, lines)
     return DetailPlan(fish_detail={p.name: detail for p in fish}, markers_every=markers_every,
                       flock_poses_every=flock_poses_every, marker_bytes=payload, pose_bytes=poses, rate_hz=rate_hz,
-                      lines=lines)
+                      lines=lines, hull_detail=hull_detail, body_markers_every=body_every,
+                      body_marker_bytes=body_payload)
+
+
+def _body_plan(body_bytes: tuple[int, int], rate_hz: float, lines: list) -> tuple[str, int, int]:
+    """Rules 4 and 5: (hull detail, every how many ticks the bodies are redrawn, their payload at that detail)."""
+    full, low = body_bytes
+    budget = BODY_MARKER_BYTES_PER_S
+    if full * rate_hz <= budget:
+        return "full", 1, full
+    detail = "low" if low < full else "full"
+    payload = low if detail == "low" else full
+    every = _every(payload, rate_hz, budget)
+    if detail == "low":
+        lines.append(f"hulls drawn with low detail (at most 48 triangles each): in full the bodies' markers would be "
+                     f"{_megabytes(full)} per tick, {_megabytes(full * rate_hz)}/s at {rate_hz:g} Hz, over the "
+                     f"{_megabytes(budget)}/s body marker budget.")
+    lines.append(f"body markers redrawn {_per_tick(every, rate_hz)}"
+                 + ("" if every == 1 else f", in {every} parts, one per tick")
+                 + f": {_megabytes(payload)} for every body.")
+    return detail, every, payload

@@ -19,15 +19,18 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
 from mcap.reader import make_reader
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
+
+from cgp_core.user_input import UserInputError, load_yaml, open_user_file, read_user_text, regular_file
 
 MARKER_ARRAY_SCHEMA = "visualization_msgs/msg/MarkerArray"
 #: the topic the node publishes its markers on (``~/markers`` of a node named cgp_sim)
 DEFAULT_MARKER_TOPIC = "/cgp_sim/markers"
 _SPLIT_INDEX = re.compile(r"_(\d+)\.mcap$")
+#: a rosbag2 metadata.yaml's bytes (the node's are a few kB; one per topic and file)
+MAX_METADATA_BYTES = 4 * 1024 * 1024
 
 
 class BagError(ValueError):
@@ -45,22 +48,27 @@ class MarkerStream:
     end_ns: int  # log time of the bag's last message
     #: damaged files (read up to the damage): path -> what was recovered and why it stopped
     damaged: dict = None
+    #: the latched companion of ``topic`` in this bag (``~/static_markers`` beside ``~/markers``: the static
+    #: meshes, sent when they change), or None; drawn together with ``topic``
+    static_topic: str | None = None
 
-    def messages(self, start_ns: int | None = None, end_ns: int | None = None) -> Iterator[tuple[int, bytes]]:
-        """``(log_time_ns, CDR bytes)`` of the marker messages logged in [start_ns, end_ns] (default: all), in
-        log-time order (mcap seeks to the chunks that overlap the span)."""
+    def messages(self, start_ns: int | None = None, end_ns: int | None = None,
+                 topic: str | None = None) -> Iterator[tuple[int, bytes]]:
+        """``(log_time_ns, CDR bytes)`` of the marker messages of ``topic`` (default: :attr:`topic`) logged in
+        [start_ns, end_ns] (default: all), in log-time order (mcap seeks to the chunks that overlap the span)."""
+        topic = topic or self.topic
         for path in self.files:
             if self.damaged and path in self.damaged:
                 for log_time, _topic, _schema, data in _stream_messages(path):
-                    if _topic == self.topic and (start_ns is None or log_time >= start_ns) \
+                    if _topic == topic and (start_ns is None or log_time >= start_ns) \
                             and (end_ns is None or log_time <= end_ns):
                         yield log_time, data
                 continue
-            with open(path, "rb") as stream:
+            with open_user_file(path) as stream:
                 reader = make_reader(stream)
                 try:
                     for _schema, _channel, message in reader.iter_messages(
-                            topics=[self.topic], start_time=start_ns, end_time=None if end_ns is None else end_ns + 1,
+                            topics=[topic], start_time=start_ns, end_time=None if end_ns is None else end_ns + 1,
                             log_time_order=True):
                         yield message.log_time, message.data
                 except Exception as exc:  # noqa: BLE001 - a damaged chunk in a file with a summary: stop there
@@ -71,21 +79,29 @@ class MarkerStream:
 
 
 def bag_files(bag: str | Path) -> list[Path]:
-    """The ``.mcap`` files of a bag directory (in recording order), or ``[bag]`` for a single file."""
+    """The ``.mcap`` files of a bag directory (in recording order), or ``[bag]`` for a single file.  Only regular
+    files are read: a FIFO, a device, a socket or a directory where a file should be — the bag itself, a file
+    ``metadata.yaml`` lists, a ``*.mcap`` of the directory — is refused by its kind before anything is opened (a
+    FIFO would block the reader for ever: issue 38), and ``metadata.yaml`` is read bounded (its size, its YAML)
+    and checked to be what rosbag2 writes."""
     path = Path(bag).expanduser()
-    if path.is_file():
-        return [path]
-    if not path.is_dir():
-        raise BagError(f"{bag}: no such bag (expected a rosbag2 directory or an .mcap file)")
+    if path.is_dir():
+        return _directory_files(path, bag)
+    try:
+        return [regular_file(path)]
+    except UserInputError as exc:
+        if not path.exists() and not path.is_symlink():
+            raise BagError(f"{bag}: no such bag (expected a rosbag2 directory or an .mcap file)") from None
+        raise BagError(f"{bag}: {exc}; a bag is a rosbag2 directory or an .mcap file") from None
+
+
+def _directory_files(path: Path, bag: str | Path) -> list[Path]:
     metadata = path / "metadata.yaml"
-    if metadata.is_file():
-        try:
-            info = yaml.safe_load(metadata.read_text())["rosbag2_bagfile_information"]
-            listed = [path / name for name in info.get("relative_file_paths", [])]
-        except (yaml.YAMLError, KeyError, TypeError, OSError) as exc:
-            raise BagError(f"{metadata}: not a rosbag2 metadata file ({exc})") from None
-        if info.get("storage_identifier", "mcap") != "mcap":
-            raise BagError(f"{bag}: storage {info.get('storage_identifier')!r}; only MCAP bags can be rendered")
+    if metadata.exists() or metadata.is_symlink():
+        listed = [path / name for name in _listed_files(metadata, bag)]
+        for candidate in listed:
+            if candidate.exists() or candidate.is_symlink():
+                _check_regular(candidate)
         files = [p for p in listed if p.is_file()]
         if files:
             return files
@@ -93,7 +109,36 @@ def bag_files(bag: str | Path) -> list[Path]:
                                                        else -1, p.name))
     if not files:
         raise BagError(f"{bag}: no .mcap file in this directory")
+    for candidate in files:
+        _check_regular(candidate)
     return files
+
+
+def _check_regular(path: Path) -> None:
+    try:
+        regular_file(path)
+    except UserInputError as exc:
+        raise BagError(f"{path}: {exc}") from None
+
+
+def _listed_files(metadata: Path, bag: str | Path) -> list[str]:
+    """``relative_file_paths`` of a rosbag2 ``metadata.yaml`` (checked: a mapping ``rosbag2_bagfile_information``
+    with a list of texts, MCAP storage); :class:`BagError` naming the file and what is wrong otherwise."""
+    try:
+        document = load_yaml(read_user_text(metadata, max_bytes=MAX_METADATA_BYTES))
+    except UserInputError as exc:
+        raise BagError(f"{metadata}: not a rosbag2 metadata file ({exc})") from None
+    info = document.get("rosbag2_bagfile_information") if isinstance(document, dict) else None
+    if not isinstance(info, dict):
+        raise BagError(f"{metadata}: not a rosbag2 metadata file (no mapping rosbag2_bagfile_information)")
+    storage = info.get("storage_identifier", "mcap")
+    if storage != "mcap":
+        shown = storage if isinstance(storage, str) and len(storage) <= 40 else type(storage).__name__
+        raise BagError(f"{bag}: storage {shown!r}; only MCAP bags can be rendered")
+    names = info.get("relative_file_paths", [])
+    if not isinstance(names, list) or not all(isinstance(n, str) and n for n in names):
+        raise BagError(f"{metadata}: not a rosbag2 metadata file (relative_file_paths is not a list of file names)")
+    return names
 
 
 def open_marker_stream(bag: str | Path, topic: str | None = None) -> MarkerStream:
@@ -106,7 +151,7 @@ def open_marker_stream(bag: str | Path, topic: str | None = None) -> MarkerStrea
     start = end = None
     for path in files:
         try:
-            with open(path, "rb") as stream:
+            with open_user_file(path) as stream:
                 summary = make_reader(stream).get_summary()
                 if summary is None or summary.statistics is None:  # a killed recording: scan it
                     counts, span = _scan(path)
@@ -141,6 +186,8 @@ def open_marker_stream(bag: str | Path, topic: str | None = None) -> MarkerStrea
         raise BagError(f"{bag}: no {MARKER_ARRAY_SCHEMA} messages on {topic} (MarkerArray topics: "
                        f"{', '.join(sorted(candidates)) or 'none'})")
     stream = MarkerStream(files, topic, candidates[topic], start, end, damaged)
+    if topic.endswith("/markers") and candidates.get(topic[:-len("markers")] + "static_markers"):
+        stream.static_topic = topic[:-len("markers")] + "static_markers"
     # time 0 is the first picture there is: the first marker message (a bag may start with other topics, e.g. a
     # cgp-sim bag's start-up event on ~/events at t = 0, one tick before the first markers)
     stream.start_ns = next(stream.messages())[0]
@@ -152,7 +199,7 @@ def _stream_messages(path: Path):
     reader, chunk CRCs checked), up to the first damaged or missing record."""
     schemas: dict[int, str] = {}
     channels: dict[int, tuple[str, int]] = {}
-    with open(path, "rb") as f:
+    with open_user_file(path) as f:
         try:
             for record in StreamReader(f, validate_crcs=True, record_size_limit=1 << 30).records:
                 if isinstance(record, Schema):
@@ -190,7 +237,7 @@ def _scan(path: Path) -> tuple[dict[str, int], tuple[int, int] | None]:
     """Marker topic counts and time span of a file without summary (sequential read)."""
     counts: dict[str, int] = {}
     start = end = None
-    with open(path, "rb") as f:
+    with open_user_file(path) as f:
         for schema, channel, message in make_reader(f).iter_messages(log_time_order=False):
             start = message.log_time if start is None else min(start, message.log_time)
             end = message.log_time if end is None else max(end, message.log_time)

@@ -11,6 +11,10 @@ format: ``.mp4`` (H.264 through the ffmpeg that the ``imageio-ffmpeg`` wheel shi
 palette for the whole animation, looping), ``.png`` (one picture at ``--from``; a name with a printf pattern
 such as ``%04d`` writes one numbered picture per frame).
 
+The static meshes, which the node sends on the latched ``~/static_markers`` when they change (not on every
+tick), are drawn with the ``~/markers`` of the same instant (``--topic T`` draws ``T`` and, beside a ``.../markers``
+topic, its ``.../static_markers``).
+
 Time: ``--from`` / ``--to`` are seconds from the first marker message of the bag (for a cgp-sim bag that is the
 first tick, in simulation time).  Frame k shows the markers as they were at ``from + k · speed / fps`` — the latest
 message at or before that time, as a viewer replaying the bag would show them (so ``markers_every`` > 1 and
@@ -32,6 +36,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from cgp_core.user_input import UserInputError, regular_file
 
 from ..progress import ProgressLine, bar, format_duration
 from ..wire import cdr
@@ -160,17 +166,16 @@ class Undecodable:
         return markers
 
 
-class FrameSource:
-    """Marker sets at increasing times, from one pass over the bag."""
+class _TopicReplay:
+    """One topic's marker set at increasing times, from one pass over its messages."""
 
-    def __init__(self, stream: MarkerStream, undecodable: Undecodable | None = None) -> None:
-        self._messages = stream.messages()
+    def __init__(self, messages, undecodable: Undecodable) -> None:
+        self._messages = messages
         self._pending: tuple[int, bytes] | None = None
         self.markers = MarkerSet()
-        self.undecodable = undecodable or Undecodable()
+        self.undecodable = undecodable
 
     def at(self, time_ns: int) -> MarkerSet:
-        """Apply every message logged at or before ``time_ns`` (times must not decrease between calls)."""
         while True:
             if self._pending is None:
                 self._pending = next(self._messages, None)
@@ -185,12 +190,31 @@ class FrameSource:
             self._pending = None
 
 
+class FrameSource:
+    """Marker sets at increasing times, from one pass over the bag: the marker topic's and, beside it, its
+    latched static markers' (each topic's DELETEALL clears that topic's markers only, as a viewer's display per
+    topic does)."""
+
+    def __init__(self, stream: MarkerStream, undecodable: Undecodable | None = None) -> None:
+        self.undecodable = undecodable or Undecodable()
+        self._topics = [_TopicReplay(stream.messages(), self.undecodable)]
+        if stream.static_topic:
+            self._topics.insert(0, _TopicReplay(stream.messages(topic=stream.static_topic), self.undecodable))
+
+    def at(self, time_ns: int) -> list:
+        """The markers on display at ``time_ns``: every message logged at or before it applied (times must not
+        decrease between calls)."""
+        return [m for replay in self._topics for m in replay.at(time_ns).markers.values()]
+
+
 def default_camera(stream: MarkerStream, times: np.ndarray, aspect: float, args,
                    undecodable: Undecodable | None = None) -> Camera:
     """Frame what is drawn at FRAMING_SAMPLES instants spread over ``times`` (each from the messages of the
     FRAMING_LOOKBACK_NS before it: mcap seeks there, so framing does not read the whole bag)."""
     samples = np.unique(times[np.linspace(0, len(times) - 1, min(FRAMING_SAMPLES, len(times))).round().astype(int)])
     points = []
+    static = _TopicReplay(stream.messages(topic=stream.static_topic), undecodable or Undecodable()) \
+        if stream.static_topic else None  # (few messages: read from the start)
     for t in samples:
         markers = MarkerSet()
         for _stamp, data in stream.messages(int(t) - FRAMING_LOOKBACK_NS, int(t)):
@@ -198,6 +222,8 @@ def default_camera(stream: MarkerStream, times: np.ndarray, aspect: float, args,
             if decoded is not None:
                 markers.apply(decoded)
         points.append(extent_points(markers))
+        if static is not None:
+            points.append(extent_points(static.at(int(t))))
     return Camera.framing(np.concatenate(points), aspect, azimuth_deg=args.azimuth,
                           elevation_deg=args.elevation, fov_deg=args.fov)
 
@@ -284,6 +310,11 @@ def render(args) -> dict:
                           "or .png")
     if not output.parent.is_dir():
         raise RenderError(f"-o {args.output}: directory {output.parent} does not exist")
+    if (output.exists() or output.is_symlink()) and not output.is_file():  # a FIFO would block the writer
+        try:
+            regular_file(output)
+        except UserInputError as exc:
+            raise RenderError(f"-o {args.output}: {exc}; the output must be a regular file") from None
     if not (args.fps > 0 and math.isfinite(args.fps)) or not (args.speed > 0 and math.isfinite(args.speed)):
         raise RenderError("--fps and --speed must be positive numbers")
     if not 1.0 <= args.fov <= 170.0:
@@ -345,6 +376,9 @@ def main(argv: list[str] | None = None) -> int:
         result = render(args)
     except (RenderError, BagError) as exc:
         print(f"cgp-sim-render: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # reading the bag or writing the output failed (permissions, a full disk, ...)
+        print(f"cgp-sim-render: {exc.filename or args.output}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("cgp-sim-render: interrupted", file=sys.stderr)

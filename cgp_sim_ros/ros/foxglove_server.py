@@ -65,6 +65,7 @@ from dataclasses import dataclass
 import foxglove
 from foxglove import Channel, Context, MessageSchema, Schema, Service, ServiceSchema, StatusLevel
 from foxglove.websocket import Capability, ServerListener
+from rclpy.qos import DurabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 
 from cgp_core.wrenches import WrenchError
@@ -141,6 +142,9 @@ class FoxgloveServer:
         self._by_publisher = {p: self._channels[p.topic_name] for p in node.publishers
                               if p.topic_name in self._channels}
         self._time_sent = -1  # the last simulation time broadcast [ns]
+        #: the latched topics' (transient local: /tf_static, ~/static_markers) last message, (data, stamp), sent
+        #: again when a client subscribes to their channel, as DDS gives a late subscriber the last one
+        self._latched: dict[str, tuple[bytes, int]] = {}
 
         # ---- inbound: client channels -> the node's command inputs; everything through one bounded inbox
         self._commands = dict(node.command_inputs)  # topic -> (msg type, handler of CDR bytes)
@@ -201,8 +205,11 @@ class FoxgloveServer:
         return channel is not None and channel.has_sinks()
 
     def publish(self, publisher, data: bytes, stamp_ns: int) -> None:
-        """The bytes ``publisher`` just published, to the clients subscribed to its channel (if any)."""
+        """The bytes ``publisher`` just published, to the clients subscribed to its channel (if any); a latched
+        topic's are kept for the clients that subscribe later."""
         channel = self._by_publisher.get(publisher)
+        if channel is not None and publisher.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL:
+            self._latched[publisher.topic_name] = (data, stamp_ns)
         if channel is not None and channel.has_sinks():
             self._log(channel, data, stamp_ns)
 
@@ -350,6 +357,10 @@ class FoxgloveServer:
         elif kind == "time":
             self._time_sent = max(self._time_sent, self.node.world.time_ns)
             self.server.broadcast_time(self._time_sent)
+        elif kind == "latched":  # a client subscribed to a latched topic: its last message again
+            latched, channel = self._latched.get(item[1]), self._channels.get(item[1])
+            if latched is not None and channel is not None:
+                self._log(channel, *latched)
         elif kind == "log":
             self.node.get_logger().warn(f"foxglove: {item[1]}")
 
@@ -411,6 +422,7 @@ class _Listener(ServerListener):
 
     def on_subscribe(self, client, channel) -> None:
         self._server._put(("time",))  # a new subscriber learns the time now, even while paused
+        self._server._put(("latched", channel.topic))
 
     def on_client_advertise(self, client, channel) -> None:
         self._server._advertised(client.id, channel)

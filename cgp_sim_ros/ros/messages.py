@@ -6,10 +6,12 @@ Markers (``~/markers``, frame ``world``), with stable namespaces and ids:
 - ``ground`` / 0: a thin grey CUBE under z = 0 (only when the scene has a ground plane);
 - ``bodies/<body>`` / 0: the body's shape — SPHERE, CUBE (box), CYLINDER (capsule shaft; ids 1 and 2 are the
   capsule's end SPHEREs), SPHERE_LIST (particle set, drawn in the body frame), TRIANGLE_LIST (a convex hull:
-  its triangles in the body frame, the marker's pose the body's; a static mesh likewise, re-sent only every
-  :data:`STATIC_MESH_EVERY` ticks and when its pose changed: it is big and does not move);
+  its triangles in the body frame, the marker's pose the body's; in full or low detail,
+  :mod:`cgp_sim_ros.drawing.bodies`);
 - ``bodies/<body>`` / 3k, 3k + 1, 3k + 2: part k of a compound body, at the part's own pose (the body's pose
   times the part's): SPHERE, CUBE, CYLINDER (+ its two end SPHEREs at 3k + 1 and 3k + 2) or TRIANGLE_LIST.
+  The bodies redrawn every B ticks (the level of detail's rule 5: :mod:`cgp_sim_ros.drawing.detail`) are split
+  into B parts of consecutive bodies of about equal bytes, part k drawn on the ticks k mod B.
   TRIANGLE_LIST markers carry no per-vertex colours (the marker's colour; RViz and Foxglove both draw a
   TRIANGLE_LIST in the marker's pose, scaled by ``scale`` = 1, with the triangles' winding — counter-clockwise
   seen from outside — as their front);
@@ -25,6 +27,12 @@ Markers (``~/markers``, frame ``world``), with stable namespaces and ids:
   friction, ``contact_force_scale`` m/N); the arrows of contacts gone since the last tick are DELETEd in the same
   array (ids k … before the arrays' new ones).
 After a reset the first marker of the array is a DELETEALL, then the full set (every part).
+
+``~/static_markers`` (latched: transient local, keep last 1): the static meshes, ``bodies/<body>`` / 0, a
+TRIANGLE_LIST in the body's frame at the body's pose (at most
+:data:`~cgp_sim_ros.drawing.bodies.STATIC_MESH_TRIANGLES` triangles), after a DELETEALL: the whole set, sent on
+the first tick and whenever a static mesh is spawned, deleted or moved (issue 38: a 500,000-triangle mesh, 36 MB,
+was re-sent every second on ``~/markers``).
 
 ``~/contacts`` (``cgp_sim_msgs/Contacts``): the world's :class:`~cgp_core.solver.report.ContactReport` of the tick,
 by :class:`cgp_sim_ros.wire.cdr.ContactsSerializer` (rclpy's message building took 7-10 ms for a 100-box pile's
@@ -47,9 +55,10 @@ from visualization_msgs.msg import MarkerArray
 from cgp_core.bodies import Shape
 from cgp_core.rotation import matrix_to_quat, quat_multiply, quat_rotate
 
+from ..drawing.bodies import Drawings
 from ..drawing.detail import DetailPlan
 from ..drawing.shapes import FISH_DETAILS, fish_triangles, quantized_points
-from ..interface import UNPREFIXED, Frames
+from ..interface import MAX_CONTACTS_PER_MESSAGE, UNPREFIXED, Frames
 from ..wire import cdr
 
 GROUND_SIZE = 60.0  # m, edge of the drawn ground tile
@@ -59,9 +68,10 @@ CONTACT_FORCE_COLOR = (0.95, 0.85, 0.1, 1.0)
 CONTACT_POINT_SIZE = 0.04  # m, diameter of the contact point spheres
 CONTACT_ARROW = (0.015, 0.035, 0.04)  # m: shaft diameter, head diameter, head length of the force arrows
 FLOCK_COLORS = ((0.95, 0.6, 0.15, 1.0), (0.2, 0.6, 0.95, 1.0), (0.55, 0.85, 0.3, 1.0), (0.85, 0.35, 0.75, 1.0))
-#: a static mesh's marker (thousands of triangles, never moving while its pose does not change) is re-sent every
-#: this many ticks (a late subscriber, a new bag file, a DELETEALL get it back within a second at 60 Hz)
-STATIC_MESH_EVERY = 60
+#: the bytes of a marker besides its points (header, namespace, pose, scale, colour, empty arrays ...): what the
+#: level of detail counts per marker, next to 24 bytes per point
+MARKER_OVERHEAD_BYTES = 200
+_POINT_BYTES = 24
 
 
 def part_marker_ids(parts) -> set[int]:
@@ -72,11 +82,6 @@ def part_marker_ids(parts) -> set[int]:
         if int(parts.shape[k]) == int(Shape.CAPSULE):
             ids.update((3 * k + 1, 3 * k + 2))
     return ids
-
-
-def hull_triangle_points(hull) -> np.ndarray:
-    """(3t, 3) a hull's (or mesh's) triangles as TRIANGLE_LIST points, counter-clockwise seen from outside."""
-    return np.ascontiguousarray(hull.vertices[hull.triangles].reshape(-1, 3))
 
 
 class TickMessages:
@@ -90,8 +95,16 @@ class TickMessages:
     Contacts = Contacts
 
     def __init__(self, world, frames: Frames = UNPREFIXED, plan: DetailPlan | None = None,
-                 contact_force_scale: float | None = None):
+                 contact_force_scale: float | None = None, drawings: Drawings | None = None):
         self.world = world
+        #: the hulls' and static meshes' drawings (shared with the node's next TickMessages: made once)
+        self.drawings = drawings if drawings is not None else Drawings()
+        #: how hulls are drawn ('full' | 'low') and the parts B the bodies' markers are split into (set_plan)
+        self.hull_detail = "full"
+        self.body_parts = 1
+        self._body_part = np.zeros(world.body_model.count, dtype=np.int64)  # (n,) each body's part
+        #: contacts in the last ~/contacts message and in the tick's report (the cap: MAX_CONTACTS_PER_MESSAGE)
+        self.contacts_sent = self.contacts_of = 0
         self.frame_id = frame_id = frames.world
         model = world.body_model
         self._contacts = cdr.ContactsSerializer(frame_id, model.names)
@@ -109,14 +122,46 @@ class TickMessages:
         self._flock_markers: dict[tuple, tuple] = {}  # (flock index, part) -> (key, MarkerPointsSerializer)
         self._body_templates: dict[tuple, cdr.MarkerPoseSerializer] = {}  # (body, part, frame) -> template
         self._part_orientations: dict[int, np.ndarray] = {}  # compound body -> its parts' quaternions (k, 4)
-        self._mesh_poses: dict[int, tuple] = {}  # static mesh body -> the pose its marker was last sent with
         if plan is not None:
             self.set_plan(plan)
 
     def set_plan(self, plan: DetailPlan) -> None:
-        """Draw the fish as ``plan`` says, in ``plan.markers_every`` parts per flock."""
+        """Draw the fish as ``plan`` says, in ``plan.markers_every`` parts per flock; the hulls in
+        ``plan.hull_detail``, the bodies in ``plan.body_markers_every`` parts."""
         self.fish_detail = dict(plan.fish_detail)
         self.parts = max(1, int(plan.markers_every))
+        if plan.hull_detail != self.hull_detail:
+            self._body_templates.clear()
+        self.hull_detail = plan.hull_detail
+        self.body_parts = max(1, int(plan.body_markers_every))
+        self._body_part = body_parts(self.body_marker_bytes(self.hull_detail), self.body_parts)
+
+    def body_marker_bytes(self, detail: str) -> np.ndarray:
+        """(n,) the payload of each body's markers drawn once with hulls in ``detail`` [bytes] (about: the points
+        and :data:`MARKER_OVERHEAD_BYTES` per marker; 0 for a static mesh, which is not on ``~/markers``)."""
+        model = self.world.body_model
+        out = np.zeros(model.count, dtype=np.int64)
+        for i in range(model.count):
+            shape = int(model.shape[i])
+            if shape == Shape.MESH:
+                continue
+            if shape == Shape.COMPOUND:
+                parts = model.parts[i]
+                markers = sum(3 if int(k) == int(Shape.CAPSULE) else 1 for k in parts.shape)
+                points = sum(len(self.drawings.hull(h).points(detail)) for h in parts.hulls if h is not None)
+            elif shape == Shape.CONVEX:
+                markers, points = 1, len(self.drawings.hull(model.hulls[i]).points(detail))
+            elif shape == Shape.PARTICLES:
+                markers, points = 1, len(model.particles[i])
+            else:
+                markers, points = (3 if shape == Shape.CAPSULE else 1), 0
+            out[i] = markers * MARKER_OVERHEAD_BYTES + points * _POINT_BYTES
+        return out
+
+    def body_bytes(self) -> tuple[int, int]:
+        """(full, low): the payload of every body's markers drawn once with hulls in full and in low detail
+        [bytes], for the level-of-detail plan."""
+        return int(self.body_marker_bytes("full").sum()), int(self.body_marker_bytes("low").sum())
 
     def flock_parts(self, flock) -> int:
         """How many parts (marker ids 0 .. parts − 1) ``flock``'s marker is split into: at least one boid each."""
@@ -133,7 +178,8 @@ class TickMessages:
         model = self.world.body_model
         ids = {f"bodies/{name}": ({0, 1, 2} if int(shape) == int(Shape.CAPSULE) else
                                   part_marker_ids(parts) if int(shape) == int(Shape.COMPOUND) else {0})
-               for name, shape, parts in zip(model.names, model.shape, model.parts)}
+               for name, shape, parts in zip(model.names, model.shape, model.parts)
+               if int(shape) != int(Shape.MESH)}  # (static meshes: on ~/static_markers)
         ids.update({f"flocks/{f.params.name}": set(range(self.flock_parts(f))) for f in self.world.flocks})
         return ids
 
@@ -166,35 +212,51 @@ class TickMessages:
                                                          o.max_speed)))
         return out
 
-    def contacts(self, stamp_ns: int) -> bytes:
-        """The world's last :class:`~cgp_core.solver.report.ContactReport` as ``cgp_sim_msgs/Contacts``."""
+    def sent_contacts(self) -> np.ndarray:
+        """Indices of the report's contacts a message carries: every one, or — over
+        :data:`~cgp_sim_ros.interface.MAX_CONTACTS_PER_MESSAGE` — those with the largest impulse (normal +
+        friction magnitude), in the report's (the solver's) order."""
         r = self.world.contacts
-        values = np.concatenate((r.point, r.normal, r.separation[:, None], r.normal_impulse[:, None],
-                                 r.friction_impulse), axis=1)
-        return self._contacts.serialize(stamp_ns, r.duration, r.body_a, r.body_b, values, r.body,
+        if r.count <= MAX_CONTACTS_PER_MESSAGE:
+            return np.arange(r.count)
+        strength = np.abs(r.normal_impulse) + np.linalg.norm(r.friction_impulse, axis=1)
+        return np.sort(np.argsort(-strength, kind="stable")[:MAX_CONTACTS_PER_MESSAGE])
+
+    def contacts(self, stamp_ns: int) -> bytes:
+        """The world's last :class:`~cgp_core.solver.report.ContactReport` as ``cgp_sim_msgs/Contacts``: at most
+        MAX_CONTACTS_PER_MESSAGE contacts (:meth:`sent_contacts`), every touching body's wrench."""
+        r = self.world.contacts
+        sent = self.sent_contacts()
+        values = np.concatenate((r.point[sent], r.normal[sent], r.separation[sent, None],
+                                 r.normal_impulse[sent, None], r.friction_impulse[sent]), axis=1)
+        self.contacts_sent, self.contacts_of = len(sent), r.count
+        return self._contacts.serialize(stamp_ns, r.duration, r.body_a[sent], r.body_b[sent], values, r.body,
                                         np.concatenate((r.force, r.torque), axis=1))
 
     def _contact_markers(self, common: dict) -> list[bytes]:
         """``contacts/points`` (a SPHERE_LIST) and ``contacts/forces`` (an ARROW per contact: the force on B,
-        ``contact_force_scale`` m/N), the arrows no longer drawn DELETEd first."""
+        ``contact_force_scale`` m/N) of the contacts :meth:`sent_contacts` picks, the arrows no longer drawn
+        DELETEd first."""
         r = self.world.contacts
+        sent = self.sent_contacts()
+        points = r.point[sent]
         out = [cdr.marker(cdr.MarkerFields(marker_type=cdr.ARROW, action=cdr.DELETE, ns="contacts/forces", id=i,
-                                           **common)) for i in range(r.count, self._arrows_drawn)]
+                                           **common)) for i in range(len(sent), self._arrows_drawn)]
         size = CONTACT_POINT_SIZE
         out.append(cdr.marker(cdr.MarkerFields(marker_type=cdr.SPHERE_LIST, ns="contacts/points", id=0,
-                                               scale=(size, size, size), color=CONTACT_POINT_COLOR, points=r.point,
+                                               scale=(size, size, size), color=CONTACT_POINT_COLOR, points=points,
                                                **common)))
-        tips = r.point + r.contact_force() * self.contact_force_scale if r.count else r.point
-        for i, (start, tip) in enumerate(zip(r.point, tips)):
+        tips = points + r.contact_force()[sent] * self.contact_force_scale if len(sent) else points
+        for i, (start, tip) in enumerate(zip(points, tips)):
             out.append(cdr.marker(cdr.MarkerFields(marker_type=cdr.ARROW, ns="contacts/forces", id=i,
                                                    scale=CONTACT_ARROW, color=CONTACT_FORCE_COLOR,
                                                    points=np.array((start, tip)), **common)))
-        self._arrows_drawn = r.count
+        self._arrows_drawn = len(sent)
         return out
 
     def markers(self, stamp_ns: int, delete_all_first: bool = False, tick: int = 0) -> bytes:
-        """The marker array of ``tick`` (world ticks): ground, bodies, and part ``tick mod K`` of every flock —
-        every part after a reset (``delete_all_first``)."""
+        """The marker array of ``tick`` (world ticks): ground, part ``tick mod B`` of the bodies and part
+        ``tick mod K`` of every flock — every part after a reset (``delete_all_first``)."""
         out = []
         if delete_all_first:
             out.append(cdr.marker_deleteall(stamp_ns, self.frame_id))
@@ -203,7 +265,7 @@ class TickMessages:
             out.append(cdr.marker(cdr.MarkerFields(
                 marker_type=cdr.CUBE, ns="ground", id=0, position=(0.0, 0.0, -0.025),
                 scale=(GROUND_SIZE, GROUND_SIZE, 0.05), color=GROUND_COLOR, **common)))
-        out.extend(self._body_markers(common, delete_all_first or tick % STATIC_MESH_EVERY == 0))
+        out.extend(self._body_markers(common, None if delete_all_first else tick % self.body_parts))
         for index, flock in enumerate(self.world.flocks):
             parts = self.flock_parts(flock)
             for part in (range(parts) if delete_all_first else (tick % parts,)):
@@ -212,9 +274,32 @@ class TickMessages:
             out.extend(self._contact_markers(common))
         return cdr.marker_array(out)
 
-    def _body_markers(self, common: dict, static_meshes_due: bool = True) -> list[bytes]:
-        """Every body's marker(s) at its current pose (from templates laid out on first use: only the stamp and
-        the pose change from tick to tick); a static mesh's when ``static_meshes_due`` or it moved."""
+    def static_signature(self) -> tuple:
+        """What ``~/static_markers`` shows: (name, mesh object, position, orientation) of every static mesh (it is
+        sent again when this changes)."""
+        model, state = self.world.body_model, self.world.body_state
+        return tuple((model.names[i], id(model.meshes[i]), tuple(state.position[i].tolist()),
+                      tuple(state.orientation[i].tolist()))
+                     for i in range(model.count) if int(model.shape[i]) == Shape.MESH)
+
+    def static_markers(self, stamp_ns: int) -> bytes:
+        """``~/static_markers``: a DELETEALL, then every static mesh at its pose (its drawing: at most
+        STATIC_MESH_TRIANGLES triangles)."""
+        model, state = self.world.body_model, self.world.body_state
+        out = [cdr.marker_deleteall(stamp_ns, self.frame_id)]
+        for i in range(model.count):
+            if int(model.shape[i]) != Shape.MESH:
+                continue
+            out.append(cdr.marker(cdr.MarkerFields(
+                marker_type=cdr.TRIANGLE_LIST, stamp_ns=stamp_ns, frame_id=self.frame_id, ns=f"bodies/{model.names[i]}",
+                id=0, position=state.position[i].tolist(), orientation=state.orientation[i].tolist(),
+                color=model.color[i], points=self.drawings.mesh(model.meshes[i]).points)))
+        return cdr.marker_array(out)
+
+    def _body_markers(self, common: dict, part: int | None = None) -> list[bytes]:
+        """The markers of the bodies of ``part`` (None: every body) at their current poses (from templates laid
+        out on first use: only the stamp and the pose change from tick to tick); static meshes are not among
+        them (:meth:`static_markers`)."""
         model, state = self.world.body_model, self.world.body_state
         capsules = np.flatnonzero(model.shape == Shape.CAPSULE)
         # capsules' end caps: the body position ± the half-length along the body z axis (all capsules at once)
@@ -222,17 +307,16 @@ class TickMessages:
         caps = {int(i): (state.position[i] + a, state.position[i] - a) for i, a in zip(capsules, half_axes)}
         positions, orientations = state.position.tolist(), state.orientation.tolist()
         stamp, frame_id = common["stamp_ns"], common["frame_id"]
+        drawn = range(model.count) if part is None or self.body_parts == 1 else \
+            np.flatnonzero(self._body_part == part).tolist()
         out = []
-        for i in range(model.count):
+        for i in drawn:
             shape = int(model.shape[i])
             if shape == Shape.COMPOUND:
                 out.extend(self._part_markers(i, stamp, frame_id))
                 continue
             if shape == Shape.MESH:
-                pose = (tuple(positions[i]), tuple(orientations[i]))
-                if not static_meshes_due and self._mesh_poses.get(i) == pose:
-                    continue
-                self._mesh_poses[i] = pose
+                continue
             out.append(self._body_marker(i, 0, frame_id).serialize(stamp, positions[i], orientations[i]))
             if i in caps:
                 for part, position in ((1, caps[i][0]), (2, caps[i][1])):
@@ -275,16 +359,19 @@ class TickMessages:
             if shape == Shape.COMPOUND:
                 parts = model.parts[i]
                 k, piece = divmod(part, 3)
+                hull = parts.hulls[k]
                 fields.update(_shape_fields(Shape(int(parts.shape[k])), parts.radius[k], parts.half_extents[k],
-                                            parts.hulls[k], piece))
-            elif shape == Shape.MESH:
-                fields.update(marker_type=cdr.TRIANGLE_LIST, points=hull_triangle_points(model.meshes[i]))
+                                            None if hull is None else self.drawings.hull(hull).points(
+                                                self.hull_detail), piece))
             elif shape == Shape.PARTICLES:  # in the body frame
                 r = model.radius[i]
                 fields.update(marker_type=cdr.SPHERE_LIST, scale=(2 * r, 2 * r, 2 * r),
                               points=model.particles[i][:, :3])
             else:
-                fields.update(_shape_fields(shape, model.radius[i], model.half_extents[i], model.hulls[i], part))
+                hull = model.hulls[i]
+                fields.update(_shape_fields(shape, model.radius[i], model.half_extents[i],
+                                            None if hull is None else self.drawings.hull(hull).points(
+                                                self.hull_detail), part))
             serializer = self._body_templates[key] = cdr.MarkerPoseSerializer(**fields)
         return serializer
 
@@ -312,12 +399,24 @@ class TickMessages:
         return serializer.serialize(common["stamp_ns"])
 
 
-def _shape_fields(shape: Shape, r: float, half_extents, hull, piece: int) -> dict:
-    """Marker type, scale and points of a sphere, box, capsule (piece 1, 2: its end caps) or hull."""
+def _shape_fields(shape: Shape, r: float, half_extents, hull_points, piece: int) -> dict:
+    """Marker type, scale and points of a sphere, box, capsule (piece 1, 2: its end caps) or hull (``hull_points``
+    (3t, 3): its TRIANGLE_LIST at the chosen detail)."""
     if shape == Shape.SPHERE or piece > 0:
         return {"marker_type": cdr.SPHERE, "scale": (2 * r, 2 * r, 2 * r)}
     if shape == Shape.BOX:
         return {"marker_type": cdr.CUBE, "scale": 2 * np.asarray(half_extents)}
     if shape == Shape.CAPSULE:
         return {"marker_type": cdr.CYLINDER, "scale": (2 * r, 2 * r, 2 * half_extents[2])}
-    return {"marker_type": cdr.TRIANGLE_LIST, "points": hull_triangle_points(hull)}
+    return {"marker_type": cdr.TRIANGLE_LIST, "points": hull_points}
+
+
+def body_parts(body_bytes: np.ndarray, parts: int) -> np.ndarray:
+    """(n,) the part (0 .. parts − 1) each body's markers are drawn in: consecutive bodies, parts of about equal
+    bytes (a body's part is where the middle of its bytes falls)."""
+    body_bytes = np.asarray(body_bytes, dtype=float)
+    total = float(body_bytes.sum())
+    if parts <= 1 or total <= 0.0:
+        return np.zeros(len(body_bytes), dtype=np.int64)
+    middle = np.cumsum(body_bytes) - 0.5 * body_bytes
+    return np.minimum((middle * parts / total).astype(np.int64), parts - 1)

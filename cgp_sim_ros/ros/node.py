@@ -40,7 +40,7 @@ from rclpy.node import Node
 from std_srvs.srv import SetBool, Trigger
 
 from cgp_core.scene import SceneError
-from cgp_core.world import World
+from cgp_core.world import World, WorldEvent
 
 from .. import interface as itf
 from ..drawing import detail as lod
@@ -204,6 +204,8 @@ class SimNode(Node):
     def _prepare_process(self) -> None:
         """The last step of the set-up: the process tuned for the tick (cgp_sim_ros/ros/process.py)."""
         process.load_kernels(self.world, self.outputs.build_throwaway, self.get_logger().debug)
+        #: issue 25's kernels, loaded before the first spawned hull or mesh is added (process.ConvexKernels)
+        self.convex_kernels = process.ConvexKernels(self.world)
         process.freeze_startup_objects()
         process.share_the_gil_finely()
         #: where the threads run (pin_threads); made here, on the thread that ticks
@@ -231,10 +233,20 @@ class SimNode(Node):
 
     def world_edited(self) -> None:
         """After any edit of the world (spawn, delete, reset, a new pose): the per-body and per-flock endpoints
-        follow if its entities changed (:meth:`_sync_entities`), ``/tf_static`` is sent again if its fixed
-        bodies did."""
+        follow if its entities changed (:meth:`_sync_entities`), ``/tf_static`` and ``~/static_markers`` are sent
+        again if its fixed bodies / static meshes did."""
         self._sync_entities()
         self.outputs.publish_static_tf()
+        self.outputs.publish_static_markers()
+
+    def add_spawned(self, prepared, drawings=()) -> None:
+        """Add an entity the spawn worker prepared (:class:`cgp_core.world.PreparedSpawn`, between two ticks:
+        :meth:`cgp_core.world.World.add_spawned`, which checks the name and the limits again) with its shapes'
+        drawings (``(shape, drawing)`` pairs, :mod:`cgp_sim_ros.drawing.bodies`), then make everything follow
+        (:meth:`world_edited`).  Raises :class:`cgp_core.editing.EditError` (nothing changed)."""
+        self.outputs.drawings.add(drawings)
+        self.world.add_spawned(prepared)
+        self.world_edited()
 
     def report_rejection(self, source: str, error, count: int = 1) -> None:
         """Count ``count`` rejected commands from ``source`` (a ``cgp_core.wrenches.WrenchError`` says which
@@ -286,7 +298,8 @@ class SimNode(Node):
         """(Re)make the level-of-detail plan from the flocks and the parameters (cgp_sim_ros/drawing/detail.py)."""
         self.detail = lod.plan([f.params for f in self.world.flocks], self.params["rate_hz"],
                                fish_detail=self.params["fish_detail"], markers_every=self.params["markers_every"],
-                               flock_poses_every=self.params["bag_flock_poses_every"])
+                               flock_poses_every=self.params["bag_flock_poses_every"],
+                               body_bytes=self.outputs.messages.body_bytes())
         self.outputs.set_plan(self.detail)
 
     def _replan_detail(self) -> None:
@@ -294,9 +307,7 @@ class SimNode(Node):
         (whose ``custom_data`` also holds the rate the plan is for)."""
         before = self.detail
         self._plan_detail()
-        if (before.fish_detail, before.markers_every, before.flock_poses_every, before.rate_hz) == \
-                (self.detail.fish_detail, self.detail.markers_every, self.detail.flock_poses_every,
-                 self.detail.rate_hz):
+        if before.same_choices(self.detail):
             return
         self.get_logger().info("level of detail changed: " + " ".join(self.detail.lines))
         self.outputs.retire_markers()  # fewer parts: the flock's last ones are no longer drawn
@@ -365,6 +376,9 @@ class SimNode(Node):
         """Every REPORT_PERIOD_S of wall time: rejected / dropped commands, recording errors."""
         self.commands.report()
         self._world_reports.report()
+        capped = self.outputs.report_contacts_capped()
+        if capped is not None:
+            self._world_reports.add_text("warn", capped)
         if self.recorder is not None:
             self.recorder.report_errors()
 
@@ -471,6 +485,10 @@ class WorldReports:
         self._emit = emit_event
         self._seen: set[tuple[str, str]] = set()
         self._repeats: dict[tuple[str, str], int] = {}
+
+    def add_text(self, level: str, text: str) -> None:
+        """A report of the node's own (not the world's), logged and put on ``~/events`` the same way."""
+        self.add(WorldEvent(0.0, level, text))
 
     def add(self, event) -> None:
         key = (event.level, event.text)

@@ -11,8 +11,11 @@ from __future__ import annotations
 import copy
 import gc
 import sys
+import threading
 from collections.abc import Callable
+from concurrent.futures import Future
 
+from cgp_core.bodies import Shape
 from cgp_core.jit import ThreadPlacement, runs_on_pool
 
 #: how long a thread that wants the GIL waits before the holder must let go [s] (Python's default: 5 ms)
@@ -35,7 +38,10 @@ def load_kernels(world, build_tick: Callable, log_debug: Callable[[str], None]) 
     tick, also for bodies spawned later (~0.1 s more start-up)."""
     from cgp_core.warmup import warm_up
 
-    world = copy.deepcopy(world)
+    from ..drawing.bodies import model_shapes
+
+    # the hulls and meshes (static data) stay shared with the node's world: their drawings are made already
+    world = copy.deepcopy(world, {id(shape): shape for _, shape in model_shapes(world.body_model)})
     try:
         warm_up(ticks=2, complete=False, flocks=False)  # two: one with the contact report, one without
         world.step()
@@ -101,3 +107,45 @@ class ThreadPinning:
     def release(self) -> None:
         """Every thread on every CPU again (the node is going away)."""
         self.placement.release()
+
+
+#: the shapes whose kernels (issue 25's convex stage, the BVH queries, the flock's hull and mesh obstacle queries)
+#: the node does not load at start-up unless its scene has them
+_CONVEX_SHAPES = (int(Shape.CONVEX), int(Shape.COMPOUND), int(Shape.MESH))
+
+
+class ConvexKernels:
+    """Issue 25's kernels (hulls, compound parts, static meshes), loaded from numba's cache *before* the first
+    such body is added, off the tick's thread.  :func:`load_kernels` loads at start-up only what the scene's
+    first ticks run, and a spawned hull or mesh then made the first tick with it load them: ~120 ms of that tick
+    (issue 38, a 80k-triangle mesh: the slowest second at 51 Hz).  Now the spawn waits (its reply ~1 s later,
+    once per node) while a helper thread steps :func:`cgp_core.warmup.warm_up_convex`'s own small world; the
+    tick goes on (the loading is mostly in llvmlite's C calls, which release the GIL)."""
+
+    def __init__(self, world):
+        model = world.body_model
+        self._future: Future | None = None
+        if any(int(k) in _CONVEX_SHAPES for k in model.shape):  # the scene's first ticks load them
+            self._future = Future()
+            self._future.set_result(None)
+
+    def before_adding(self, prepared) -> Future | None:
+        """A future to wait for before ``prepared`` (a :class:`cgp_core.world.PreparedSpawn`) is added, or None
+        when nothing needs loading."""
+        model = getattr(prepared, "model", None)
+        if model is None or not any(int(k) in _CONVEX_SHAPES for k in model.shape):
+            return None
+        if self._future is None:
+            self._future = Future()
+            threading.Thread(target=self._load, args=(self._future,), name="cgp-sim-kernels", daemon=True).start()
+        return self._future
+
+    @staticmethod
+    def _load(future: Future) -> None:
+        from cgp_core.warmup import warm_up_convex
+
+        try:
+            warm_up_convex()
+        except Exception:  # noqa: BLE001 - the first tick with the shape loads (and reports) whatever failed here
+            pass
+        future.set_result(None)

@@ -6,8 +6,9 @@ What a tick publishes, in order (:meth:`TickPublisher.tick_messages`; the bytes 
 :class:`~cgp_sim_ros.ros.messages.TickMessages` and :class:`~cgp_sim_ros.ros.tf.BodyTransforms`): ``/clock``,
 ``~/bodies/poses``, every body's ``~/bodies/<body>/odom``, every flock's ``~/flocks/<flock>/poses`` (recorded
 on the ticks the level-of-detail plan says) and ``~/flocks/<flock>/stats``, ``~/contacts`` (parameter
-``contacts``), ``/tf``, the first ``/tf_static``, ``~/markers``.  Besides the ticks: ``~/events``
-(:meth:`TickPublisher.event`), ``/tf_static`` again when the fixed bodies change, DELETE markers for what is no
+``contacts``), ``/tf``, the first ``/tf_static``, ``~/markers``, then the first ``~/static_markers`` (if the world
+has static meshes).  Besides the ticks: ``~/events`` (:meth:`TickPublisher.event`), ``/tf_static`` and
+``~/static_markers`` again when the fixed bodies / the static meshes change, DELETE markers for what is no
 longer drawn.
 
 The per-body and per-flock publishers follow the world's entities (:meth:`TickPublisher.follow_entities`).
@@ -26,9 +27,10 @@ from rclpy.serialization import serialize_message
 from std_msgs.msg import String
 
 from .. import interface as itf
+from ..drawing.bodies import Drawings, model_shapes
 from ..wire import cdr
 from .messages import TickMessages
-from .qos import CLOCK_QOS, COMMAND_QOS, STATE_QOS, TF_QOS, TF_STATIC_QOS
+from .qos import CLOCK_QOS, COMMAND_QOS, LATCHED_QOS, STATE_QOS, TF_QOS, TF_STATIC_QOS
 from .tf import BodyTransforms
 
 _NO_EVENT_HANDLERS = PublisherEventCallbacks(use_default_callbacks=False)
@@ -47,12 +49,25 @@ class TickPublisher:
         self.world.report_contacts = bool(params["contacts"] or params["contact_markers"])
         #: metres per newton of the contact force arrows, None without contact markers
         self._force_scale = params["contact_force_scale"] if params["contact_markers"] else None
+        #: the drawings of the hulls and static meshes (cgp_sim_ros/drawing/bodies.py): the scene's made here,
+        #: before the first tick; a spawned body's come with it from the spawn worker (SimNode.add_spawned)
+        self.drawings = Drawings()
+        for kind, shape in model_shapes(self.world.body_model):
+            self.drawings.hull(shape) if kind == "hull" else self.drawings.mesh(shape)
+        self._scene_shapes = [shape for _, shape in model_shapes(self.world.body_model)]
+        #: what ~/static_markers last sent (TickMessages.static_signature), None before the first
+        self._static_sent: tuple | None = None
+        #: ticks whose contacts were more than ~/contacts carries since the last report, and the most of them
+        self.contacts_capped = self.contacts_most = 0
         #: the per-tick serializers (rebuilt by :meth:`rebuild` after the world's entities changed)
-        self.messages = TickMessages(self.world, node.frames, contact_force_scale=self._force_scale)
+        self.messages = TickMessages(self.world, node.frames, contact_force_scale=self._force_scale,
+                                     drawings=self.drawings)
         self.tf = BodyTransforms(self.world, node.frames)
         self.pub_clock = node.create_publisher(TickMessages.Clock, itf.TOPIC_CLOCK, CLOCK_QOS)
         self.pub_body_poses = node.create_publisher(TickMessages.PoseArray, itf.TOPIC_BODY_POSES, STATE_QOS)
         self.pub_markers = node.create_publisher(TickMessages.MarkerArray, itf.TOPIC_MARKERS, STATE_QOS)
+        self.pub_static_markers = node.create_publisher(TickMessages.MarkerArray, itf.TOPIC_STATIC_MARKERS,
+                                                        LATCHED_QOS)
         self.pub_contacts = (node.create_publisher(TickMessages.Contacts, itf.TOPIC_CONTACTS, STATE_QOS)
                              if params["contacts"] else None)
         self.pub_events = node.create_publisher(String, itf.TOPIC_EVENTS, COMMAND_QOS)
@@ -96,8 +111,10 @@ class TickPublisher:
 
     def rebuild(self) -> None:
         """New per-tick serializers for the world's bodies and flocks now (the plan is set again by the
-        caller: :meth:`set_plan`)."""
-        self.messages = TickMessages(self.world, self._node.frames, contact_force_scale=self._force_scale)
+        caller: :meth:`set_plan`); the drawings of shapes neither the world nor its scene holds are dropped."""
+        self.drawings.keep([*self._scene_shapes, *(shape for _, shape in model_shapes(self.world.body_model))])
+        self.messages = TickMessages(self.world, self._node.frames, contact_force_scale=self._force_scale,
+                                     drawings=self.drawings)
 
     def set_plan(self, plan) -> None:
         """Draw as the level-of-detail ``plan`` (:class:`~cgp_sim_ros.drawing.detail.DetailPlan`) says (what is
@@ -120,6 +137,18 @@ class TickPublisher:
                        for ns, i in stale]
             self.publish(self.pub_markers, cdr.marker_array(deletes), t)
         self._marker_ids = drawn
+
+    def publish_static_markers(self) -> None:
+        """``~/static_markers`` if the static meshes changed (spawned, deleted, moved) since it was last sent (the
+        first time: on the first tick, if there are any).  Not before the first tick, as ``/tf_static``."""
+        if self.world.ticks == 0:
+            return
+        signature = self.messages.static_signature()
+        if signature == self._static_sent or (self._static_sent is None and not signature):
+            return
+        self._static_sent = signature
+        t = self.world.time_ns
+        self.publish(self.pub_static_markers, self.messages.static_markers(t), t)
 
     def publish_static_tf(self) -> None:
         """``/tf_static`` again if the fixed bodies changed.  Not before the first tick: a node publishes nothing
@@ -165,6 +194,22 @@ class TickPublisher:
                                                           self._delete_all_markers):
             self.publish(publisher, data, t, record=record)
         self._delete_all_markers = False
+        if self.world.ticks == 1:
+            self.publish_static_markers()
+        if self.messages.contacts_of > self.messages.contacts_sent:
+            self.contacts_capped += 1
+            self.contacts_most = max(self.contacts_most, self.messages.contacts_of)
+            self.messages.contacts_of = self.messages.contacts_sent = 0
+
+    def report_contacts_capped(self) -> str | None:
+        """A line about the ticks whose contacts ~/contacts did not all carry since the last call (None if none)."""
+        if not self.contacts_capped:
+            return None
+        text = (f"~/contacts: {self.contacts_capped} tick(s) had more contacts than a message carries (at most "
+                f"{self.contacts_most:,}); each sent the {itf.MAX_CONTACTS_PER_MESSAGE:,} with the largest impulse, "
+                "and every body's full contact wrench")
+        self.contacts_capped = self.contacts_most = 0
+        return text
 
     def tick_messages(self, world, messages: TickMessages, tf: BodyTransforms, delete_all_markers: bool):
         """What a tick publishes, in publishing order, as ``(publisher, CDR bytes, recorded?)``, each built as
@@ -197,6 +242,7 @@ class TickPublisher:
         """Build (and drop: nothing is published) everything a tick of ``world`` — a copy of the node's —
         publishes, every marker part included: what the first real tick will run, run once before it."""
         frames = self._node.frames
-        for _ in self.tick_messages(world, TickMessages(world, frames, self._node.detail, self._force_scale),
-                                    BodyTransforms(world, frames), delete_all_markers=True):
+        messages = TickMessages(world, frames, self._node.detail, self._force_scale, drawings=self.drawings)
+        for _ in self.tick_messages(world, messages, BodyTransforms(world, frames), delete_all_markers=True):
             pass
+        messages.static_markers(world.time_ns)

@@ -20,3 +20,5 @@ TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=Reli
                     durability=DurabilityPolicy.VOLATILE)
 TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# Latched state (~/static_markers): what /tf_static's profile gives a late subscriber, the last message sent.
+LATCHED_QOS = TF_STATIC_QOS

@@ -14,8 +14,11 @@ an edit the node makes its per-body endpoints follow (:meth:`SimNode.world_edite
   that wait for the node's timer to tick the paused world ``steps`` times (at ``rate_hz``, or back to back
   with ``realtime: false``) and reply when the last tick is done.  ``spawn_entity`` is a coroutine too: reading the
   ``uri`` (a regular file only, size-capped: :mod:`cgp_core.user_input`), parsing the YAML (bounded in bytes,
-  depth and nodes), validating it and building the entity (a big flock's initial state) run on the spawn worker
-  thread while the node ticks; the entity is added between two ticks (issue 27: one request must never stop the
+  depth and nodes), validating it, building the entity (hulls, a static mesh's BVH, a big flock's initial state)
+  and drawing it run in the spawn worker *process* (:mod:`cgp_sim_ros.workers`, the job
+  :func:`cgp_sim_ros.spawning.prepare`) while the node ticks — another interpreter, so not even the GIL is
+  shared (issue 38); a job that takes longer than the ``spawn_timeout`` parameter is ended and refused, and the
+  requests behind it go on.  The entity is added between two ticks (issue 27: one request must never stop the
   world).  User regexes are matched in linear time (:func:`cgp_core.editing.name_filter`).
 
 Simulation states (``SimulationState``): PLAYING (ticking), PAUSED (time stopped), STOPPED (paused and reset
@@ -27,14 +30,9 @@ reset or STOPPED keeps the clock running (no ``SCOPE_TIME``), so TF buffers and 
 from __future__ import annotations
 
 import inspect
-import queue
-import threading
 import time
 import traceback
-from concurrent.futures import Future as ThreadFuture
 from dataclasses import dataclass, field
-from pathlib import Path
-from urllib.parse import unquote, urlparse
 
 import numpy as np
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -58,11 +56,10 @@ from simulation_interfaces.srv import (
 
 from cgp_core.editing import WORLD_FRAMES, EditError
 from cgp_core.limits import MAX_YAML_BYTES
-from cgp_core.scene import SPAWN_KINDS, SceneError, parse_yaml
-from cgp_core.user_input import UserInputError, read_user_text
-from cgp_core.world import unique_name
 
 from .. import interface as itf
+from ..spawning import SPAWN_FORMATS, Refusal, SpawnRequest, brief, prepare, warm_up
+from ..workers import JobFailed, WorkerProcess
 
 OK = Result.RESULT_OK
 NOT_FOUND = Result.RESULT_NOT_FOUND
@@ -87,7 +84,6 @@ FEATURES = (
     SimulatorFeatures.STEP_SIMULATION_SINGLE, SimulatorFeatures.STEP_SIMULATION_MULTIPLE,
     SimulatorFeatures.STEP_SIMULATION_ACTION,
 )
-SPAWN_FORMATS = ("yaml", "stl", "obj")
 CUSTOM_INFO = (
     "cgp_sim: spawn_entity takes YAML (resource_string, or a .yaml file as uri: a path or file:// URI) with "
     "exactly one key, body or flock, whose value is a scene-file entry without name (the request's) and, for a "
@@ -142,8 +138,10 @@ class SimulationInterfaces:
         self.quitting = False
         self._quit_at: float | None = None
         self._job: _SteppingJob | None = None
-        #: the spawn worker: reads, parses, validates and builds spawned entities off the tick's thread
-        self._spawn_worker = _Worker("cgp-sim-spawn")
+        #: the spawn worker process: reads, parses, validates, builds and draws spawned entities off the tick's
+        #: thread and GIL.  Started by the first request (a second or two, not counted in its spawn_timeout):
+        #: a node nobody spawns into never pays for it (imports, kernels loaded or, after an install, compiled)
+        self.spawn_worker = WorkerProcess("cgp-sim-spawn", warm_up=warm_up)
         self._spawn_running = False
         self._spawns_waiting = 0
         services = (
@@ -180,7 +178,7 @@ class SimulationInterfaces:
         if self.action_server is not None:
             self.action_server.destroy()
             self.action_server = None
-        self._spawn_worker.shutdown()
+        self.spawn_worker.close()
 
     def _guarded(self, name: str, callback):
         """``callback`` that answers OPERATION_FAILED (and logs the traceback) instead of raising: a bug in one
@@ -346,9 +344,10 @@ class SimulationInterfaces:
         return self._reply(response, "spawn_entity", code, message, (SpawnEntity.Response,), **summary)
 
     async def _spawn(self, request) -> tuple[int, str, str]:
-        """The spawn: cheap checks here; reading, parsing, validating and building (a big flock's initial state)
-        on the spawn worker thread (:meth:`_prepare_spawn`), so the tick never waits for them; then the entity
-        is added here, between two ticks.  One spawn is prepared at a time; at most MAX_WAITING_SPAWNS wait."""
+        """The spawn: cheap checks here; reading, parsing, validating, building and drawing in the spawn worker
+        process (:func:`cgp_sim_ros.spawning.prepare`, at most ``spawn_timeout`` seconds), so the tick never waits
+        for them; then the entity is added here, between two ticks.  One spawn is prepared at a time; at most
+        MAX_WAITING_SPAWNS wait."""
         R = SpawnEntity.Response
         if request.uri:
             source = request.uri
@@ -361,11 +360,11 @@ class SimulationInterfaces:
         else:
             return R.NO_RESOURCE, "uri and resource_string are both empty: give the entity as YAML", ""
         if request.entity_namespace:
-            return UNSUPPORTED, (f"entity_namespace {_brief(request.entity_namespace)}: not supported; an entity's "
+            return UNSUPPORTED, (f"entity_namespace {brief(request.entity_namespace)}: not supported; an entity's "
                                  "topics are the node's (~/bodies/<name>/...)"), ""
         frame = request.initial_pose.header.frame_id
         if self.node.frames.to_core(frame) not in WORLD_FRAMES:
-            return R.INVALID_POSE, (f"initial_pose.header.frame_id {_brief(frame)}: poses are given in "
+            return R.INVALID_POSE, (f"initial_pose.header.frame_id {brief(frame)}: poses are given in "
                                     f"{self.node.frames.world!r} (or '')"), ""
         if not request.name and not request.allow_renaming:
             return R.NAME_INVALID, "name is empty (and allow_renaming is false)", ""
@@ -384,49 +383,54 @@ class SimulationInterfaces:
             self._spawn_running = True
             try:
                 pose = request.initial_pose.pose
-                job = self._spawn_worker.submit(
-                    self._prepare_spawn, request.uri, request.resource_string, source, request.name,
-                    request.allow_renaming, set(self.node.world.entity_names()),
-                    (pose.position.x, pose.position.y, pose.position.z),
-                    (pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w))
+                timeout = float(self.node.params["spawn_timeout"])
+                job = self.spawn_worker.submit(prepare, SpawnRequest(
+                    uri=request.uri, resource=request.resource_string if not request.uri else "", source=source,
+                    name=request.name, allow_renaming=request.allow_renaming,
+                    taken=frozenset(self.node.world.entity_names()),
+                    position=(pose.position.x, pose.position.y, pose.position.z),
+                    orientation=(pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w),
+                    world=self.node.world.scene.world), timeout=timeout)
                 while not job.done():
                     await _NextTurn()
                 if self.quitting:
                     return INCORRECT_STATE, "the simulator is quitting", ""
                 try:
-                    prepared = job.result()
-                    self.node.world.add_spawned(prepared)
-                except _Refused as refusal:
-                    return refusal.code, str(refusal), ""
-                except SceneError as exc:
-                    return R.RESOURCE_PARSE_ERROR, str(exc), ""
+                    outcome = job.result()
+                except JobFailed as failure:
+                    return FAILED, self._job_failure(failure, timeout), ""
+                if isinstance(outcome, Refusal):
+                    return _REFUSAL_CODES.get(outcome.kind, FAILED), outcome.message, ""
+                loading = self.node.convex_kernels.before_adding(outcome.prepared)
+                while loading is not None and not loading.done():
+                    await _NextTurn()
+                if self.quitting:
+                    return INCORRECT_STATE, "the simulator is quitting", ""
+                try:
+                    self.node.add_spawned(outcome.prepared, outcome.drawings)
                 except EditError as exc:
                     code = {"name_taken": R.NAME_NOT_UNIQUE, "name_invalid": R.NAME_INVALID,
                             "invalid_pose": R.INVALID_POSE}.get(exc.kind, FAILED)
                     return code, str(exc), ""
+                prepared = outcome.prepared
             finally:
                 self._spawn_running = False
         finally:
             self._spawns_waiting -= 1
-        self.node.world_edited()
         return OK, "", prepared.name
 
-    def _prepare_spawn(self, uri: str, resource: str, source: str, name: str, allow_renaming: bool,
-                       taken: set[str], position, orientation):
-        """The spawn worker thread: the YAML (read from ``uri`` or ``resource``), parsed and validated, the entity
-        built (:meth:`cgp_core.world.World.prepare_spawn`).  Raises _Refused, SceneError or EditError."""
-        mesh = _mesh_uri(uri) if uri else None
-        if mesh is not None:  # a mesh file: a convex body, its hull (the file read bounded by the scene loader)
-            data, source = {"body": {"shape": "convex", "mesh": str(mesh)}}, str(mesh)
-        else:
-            text, source = _read_uri(uri) if uri else (resource, source)
-            data = parse_yaml(text, source)
-        kind = next(iter(data)) if isinstance(data, dict) and len(data) == 1 and next(iter(data)) in SPAWN_KINDS \
-            else "entity"
-        if allow_renaming and (not name or name in taken):
-            name = unique_name(name or kind, taken)
-        return self.node.world.prepare_spawn(data, name=name, taken=taken, position=position,
-                                             orientation=orientation, source=source)
+    def _job_failure(self, failure: JobFailed, timeout: float) -> str:
+        """The refusal's message for a spawn job that gave no answer (and the log line, with the details)."""
+        if failure.reason == "timeout":
+            return (f"the spawn took longer than spawn_timeout ({timeout:g} s) and was stopped; nothing was added "
+                    "(a smaller entity, or a larger spawn_timeout)")
+        if failure.reason == "died":
+            self.node.get_logger().error(f"spawn_entity: the spawn worker process {failure}")
+            return f"the spawn worker process {failure}; nothing was added (the next request gets a new one)"
+        if failure.reason == "closed":
+            return "the simulator is shutting down"
+        self.node.get_logger().error(f"spawn_entity failed in the spawn worker: {failure}\n{failure.details}")
+        return f"internal error in the spawn worker: {failure}"
 
     def _delete_entity(self, request, response):
         try:
@@ -593,73 +597,13 @@ def _unknown(world, name: str) -> str:
     return ""
 
 
-class _Refused(Exception):
-    def __init__(self, code: int, message: str):
-        super().__init__(message)
-        self.code = code
-
-
-def _mesh_uri(uri: str) -> Path | None:
-    """The mesh file a ``uri`` names (a path or ``file://`` URI ending in .stl / .obj), or None.  It is read by the
-    scene loader, bounded (:func:`cgp_core.collision.meshfile.load_mesh`: regular files only, size and count caps,
-    errors naming the file and the reason)."""
-    parsed = urlparse(uri)
-    if parsed.scheme not in ("", "file"):
-        return None
-    path = Path(unquote(parsed.path) if parsed.scheme == "file" else uri).expanduser()
-    return path if path.suffix.lower() in (".stl", ".obj") else None
-
-
-def _read_uri(uri: str) -> tuple[str, str]:
-    """The YAML text and its source name for a ``uri`` (a path or ``file://`` URI of a .yaml file, read as every
-    user file is: :func:`cgp_core.user_input.read_user_text`, a regular file only, size-capped); raises
-    :class:`_Refused` (code, message) otherwise.  The message names the uri, never the file's content."""
-    R = SpawnEntity.Response
-    parsed = urlparse(uri)
-    if parsed.scheme not in ("", "file"):
-        raise _Refused(R.UNSUPPORTED_FORMAT, f"uri {_brief(uri)}: only local files are spawned (a path or "
-                                             f"file:// URI; spawn_formats: {', '.join(SPAWN_FORMATS)})")
-    path = Path(unquote(parsed.path) if parsed.scheme == "file" else uri).expanduser()
-    if path.suffix.lower() not in (".yaml", ".yml"):
-        raise _Refused(R.UNSUPPORTED_FORMAT, f"uri {_brief(uri)}: not a .yaml, .stl or .obj file; cgp_sim spawns "
-                                             f"YAML, or a mesh as a convex body (spawn_formats: "
-                                             f"{', '.join(SPAWN_FORMATS)})")
-    try:
-        return read_user_text(path), str(path)
-    except UserInputError as exc:
-        raise _Refused(R.RESOURCE_PARSE_ERROR, f"uri {_brief(uri)}: {exc}") from None
-
-
-def _brief(text: str, limit: int = 200) -> str:
-    """repr of a request's string field, cut to ``limit`` characters (a field may be megabytes long)."""
-    return repr(text) if len(text) <= limit else repr(text[:limit]) + f"... ({len(text)} characters)"
-
-
-class _Worker:
-    """One daemon thread running submitted calls in order (``submit`` returns a concurrent.futures Future).  Not a
-    ThreadPoolExecutor: the interpreter joins those at exit, and a shutdown would wait for a spawn being parsed."""
-
-    def __init__(self, name: str):
-        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
-        threading.Thread(target=self._run, name=name, daemon=True).start()
-
-    def submit(self, fn, *args) -> ThreadFuture:
-        future: ThreadFuture = ThreadFuture()
-        self._jobs.put((future, fn, args))
-        return future
-
-    def shutdown(self) -> None:
-        self._jobs.put(None)
-
-    def _run(self) -> None:
-        while (job := self._jobs.get()) is not None:
-            future, fn, args = job
-            if not future.set_running_or_notify_cancel():
-                continue
-            try:
-                future.set_result(fn(*args))
-            except BaseException as exc:  # noqa: BLE001 - handed to the coroutine that waits for it
-                future.set_exception(exc)
+#: a spawn job's refusal kind (cgp_sim_ros.spawning.Refusal) -> SpawnEntity's result code
+_REFUSAL_CODES = {"unsupported_format": SpawnEntity.Response.UNSUPPORTED_FORMAT,
+                  "parse_error": SpawnEntity.Response.RESOURCE_PARSE_ERROR,
+                  "name_taken": SpawnEntity.Response.NAME_NOT_UNIQUE,
+                  "name_invalid": SpawnEntity.Response.NAME_INVALID,
+                  "invalid_pose": SpawnEntity.Response.INVALID_POSE,
+                  "not_possible": FAILED}
 
 
 class _NextTurn:

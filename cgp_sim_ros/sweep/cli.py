@@ -22,6 +22,10 @@ from pathlib import Path
 
 from .spec import SweepError, builtin_sweep_dir, builtin_sweep_names, load_sweep
 
+#: LocalCluster worker processes --workers may ask for, and --retries per task
+MAX_WORKERS = 256
+MAX_RETRIES = 100
+
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="cgp-sim-sweep", description=__doc__.split("\n\n")[0],
@@ -81,13 +85,23 @@ def _list() -> int:
 
 
 def _run(args) -> int:
-    from .engine import EngineError, pending_tasks, run_sweep
+    from .engine import EngineError, pending_tasks, run_sweep, scheduler_address
+    from .store import OutputError
 
     if args.seeds is not None and args.seeds < 1:
         print("cgp-sim-sweep: --seeds must be >= 1", file=sys.stderr)
         return 2
-    if args.workers is not None and args.workers < 1:
-        print("cgp-sim-sweep: --workers must be >= 1", file=sys.stderr)
+    if args.workers is not None and not 1 <= args.workers <= MAX_WORKERS:
+        print(f"cgp-sim-sweep: --workers must be within 1..{MAX_WORKERS}", file=sys.stderr)
+        return 2
+    if args.retries < 0 or args.retries > MAX_RETRIES:
+        print(f"cgp-sim-sweep: --retries must be within 0..{MAX_RETRIES}", file=sys.stderr)
+        return 2
+    try:
+        if args.scheduler is not None:
+            scheduler_address(args.scheduler)
+    except EngineError as exc:
+        print(f"cgp-sim-sweep: {exc}", file=sys.stderr)
         return 2
     sweep = load_sweep(args.sweep, seeds=args.seeds)
     out = args.out or Path("sweeps") / sweep.name
@@ -107,8 +121,11 @@ def _run(args) -> int:
         outcome = run_sweep(sweep, out, scheduler=args.scheduler, workers=args.workers,
                             retry_failed=args.retry_failed, workers_write=args.workers_write, retries=args.retries,
                             quiet=args.quiet)
-    except EngineError as exc:
+    except (EngineError, OutputError) as exc:
         print(f"cgp-sim-sweep: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # writing the fragments or tables failed mid-sweep (disk full, ...): what finished is kept
+        print(f"cgp-sim-sweep: cannot write {exc.filename or out}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     tables = ", ".join(f"{name}.parquet ({rows} rows)" for name, rows in outcome.rows.items() if rows)
     print(f"ran {outcome.ran} runs ({outcome.failed} failed), {outcome.already_finished} were finished before; "

@@ -38,9 +38,10 @@ import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from .spec import Sweep, Task, code_version
-from .store import assemble, finished, write_fragments
+from .store import assemble, finished, prepare_output, write_fragments
 
 #: how long to wait for the first worker of an existing cluster [s]
 WORKER_TIMEOUT_S = 60.0
@@ -62,8 +63,34 @@ QUIET_WORKERS = {
 }
 
 
+#: the transports a ``--scheduler`` address may name (Dask's; an address without one is tcp://)
+SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
+
+
 class EngineError(RuntimeError):
     """The sweep cannot run on this cluster (no workers, a version mismatch, an option it cannot honour)."""
+
+
+def scheduler_address(text: str) -> str:
+    """``--scheduler``'s address checked: ``[SCHEME://]HOST:PORT`` with a scheme of :data:`SCHEDULER_SCHEMES`
+    and a port 1..65535 (IPv6 hosts in brackets); :class:`EngineError` saying what is wrong otherwise (issue 38:
+    ``garbage``, ``tcp://[::1`` and ``foo://bar:1`` were ValueError tracebacks)."""
+    shown = text if len(text) <= 200 else text[:200] + "..."
+    usage = "expected [SCHEME://]HOST:PORT such as tcp://10.0.0.5:8786"
+    scheme, separator, rest = text.strip().partition("://")
+    if not separator:
+        scheme, rest = "tcp", text.strip()
+    if scheme not in SCHEDULER_SCHEMES:
+        raise EngineError(f"--scheduler {shown!r}: unknown transport {scheme!r} (Dask's: "
+                          f"{', '.join(SCHEDULER_SCHEMES)}); {usage}")
+    try:
+        parts = urlsplit(f"{scheme}://{rest}")
+        host, port = parts.hostname, parts.port
+    except ValueError as exc:
+        raise EngineError(f"--scheduler {shown!r}: {exc}; {usage}") from None
+    if not host or not port or parts.path not in ("", "/") or parts.query or parts.fragment or parts.username:
+        raise EngineError(f"--scheduler {shown!r}: {usage}")
+    return f"{scheme}://{rest}"
 
 
 @dataclass
@@ -106,8 +133,9 @@ def run_sweep(sweep: Sweep, out: Path, *, scheduler: str | None = None, workers:
 
     stream = stream or sys.stderr
     say = (lambda text: None) if quiet else (lambda text: print(text, file=stream, flush=True))
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    if scheduler and client is None:
+        scheduler = scheduler_address(scheduler)
+    out = prepare_output(out)  # before anything runs (OutputError: not a directory, cannot be written)
     code = code_version()
     started = time.monotonic()
     todo, already = pending_tasks(sweep, out, retry_failed)
@@ -120,7 +148,7 @@ def run_sweep(sweep: Sweep, out: Path, *, scheduler: str | None = None, workers:
             + "\n".join("    " + line for line in refused[0].refused.splitlines()[:3]))
     needs_bags = any(t.experiment.record["bag"] for t in todo)
     if not todo:
-        outcome.rows = assemble(out, sweep, code)
+        outcome.rows = assemble(out, sweep, code, outcome.not_finished)
         return outcome
     if needs_bags and scheduler and not workers_write:
         raise EngineError("record.bag writes each run's bag where the run executes: on a cluster give "
@@ -204,7 +232,7 @@ def run_sweep(sweep: Sweep, out: Path, *, scheduler: str | None = None, workers:
                 thing.close()
             except Exception:  # noqa: BLE001 - closing after an interrupt: nothing more to do
                 pass
-    outcome.rows = assemble(out, sweep, code)
+    outcome.rows = assemble(out, sweep, code, outcome.not_finished)
     outcome.wall_s = time.monotonic() - started
     return outcome
 
@@ -223,7 +251,7 @@ def _connect(scheduler: str | None, workers: int | None):
     if scheduler:
         try:
             client = Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError) as exc:
+        except (OSError, TimeoutError, ValueError) as exc:
             raise EngineError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
         try:
             client.wait_for_workers(1, timeout=WORKER_TIMEOUT_S)

@@ -76,6 +76,24 @@ from cgp_core.user_input import UserInputError, read_user_text
 #: the node's default tick (rate_hz: 60)
 DEFAULT_DT = 1.0 / 60.0
 MAX_SWEEP_BYTES = 4 * 1024 * 1024
+#: Caps on what a sweep file asks for, checked before anything is planned (issue 38: a grid of 10⁹ runs planned
+#: for minutes, ``seeds: 10¹²`` ran out of memory, ``dt: 1e-320`` overflowed the tick count).  A sweep's runs,
+#: all experiments together (the plan builds and checks every run's scene, once for the seeds that share it:
+#: 100,000 runs of as many scenes planned in 27 s and 370 MB, speed probe numpy 36 / python 10.8 ms):
+MAX_RUNS = 100_000
+#: links of one chain (one task: its links run one after the other in one worker)
+MAX_CHAIN_LINKS = 1_000
+#: the tick [s]: the node's rate_hz range (1 to 10,000 Hz)
+MIN_DT, MAX_DT = 1e-4, 1.0
+#: ticks of one run (per link): 10⁸ ticks are ~19 days of simulated time at 60 Hz
+MAX_TICKS = 100_000_000
+#: a seed is an int64 (the tables' ``seed`` column; numpy takes it as is)
+MAX_SEED = 2**63 - 1
+#: a key path's characters and segments (a scene is 5 levels deep; ``flocks[school].spawn.center[2]`` has 5)
+MAX_KEY_PATH_CHARS = 256
+MAX_KEY_PATH_SEGMENTS = 32
+#: key paths of one experiment's overrides and grid together (each is checked against the base scene)
+MAX_KEYS = 1_000
 #: an error lists at most this many problems
 MAX_REPORTED_PROBLEMS = 30
 TOP_KEYS = {"description", "title", "scene", "dt", "duration", "seeds", "overrides", "grid", "record", "summary",
@@ -144,6 +162,11 @@ def parse_key_path(path: str) -> list[str | int]:
     ``str``, list indices as ``int``, entry names as 1-tuples.  ``ValueError`` with the reason."""
     if not isinstance(path, str) or not path.strip():
         raise ValueError("a key path must be a non-empty text like flocks[0].count")
+    if len(path) > MAX_KEY_PATH_CHARS:
+        raise ValueError(f"a key path has at most {MAX_KEY_PATH_CHARS} characters, this one {len(path):,}")
+    if path.count(".") + path.count("[") >= MAX_KEY_PATH_SEGMENTS:
+        raise ValueError(f"more than {MAX_KEY_PATH_SEGMENTS} keys and indices; a key path has at most "
+                         f"{MAX_KEY_PATH_SEGMENTS}")
     out: list = []
     for part in path.split("."):
         match = _SEGMENT.fullmatch(part)
@@ -239,6 +262,11 @@ class Experiment:
     @property
     def duration(self) -> float:
         return self.ticks * self.dt
+
+    @property
+    def runs(self) -> int:
+        """How many runs the experiment plans: the grid's product x seeds."""
+        return math.prod(len(values) for values in self.grid.values()) * len(self.seeds or [None])
 
 
 @dataclass
@@ -410,6 +438,10 @@ def sweep_from_dict(data: Any, source: str = "<sweep>", base_dir: Path | None = 
         experiment = _experiment(name, data, raw, where, base, fail)
         if experiment is not None:
             experiments.append(experiment)
+    total = sum(e.runs for e in experiments)
+    if total > MAX_RUNS:
+        fail(f"experiments: {' + '.join(f'{e.runs:,}' for e in experiments)} = {total:,} runs; a sweep has at most "
+             f"{MAX_RUNS:,}")
     if problems:
         raise SweepError(source, problems)
     stem = Path(source).stem if source.endswith((".yaml", ".yml")) else source
@@ -468,13 +500,16 @@ def _experiment(name: str, top: dict, own: dict, where: str, base: dict, fail) -
         return (f"{prefix}{key}", own[key]) if key in own else (key, top.get(key))
 
     key, raw = setting("dt")
-    dt = DEFAULT_DT if raw is None else _positive(raw, key, before)
+    dt = DEFAULT_DT if raw is None else _positive(raw, key, before, MIN_DT, MAX_DT)
     key, raw = setting("duration")
     if raw is None:
         before(f"{key}: missing (simulated seconds per run)")
         duration = dt
     else:
         duration = _positive(raw, key, before)
+    if duration / dt > MAX_TICKS:  # checked before the count is made (dt: 1e-320 overflowed it)
+        before(f"{key}: {duration:g} s at dt = {dt:g} s is more than {MAX_TICKS:,} ticks, the most a run has")
+        duration = dt
     ticks = max(1, round(duration / dt))
     if abs(ticks * dt - duration) > 1e-6 * max(duration, dt):
         before(f"{key}: {duration:g} s is not a whole number of ticks of dt = {dt:g} s")
@@ -484,32 +519,49 @@ def _experiment(name: str, top: dict, own: dict, where: str, base: dict, fail) -
     if raw is not None:
         if isinstance(raw, int) and not isinstance(raw, bool):
             if raw < 1:
-                before(f"{key}: a number of seeds must be >= 1, got {raw}")
-            seeds = list(range(max(raw, 1)))
+                before(f"{key}: a number of seeds must be >= 1, got {_show(raw)}")
+            elif raw > MAX_RUNS:  # refused before the list is made (seeds: 10¹² ran out of memory)
+                before(f"{key}: {_show(raw)} seeds; a sweep has at most {MAX_RUNS:,} runs")
+            else:
+                seeds = list(range(raw))
         elif isinstance(raw, list) and raw and all(isinstance(s, int) and not isinstance(s, bool) and s >= 0
                                                    for s in raw):
             if len(set(raw)) != len(raw):
                 before(f"{key}: a seed is listed twice")
+            too_big = next((s for s in raw if s > MAX_SEED), None)
+            if too_big is not None:  # the tables' seed column is int64 (2⁶³ broke every later assembly)
+                before(f"{key}: seed {_show(too_big)} is larger than {MAX_SEED} (seeds are int64)")
             seeds = list(raw)
         else:
-            before(f"{key}: must be a number of seeds (0..n-1) or a non-empty list of integers >= 0, got "
+            before(f"{key}: must be a number of seeds (0..n-1) or a non-empty list of integers 0..{MAX_SEED}, got "
                    f"{_kind(raw)}")
 
     overrides = _mapping(_merged(top.get("overrides"), own.get("overrides")), f"{prefix}overrides", before)
     grid = _mapping(_merged(top.get("grid"), own.get("grid")), f"{prefix}grid", before)
+    if len(overrides) + len(grid) > MAX_KEYS:  # each key is checked against the scene (a scene load each)
+        before(f"{prefix}overrides, {prefix}grid: {len(overrides) + len(grid):,} key paths; a sweep sets at most "
+               f"{MAX_KEYS:,}")
+        return None
     for path, values in list(grid.items()):
         if not isinstance(values, list) or not values:
-            before(f"{prefix}grid.{path}: must be a non-empty list of values, got {_kind(values)}")
+            before(f"{prefix}grid.{_show_key(path)}: must be a non-empty list of values, got {_kind(values)}")
             grid.pop(path)
-            continue
+    runs = math.prod(len(values) for values in grid.values()) * len(seeds or [None])
+    if runs > MAX_RUNS:  # before the values are compared or anything is planned (10⁹ runs planned for minutes)
+        before(f"{prefix}grid: {' x '.join(f'{len(v):,}' for v in grid.values())} values"
+               + (f" x {len(seeds):,} seeds" if seeds else "") + f" = {runs:,} runs; a sweep has at most "
+               f"{MAX_RUNS:,}")
+        return None
+    for path, values in grid.items():
         canonical = [json.dumps(v, sort_keys=True) for v in values]
         if len(set(canonical)) != len(canonical):
-            before(f"{prefix}grid.{path}: a value is listed twice (it would be the same runs twice)")
+            before(f"{prefix}grid.{_show_key(path)}: a value is listed twice (it would be the same runs twice)")
         if path in overrides:
-            before(f"{prefix}grid.{path}: also in overrides (a key is either fixed or swept)")
+            before(f"{prefix}grid.{_show_key(path)}: also in overrides (a key is either fixed or swept)")
     for kind, entries in (("overrides", overrides), ("grid", grid)):
         for path, value in entries.items():
-            _check_path(base, path, value[0] if kind == "grid" else value, f"{prefix}{kind}.{path}", before)
+            _check_path(base, path, value[0] if kind == "grid" else value, f"{prefix}{kind}.{_show_key(path)}",
+                        before)
 
     record = dict(RECORD_KEYS)
     raw_record = _mapping(_merged(top.get("record"), own.get("record")), f"{prefix}record", before)
@@ -548,9 +600,13 @@ def _experiment(name: str, top: dict, own: dict, where: str, base: dict, fail) -
             if k not in ("key", "reverse"):
                 before(f"{key}.{k}: unknown key (valid: key, reverse)")
         chain_key = chain.get("key")
-        if isinstance(raw, dict) and chain_key not in grid:
-            before(f"{key}.key: must be one of the grid's keys ({', '.join(grid) or 'the grid is empty'}), got "
-                   f"{chain_key!r}")
+        if isinstance(raw, dict) and (not isinstance(chain_key, str) or chain_key not in grid):
+            known = ", ".join(_show_key(k) for k in list(grid)[:10]) + (", ..." if len(grid) > 10 else "")
+            before(f"{key}.key: must be one of the grid's keys ({known or 'the grid is empty'}), got "
+                   f"{_show_key(chain_key) if isinstance(chain_key, str) else _kind(chain_key)}")
+        elif isinstance(raw, dict) and len(grid[chain_key]) > MAX_CHAIN_LINKS:
+            before(f"{key}.key: {len(grid[chain_key]):,} values make a chain of as many links; a chain has at "
+                   f"most {MAX_CHAIN_LINKS:,} (one worker runs its links one after the other)")
         chain_reverse = chain.get("reverse", False)
         if not isinstance(chain_reverse, bool):
             before(f"{key}.reverse: must be true or false")
@@ -571,11 +627,34 @@ class _Count:
         self.fail(problem)
 
 
-def _positive(raw: Any, key: str, fail) -> float:
-    if isinstance(raw, bool) or not isinstance(raw, (int, float)) or not math.isfinite(raw) or raw <= 0:
-        fail(f"{key}: must be a number > 0 (seconds), got {raw!r}")
-        return 1.0
-    return float(raw)
+def _positive(raw: Any, key: str, fail, minimum: float = 0.0, maximum: float = math.inf) -> float:
+    """A number of seconds > 0 (and within [minimum, maximum] when given)."""
+    try:
+        value = float(raw) if isinstance(raw, (int, float)) and not isinstance(raw, bool) else math.nan
+    except OverflowError:  # an int beyond float64
+        fail(f"{key}: {_show(raw)} is too large (at most {maximum:g} s)")
+        return maximum if math.isfinite(maximum) else 1.0
+    if not math.isfinite(value) or value <= 0:
+        fail(f"{key}: must be a number > 0 (seconds), got {_show(raw)}")
+        return 1.0 if minimum <= 1.0 <= maximum else minimum
+    if not minimum <= value <= maximum:
+        fail(f"{key}: {value:g} s is outside {minimum:g} .. {maximum:g} s")
+        return min(max(value, minimum), maximum)
+    return value
+
+
+def _show(value: Any, limit: int = 60) -> str:
+    """``repr`` of a value from the file, cut to ``limit`` characters (an int of 10⁵ digits has no repr)."""
+    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 200:
+        return f"an integer of {value.bit_length():,} bits"
+    text = repr(value) if not isinstance(value, (dict, list)) else _kind(value)
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def _show_key(path: Any) -> str:
+    """A key path as errors show it: cut to MAX_KEY_PATH_CHARS (a 20,000-segment path was echoed whole)."""
+    text = path if isinstance(path, str) else repr(path)
+    return text if len(text) <= MAX_KEY_PATH_CHARS else f"{text[:60]}... ({len(text):,} characters)"
 
 
 def _mapping(raw: Any, key: str, fail) -> dict:
@@ -630,20 +709,24 @@ def plan(sweep: Sweep, code: str | None = None) -> list[Task]:
         chain_values = (e.grid[e.chain_key][::-1] if e.chain_reverse else e.grid[e.chain_key]) \
             if e.chain_key else [None]
         for combination in itertools.product(*(e.grid[k] for k in outer)):
+            # the links' scenes, built and checked once: the seeds share them (the runs only read them)
+            links = []
+            for chain_value in chain_values:
+                params = dict(zip(outer, combination))
+                if e.chain_key:
+                    params[e.chain_key] = chain_value
+                params = {k: params[k] for k in keys}  # the file's order
+                scene = copy.deepcopy(sweep.base_scene)
+                for path, value in {**e.overrides, **params}.items():
+                    set_key_path(scene, path, value)
+                links.append((params, scene, _refusal(scene, sweep.source, params)))
             for seed in (e.seeds if e.seeds is not None else [None]):
                 previous = None
                 runs = []
-                for link, chain_value in enumerate(chain_values):
-                    params = dict(zip(outer, combination))
-                    if e.chain_key:
-                        params[e.chain_key] = chain_value
-                    params = {k: params[k] for k in keys}  # the file's order
-                    scene = copy.deepcopy(sweep.base_scene)
-                    for path, value in {**e.overrides, **params}.items():
-                        set_key_path(scene, path, value)
+                for link, (params, scene, refused) in enumerate(links):
                     identity = run_id(scene, seed, e, previous, code)
                     runs.append(Run(id=identity, experiment=e.name, params=params, seed=seed, link=link,
-                                    scene=scene, refused=_refusal(scene, sweep.source, params)))
+                                    scene=scene, refused=refused))
                     previous = identity
                 tasks.append(Task(id=runs[-1].id, experiment=e, runs=runs))
     return tasks
