@@ -2,8 +2,9 @@
 #
 # Set-up is incremental: every slow step leaves a stamp in .venv/.stamps and reruns only when its inputs
 # change (requirements files -> pip; msgs_config/cgp_sim_msgs, msgs_config/upstream/<pkg> -> cmake, one stamp per
-# interface package; project sources -> pip install .).  The upstream copies (tf2_msgs, simulation_interfaces)
-# are built only where no installed package of that name exists (tools/build_msgs.py says which it uses).
+# interface package; setup.py and the data files -> pip install -e .; the Python sources -> the kernels' warm-up).
+# The upstream copies (tf2_msgs, simulation_interfaces) are built only where no installed package of that name
+# exists (tools/build_msgs.py says which it uses).
 
 SHELL := /bin/bash
 PYTHON ?= python3
@@ -34,15 +35,17 @@ ARGS ?=
 MSGS_SRC := $(shell find msgs_config/cgp_sim_msgs -type f -not -path '*/__pycache__/*') tools/build_msgs.py
 TF2_MSGS_SRC := $(shell find msgs_config/upstream/tf2_msgs -type f) tools/build_msgs.py
 SIMULATION_INTERFACES_SRC := $(shell find msgs_config/upstream/simulation_interfaces -type f) tools/build_msgs.py
+# The project is installed editable (the venv imports the checkout): pip reruns only for setup.py's own inputs,
+# tools/install_data_files.py for the data files it lists (the ament layout), the warm-up for any Python source.
 PROJECT_SRC := setup.py setup.cfg package.xml README.md resource/cgp_sim_ros scripts/sim_node \
-	$(shell find cgp_core cgp_sim_ros msgs_config -type f \( -name '*.py' -o -name '*.yaml' -o -name '*.stl' \
-	-o -name '*.obj' -o -name '*.dae' -o -name '*.json' \) -not -path '*/__pycache__/*' -not -path 'msgs_config/cgp_sim_msgs/*' \
-	-not -path 'msgs_config/upstream/*')
+	tools/install_data_files.py $(wildcard msgs_config/scenes/*.yaml msgs_config/params/*.yaml \
+	msgs_config/sweeps/*.yaml msgs_config/foxglove/*.json msgs_config/meshes/*.stl msgs_config/meshes/*.obj)
+KERNEL_SRC := $(shell find cgp_core cgp_sim_ros -type f -name '*.py' -not -path '*/__pycache__/*')
 REQUIREMENTS := $(ROS_REQUIREMENTS) requirements/python.txt requirements/dev.txt
 
 .PHONY: setup run test soak fuzz bench figures lock clean distclean
 
-setup: $(STAMPS)/project
+setup: $(STAMPS)/kernels
 
 $(STAMPS)/venv:
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "cgp_sim needs Python >= 3.11 (found " + sys.version.split()[0] + "); set PYTHON=python3.11")'
@@ -72,12 +75,20 @@ $(STAMPS)/msgs-simulation_interfaces: $(STAMPS)/deps $(SIMULATION_INTERFACES_SRC
 	@$(VPY) tools/build_msgs.py simulation_interfaces
 	@touch $@
 
+# Editable: the venv's cgp_core, cgp_sim_ros and msgs_config are the checkout's, so the node, the tests (which
+# import the checkout) and the compile workers share one numba cache (the checkout's __pycache__), and no
+# installed copy can fall behind an edit.  pip -e installs no data_files: tools/install_data_files.py puts
+# setup.py's (the ament layout ros2 run and ament_index_python resolve) into the venv.
 $(STAMPS)/project: $(STAMPS)/msgs $(STAMPS)/msgs-tf2_msgs $(STAMPS)/msgs-simulation_interfaces $(PROJECT_SRC)
-	@echo "setup: installing cgp_sim (cgp_core, cgp_sim_ros, msgs_config) into .venv"
-	@$(PIP) --no-deps --no-build-isolation . 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)
+	@echo "setup: installing cgp_sim (cgp_core, cgp_sim_ros, msgs_config) into .venv, editable"
+	@$(PIP) --no-deps --no-build-isolation -e . 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)
 	@rm -rf build cgp_sim_ros.egg-info
+	@$(VPY) tools/install_data_files.py
+	@touch $@
+
+$(STAMPS)/kernels: $(STAMPS)/project $(KERNEL_SRC)
 	@echo "setup: compiling the simulation kernels (numba, cached: only after an install or an edit)"
-	@cd $(VENV) && $(VPY) -P -m cgp_sim_ros.warmup
+	@$(VPY) -m cgp_sim_ros.warmup
 	@touch $@
 
 # The live view is on (the node prints the address to open in the Foxglove app); ARGS="--foxglove false" turns
@@ -85,16 +96,14 @@ $(STAMPS)/project: $(STAMPS)/msgs $(STAMPS)/msgs-tf2_msgs $(STAMPS)/msgs-simulat
 run: setup
 	@$(VENV)/bin/cgp-sim --bag "$(BAG_DIR)" --foxglove true $(ARGS)
 
-# The in-process tests import the checkout (pytest.ini: pythonpath = .), whose numba cache is not the installed
-# copy's that `make setup` fills: it is compiled first, in parallel worker processes (a second or two when nothing
-# changed), so that no test compiles the kernels one by one inside its own time limit.
+# The tests import the checkout, which is the installed package (editable): `make setup`'s warm-up compiled
+# their kernels, once, in parallel worker processes, so that no test compiles them one by one inside its own
+# time limit.
 # Two pytest-xdist workers (TEST_WORKERS=1 for one process): most of the suite's wall time is tests waiting on
 # node processes, which two workers overlap; each worker's nodes live in a ROS domain of their own
 # (tests/conftest.py).  Files are the unit of distribution, so a module's shared node starts once.
 TEST_WORKERS ?= 2
 test: setup
-	@echo "test: compiling the checkout's kernels (in-process tests import the checkout, not the installed copy)"
-	@$(VPY) -m cgp_sim_ros.warmup
 	@$(VPY) -m pytest tests $(if $(filter-out 1,$(TEST_WORKERS)),-n $(TEST_WORKERS) --dist loadfile)
 
 # The soak test (tests/test_soak.py) runs CGP_SIM_SOAK_SECONDS of wall time (default 900); it is read from the
