@@ -36,7 +36,10 @@ simulation time):
                                                                  touching body's contact force and torque
                                                                  (parameter ``contacts``)
 ``~/events``                    std_msgs/String                  one line per service call, rejected command
-                                                                 batch and world event (audit trail; recorded)
+                                                                 batch and world event (audit trail; recorded);
+                                                                 transient local, the last 100 lines
+                                                                 (``EVENTS_QOS``): a late subscriber asking for
+                                                                 them reads the start-up's lines too
 ``/clock``                      rosgraph_msgs/Clock              simulation time, once per tick
 ==============================  ===============================  ===================================================
 

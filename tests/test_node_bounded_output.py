@@ -25,6 +25,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from cgp_sim_ros.drawing.detail import BODY_MARKER_BYTES_PER_S
 from cgp_sim_ros.interface import MAX_CONTACTS_PER_MESSAGE
+from cgp_sim_ros.ros.qos import EVENTS_QOS
 
 RATE_HZ = 60.0
 BIG_HULLS = 120
@@ -53,7 +54,9 @@ def test_many_big_hulls_are_drawn_within_the_body_budget(start_node, probe, tmp_
     scene.write_text(f"bodies:\n{bodies}\n")
     assert stl.exists()
     clock = probe.subscribe("/clock", Clock)
-    events = probe.subscribe("/cgp_sim/events", String)
+    # ~/events keeps its last lines for a late subscriber (transient local): the plan, sent at start-up, whenever
+    # discovery completes
+    events = probe.subscribe("/cgp_sim/events", String, qos=EVENTS_QOS)
     markers = probe.subscribe("/cgp_sim/markers", MarkerArray, raw=True)
     node = start_node("--scene", str(scene), "--rate-hz", str(RATE_HZ), "--start-paused", "true")
     probe.wait_until_matched("/clock", "/cgp_sim/markers", "/cgp_sim/events", timeout=60)
@@ -90,7 +93,13 @@ def test_contacts_are_capped_and_the_wrenches_stay_whole(start_node, probe, tmp_
     clock = probe.subscribe("/clock", Clock)
     contacts = probe.subscribe("/cgp_sim/contacts", Contacts)
     events = probe.subscribe("/cgp_sim/events", String)
-    node = start_node("--scene", str(scene), "--contacts", "true")
+    # paused until the probe's subscription is matched: the report is summed only while someone listens, and the
+    # boxes (resting from the start) fall asleep within half a second of ticking
+    node = start_node("--scene", str(scene), "--contacts", "true", "--start-paused", "true")
+    probe.wait_until_matched("/clock", "/cgp_sim/contacts", "/cgp_sim/events", timeout=60)
+    from std_srvs.srv import SetBool
+
+    probe.call(SetBool, "/cgp_sim/pause", SetBool.Request(data=False))
     wait_ticking(probe, node, clock, 60, timeout=90)
     probe.spin_until(lambda: len(contacts.messages) >= 60, 30, "60 contact messages")
     last = contacts.messages[-1]

@@ -11,7 +11,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import sysconfig
 import textwrap
 import time
 from pathlib import Path
@@ -656,9 +655,11 @@ def cluster(tmp_path_factory):
 def test_a_cluster_whose_worker_runs_other_code_is_refused(cluster, tmp_path):
     """A worker importing another cgp_core (a copy with one edited line, first on its PYTHONPATH) reports
     another code version: the sweep refuses to start, naming the worker and both versions."""
-    site = Path(sysconfig.get_paths()["purelib"])
+    import cgp_core
+
+    installed = Path(cgp_core.__file__).resolve().parent  # (the checkout: make setup installs it editable)
     other = tmp_path / "other"
-    shutil.copytree(site / "cgp_core", other / "cgp_core", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(installed, other / "cgp_core", ignore=shutil.ignore_patterns("__pycache__"))
     with open(other / "cgp_core" / "__init__.py", "a") as f:
         f.write("# an edit the client does not have\n")
     cluster.add_worker("stale", env={**os.environ, "PYTHONPATH": str(other)})

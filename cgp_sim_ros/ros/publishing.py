@@ -30,7 +30,7 @@ from .. import interface as itf
 from ..drawing.bodies import Drawings, model_shapes
 from ..wire import cdr
 from .messages import TickMessages
-from .qos import CLOCK_QOS, COMMAND_QOS, LATCHED_QOS, STATE_QOS, TF_QOS, TF_STATIC_QOS
+from .qos import CLOCK_QOS, EVENTS_QOS, LATCHED_QOS, STATE_QOS, TF_QOS, TF_STATIC_QOS
 from .tf import BodyTransforms
 
 _NO_EVENT_HANDLERS = PublisherEventCallbacks(use_default_callbacks=False)
@@ -70,7 +70,7 @@ class TickPublisher:
                                                         LATCHED_QOS)
         self.pub_contacts = (node.create_publisher(TickMessages.Contacts, itf.TOPIC_CONTACTS, STATE_QOS)
                              if params["contacts"] else None)
-        self.pub_events = node.create_publisher(String, itf.TOPIC_EVENTS, COMMAND_QOS)
+        self.pub_events = node.create_publisher(String, itf.TOPIC_EVENTS, EVENTS_QOS)
         self.pub_tf = node.create_publisher(BodyTransforms.TFMessage, itf.TOPIC_TF, TF_QOS)
         self.pub_tf_static = node.create_publisher(BodyTransforms.TFMessage, itf.TOPIC_TF_STATIC, TF_STATIC_QOS)
         # per body / per flock (name -> publisher), and in the world's order (see follow_entities)

@@ -14,6 +14,11 @@ CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=Rel
 # Commands: reliable, a deep enough queue for bursts; the node bounds its own pending queue as well.
 COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
+# ~/events: reliable, and transient local with the last 100 lines, so that a subscriber that joins late (a test, a
+# dashboard started after the node) still reads the start-up's lines (the level-of-detail plan); a volatile
+# subscriber matches it too and gets the lines from when it joined
+EVENTS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # TF, as tf2_ros' broadcasters offer it: /tf reliable, volatile, keep last 100; /tf_static reliable,
 # transient local, keep last 1 (a late subscriber gets the latest set of static transforms).
 TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
