@@ -4,7 +4,7 @@ meaning, and the limits on what the node accepts (docs/interface.md is this file
 ROS-free (names, defaults and numbers only), so that the level-of-detail planner and the docs tests read it
 without rclpy; the QoS profile each topic is offered with is in
 :mod:`cgp_sim_ros.ros.qos`: ``STATE_QOS`` for the published state topics, ``CLOCK_QOS`` for ``/clock``,
-``COMMAND_QOS`` for the command topics and ``~/events``, ``TF_QOS`` / ``TF_STATIC_QOS`` for TF.
+``COMMAND_QOS`` for the command topics, ``EVENTS_QOS`` for ``~/events``, ``TF_QOS`` / ``TF_STATIC_QOS`` for TF.
 
 All names are relative (``~/`` = the node's name, default ``cgp_sim``), so ``--ros-args -r __ns:=/robot1``
 and ``-r __node:=sim`` and per-topic remaps work.  ``/clock`` is absolute by convention.
