@@ -121,6 +121,12 @@ class Robots:
         self._joint_limits = self._per_dof("lower", "upper", "effort_limit", "velocity_limit", "damping",
                                            "friction")
         self._mimic = self._mimic_rows()
+        from .joint_solver import JointProperties
+
+        lim = self._joint_limits
+        self._properties = JointProperties(lim["lower"], lim["upper"], lim["effort_limit"], lim["velocity_limit"],
+                                           lim["damping"], lim["friction"], *self._mimic)
+        self._solver = None
         self.body_robot = np.zeros(0, np.int64)
         self.body_link = np.zeros(0, np.int64)
         self.reset()
@@ -178,16 +184,17 @@ class Robots:
                     self.body_robot[row], self.body_link[row] = k, b
 
     def reset(self) -> None:
-        from .joint_solver import JointSolverMemory
-
         self.q = self.q0.copy()
         self.qd = self.qd0.copy()
         self.effort = np.zeros(self.n_dofs)
         self._effort_sum = np.zeros(self.n_dofs)
         self._substeps = 0
-        self.memory = JointSolverMemory.empty()
+        if self._solver is not None:
+            self._solver.reset()
         self.drives = self._initial_drives()
         self._wrench_torque = np.zeros(self.n_dofs)
+        self._pseudo = np.zeros(self.n_dofs)
+        self.prepare()
 
     def _initial_drives(self):
         """Position drives holding the initial positions on every movable joint of a robot with ``hold``
@@ -242,40 +249,46 @@ class Robots:
 
     def solve(self, contacts, body_model, state, h: float, gravity, velocity, angular_velocity, inv_inertia):
         """The robot stage (module docstring, step 3): returns the contacts left for the body solver."""
-        from .joint_solver import ContactRows, step_joints
+        from .joint_solver import FreeBodies, JointSystem
 
-        link_side_a = np.zeros(contacts.count, bool)
-        link_side_b = self.body_robot[contacts.body_b] >= 0 if contacts.count else np.zeros(0, bool)
         if contacts.count:
-            a = contacts.body_a
+            a, b = contacts.body_a, contacts.body_b
             link_side_a = (a >= 0) & (self.body_robot[np.maximum(a, 0)] >= 0)
-        ours = link_side_a | link_side_b
-        # self-collision filter: two links of one robot touch only if the robot asks for it and they are not
-        # directly jointed (the URDF convention: adjacent links overlap at their joints by design)
-        if ours.any():
-            keep = self._contact_filter(contacts, link_side_a, link_side_b)
-            ours &= keep
-            rest = ~ours & keep
+            link_side_b = self.body_robot[b] >= 0
         else:
-            rest = np.ones(contacts.count, bool)
+            link_side_a = link_side_b = np.zeros(0, bool)
+        ours = link_side_a | link_side_b
+        keep = self._contact_filter(contacts, link_side_a, link_side_b) if ours.any() else np.ones(contacts.count,
+                                                                                                     bool)
+        ours &= keep
+        rest = ~ours & keep
         M = np.zeros((self.n_dofs, self.n_dofs))
         bias = np.zeros(self.n_dofs)
-        for r, (rotation, position) in zip(self.robots, self._poses):
+        for r in self.robots:
             q, qd = self.q[r.q_slice], self.qd[r.dof_slice]
             M[r.dof_slice, r.dof_slice] = algorithms.mass_matrix(r.arrays, q)
-            bias[r.dof_slice] = algorithms.inverse_dynamics(r.arrays, q, qd, np.zeros(r.model.n_dofs), gravity)
-        rows = self._contact_rows(contacts.select(np.flatnonzero(ours)), body_model, state, velocity,
-                                  angular_velocity, inv_inertia) if ours.any() else ContactRows.empty(self.n_dofs)
-        result = step_joints(M, bias - self._wrench_torque, self.q, self.qd, h, self._joint_limits, self._mimic,
-                             self.drives, rows, self.memory, q_index=self._q_of_dof())
-        self.qd = result.velocity
-        self.memory = result.memory
-        self._effort_sum += result.effort
+            bias[r.dof_slice] = algorithms.inverse_dynamics(r.arrays, q, qd, np.zeros(r.model.n_dofs),
+                                                            np.asarray(gravity, float))
+        q_of = self._q_of_dof()
+        coordinate = np.where(q_of >= 0, self.q[np.maximum(q_of, 0)], 0.0)
+        system = JointSystem(M, bias, self._wrench_torque.copy(), coordinate, self.qd.copy())
+        chosen = np.flatnonzero(ours)
+        rows = self._contact_rows(contacts.select(chosen), body_model, state)
+        bodies = FreeBodies(np.ascontiguousarray(body_model.inv_mass, dtype=float), inv_inertia,
+                            np.ascontiguousarray(np.hstack([velocity, angular_velocity])),
+                            state.linear_momentum, state.angular_momentum) if rows.key.size else FreeBodies.empty()
+        if self._solver is None or self._solver.settings.h != h:
+            from .joint_solver import JointSolver
+
+            memory = self._solver.memory if self._solver is not None else None
+            self._solver = JointSolver(h)
+            if memory is not None:
+                self._solver.memory = memory
+        step = self._solver.step(system, self._properties, self.drives, rows, bodies)
+        self.qd = step.velocity.copy()
+        self._pseudo = step.pseudo_velocity.copy()
+        self._effort_sum += step.effort
         self._substeps += 1
-        if rows.count:
-            # the free bodies' share of the contact impulses, equal and opposite to the links'
-            np.add.at(state.linear_momentum, rows.body_row, result.body_linear_impulse)
-            np.add.at(state.angular_momentum, rows.body_row, result.body_angular_impulse)
         return contacts.select(np.flatnonzero(rest))
 
     def _q_of_dof(self) -> np.ndarray:
@@ -314,20 +327,22 @@ class Robots:
                     keep[c] = False
         return keep
 
-    def _contact_rows(self, contacts, body_model, state, velocity, angular_velocity, inv_inertia):
-        """Rows in joint space for the contacts that touch a link (module docstring, step 3)."""
+    def _contact_rows(self, contacts, body_model, state):
+        """Rows in joint space for the contacts that touch a link (module docstring, step 3): per point the three
+        directions (n, t₁, t₂) of the contact solver, each pointing from the other side to the robot's side."""
         from ..solver.sequential_impulse import tangent_basis_scalar
         from .joint_solver import ContactRows
 
         m = contacts.count
         J = np.zeros((m, 3, self.n_dofs))
-        body_row = np.full(m, -1, np.int64)
+        body = np.full(m, -1, np.int64)
         body_jacobian = np.zeros((m, 3, 6))
         for c in range(m):
             n = contacts.normal[c]
             t = tangent_basis_scalar(n[0], n[1], n[2])
-            D = np.array([n, [t[0], t[1], t[2]], [t[3], t[4], t[5]]])  # (3 directions, 3)
+            D = np.array([n, [t[0], t[1], t[2]], [t[3], t[4], t[5]]])  # (3 directions, 3), from A to B
             p = contacts.point[c]
+            robot_sign = 1.0 if self.body_robot[contacts.body_b[c]] >= 0 else -1.0  # d from the other side
             for side, sign in ((int(contacts.body_a[c]), -1.0), (int(contacts.body_b[c]), 1.0)):
                 if side < 0:
                     continue
@@ -336,25 +351,21 @@ class Robots:
                     r = self.robots[k]
                     rotation, position = self._poses[k]
                     Jp = algorithms.point_jacobian(r.arrays, rotation, position, int(self.body_link[side]), p)
-                    J[c, :, r.dof_slice] += sign * (D @ Jp)
+                    J[c, :, r.dof_slice] += (sign * robot_sign) * (D @ Jp)
                 elif body_model.inv_mass[side] > 0.0:
-                    body_row[c] = side
+                    body[c] = side
                     arm = p - state.position[side]
-                    body_jacobian[c, :, :3] = sign * D
-                    body_jacobian[c, :, 3:] = sign * np.cross(arm, D)
-        movable = body_row >= 0
-        rows_of = np.maximum(body_row, 0)
-        return ContactRows(
-            jacobian=J, body_row=body_row, body_jacobian=body_jacobian,
-            body_inv_mass=np.where(movable, body_model.inv_mass[rows_of], 0.0),
-            body_inv_inertia=np.where(movable[:, None, None], inv_inertia[rows_of], 0.0),
-            body_velocity=np.where(movable[:, None], np.hstack([velocity[rows_of], angular_velocity[rows_of]]), 0.0),
-            separation=contacts.separation.copy(), friction=contacts.friction.copy(), key=contacts.key.copy())
+                    d = robot_sign * D  # from the body to the robot: the body's row is [−d, −r × d]
+                    body_jacobian[c, :, :3] = -d
+                    body_jacobian[c, :, 3:] = -np.cross(arm, d)
+        return ContactRows(J, body, body_jacobian, contacts.separation.copy(), contacts.friction.copy(),
+                           contacts.key % (1 << 37))
 
     def integrate(self, h: float) -> None:
         """q ← q + h q̇ per robot (a floating root's quaternion by the exponential map)."""
+        moving = self.qd + self._pseudo  # the position stage's pseudo-velocity moves q, never qd (no energy)
         for r in self.robots:
-            self.q[r.q_slice] = algorithms.integrate_positions(r.arrays, self.q[r.q_slice], self.qd[r.dof_slice], h)
+            self.q[r.q_slice] = algorithms.integrate_positions(r.arrays, self.q[r.q_slice], moving[r.dof_slice], h)
 
     def write_bodies(self, body_model, state) -> None:
         """Every moving link body's pose (COM, orientation) and momenta (P = m v, L = I_world ω) from q, q̇."""
