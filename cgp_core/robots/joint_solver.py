@@ -455,7 +455,7 @@ def _contact_rows(contacts, bodies, rows, first, h):
     for c in range(len(contacts.key)):
         for slot in range(3):
             r = first + 3 * c + slot
-            d = 2 if slot == 0 else slot - 1  # the rows t₁, t₂, normal take directions 1, 2, 0 of the point
+            d = (slot + 1) % 3  # the rows t₁, t₂, normal take directions 1, 2, 0 of the point
             rows.kind[r] = ROW_NORMAL if d == 0 else ROW_TANGENT
             rows.key[r] = rows.kind[r] * KEY_SLOTS + 3 * contacts.key[c] + d
             for k in range(rows.J.shape[1]):
