@@ -322,6 +322,31 @@ def test_arm_resting_on_a_plane_gets_the_gravity_torques_share():
         assert s.effort[0] == 0.0
 
 
+def test_drive_pressing_on_a_contact_is_held_to_its_effort_limit():
+    """No gravity.  The rod of the test above, its drive's target 5e-4 rad below the plane: unconstrained, the
+    stiff drive's torque at its end velocity stays under the limit; held by the contact, it would be kp · 5e-4 =
+    50 N m.  The drive saturates at its limit, and the plane carries exactly that torque's share."""
+    m, length, limit = 2.0, 1.0, 10.0
+    inertia = m * length ** 2 / 3
+    kp, kd = position_gains(np.array([[inertia]]), H)
+    kp = np.array([1e5])
+    drives = position_drives([-5e-4], kp, kd)
+    joints = JointProperties.free(1)._replace(effort_limit=np.array([limit]))
+
+    def contacts(q, qd):
+        jac = np.array([[length * np.cos(q[0])], [-length * np.sin(q[0])], [0.0]])
+        return (ContactRows(jac[None], np.array([-1]), np.zeros((1, 3, 6)), np.array([length * np.sin(q[0])]),
+                            np.array([0.5]), np.array([7])), FreeBodies.empty())
+
+    solver = JointSolver(H)
+    qs, _, steps = run(solver, lambda q, qd: (np.array([[inertia]]), np.zeros(1)), np.zeros(1), np.zeros(1), joints,
+                       drives, 60, contacts=contacts)
+    assert np.max(np.abs(qs)) < 1e-12
+    for s in steps:
+        assert abs(s.effort[0] + limit) < 1e-9                               # the drive pushes down at its limit
+        assert abs(s.contact_impulse[0, 0] - H * limit / length) < 1e-12     # and the plane pushes back that much
+
+
 def test_pendulum_hitting_a_free_box_conserves_momentum_and_loses_energy():
     """No gravity.  A point bob (m, l) on a pivot at the origin, q from the downward vertical, swings into a free
     cube (mass mb, half-size a) whose left face it meets at the bottom."""

@@ -22,7 +22,10 @@ Euler in the drive), which is the linear solve
 converges.  A drive whose torque there, kp (q* − q − h qd⁺) + kd (qd* − qd⁺), would exceed ±effort_limit is
 *saturated*: it is taken out of A (the others are solved again without it, until no new one saturates — at most
 n solves of a small dense system) and becomes a soft row (below) with the drive's own softness, whose impulse is
-clamped to ±h·effort_limit (Box2D's motor, Bullet's multibody motor).
+clamped to ±h·effort_limit (Box2D's motor, Bullet's multibody motor).  The rows can hold a drive back (a gripper
+pressing on an object, a target behind a joint limit): a drive whose torque at the solved qd⁺ exceeds its limit is
+taken out of A too and the sub-step solved again (prepare, warm start, sweeps; rare, and at most n times), so no
+drive's reported torque ever exceeds its effort limit.
 
 Why this mix and not soft rows throughout: a soft row is the same equation (its softness γ = 1/(h kd + h² kp) is
 exactly the drive's term of A), but Gauss–Seidel converges slowly on stiff drives coupled through a dense M⁻¹ (an
@@ -252,7 +255,7 @@ class JointStep(NamedTuple):
     pseudo_velocity: np.ndarray  # (n,) the position stage's Δq / h: integrate with qd⁺, never add to qd
     effort: np.ndarray           # (n,) the joint torque/force this sub-step (see the module docstring) [N m / N]
     contact_impulse: np.ndarray  # (c, 3) the contact points' accumulated impulses [normal, t₁, t₂] [N s]
-    sweeps: int                  # velocity sweeps run
+    sweeps: int                  # velocity sweeps run (summed over the passes a row-saturated drive caused)
 
 
 # ---- dense linear algebra (our own loops: bit-identical compiled and plain) ----------------------------------
@@ -329,15 +332,15 @@ def _effort_command(drives, joints, i):
 
 
 @njit
-def implicit_drives(system, joints, drives, h):
+def implicit_drives(system, joints, drives, h, allowed):
     """The :class:`Implicit` solve A qd_free = M qd + h (τ − b + τ_effort + Kp (q* − q) + Kd qd*) with the
-    drives that do not saturate: solved with every acting drive in A, then again without those whose torque
-    exceeds their effort limit, until none more does."""
+    drives that do not saturate: solved with every acting drive that ``allowed`` (n,) bool lets in A, then again
+    without those whose torque exceeds their effort limit, until none more does."""
     M, n = system.mass_matrix, len(system.velocity)
     implicit = np.zeros(n, np.bool_)
     for i in range(n):
         kp, kd = _drive_gains(drives, joints, i)
-        implicit[i] = kp > 0.0 or kd > 0.0
+        implicit[i] = (kp > 0.0 or kd > 0.0) and allowed[i]
     base = np.zeros(n)
     for i in range(n):
         s = 0.0
@@ -479,10 +482,10 @@ def _contact_rows(contacts, bodies, rows, first, h):
 
 
 @njit
-def prepare_joints(system, joints, drives, contacts, bodies, h):
-    """Box2D's prepare stage in joint space: the :class:`Implicit` solve and the sub-step's :class:`JointRows`
-    with A⁻¹ Jᵀ and their effective masses."""
-    implicit = implicit_drives(system, joints, drives, h)
+def prepare_joints(system, joints, drives, contacts, bodies, h, allowed):
+    """Box2D's prepare stage in joint space: the :class:`Implicit` solve (drives ``allowed`` in A, (n,) bool) and
+    the sub-step's :class:`JointRows` with A⁻¹ Jᵀ and their effective masses."""
+    implicit = implicit_drives(system, joints, drives, h, allowed)
     n = len(system.velocity)
     rows = _empty_rows(_count_rows(joints, drives, implicit.implicit, len(contacts.key)), n)
     first = _joint_rows(system, joints, drives, implicit.implicit, rows, h)
@@ -592,6 +595,21 @@ def solve_joints(rows, lam, v, V, settings):
     return sweeps
 
 
+@njit
+def saturated_by_rows(system, joints, drives, implicit, v, h, allowed):
+    """Whether a drive left in A has a torque beyond its effort limit at the solved velocity v (n,); such drives
+    are taken out of ``allowed`` (in place)."""
+    found = False
+    for i in range(len(v)):
+        if implicit.implicit[i]:
+            kp, kd = _drive_gains(drives, joints, i)
+            torque = _drive_push(system, drives, i, kp, kd) - (h * kp + kd) * v[i]
+            if abs(torque) > joints.effort_limit[i] * (1.0 + 1e-9):
+                allowed[i] = False
+                found = True
+    return found
+
+
 # ---- 4. the position stage -----------------------------------------------------------------------------------
 
 @njit
@@ -672,16 +690,26 @@ def step_joints(system, joints, drives, contacts, bodies, memory, settings, prof
     system, joints, drives = JointSystem(*system), JointProperties(*joints), JointDrives(*drives)
     contacts, bodies = ContactRows(*contacts), FreeBodies(*bodies)
     memory, settings = JointSolverMemory(*memory), JointSettings(*settings)
-    h = settings.h
+    h, n = settings.h, len(system.velocity)
+    allowed = np.ones(n, np.bool_)
+    sweeps = 0
     start = clock()
-    implicit, rows = prepare_joints(system, joints, drives, contacts, bodies, h)
-    v = implicit.velocity.copy()
-    V = bodies.velocity
-    start = lap(profile, PREPARE, start)
-    lam = warm_start_joints(rows, memory, v, V, settings.warm_start)
-    start = lap(profile, WARM_START, start)
-    sweeps = solve_joints(rows, lam, v, V, settings)
-    start = lap(profile, SOLVE, start)
+    while True:  # at most n + 1 passes: each but the last takes a drive out of A
+        implicit, rows = prepare_joints(system, joints, drives, contacts, bodies, h, allowed)
+        v = implicit.velocity.copy()
+        V = bodies.velocity.copy()
+        start = lap(profile, PREPARE, start)
+        lam = warm_start_joints(rows, memory, v, V, settings.warm_start)
+        start = lap(profile, WARM_START, start)
+        sweeps += solve_joints(rows, lam, v, V, settings)
+        start = lap(profile, SOLVE, start)
+        # the rows may have held a drive back (a contact, a limit): one whose torque now exceeds its limit is
+        # taken out of A and the sub-step solved again with it as a clamped row
+        if not saturated_by_rows(system, joints, drives, implicit, v, h, allowed):
+            break
+    for b in range(len(V)):
+        for k in range(6):
+            bodies.velocity[b, k] = V[b, k]
     pseudo = relax_positions(rows, v, settings)
     start = lap(profile, RELAX, start)
     effort, impulse, memory = store_joints(system, joints, drives, implicit, rows, lam, v, bodies, h)
