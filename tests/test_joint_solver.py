@@ -23,6 +23,7 @@ from scipy.special import ellipk
 from cgp_core.robots.joint_solver import (
     DRIVE_EFFORT,
     DRIVE_POSITION,
+    DRIVE_VELOCITY,
     ContactRows,
     FreeBodies,
     JointDrives,
@@ -247,6 +248,19 @@ def test_viscous_damping_decays_as_the_exponential():
     assert abs(steps[-1].effort[0] + c * qds[-1, 0]) < 1e-12    # the damping torque is in the effort
 
 
+def test_velocity_limit_caps_the_speed_exactly():
+    m, push, vmax = 1.0, 10.0, 2.0
+    joints = JointProperties.free(1)._replace(velocity_limit=np.array([vmax]), effort_limit=np.array([100.0]))
+    drives = JointDrives.none(1)._replace(mode=np.array([DRIVE_EFFORT], np.int64), target_effort=np.array([push]))
+    _, qds, steps = run(JointSolver(H), lambda q, qd: (np.array([[m]]), np.zeros(1)), np.zeros(1), np.zeros(1),
+                        joints, drives, 120)
+    t = H * np.arange(1, 121)
+    np.testing.assert_allclose(qds[:, 0], np.minimum(push / m * t, vmax), rtol=0, atol=1e-12)
+    free, capped = t < vmax * m / push - H, t > vmax * m / push + H
+    assert all(abs(s.effort[0] - push) < 1e-12 for s, f in zip(steps, free) if f)   # the drive alone
+    assert all(abs(s.effort[0]) < 1e-9 for s, c in zip(steps, capped) if c)         # the cap takes it all back
+
+
 # ---- drives -------------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("links", [3, 7])
@@ -282,6 +296,17 @@ def test_saturated_drive_reports_its_limit_and_sags_as_a_constant_torque_would()
                            target_effort=np.array([5.0, 0.0, 0.0]))
     qs_ref, _, _ = run(JointSolver(H), model, target.copy(), np.zeros(3), joints, pushed, 120)
     np.testing.assert_allclose(qs, qs_ref, atol=1e-9)
+
+
+def test_velocity_drive_is_backward_euler_in_its_damping():
+    m, kd, target = 2.0, 50.0, 1.5
+    drives = JointDrives.none(1)._replace(mode=np.array([DRIVE_VELOCITY], np.int64), target_velocity=np.array([target]),
+                                          damping=np.array([kd]))
+    _, qds, steps = run(JointSolver(H), lambda q, qd: (np.array([[m]]), np.zeros(1)), np.zeros(1), np.zeros(1),
+                        JointProperties.free(1), drives, 240)
+    k = np.arange(1, 241)
+    np.testing.assert_allclose(qds[:, 0], target * (1 - (1 + H * kd / m) ** -k), rtol=1e-12)
+    assert abs(steps[0].effort[0] - kd * (target - qds[0, 0])) < 1e-12
 
 
 def test_stiff_drive_is_stable():
