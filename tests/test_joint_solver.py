@@ -347,6 +347,27 @@ def test_arm_resting_on_a_plane_gets_the_gravity_torques_share():
         assert s.effort[0] == 0.0
 
 
+def test_penetration_into_the_ground_is_removed_without_velocity():
+    """No gravity.  The rod's tip starts 1 cm inside the plane: the position stage lifts it by β (s + slop) per
+    sub-step and never gives it a velocity."""
+    length = 1.0
+
+    def contacts(q, qd):
+        jac = np.array([[length * np.cos(q[0])], [-length * np.sin(q[0])], [0.0]])
+        return (ContactRows(jac[None], np.array([-1]), np.zeros((1, 3, 6)), np.array([length * np.sin(q[0])]),
+                            np.array([0.5]), np.array([7])), FreeBodies.empty())
+
+    solver = JointSolver(H)
+    s = solver.settings
+    q0 = -np.arcsin(0.01 / length)
+    qs, qds, _ = run(solver, lambda q, qd: (np.array([[1.0]]), np.zeros(1)), np.array([q0]), np.zeros(1),
+                     JointProperties.free(1), JointDrives.none(1), 60, contacts=contacts)
+    assert np.all(qds == 0.0)
+    gap = length * np.sin(qs[:, 0])
+    assert abs(gap[0] - (-0.01 + s.contact_correction * (0.01 - s.penetration_slop))) < 1e-5   # linearized
+    assert np.all(np.diff(gap) >= 0) and abs(gap[-1] + s.penetration_slop) < 1e-6
+
+
 def test_drive_pressing_on_a_contact_is_held_to_its_effort_limit():
     """No gravity.  The rod of the test above, its drive's target 5e-4 rad below the plane: unconstrained, the
     stiff drive's torque at its end velocity stays under the limit; held by the contact, it would be kp · 5e-4 =

@@ -67,6 +67,10 @@ displacement Δq found by the same projected Gauss–Seidel on the same A⁻¹ (
 J Δq = −β C⁺); it is returned as a *pseudo-velocity* Δq / h that the caller integrates with qd⁺ but never adds
 to qd (split impulses): the correction adds no kinetic energy.  The constraints are linear in joint space, so
 β = 1 (the default) removes the error in one sub-step: a mimic follower tracks its leader to round-off.
+Contacts with the static world take part too, as in the contact solver's position stage (J Δq ≥
+β (−s⁺ − slop), at most ``max_correction``, β = ``contact_correction``): a robot started in the ground rises out of
+it without velocity.  A contact with a free body is not corrected here (the body's pose is the World's; its
+penetration recovery is the place for it — not yet done).
 
 **Integration** is the caller's: q⁺ = integrate(q, qd⁺ + pseudo, h) with the robot's own integrator (a floating
 base's quaternion, continuous joints); for 1-dof joints it is q + h (qd⁺ + pseudo) (:func:`integrate_dofs`).
@@ -214,10 +218,13 @@ class JointSettings(NamedTuple):
     warm_start: bool            # start from the previous sub-step's impulses
     position_iterations: int    # sweeps of the position stage (0: off)
     position_correction: float  # β, the fraction of a limit's / mimic's position error removed per sub-step
+    contact_correction: float   # β of the contacts with the static world (the contact solver's position_correction)
+    penetration_slop: float     # contact penetration tolerated without correction [m]
+    max_correction: float       # at most this much contact penetration removed per sub-step [m]
 
     @staticmethod
     def default(h: float) -> JointSettings:
-        return JointSettings(h, 30, 1e-9, True, 10, 1.0)
+        return JointSettings(h, 30, 1e-9, True, 10, 1.0, 0.2, 0.0005, 0.05)
 
 
 class JointRows(NamedTuple):
@@ -613,29 +620,40 @@ def saturated_by_rows(system, joints, drives, implicit, v, h, allowed):
 # ---- 4. the position stage -----------------------------------------------------------------------------------
 
 @njit
+def _positional(rows, r):
+    """Whether row r takes part in the position stage: limits, mimics, normals against the static world."""
+    kind = rows.kind[r]
+    return kind == ROW_LIMIT or kind == ROW_MIMIC or (kind == ROW_NORMAL and rows.body[r] < 0)
+
+
+@njit
 def relax_positions(rows, v, settings):
     """The position stage: the displacement Δq (as the pseudo-velocity Δq / h, (n,)) that removes the fraction
-    β of the limits' and mimics' position errors predicted after the velocity step (see the module docstring)."""
+    β of the limits' and mimics' position errors predicted after the velocity step, and of the penetration of the
+    contacts with the static world beyond the slop (see the module docstring)."""
     n, R, h = len(v), len(rows.kind), settings.h
     d = np.zeros(n)
     goal = np.zeros(R)
     lam = np.zeros(R)
     for r in range(R):
-        if rows.kind[r] == ROW_LIMIT or rows.kind[r] == ROW_MIMIC:
+        if _positional(rows, r):
             predicted = rows.error[r]
             for i in range(n):
                 predicted += h * rows.J[r, i] * v[i]
-            goal[r] = -settings.position_correction * predicted
+            if rows.kind[r] == ROW_NORMAL:  # as the contact solver's position stage: slop, β, a cap
+                goal[r] = min(-settings.contact_correction * (predicted + settings.penetration_slop),
+                              settings.max_correction)
+            else:
+                goal[r] = -settings.position_correction * predicted
     for _ in range(settings.position_iterations):
         for r in range(R):
-            kind = rows.kind[r]
-            if (kind != ROW_LIMIT and kind != ROW_MIMIC) or rows.stiff[r] <= 0.0:
+            if not _positional(rows, r) or rows.stiff[r] <= 0.0:
                 continue
             s = 0.0
             for i in range(n):
                 s += rows.J[r, i] * d[i]
             delta = (goal[r] - s) / rows.stiff[r]
-            if kind == ROW_LIMIT:
+            if rows.kind[r] != ROW_MIMIC:  # one-sided
                 delta = max(lam[r] + delta, 0.0) - lam[r]
             lam[r] += delta
             for i in range(n):
