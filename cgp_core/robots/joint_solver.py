@@ -81,6 +81,24 @@ impulses / h of the joint's own rows (friction, velocity limits, limits, mimic: 
 on the leader included).  Not in it: gravity and Coriolis (b), the caller's τ, contacts.  The caller averages
 it over a tick's sub-steps.
 
+**What the World calls, each sub-step, per robot** (a sketch: the model's functions are
+``cgp_core.robots.algorithms``'; ``solver`` a :class:`JointSolver` kept per robot):
+
+1. ``M = mass_matrix(arrays, q)``; ``bias = inverse_dynamics(arrays, q, qd, 0, gravity)``; ``applied`` = Σ
+   J_pointᵀ F of the sub-step's wrenches on the robot's links; ``position`` = the 1-dof joints' coordinates;
+2. the robot's contacts from the detector, each point as a :class:`ContactRows` entry: ``joint_jacobian[c, k] =
+   d_k · point_jacobian(...)`` for d = (n, t₁, t₂) with n pointing *to the robot*, ``body``/``body_jacobian`` for a
+   free body on the other side (``[−d, −r × d]``, r from its COM), ``separation``, ``friction``, a stable ``key``;
+   :class:`FreeBodies` with the bodies' velocity M_b⁻¹ (P + h F) and the World's own momentum arrays (written in
+   place: pass the arrays themselves, not a fancy-indexed copy);
+3. ``step = solver.step(JointSystem(M, bias, applied, position, qd), joints, drives, contacts, bodies)``;
+4. ``qd = step.velocity``; ``q = integrate_positions(arrays, q, step.velocity + step.pseudo_velocity, h)``;
+5. add ``step.effort`` into the tick's sum (the joint_states effort is the mean over the sub-steps).
+
+The robot's solve comes before the rigid-body contact solver in the sub-step: the free body's impulse from the
+robot is then already in its momentum (Gauss–Seidel between the two solvers; a body pressed between a robot and
+the ground converges over sub-steps, not within one).
+
 **The stages** (:data:`STAGES`, timed into a :class:`~cgp_core.jit.StageProfile`), run by :func:`step_joints`:
 
 1. :func:`prepare_joints` — the implicit matrix A with its saturated drives found, its factor, qd_free, and
