@@ -82,7 +82,7 @@ on the leader included).  Not in it: gravity and Coriolis (b), the caller's τ, 
 it over a tick's sub-steps.
 
 **What the World calls, each sub-step, per robot** (a sketch: the model's functions are
-``cgp_core.robots.algorithms``'; ``solver`` a :class:`JointSolver` kept per robot):
+``cgp_core.robots.algorithms``; ``solver`` a :class:`JointSolver` kept per robot):
 
 1. ``M = mass_matrix(arrays, q)``; ``bias = inverse_dynamics(arrays, q, qd, 0, gravity)``; ``applied`` = Σ
    J_pointᵀ F of the sub-step's wrenches on the robot's links; ``position`` = the 1-dof joints' coordinates;
