@@ -128,6 +128,9 @@ ROW_DRIVE, ROW_FRICTION, ROW_VELOCITY_LIMIT, ROW_MIMIC, ROW_LIMIT, ROW_TANGENT, 
 #: a row's warm-start key is kind · KEY_SLOTS + its index within the kind (contacts: key · 3 + direction)
 KEY_SLOTS = 1 << 40
 
+#: a position-stage sweep moving no row by more than this [rad / m] ends the sweeps
+POSITION_TOLERANCE = 1e-14
+
 #: the stages of :attr:`JointSolver.profile`, in order
 STAGES = ("prepare", "warm_start", "solve", "relax", "store")
 PREPARE, WARM_START, SOLVE, RELAX, STORE = range(len(STAGES))
@@ -664,6 +667,7 @@ def relax_positions(rows, v, settings):
             else:
                 goal[r] = -settings.position_correction * predicted
     for _ in range(settings.position_iterations):
+        change = 0.0
         for r in range(R):
             if not _positional(rows, r) or rows.stiff[r] <= 0.0:
                 continue
@@ -676,6 +680,9 @@ def relax_positions(rows, v, settings):
             lam[r] += delta
             for i in range(n):
                 d[i] += rows.W[r, i] * delta
+            change = max(change, abs(delta) * rows.stiff[r])
+        if change <= POSITION_TOLERANCE:  # nothing (more) to correct: the usual case, one sweep
+            break
     for i in range(n):
         d[i] /= h
     return d
