@@ -475,6 +475,23 @@ def test_warm_start_converges_a_resting_contact_in_fewer_sweeps():
     assert sweeps[True] < 0.5 * sweeps[False]
 
 
+def test_bad_bundles_are_refused_before_the_kernels():
+    solver = JointSolver(H)
+    system = JointSystem(np.eye(2), np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2))
+    bad_mimic = JointProperties.free(2)._replace(mimic_follower=np.array([1]), mimic_leader=np.array([2]),
+                                                 mimic_multiplier=np.ones(1), mimic_offset=np.zeros(1))
+    with pytest.raises(ValueError, match="mimic dofs"):
+        solver.step(system, bad_mimic, JointDrives.none(2))
+    contacts = ContactRows(np.zeros((1, 3, 2)), np.array([0]), np.zeros((1, 3, 6)), np.zeros(1), np.zeros(1),
+                           np.array([0]))
+    with pytest.raises(ValueError, match="contact bodies"):
+        solver.step(system, JointProperties.free(2), JointDrives.none(2), contacts, FreeBodies.empty())
+    with pytest.raises(ValueError, match="mass_matrix"):
+        solver.step(system._replace(mass_matrix=np.eye(3)), JointProperties.free(2), JointDrives.none(2))
+    with pytest.raises(ValueError, match="sub-step"):
+        JointSolver(0.0)
+
+
 # ---- compiled and plain Python agree -------------------------------------------------------------------------
 
 def scenario() -> np.ndarray:

@@ -116,6 +116,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..checks import positive
 from ..jit import StageProfile, clock, lap, njit
 
 #: drive modes (:attr:`JointDrives.mode`)
@@ -777,15 +778,65 @@ def position_gains(mass_matrix: np.ndarray, h: float, fraction: float = 0.25,
     return inertia * omega * omega, 2.0 * damping_ratio * inertia * omega
 
 
+def _shape(array, shape, what: str, dtype=np.float64) -> None:
+    a = np.asarray(array)
+    if a.shape != shape or a.dtype != dtype:
+        raise ValueError(f"{what} must be a {dtype.__name__} array of shape {shape}, got {a.dtype} {a.shape}")
+
+
+def check_bundles(system: JointSystem, joints: JointProperties, drives: JointDrives, contacts: ContactRows,
+                  bodies: FreeBodies) -> None:
+    """``ValueError`` naming the array unless every array has the shape and dtype its bundle documents and the
+    indices (mimic dofs, contact bodies, drive modes) are in range: the compiled kernels do not check bounds."""
+    n = len(system.velocity)
+    _shape(system.mass_matrix, (n, n), "mass_matrix")
+    for name in ("bias", "applied", "position", "velocity"):
+        _shape(getattr(system, name), (n,), name)
+    for name in ("lower", "upper", "effort_limit", "velocity_limit", "damping", "friction"):
+        _shape(getattr(joints, name), (n,), name)
+    k = len(joints.mimic_follower)
+    for name, dtype in (("mimic_follower", np.int64), ("mimic_leader", np.int64), ("mimic_multiplier", np.float64),
+                        ("mimic_offset", np.float64)):
+        _shape(getattr(joints, name), (k,), name, dtype)
+    if k and not (0 <= min(joints.mimic_follower.min(), joints.mimic_leader.min())
+                  and max(joints.mimic_follower.max(), joints.mimic_leader.max()) < n):
+        raise ValueError(f"mimic dofs must be in [0, {n})")
+    _shape(drives.mode, (n,), "mode", np.int64)
+    if n and not (DRIVE_NONE <= drives.mode.min() and drives.mode.max() <= DRIVE_POSITION):
+        raise ValueError("drive modes must be DRIVE_NONE, DRIVE_EFFORT, DRIVE_VELOCITY or DRIVE_POSITION")
+    for name in ("target_position", "target_velocity", "target_effort", "stiffness", "damping"):
+        _shape(getattr(drives, name), (n,), f"drive {name}")
+    if n and (drives.stiffness.min() < 0 or drives.damping.min() < 0 or not np.all(np.isfinite(drives.stiffness))
+              or not np.all(np.isfinite(drives.damping))):
+        raise ValueError("drive gains must be finite and >= 0")
+    c, b = len(contacts.key), len(bodies.inv_mass)
+    _shape(contacts.joint_jacobian, (c, 3, n), "joint_jacobian")
+    _shape(contacts.body, (c,), "contact body", np.int64)
+    _shape(contacts.body_jacobian, (c, 3, 6), "body_jacobian")
+    _shape(contacts.separation, (c,), "separation")
+    _shape(contacts.friction, (c,), "contact friction")
+    _shape(contacts.key, (c,), "contact key", np.int64)
+    if c and not (-1 <= contacts.body.min() and contacts.body.max() < b):
+        raise ValueError(f"contact bodies must be -1 (the static world) or in [0, {b})")
+    if c and not (0 <= contacts.key.min() and contacts.key.max() < 2 ** 37):
+        raise ValueError("contact keys must be in [0, 2**37)")
+    _shape(bodies.inv_inertia, (b, 3, 3), "inv_inertia")
+    for name, width in (("velocity", 6), ("linear_momentum", 3), ("angular_momentum", 3)):
+        _shape(getattr(bodies, name), (b, width), name)
+
+
 class JointSolver:
     """The Python side of :func:`step_joints`: keeps the warm-start memory, the settings and the stage
     profile between sub-steps.
 
     ``step(system, joints, drives, contacts=None, bodies=None)`` runs one sub-step and returns its
-    :class:`JointStep`; :meth:`reset` forgets the warm start (a teleport, a new model)."""
+    :class:`JointStep`; :meth:`reset` forgets the warm start (a teleport, a new model).  ``check`` (default on):
+    every call checks the bundles' shapes and indices first (:func:`check_bundles`, ~25 µs for 7 dofs); a caller
+    that built them itself and proved them turns it off."""
 
-    def __init__(self, h: float, **overrides):
-        self.settings = JointSettings.default(h)._replace(**overrides)
+    def __init__(self, h: float, *, check: bool = True, **overrides):
+        self.settings = JointSettings.default(positive(h, "the sub-step h"))._replace(**overrides)
+        self.check = check
         self.profile = StageProfile(STAGES)
         self.memory = JointSolverMemory.empty()
 
@@ -797,6 +848,8 @@ class JointSolver:
         n = len(system.velocity)
         contacts = ContactRows.empty(n) if contacts is None else contacts
         bodies = FreeBodies.empty() if bodies is None else bodies
+        if self.check:
+            check_bundles(system, joints, drives, contacts, bodies)
         result, memory = step_joints(tuple(system), tuple(joints), tuple(drives), tuple(contacts), tuple(bodies),
                                      tuple(self.memory), tuple(self.settings), self.profile.seconds)
         self.memory = JointSolverMemory(*memory)
@@ -806,4 +859,4 @@ class JointSolver:
 
 __all__ = ["DRIVE_EFFORT", "DRIVE_NONE", "DRIVE_POSITION", "DRIVE_VELOCITY", "STAGES", "ContactRows", "FreeBodies",
            "JointDrives", "JointProperties", "JointSettings", "JointSolver", "JointSolverMemory", "JointStep",
-           "JointSystem", "integrate_dofs", "position_gains", "step_joints"]
+           "JointSystem", "check_bundles", "integrate_dofs", "position_gains", "step_joints"]
