@@ -46,10 +46,13 @@ setup(
     install_requires=["numpy>=1.26", "scipy>=1.11", "numba>=0.60", "tbb>=2021.6", "PyYAML>=6.0", "mcap>=1.2",
                       "google-re2>=1.1", "zstandard>=0.22", "lz4>=4.3", "pillow>=10", "foxglove-sdk>=0.30.3,<0.31",
                       # cgp-sim-sweep: the Dask engine and the Parquet tables (cgp_sim_ros/sweep)
-                      "dask[distributed]>=2024.8", "pyarrow>=15"],
+                      "dask[distributed]>=2024.8", "pyarrow>=15",
+                      # robots from URDF / xacro (cgp_core/robots)
+                      "yourdfpy>=0.0.56", "lxml>=5", "xacro>=2.0"],
     extras_require={
         "test": ["pytest>=8", "pytest-timeout>=2.3", "mcap-ros2-support>=0.5", "rosbags>=0.10", "psutil>=5.9",
-                 "websockets>=15", "hypothesis>=6.100", "trimesh>=4.0"],
+                 "websockets>=15", "hypothesis>=6.100", "trimesh>=4.0",
+                 "pin>=3", "example-robot-data>=4"],
         "bench": ["pybullet", "mujoco", "pyinstrument", "matplotlib", "python-fcl"],
         # MP4 output of cgp-sim-render (a wheel that ships ffmpeg); PNG and GIF need only Pillow
         "render": ["imageio-ffmpeg>=0.5"],

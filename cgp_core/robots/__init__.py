@@ -1,0 +1,1 @@
+"""Robots: articulated bodies in reduced coordinates."""
