@@ -25,6 +25,7 @@ from ..collision.convex import centred_hull, convex_hull
 from ..collision.meshfile import MeshFileError, load_mesh
 from ..scene.shapes import compound_half_extents
 from ..scene.specs import BodySpec
+from .model import JOINT_FIXED_ROOT
 
 #: sides of the prism that stands for a URDF cylinder
 CYLINDER_SIDES = 16
@@ -95,7 +96,7 @@ def link_body_specs(model, robot: str, rotation: np.ndarray, position: np.ndarra
             continue
         parts = [_part(g, robot, cache) for g in geometries]
         com = np.asarray(model.com[i], dtype=float)
-        fixed = int(model.joint_type[i]) == 0 and int(model.parent[i]) < 0  # JOINT_FIXED_ROOT
+        fixed = int(model.joint_type[i]) == JOINT_FIXED_ROOT
         mass = float(model.mass[i])
         inertia = np.asarray(model.inertia[i], dtype=float)
         if fixed and mass <= 0.0:  # a massless fixed root: drawn and collided with, never moved

@@ -40,6 +40,7 @@ from ..rotation import matrix_to_quat, quat_to_matrix
 from ..scene.robots import RobotSpec
 from . import algorithms
 from .links import link_body_specs, link_name
+from .model import JOINT_FIXED_ROOT, JOINT_FLOATING, JOINT_PRISMATIC, JOINT_REVOLUTE, neutral_positions
 
 #: the combined joint space of all robots is solved densely (a Cholesky factor of the whole block-diagonal
 #: matrix): beyond this many joint velocities in one world the cost would grow as dofs³
@@ -59,22 +60,22 @@ class RobotInstance:
     """
 
     def __init__(self, spec: RobotSpec, q_offset: int, dof_offset: int):
-        from .model import place_root
-
         self.name = spec.name
         self.spec = spec
-        self.model = place_root(spec.model, quat_to_matrix(np.asarray(spec.orientation, float)[None])[0],
-                                np.asarray(spec.position, float))
-        self.arrays = self.model.arrays()
+        self.base_rotation = quat_to_matrix(np.asarray(spec.orientation, float)[None])[0]
+        self.base_position = np.asarray(spec.position, float)
+        self.model = place_root(spec.model, self.base_rotation, self.base_position)
+        self.arrays = self.model.arrays
         self.q_slice = slice(q_offset, q_offset + self.model.n_q)
         self.dof_slice = slice(dof_offset, dof_offset + self.model.n_dofs)
 
     def initial_positions(self) -> np.ndarray:
         """(n_q,) the scene's initial joint positions (others at the neutral configuration)."""
-        from .model import neutral_positions
-
         q = neutral_positions(self.model).astype(float)
         m = self.model
+        if int(m.joint_type[0]) == JOINT_FLOATING:  # the base pose is the floating root's coordinates
+            q[0:3] = self.base_position
+            q[3:7] = np.asarray(self.spec.orientation, float)
         for joint, value in self.spec.joints.items():
             k = m.dof_names.index(joint) if joint in m.dof_names else None
             if k is None:
@@ -84,6 +85,20 @@ class RobotInstance:
         for f, lead, mult, off in zip(m.mimic_follower, m.mimic_leader, m.mimic_multiplier, m.mimic_offset):
             q[_q_index(m, int(f))] = mult * q[_q_index(m, int(lead))] + off
         return q
+
+
+def place_root(model, rotation: np.ndarray, position: np.ndarray):
+    """``model`` with a fixed root's joint frame moved to the base pose (``rotation`` (3, 3), ``position`` (3,) in
+    the world): the robot stands where the scene puts it.  A floating root's pose is its coordinates instead."""
+    from dataclasses import replace
+
+    if int(model.joint_type[0]) == JOINT_FLOATING:
+        return model
+    joint_rotation = model.joint_rotation.copy()
+    joint_position = model.joint_position.copy()
+    joint_rotation[0] = rotation @ model.joint_rotation[0]
+    joint_position[0] = rotation @ model.joint_position[0] + position
+    return replace(model, joint_rotation=joint_rotation, joint_position=joint_position)
 
 
 def _q_index(model, dof: int) -> int:
@@ -210,7 +225,7 @@ class Robots:
             for k in range(m.n_dofs):
                 dof = r.dof_slice.start + k
                 body = int(np.searchsorted(m.dof_start, k, side="right") - 1)
-                if int(m.joint_type[body]) not in (2, 3) or dof in followers:  # revolute / prismatic only
+                if int(m.joint_type[body]) not in (JOINT_REVOLUTE, JOINT_PRISMATIC) or dof in followers:
                     continue
                 drives.mode[dof] = DRIVE_POSITION
                 drives.target_position[dof] = self.q0[_q_index(m, k) + r.q_slice.start]
@@ -298,7 +313,7 @@ class Robots:
             for r in self.robots:
                 m = r.model
                 for b in range(len(m.body_names)):
-                    if int(m.dof_count[b]) and int(m.joint_type[b]) in (2, 3):
+                    if int(m.joint_type[b]) in (JOINT_REVOLUTE, JOINT_PRISMATIC):
                         out[r.dof_slice.start + m.dof_start[b]] = r.q_slice.start + m.q_start[b]
             self._q_of_dof_cache = out
         return self._q_of_dof_cache

@@ -28,6 +28,7 @@ naming the entry, like any other value.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -139,12 +140,14 @@ def parse_robot(v: Validator, raw: Any, key: str, seen: set[str], *, name: str |
     if path is None or len(v.problems) > before:
         return None
     try:
-        model = load_urdf(path, package_paths=package_paths, xacro_args=xacro_args or None,
-                          fixed_base=fixed_base, name=name)
+        with warnings.catch_warnings(record=True) as caught:  # an inertia repaired says so: a note, not stderr
+            warnings.simplefilter("always")
+            model = load_urdf(path, package_paths=package_paths, xacro_args=xacro_args or None,
+                              fixed_base=fixed_base, name=name)
     except UrdfError as exc:
         v.fail(f"{key}.urdf", str(exc))
         return None
-    notes = [("warn", f"robot {name}: {text}") for text in getattr(model, "warnings", ())]
+    notes = [("warn", f"{v.source}: {key}: robot {name}: {w.message}") for w in caught]
     movable = set(model.dof_names) | set(model.joint_names)
     for joint, value in joints.items():
         if joint not in movable:
