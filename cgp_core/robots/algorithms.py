@@ -1,7 +1,7 @@
 """The recursive algorithms of a robot's tree (Featherstone, *Rigid Body Dynamics Algorithms*, 2008), compiled.
 
 Each is a plain loop over the bodies, parent before child (or the reverse), in the style of MuJoCo's
-``engine_core_smooth.c`` (``mj_kinematics``, ``mj_crb``, ``mj_rne``), reading the :class:`~cgp_core.robots.model.RobotArrays` bundle of a
+``engine_core_smooth.c`` (``mj_kinematics``, ``mj_crb``, ``mj_rne``), reading the ``RobotArrays`` bundle of a
 :class:`~cgp_core.robots.model.RobotModel` (``model.arrays``).  Joint conventions (what ``q`` and ``qd`` mean,
 the floating root's world-frame velocity) are in :mod:`cgp_core.robots.model`.
 
@@ -518,4 +518,3 @@ def integrate_positions(arrays, q, qd, h):
             for k in range(arrays.q_count[i]):
                 out[s + k] = q[s + k] + h * qd[d + k]
     return out
-

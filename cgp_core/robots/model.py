@@ -77,7 +77,7 @@ class Geometry:
     link: str
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, repr=False)
 class RobotModel:
     """The static model of one robot (see the module docstring for the frame and velocity conventions).
 
@@ -145,6 +145,10 @@ class RobotModel:
     collisions: tuple[tuple[Geometry, ...], ...]
     visuals: tuple[tuple[Geometry, ...], ...]
     source: str
+
+    def __repr__(self) -> str:
+        return (f"RobotModel({self.name!r}: {self.n_bodies} bodies, {self.n_dofs} dofs, "
+                f"{len(self.frame_names)} frames)")
 
     @property
     def n_bodies(self) -> int:
