@@ -51,6 +51,7 @@ import re
 import warnings
 from collections.abc import Mapping
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from lxml import etree
@@ -380,8 +381,16 @@ def _read_joint(el, links: set) -> _Joint:
     return j
 
 
-def _tree(robot_el, label: str):
-    """(link elements by name in file order, joints in file order, root link, children joints by parent link)."""
+class _Tree(NamedTuple):
+    links: dict      # link name -> element, in file order
+    joints: list     # _Joint, in file order
+    root: str        # the root link
+    children: dict   # link name -> the joints whose parent it is, in file order
+    materials: dict  # material name -> rgba (4,)
+
+
+def _tree(robot_el, label: str) -> _Tree:
+    """The links, joints and materials of a ``<robot>``, checked to form one tree."""
     links: dict = {}
     materials: dict = {}
     for el in robot_el:
@@ -418,7 +427,7 @@ def _tree(robot_el, label: str):
     children: dict = {}
     for j in joints:
         children.setdefault(j.parent, []).append(j)
-    return links, joints, roots[0], children, materials
+    return _Tree(links, joints, roots[0], children, materials)
 
 
 # ---- the model -------------------------------------------------------------------------------------------------
