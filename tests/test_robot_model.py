@@ -179,11 +179,12 @@ def test_dynamics_and_kinematics_equal_pinocchios(robot, floating):
 
 def test_the_point_jacobian_gives_a_points_velocity_by_finite_differences():
     """J qd is the derivative of a world point fixed to the last body, on a planar + floating + revolute tree."""
-    model = load_urdf(_planar_urdf())
-    arrays = model.arrays
-    assert model.joint_type[1] == JOINT_PLANAR
+    model = load_urdf(_planar_urdf(), fixed_base=False)
+    arrays = tuple(model.arrays)  # the plain-tuple form of the bundle works too
+    assert model.joint_type[1] == JOINT_PLANAR and model.joint_type[0] == JOINT_FLOATING
     rng = np.random.default_rng(3)
     q = rng.normal(size=model.n_q)
+    q[3:7] /= np.linalg.norm(q[3:7])
     qd = rng.normal(size=model.n_dofs)
     body = model.n_bodies - 1
     local = np.array([0.1, -0.2, 0.3])
@@ -215,7 +216,9 @@ def _planar_urdf() -> str:
 
 def test_planar_dynamics_are_consistent():
     """A planar joint (which Pinocchio's URDF reader does not take with an arbitrary axis): M from CRBA equals the
-    Jacobian form Σ (m Jvᵀ Jv + Jωᵀ I Jω) over the bodies, and RNEA with qdd = M⁻¹(τ − b) gives τ back."""
+    Jacobian form Σ (m Jvᵀ Jv + Jωᵀ I Jω) over the bodies (on a floating root), RNEA with qdd = M⁻¹(τ − b) gives τ
+    back, and (fixed base: q̇ = qd) the bias without gravity is Lagrange's Coriolis term
+    b_k = Σ_j Ṁ_kj qd_j − ½ qdᵀ (∂M/∂q_k) qd, by central differences."""
     model = load_urdf(_planar_urdf(), fixed_base=False)
     arrays = model.arrays
     rng = np.random.default_rng(5)
@@ -232,6 +235,18 @@ def test_planar_dynamics_are_consistent():
     qd, tau = rng.normal(size=model.n_dofs), rng.normal(size=model.n_dofs)
     qdd = forward_dynamics(arrays, q, qd, tau, GRAVITY)
     _close(inverse_dynamics(arrays, q, qd, qdd, GRAVITY), tau, rtol=1e-10)
+
+    fixed = load_urdf(_planar_urdf()).arrays
+    q, qd = rng.normal(size=4), rng.normal(size=4)
+    h = 1e-6
+    dM = []
+    for k in range(4):
+        e = np.zeros(4)
+        e[k] = h
+        dM.append((mass_matrix(fixed, q + e) - mass_matrix(fixed, q - e)) / (2 * h))
+    M_dot = sum(dM[k] * qd[k] for k in range(4))
+    lagrange = M_dot @ qd - 0.5 * np.array([qd @ dM[k] @ qd for k in range(4)])
+    np.testing.assert_allclose(bias_forces(fixed, q, qd, np.zeros(3)), lagrange, atol=1e-8)
 
 
 def test_external_forces_enter_as_jacobian_transposes():

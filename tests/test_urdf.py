@@ -315,3 +315,13 @@ def test_other_refusals_name_the_joint():
 def test_files_are_read_bounded(tmp_path):
     _refused(tmp_path / "none.urdf", "no such file")
     _refused(tmp_path, "directory")
+
+
+def test_bytes_and_caps():
+    """UTF-8 bytes are URDF text too; a file of too many shapes or links is refused before it is built."""
+    from cgp_core.robots.urdf import MAX_URDF_LINKS, MAX_URDF_SHAPES
+    assert load_urdf(ARM3.read_bytes()).n_dofs == 3
+    _refused(b"<robot name='\xff'/>", "not UTF-8")
+    many = "<visual><geometry><sphere radius='1'/></geometry></visual>" * (MAX_URDF_SHAPES + 1)
+    _refused(_robot(_link("a", extra=many)), "more than 20000 collision and visual shapes")
+    _refused(_robot(*(f'<link name="l{i}"/>' for i in range(MAX_URDF_LINKS + 1))), "more than 2000 links")

@@ -70,10 +70,12 @@ from .model import (
     RobotModel,
 )
 
-__all__ = ["UrdfError", "load_urdf", "MAX_URDF_LINKS"]
+__all__ = ["UrdfError", "load_urdf", "rpy_matrix", "MAX_URDF_LINKS", "MAX_URDF_SHAPES"]
 
 #: at most this many links (and joints) in one URDF (the largest humanoids have a few hundred)
 MAX_URDF_LINKS = 2000
+#: at most this many collision and visual shapes in one URDF, all links together
+MAX_URDF_SHAPES = 20000
 
 _JOINT_KINDS = {"revolute": JOINT_REVOLUTE, "continuous": JOINT_REVOLUTE, "prismatic": JOINT_PRISMATIC,
                 "planar": JOINT_PLANAR, "floating": JOINT_FLOATING, "fixed": -1}
@@ -90,12 +92,25 @@ def _looks_like_xml(source) -> bool:
     return isinstance(source, str) and source.lstrip().startswith("<")
 
 
+def _text_of(source) -> str | None:
+    """``source`` as XML text if it is text (a ``str`` starting with ``<``, or UTF-8 bytes), else None."""
+    if isinstance(source, (bytes, bytearray)):
+        if len(source) > MAX_FILE_BYTES:
+            raise UrdfError(f"URDF text: {len(source)} bytes; URDFs are limited to {MAX_FILE_BYTES}")
+        try:
+            return bytes(source).decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise UrdfError(f"URDF text: not UTF-8 ({exc.reason} at byte {exc.start})") from None
+    return source if _looks_like_xml(source) else None
+
+
 def _read_source(source, xacro_args) -> tuple[str, Path | None, str]:
     """(URDF text, directory relative mesh paths are relative to, label for messages)."""
-    if _looks_like_xml(source):
-        if len(source) > MAX_FILE_BYTES:
-            raise UrdfError(f"URDF text: {len(source)} characters; URDFs are limited to {MAX_FILE_BYTES}")
-        return source, None, "URDF text"
+    text = _text_of(source)
+    if text is not None:
+        if len(text) > MAX_FILE_BYTES:
+            raise UrdfError(f"URDF text: {len(text)} characters; URDFs are limited to {MAX_FILE_BYTES}")
+        return text, None, "URDF text"
     if not isinstance(source, (str, os.PathLike)):
         raise UrdfError(f"a URDF is a path or XML text, got {type(source).__name__}")
     path = Path(source).expanduser()
@@ -438,7 +453,7 @@ def load_urdf(source, *, package_paths=(), xacro_args=None, fixed_base: bool = T
 
     Args:
         source: a path (``str`` or ``PathLike``; ``.xacro`` files are expanded) or URDF XML text (a ``str``
-            starting with ``<``).
+            starting with ``<``, or UTF-8 ``bytes``).
         package_paths: where ``package://`` URIs are looked for first: ``{package: directory}`` or directories.
         xacro_args: ``{name: value}`` for a ``.xacro`` file's ``<xacro:arg>``.
         fixed_base: weld the root link to the world (True) or give it a floating joint.
@@ -492,6 +507,7 @@ class _Builder:
         self.frame_body: dict = {}
         self.frame_pose: dict = {}
         self.frame_order: list[str] = []
+        self.shapes = 0
 
     def add_body(self, link, joint, kind, Rj, xj, parent=-1):
         self.bodies.append({"link": link, "joint": joint, "kind": kind, "parent": parent, "R": Rj, "x": xj,
@@ -506,6 +522,9 @@ class _Builder:
         mass, com, inertia = _inertial(el, link)
         b = self.bodies[body]
         b["parts"].append((mass, x + R @ com, R @ inertia @ R.T, link))
+        self.shapes += len(el.findall("collision")) + len(el.findall("visual"))
+        if self.shapes > MAX_URDF_SHAPES:
+            raise UrdfError(f"link '{link}': more than {MAX_URDF_SHAPES} collision and visual shapes in the URDF")
         for key, tag in (("collisions", "collision"), ("visuals", "visual")):
             for g in _geometries(el, link, tag, self.materials, self.resolve):
                 b[key].append(Geometry(g.kind, g.size, R @ g.rotation, x + R @ g.position, g.mesh_path,
