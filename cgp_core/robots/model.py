@@ -84,7 +84,7 @@ class RobotModel:
     Per body (n, parent before child):
         body_names: the URDF link heading each body.
         parent: (n,) int64, the parent body, -1 for the root (whose parent is the world).
-        joint_names: the URDF joint from the parent to the body ('' for a fixed root without one).
+        joint_names: the URDF joint from the parent to the body ('' for the root: no URDF joint leads to it).
         joint_type: (n,) int64, one of the JOINT_* constants.
         joint_rotation (n, 3, 3), joint_position (n, 3) [m]: the joint frame in the parent body's frame (the
             world's for the root), at q = 0.

@@ -74,6 +74,8 @@ __all__ = ["UrdfError", "load_urdf", "rpy_matrix", "MAX_URDF_LINKS", "MAX_URDF_S
 
 #: at most this many links (and joints) in one URDF (the largest humanoids have a few hundred)
 MAX_URDF_LINKS = 2000
+#: every number of a URDF (lengths, masses, inertias, limits) within ± this: products of them stay finite
+MAX_URDF_NUMBER = 1e9
 #: at most this many collision and visual shapes in one URDF, all links together
 MAX_URDF_SHAPES = 20000
 
@@ -179,6 +181,8 @@ def _floats(text: str | None, count: int, what: str, default=None) -> np.ndarray
         raise UrdfError(f"{what}: {count} numbers expected, got {len(values)}")
     if not np.isfinite(values).all():
         raise UrdfError(f"{what}: numbers must be finite")
+    if (np.abs(values) > MAX_URDF_NUMBER).any():
+        raise UrdfError(f"{what}: numbers must be within ±{MAX_URDF_NUMBER:g}")
     return values
 
 
