@@ -34,14 +34,14 @@ __all__ = ["Ground", "step_bodies"]
 
 
 def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solver: ContactSolver, h: float, *,
-                gravity, ground: Ground | None, linear_damping: float = 0.0, angular_damping: float = 0.0,
+                gravity, ground: Ground | None, damping: tuple[float, float] = (0.0, 0.0),
                 islands: Islands | None = None, robots=None) -> ContactSet:
     """Advance all bodies (the awake ones, with ``islands``) by one sub-step of ``h`` seconds, in place.
 
     Args:
         gravity:          (3,) m/s².
         ground:           the static plane z = 0 (:class:`Ground`), or ``None`` for a scene without one.
-        linear_damping, angular_damping: viscous rates [1/s] (:func:`cgp_core.forces.apply_damping`).
+        damping:          ``(linear, angular)`` viscous rates [1/s] (:func:`cgp_core.forces.apply_damping`).
         robots:           the world's robots (:class:`cgp_core.robots.world.Robots`) or ``None``: their links
                           are bodies of ``model`` whose motion the robot stage computes in joint space.
         islands:          per-island sleep state (:class:`cgp_core.sleep.Islands`): sleeping bodies are left
@@ -66,7 +66,7 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
     if robots is not None:
         robots.take_wrenches(model, state)
     apply_gravity(model, state, gravity)
-    apply_damping(model, state, linear_damping, angular_damping)
+    apply_damping(model, state, *damping)
     if active is not None:
         state.force[~active] = 0.0  # sleeping bodies are held where they rest
         state.torque[~active] = 0.0

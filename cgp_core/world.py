@@ -75,6 +75,7 @@ from .limits import (
     MAX_SPIN,
     rigid_work_refusal,
 )
+from .robots.world import Robots
 from .rotation import quat_conjugate, quat_rotate, quat_to_matrix
 from .scene import (
     GROUND_NAME,
@@ -85,7 +86,6 @@ from .scene import (
     load_scene,
     spawn_entry,
 )
-from .robots.world import Robots
 from .sleep import SLEEP_SPEED, SLEEP_TIME, Islands
 from .solver import make_solver
 from .solver.report import ContactReport, carry_sleeping
@@ -253,8 +253,9 @@ class World:
                 for _ in range(self.substeps):
                     self.wrenches.apply(state)
                     contacts = step_bodies(model, state, self.integrator, self.solver, h, gravity=self.gravity,
-                                           ground=self.ground, linear_damping=self.scene.world.linear_damping,
-                                           angular_damping=self.scene.world.angular_damping, islands=islands,
+                                           ground=self.ground, damping=(self.scene.world.linear_damping,
+                                                                        self.scene.world.angular_damping),
+                                           islands=islands,
                                            robots=self.robots)
             if self.robots is not None:
                 self.robots.end_tick()

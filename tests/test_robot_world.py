@@ -69,7 +69,7 @@ def test_a_crate_resting_on_the_upper_arm_loads_the_shoulder_by_its_weights_mome
     # the upper arm horizontal along +x (shoulder_lift = π/2), the forearm folded up out of the way
     joints = {"shoulder_lift": np.pi / 2, "elbow": -np.pi / 2, "wrist": 0.0}
     crate_x, m = 0.25, 0.4
-    top = 0.1 + 0.025  # the shoulder joint's height + half the upper arm's width
+    top = 0.2 + 0.025  # the shoulder_lift axis (0.1 + 0.1 above the ground) + half the upper arm's width
     crate = {"name": "crate", "shape": "box", "size": [0.06, 0.06, 0.04], "mass": m, "friction": 1.0,
              "position": [crate_x, 0.0, top + 0.02 + 0.002]}
     loaded, bare = World(arm_scene(joints=joints, bodies=[crate])), World(arm_scene(joints=joints))
@@ -121,9 +121,10 @@ def test_a_wrench_on_a_link_is_taken_by_the_joints_as_j_transpose_f():
 
 
 def test_the_turning_arm_pushes_a_crate_and_never_sinks_into_it():
-    crate = {"name": "crate", "shape": "box", "size": [0.1, 0.1, 0.1], "mass": 0.3, "friction": 0.4,
-             "position": [0.45, 0.2, 0.05]}
-    world = World(arm_scene(joints={"shoulder_lift": 1.2, "elbow": 0.9, "wrist": 0.4}, bodies=[crate]))
+    # the forearm slants down to ~0.2 m above the ground at 0.48 m out; a tall crate stands 0.35 rad ahead of it
+    crate = {"name": "crate", "shape": "box", "size": [0.1, 0.1, 0.3], "mass": 0.3, "friction": 0.4,
+             "position": [0.48 * np.cos(0.35), 0.48 * np.sin(0.35), 0.15]}
+    world = World(arm_scene(joints={"shoulder_lift": 1.2, "elbow": 1.3, "wrist": -0.3}, bodies=[crate]))
     start = world.body_state.position[world.body_model.index("crate")].copy()
     world.robots.command("arm", ["shoulder_pan"], velocity=[1.0])
     world.report_contacts = True
@@ -187,3 +188,27 @@ def test_bad_joint_commands_are_named_and_the_rest_applies():
     assert any("wrist: position 5 clamped to its limits [-2, 2]" in p for p in problems)
     run(world, 1.0)
     assert positions(world)["wrist"] == pytest.approx(2.0, abs=2e-3)
+
+
+def test_tf_reaches_every_link_at_the_forward_kinematics_poses():
+    world = World.from_scene("arm")
+    world.robots.command("arm", ["shoulder_pan", "elbow"], position=[0.7, 0.4])
+    run(world, 0.5)
+    edges = world.robots.transforms("arm")
+    frames, R_fk, p_fk = world.robots.frame_poses("arm")
+    assert sorted(child for _, child, *_ in edges) == sorted(frames)  # every URDF link, once
+    from cgp_core.rotation import quat_to_matrix
+
+    pose = {"world": (np.eye(3), np.zeros(3))}
+    pending = list(edges)
+    while pending:  # compose the tree from the world down
+        for edge in list(pending):
+            parent, child, q, t, _ = edge
+            if parent in pose:
+                Rp, tp = pose[parent]
+                pose[child] = (Rp @ quat_to_matrix(q[None])[0], tp + Rp @ t)
+                pending.remove(edge)
+    for f, frame in enumerate(frames):
+        assert np.allclose(pose[frame][0], R_fk[f], atol=1e-12) and np.allclose(pose[frame][1], p_fk[f], atol=1e-12)
+    static = {child for _, child, _, _, s in edges if s}
+    assert static == {"base_link", "tool"}  # the fixed root and the fixed tool frame

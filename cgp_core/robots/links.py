@@ -18,6 +18,8 @@ A fixed root is a fixed body (it never moves: the world's contacts with it are t
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from ..bodies import CompoundParts, Shape
@@ -31,6 +33,17 @@ from .model import JOINT_FIXED_ROOT
 CYLINDER_SIDES = 16
 #: the grey of a link without a URDF colour
 LINK_COLOR = np.array([0.75, 0.75, 0.78, 1.0])
+
+
+class Part(NamedTuple):
+    """One compound part of a link body, in the link's frame."""
+
+    shape: int             # Shape.BOX, SPHERE or CONVEX
+    centre: np.ndarray     # (3,) [m] (a hull's: its COM)
+    rotation: np.ndarray   # (3, 3) the part's axes in the link's
+    radius: float          # sphere radius [m]; 0 otherwise
+    half_extents: np.ndarray  # (3,) box half sizes [m]; zeros otherwise
+    hull: object           # a CONVEX part's ConvexPolyhedron about its COM, None otherwise
 
 
 class LinkGeometryError(ValueError):
@@ -52,17 +65,16 @@ def cylinder_points(radius: float, length: float) -> np.ndarray:
     return np.vstack([top, bottom])
 
 
-def _part(geometry, robot: str, cache: dict):
-    """``(shape, centre (3,) in the link frame, rotation (3, 3), radius, half extents (3,), hull)`` of one
-    collision geometry."""
+def _part(geometry, robot: str, cache: dict) -> Part:
+    """The :class:`Part` of one collision geometry."""
     kind = geometry.kind
     R = np.asarray(geometry.rotation, dtype=float)
     p = np.asarray(geometry.position, dtype=float)
     size = np.asarray(geometry.size, dtype=float).ravel()
     if kind == "box":
-        return Shape.BOX, p, R, 0.0, 0.5 * size[:3], None
+        return Part(Shape.BOX, p, R, 0.0, 0.5 * size[:3], None)
     if kind == "sphere":
-        return Shape.SPHERE, p, R, float(size[0]), np.zeros(3), None
+        return Part(Shape.SPHERE, p, R, float(size[0]), np.zeros(3), None)
     if kind == "cylinder":
         points = cylinder_points(float(size[0]), float(size[1]))
     elif kind == "mesh":
@@ -80,7 +92,7 @@ def _part(geometry, robot: str, cache: dict):
         raise LinkGeometryError(f"robot {robot}: link {geometry.link}: unknown collision geometry {kind!r}")
     hull, _, com, _ = centred_hull(convex_hull(points, what=f"robot {robot}: link {geometry.link}: {kind}"),
                                    density=1.0)
-    return Shape.CONVEX, p + R @ com, R, 0.0, np.zeros(3), hull
+    return Part(Shape.CONVEX, p + R @ com, R, 0.0, np.zeros(3), hull)
 
 
 def link_body_specs(model, robot: str, rotation: np.ndarray, position: np.ndarray, *, friction: float,
@@ -103,12 +115,12 @@ def link_body_specs(model, robot: str, rotation: np.ndarray, position: np.ndarra
             mass, inertia = 1.0, np.eye(3)
         rgba = next((g.rgba for g in model.visuals[i] if g.rgba is not None), None)
         compound = CompoundParts(
-            shape=np.array([int(s) for s, *_ in parts], np.int8),
-            position=np.array([c - com for _, c, *_ in parts]),
-            rotation=np.array([r for _, _, r, *_ in parts]),
-            radius=np.array([rad for *_, rad, _, _ in parts]),
-            half_extents=np.array([h for *_, h, _ in parts]),
-            hulls=[hull for *_, hull in parts],
+            shape=np.array([int(p.shape) for p in parts], np.int8),
+            position=np.array([p.centre - com for p in parts]),
+            rotation=np.array([p.rotation for p in parts]),
+            radius=np.array([p.radius for p in parts]),
+            half_extents=np.array([p.half_extents for p in parts]),
+            hulls=[p.hull for p in parts],
             mass=np.full(len(parts), mass / len(parts)),
         )
         R = rotation[i]

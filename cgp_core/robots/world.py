@@ -532,3 +532,34 @@ class Robots:
             if r.dof_slice.start <= dof < r.dof_slice.stop:
                 return r.model.dof_names[dof - r.dof_slice.start]
         raise IndexError(dof)
+
+    def transforms(self, name: str) -> list[tuple[str, str, np.ndarray, np.ndarray, bool]]:
+        """TF of robot ``name``: ``(parent, child, quaternion (4,) xyzw, translation (3,) [m], static)`` for every
+        URDF link — the root link in ``world``; the link heading each moving body in the link heading its parent
+        body (the joint's transform at the current q); a link merged into a body (a fixed joint) in the link
+        heading that body, static.  Every link is reached, as RViz's RobotModel and Foxglove's URDF layer need.
+        (robot_state_publisher hangs a child on its URDF parent link; the two differ only below a link that is
+        itself merged into its parent, and give the same poses.)"""
+        r = self.robot(name)
+        k = self.robots.index(r)
+        m = r.model
+        rotation, position = self._poses[k]
+        out = []
+        fixed_root = int(m.joint_type[0]) == JOINT_FIXED_ROOT
+        for b in range(m.n_bodies):
+            p = int(m.parent[b])
+            if p < 0:
+                R, t, parent, static = rotation[b], position[b], "world", fixed_root
+            else:
+                R = rotation[p].T @ rotation[b]
+                t = rotation[p].T @ (position[b] - position[p])
+                parent, static = m.body_names[p], False
+            out.append((parent, m.body_names[b], matrix_to_quat(R[None])[0], t.copy(), static))
+        heads = set(m.body_names)
+        for f, frame in enumerate(m.frame_names):
+            if frame in heads:
+                continue
+            b = int(m.frame_body[f])
+            out.append((m.body_names[b], frame, matrix_to_quat(m.frame_rotation[f][None])[0],
+                        np.asarray(m.frame_position[f], float).copy(), True))
+        return out
