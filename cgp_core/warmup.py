@@ -83,7 +83,8 @@ def warm_up_robots(ticks: int = 4) -> World:
     from .world import World
 
     world = World.from_scene("arm")
-    world.robots.command("arm", ["shoulder_pan", "elbow", "wrist"], position=[0.3], velocity=[0.5], effort=[0.0, 0.0, 1.0])
+    world.robots.command("arm", ["shoulder_pan", "elbow", "wrist"], position=[0.3], velocity=[0.0, 0.5],
+                         effort=[0.0, 0.0, 1.0])
     for _ in range(ticks):
         world.step()
     return world
