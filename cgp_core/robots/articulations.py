@@ -100,6 +100,11 @@ class Articulation:
     fixed_parents: list[str] = field(default_factory=list)  # fixed bodies its joints hang from (no contacts
     #                                                           with the bodies jointed to them)
 
+    @property
+    def loop_pairs(self) -> set[tuple[int, int]]:
+        """The (smaller, larger) model body indices each loop-closing joint joins (they do not collide)."""
+        return {(min(loop.a, loop.b), max(loop.a, loop.b)) for loop in self.loops}
+
 
 class ArticulationError(ValueError):
     """A set of joints that cannot be built; ``key`` is the scene key path it is about."""

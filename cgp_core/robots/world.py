@@ -316,7 +316,7 @@ class Robots:
     def loop_errors(self) -> dict[str, float]:
         """Every loop-closing joint's error |p_a − p_b| [m] at the current q, by joint name."""
         out = {}
-        for k, r in enumerate(self.robots):
+        for r in self.robots:
             if r.spec.articulation is None:
                 continue
             rotation, position = algorithms.forward_kinematics(r.arrays, self.q[r.q_slice])
@@ -394,6 +394,8 @@ class Robots:
             parent = r.model.parent
             if not r.spec.self_collision or parent[la] == lb or parent[lb] == la:
                 keep[c] = False
+            elif r.spec.articulation is not None and (min(la, lb), max(la, lb)) in r.spec.articulation.loop_pairs:
+                keep[c] = False  # the two bodies of a loop-closing joint: jointed too
         # a link against its robot's fixed root: the root is a fixed body, jointed to the first links
         fixed_a = np.flatnonzero(side_b & ~side_a & (contacts.body_a >= 0))
         for c in fixed_a:
@@ -444,6 +446,28 @@ class Robots:
         moving = self.qd + self._pseudo  # the position stage's pseudo-velocity moves q, never qd (no energy)
         for r in self.robots:
             self.q[r.q_slice] = algorithms.integrate_positions(r.arrays, self.q[r.q_slice], moving[r.dof_slice], h)
+        self._project_loops()
+
+    def _project_loops(self, iterations: int = 4, tolerance: float = 1e-13) -> None:
+        """Each articulation's loop closures made exact again after the integration (a Newton projection of q
+        onto C(q) = 0, mass-weighted: Δq = −M⁻¹ Jᵀ (J M⁻¹ Jᵀ)⁺ C): the velocity rows keep J qd = 0 and the
+        position stage corrects the error at the sub-step's start, but a step along the tangent leaves the
+        curvature's ½ (h ω)² r; this removes it.  Velocities are not touched (no energy is added)."""
+        for r in self.robots:
+            if r.spec.articulation is None or not r.spec.articulation.loops:
+                continue
+            q = self.q[r.q_slice]
+            for _ in range(iterations):
+                rotation, position = algorithms.forward_kinematics(r.arrays, q)
+                rows = [loop.rows(r.arrays, rotation, position) for loop in r.spec.articulation.loops]
+                J = np.vstack([j for j, _ in rows])
+                C = np.concatenate([c for _, c in rows])
+                if np.abs(C).max() <= tolerance:
+                    break
+                W = np.linalg.solve(algorithms.mass_matrix(r.arrays, q), J.T)
+                dq = -W @ (np.linalg.pinv(J @ W, rcond=1e-10) @ C)
+                q = algorithms.integrate_positions(r.arrays, q, dq, 1.0)
+            self.q[r.q_slice] = q
 
     def write_bodies(self, body_model, state) -> None:
         """Every moving link body's pose (COM, orientation) and momenta (P = m v, L = I_world ω) from q, q̇."""
