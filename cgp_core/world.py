@@ -200,7 +200,9 @@ class World:
         if refusal:
             raise SceneError(scene.source, [f"{'world.' if substeps is None else ''}substeps: {refusal}"])
         #: the scene's robots (:class:`cgp_core.robots.world.Robots`; their links are bodies named <robot>/<link>)
-        self.robots = Robots(scene.robots) if scene.robots else None
+        #: and the articulations of its joints: bodies that keep their names, cgp_core.robots.articulations)
+        robot_specs = list(scene.robots) + list(getattr(scene, "articulations", []))
+        self.robots = Robots(robot_specs) if robot_specs else None
         self.body_model, self._initial_body_state = self._scene_bodies()
         self.body_state = self._initial_body_state.copy()
         if self.robots is not None:

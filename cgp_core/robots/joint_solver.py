@@ -42,6 +42,10 @@ last, as Box2D does; every row asks J qd⁺ + γ λ = target within lower ≤ λ
 - velocity limits: two one-sided rows ±e_i, J qd ≥ −velocity_limit, λ ≥ 0;
 - mimic couplings: J = e_follower − multiplier·e_leader, target 0, λ free (an equality); their position error
   is the position stage's;
+- equality rows given by the caller (``JointProperties.equality_jacobian`` (k, n), ``equality_error`` (k,)): J qd
+  = 0, λ free; the position stage drives their error C to 0 (J Δq = −β C).  A loop-closing joint between two
+  bodies of a tree is three of them (point coincidence: J = J_point(a) − J_point(b), C = p_a − p_b); the caller
+  re-linearises them every sub-step, so the nonlinear constraint converges quadratically over the sub-steps;
 - joint limits: one-sided rows (J = e_i at the lower limit, −e_i at the upper), *speculative*: J qd ≥ −s/h for
   a gap s > 0 (the joint may close the gap in this sub-step, no more), ≥ 0 when at or past the limit; no bias
   term (penetration is the position stage's, so it never becomes velocity: no energy gain), no restitution (a
@@ -124,7 +128,9 @@ DRIVE_NONE, DRIVE_EFFORT, DRIVE_VELOCITY, DRIVE_POSITION = 0, 1, 2, 3
 
 #: row kinds (:attr:`JointRows.kind`), in the order a sweep visits them; kinds up to ROW_LIMIT are the joint's
 #: own (they count in the effort)
-ROW_DRIVE, ROW_FRICTION, ROW_VELOCITY_LIMIT, ROW_MIMIC, ROW_LIMIT, ROW_TANGENT, ROW_NORMAL = range(7)
+#: ROW_EQUALITY (the caller's equality rows: loop closures, :mod:`cgp_core.robots.articulations`) is not the
+#: joint's own: its impulse is a reaction like a contact's, not in the effort
+ROW_DRIVE, ROW_FRICTION, ROW_VELOCITY_LIMIT, ROW_MIMIC, ROW_LIMIT, ROW_EQUALITY, ROW_TANGENT, ROW_NORMAL = range(8)
 
 #: a row's warm-start key is kind · KEY_SLOTS + its index within the kind (contacts: key · 3 + direction)
 KEY_SLOTS = 1 << 40
@@ -163,13 +169,24 @@ class JointProperties(NamedTuple):
     mimic_leader: np.ndarray      # (k,) int64 dof of the leader
     mimic_multiplier: np.ndarray  # (k,) q_f = multiplier · q_l + offset
     mimic_offset: np.ndarray      # (k,)
+    #: e equality rows given by the caller (loop closures): J qd = 0 and the position error C → 0; None: none
+    #: (:meth:`JointSolver.step` makes them (0, n) / (0,) arrays)
+    equality_jacobian: np.ndarray | None = None  # (e, n) each row's J; a zero row is inert
+    equality_error: np.ndarray | None = None     # (e,) its position error C at the sub-step's start [m or rad]
 
     @staticmethod
     def free(n: int) -> JointProperties:
         """``n`` dofs without limits, damping, friction or mimics, with unlimited effort."""
         inf = np.full(n, np.inf)
         return JointProperties(-inf, inf.copy(), inf.copy(), inf.copy(), np.zeros(n), np.zeros(n),
-                               np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
+                               np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0),
+                               np.zeros((0, n)), np.zeros(0))
+
+    def with_equalities(self) -> JointProperties:
+        """These properties with (0, n) / (0,) equality arrays where they are None."""
+        if self.equality_jacobian is not None and self.equality_error is not None:
+            return self
+        return self._replace(equality_jacobian=np.zeros((0, len(self.lower))), equality_error=np.zeros(0))
 
 
 class JointDrives(NamedTuple):
@@ -402,7 +419,7 @@ def implicit_drives(system, joints, drives, h, allowed):
 @njit
 def _count_rows(joints, drives, implicit, n_contacts):
     n = len(implicit)
-    count = len(joints.mimic_follower) + 3 * n_contacts
+    count = len(joints.mimic_follower) + len(joints.equality_error) + 3 * n_contacts
     for i in range(n):
         kp, kd = _drive_gains(drives, joints, i)
         if (kp > 0.0 or kd > 0.0) and not implicit[i]:
@@ -478,6 +495,14 @@ def _joint_rows(system, joints, drives, implicit, rows, h):
             rows.target[r] = -max(gap, 0.0) / h
             rows.upper[r] = np.inf
             r += 1
+    for j in range(len(joints.equality_error)):  # the caller's equalities: hard, free λ, after the limits
+        rows.kind[r] = ROW_EQUALITY
+        rows.key[r] = ROW_EQUALITY * KEY_SLOTS + j
+        for i in range(n):
+            rows.J[r, i] = joints.equality_jacobian[j, i]
+        rows.lower[r], rows.upper[r] = -np.inf, np.inf
+        rows.error[r] = joints.equality_error[j]
+        r += 1
     return r
 
 
@@ -643,9 +668,11 @@ def saturated_by_rows(system, joints, drives, implicit, v, h, allowed):
 
 @njit
 def _positional(rows, r):
-    """Whether row r takes part in the position stage: limits, mimics, normals against the static world."""
+    """Whether row r takes part in the position stage: limits, mimics, equalities, normals against the static
+    world."""
     kind = rows.kind[r]
-    return kind == ROW_LIMIT or kind == ROW_MIMIC or (kind == ROW_NORMAL and rows.body[r] < 0)
+    return (kind == ROW_LIMIT or kind == ROW_MIMIC or kind == ROW_EQUALITY
+            or (kind == ROW_NORMAL and rows.body[r] < 0))
 
 
 @njit
@@ -676,7 +703,7 @@ def relax_positions(rows, v, settings):
             for i in range(n):
                 s += rows.J[r, i] * d[i]
             delta = (goal[r] - s) / rows.stiff[r]
-            if rows.kind[r] != ROW_MIMIC:  # one-sided
+            if rows.kind[r] != ROW_MIMIC and rows.kind[r] != ROW_EQUALITY:  # one-sided
                 delta = max(lam[r] + delta, 0.0) - lam[r]
             lam[r] += delta
             for i in range(n):
@@ -702,10 +729,11 @@ def store_joints(system, joints, drives, implicit, rows, lam, v, bodies, h):
         if implicit.implicit[i]:
             kp, kd = _drive_gains(drives, joints, i)
             effort[i] += _drive_push(system, drives, i, kp, kd) - (h * kp + kd) * v[i]
-    n_joint_rows = 0
+    n_joint_rows = 0  # rows before the contacts: the joint's own and the equalities
     for r in range(R):
-        if rows.kind[r] <= ROW_LIMIT:
+        if rows.kind[r] < ROW_TANGENT:
             n_joint_rows += 1
+        if rows.kind[r] <= ROW_LIMIT:
             for i in range(n):
                 effort[i] += rows.J[r, i] * lam[r] / h
         b = rows.body[r]
@@ -801,6 +829,9 @@ def check_bundles(system: JointSystem, joints: JointProperties, drives: JointDri
     if k and not (0 <= min(joints.mimic_follower.min(), joints.mimic_leader.min())
                   and max(joints.mimic_follower.max(), joints.mimic_leader.max()) < n):
         raise ValueError(f"mimic dofs must be in [0, {n})")
+    e = len(joints.equality_error)
+    _shape(joints.equality_jacobian, (e, n), "equality_jacobian")
+    _shape(joints.equality_error, (e,), "equality_error")
     _shape(drives.mode, (n,), "mode", np.int64)
     if n and not (DRIVE_NONE <= drives.mode.min() and drives.mode.max() <= DRIVE_POSITION):
         raise ValueError("drive modes must be DRIVE_NONE, DRIVE_EFFORT, DRIVE_VELOCITY or DRIVE_POSITION")
@@ -848,6 +879,7 @@ class JointSolver:
         n = len(system.velocity)
         contacts = ContactRows.empty(n) if contacts is None else contacts
         bodies = FreeBodies.empty() if bodies is None else bodies
+        joints = JointProperties(*joints).with_equalities()
         if self.check:
             check_bundles(system, joints, drives, contacts, bodies)
         result, memory = step_joints(tuple(system), tuple(joints), tuple(drives), tuple(contacts), tuple(bodies),

@@ -133,6 +133,9 @@ class Robots:
         self.n_q, self.n_dofs = q_offset, dof_offset
         self.q0 = np.concatenate([r.initial_positions() for r in self.robots]) if self.robots else np.zeros(0)
         self.qd0 = np.zeros(self.n_dofs)
+        for r in self.robots:  # a scene's jointed bodies start with their scene velocities (articulations)
+            if r.spec.articulation is not None:
+                self.qd0[r.dof_slice] = r.spec.articulation.velocity
         self._joint_limits = self._per_dof("lower", "upper", "effort_limit", "velocity_limit", "damping",
                                            "friction")
         self._mimic = self._mimic_rows()
@@ -140,7 +143,8 @@ class Robots:
 
         lim = self._joint_limits
         self._properties = JointProperties(lim["lower"], lim["upper"], lim["effort_limit"], lim["velocity_limit"],
-                                           lim["damping"], lim["friction"], *self._mimic)
+                                           lim["damping"], lim["friction"], *self._mimic,
+                                           np.zeros((0, self.n_dofs)), np.zeros(0))
         self._solver = None
         self.body_robot = np.zeros(0, np.int64)
         self.body_link = np.zeros(0, np.int64)
@@ -167,6 +171,8 @@ class Robots:
         """The world bodies of every robot's links at the initial positions (:func:`.links.link_body_specs`)."""
         specs = []
         for r in self.robots:
+            if r.spec.articulation is not None:  # its links are the scene's own bodies
+                continue
             rotation, position = algorithms.forward_kinematics(r.arrays, self.q0[r.q_slice])
             found, _ = link_body_specs(r.model, r.name, rotation, position, friction=r.spec.friction,
                                        restitution=r.spec.restitution)
@@ -190,8 +196,12 @@ class Robots:
         self.self_collision_group = np.full(n, -1, np.int64)
         index = {name: i for i, name in enumerate(body_model.names)}
         for k, r in enumerate(self.robots):
+            if r.spec.articulation is not None:  # the fixed bodies its joints hang from: jointed, no contacts
+                for name in r.spec.articulation.fixed_parents:
+                    if name in index:
+                        self.self_collision_group[index[name]] = k
             for b, link in enumerate(r.model.body_names):
-                row = index.get(link_name(r.name, link))
+                row = index.get(link if r.spec.articulation is not None else link_name(r.name, link))
                 if row is None:
                     continue
                 self.self_collision_group[row] = k
@@ -232,7 +242,29 @@ class Robots:
                 drives.stiffness[dof] = r.spec.stiffness
                 drives.damping[dof] = r.spec.damping
         assert DRIVE_NONE == 0
+        self._articulation_drives(drives)
         return drives
+
+    def _articulation_drives(self, drives) -> None:
+        """The drives of a scene's joints (``joints[].drive``) on the articulations' dofs."""
+        from .joint_solver import DRIVE_EFFORT, DRIVE_POSITION, DRIVE_VELOCITY
+
+        modes = {"position": DRIVE_POSITION, "velocity": DRIVE_VELOCITY, "effort": DRIVE_EFFORT}
+        for r in self.robots:
+            if r.spec.articulation is None:
+                continue
+            for joint, drive in r.spec.articulation.drives.items():
+                dof = r.dof_slice.start + r.model.dof_names.index(joint)
+                mode = modes[drive["mode"]]
+                drives.mode[dof] = mode
+                drives.stiffness[dof] = drive["stiffness"] if mode == DRIVE_POSITION else 0.0
+                drives.damping[dof] = drive["damping"] if mode != DRIVE_EFFORT else 0.0
+                if mode == DRIVE_POSITION:
+                    drives.target_position[dof] = drive["target"]
+                elif mode == DRIVE_VELOCITY:
+                    drives.target_velocity[dof] = drive["target"]
+                else:
+                    drives.target_effort[dof] = drive["target"]
 
     # ---- the robot stage ----------------------------------------------------------------------------------
 
@@ -261,6 +293,37 @@ class Robots:
     def prepare(self) -> None:
         """The body poses of every robot at the current q (cached for the sub-step)."""
         self._poses = [algorithms.forward_kinematics(r.arrays, self.q[r.q_slice]) for r in self.robots]
+        self._loop_rows()
+
+    def _loop_rows(self) -> None:
+        """The articulations' loop closures at the current q, as the joint solver's equality rows (three per
+        loop: :meth:`cgp_core.robots.articulations.LoopClosure.rows`)."""
+        blocks, errors = [], []
+        for k, r in enumerate(self.robots):
+            if r.spec.articulation is None:
+                continue
+            rotation, position = self._poses[k]
+            for loop in r.spec.articulation.loops:
+                J, C = loop.rows(r.arrays, rotation, position)
+                block = np.zeros((3, self.n_dofs))
+                block[:, r.dof_slice] = J
+                blocks.append(block)
+                errors.append(C)
+        if blocks:
+            self._properties = self._properties._replace(equality_jacobian=np.vstack(blocks),
+                                                         equality_error=np.concatenate(errors))
+
+    def loop_errors(self) -> dict[str, float]:
+        """Every loop-closing joint's error |p_a − p_b| [m] at the current q, by joint name."""
+        out = {}
+        for r in self.robots:
+            if r.spec.articulation is None:
+                continue
+            rotation, position = algorithms.forward_kinematics(r.arrays, self.q[r.q_slice])
+            for loop in r.spec.articulation.loops:
+                pa, pb = loop.points(rotation, position)
+                out[loop.name] = float(np.linalg.norm(pa - pb))
+        return out
 
     def solve(self, contacts, body_model, state, h: float, gravity, velocity, angular_velocity, inv_inertia):
         """The robot stage (module docstring, step 3): returns the contacts left for the body solver."""
@@ -331,6 +394,8 @@ class Robots:
             parent = r.model.parent
             if not r.spec.self_collision or parent[la] == lb or parent[lb] == la:
                 keep[c] = False
+            elif r.spec.articulation is not None and (min(la, lb), max(la, lb)) in r.spec.articulation.loop_pairs:
+                keep[c] = False  # the two bodies of a loop-closing joint: jointed too
         # a link against its robot's fixed root: the root is a fixed body, jointed to the first links
         fixed_a = np.flatnonzero(side_b & ~side_a & (contacts.body_a >= 0))
         for c in fixed_a:
@@ -381,6 +446,28 @@ class Robots:
         moving = self.qd + self._pseudo  # the position stage's pseudo-velocity moves q, never qd (no energy)
         for r in self.robots:
             self.q[r.q_slice] = algorithms.integrate_positions(r.arrays, self.q[r.q_slice], moving[r.dof_slice], h)
+        self._project_loops()
+
+    def _project_loops(self, iterations: int = 4, tolerance: float = 1e-13) -> None:
+        """Each articulation's loop closures made exact again after the integration (a Newton projection of q
+        onto C(q) = 0, mass-weighted: Δq = −M⁻¹ Jᵀ (J M⁻¹ Jᵀ)⁺ C): the velocity rows keep J qd = 0 and the
+        position stage corrects the error at the sub-step's start, but a step along the tangent leaves the
+        curvature's ½ (h ω)² r; this removes it.  Velocities are not touched (no energy is added)."""
+        for r in self.robots:
+            if r.spec.articulation is None or not r.spec.articulation.loops:
+                continue
+            q = self.q[r.q_slice]
+            for _ in range(iterations):
+                rotation, position = algorithms.forward_kinematics(r.arrays, q)
+                rows = [loop.rows(r.arrays, rotation, position) for loop in r.spec.articulation.loops]
+                J = np.vstack([j for j, _ in rows])
+                C = np.concatenate([c for _, c in rows])
+                if np.abs(C).max() <= tolerance:
+                    break
+                W = np.linalg.solve(algorithms.mass_matrix(r.arrays, q), J.T)
+                dq = -W @ (np.linalg.pinv(J @ W, rcond=1e-10) @ C)
+                q = algorithms.integrate_positions(r.arrays, q, dq, 1.0)
+            self.q[r.q_slice] = q
 
     def write_bodies(self, body_model, state) -> None:
         """Every moving link body's pose (COM, orientation) and momenta (P = m v, L = I_world ω) from q, q̇."""

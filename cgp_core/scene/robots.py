@@ -58,6 +58,17 @@ class RobotSpec:
     friction: float = 0.8
     restitution: float = 0.0
     notes: list = field(default_factory=list)
+    #: the articulation of a scene's ``joints:`` this robot is (cgp_core.robots.articulations.Articulation): its
+    #: links are the scene's own bodies (their names kept), its drives and initial velocities its joints'; None
+    #: for a URDF robot
+    articulation: Any = None
+
+
+def articulation_spec(articulation) -> RobotSpec:
+    """The :class:`RobotSpec` of an articulation of the scene's ``joints:`` (cgp_core.scene.joints)."""
+    return RobotSpec(name=articulation.name, model=articulation.model, position=articulation.position.copy(),
+                     orientation=articulation.orientation.copy(), hold=False, self_collision=True,
+                     articulation=articulation)
 
 
 def builtin_robot_dir() -> Path:

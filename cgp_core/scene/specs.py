@@ -62,6 +62,9 @@ class Scene:
     bodies: list[BodySpec]
     flocks: list[Any]  # cgp_core.boids.FlockParams
     robots: list[Any] = field(default_factory=list)  # cgp_core.scene.robots.RobotSpec (issue 35)
+    joints: list[Any] = field(default_factory=list)  # cgp_core.scene.joints.JointSpec (issue 35)
+    #: the articulations the joints make, as robots whose links are the scene's bodies (RobotSpec)
+    articulations: list[Any] = field(default_factory=list)
 
     def rigid_work(self) -> tuple[int, int]:
         """``(shapes, particles)`` of the bodies, the counts a tick's work is bounded by
