@@ -99,7 +99,13 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
 
     # 4. integrate; then continuous collision for bodies turning fast next to fixed hulls and meshes (put back at
     #    their time of impact: cgp_core.collision.convex_phase)
-    integrator.step(model, state, h, active=active)
+    if robots is not None and robots.n_dofs:
+        # bodies moved by joints are not the integrator's (their momenta are the joints', their poses written
+        # from q below): an implicit integrator would iterate on them for nothing, or fail to converge
+        free = robots.body_robot < 0
+        integrator.step(model, state, h, active=free if active is None else active & free)
+    else:
+        integrator.step(model, state, h, active=active)
     if robots is not None and robots.n_dofs:
         robots.integrate(h)
         robots.write_bodies(model, state)  # the links where the joints put them, whatever the integrator did
