@@ -22,13 +22,15 @@ flood the log.
 from __future__ import annotations
 
 import collections
+import re
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 from cgp_sim_msgs.msg import ApplyWrench
 from geometry_msgs.msg import WrenchStamped
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
 
 from cgp_core.wrenches import MAX_NAME_LENGTH, CommandLimits, WrenchError, make_command
 
@@ -39,6 +41,8 @@ from .qos import COMMAND_QOS
 #: QoS / type" warnings): each handler is a waitable the executor adds to its wait set, in Python, on every spin
 #: (see cgp_sim_ros/ros/publishing.py, which does the same for the per-entity publishers).
 _NO_EVENT_HANDLERS = SubscriptionEventCallbacks(use_default_callbacks=False)
+#: a joint command's rejection as reported (log, ~/events) is cut to this many characters (a name may be long)
+MAX_REASON_LENGTH = 300
 
 
 class CommandInputs:
@@ -56,6 +60,8 @@ class CommandInputs:
         self._apply_wrench = self._subscription(ApplyWrench, itf.TOPIC_APPLY_WRENCH, self._on_apply_wrench)
         self._body_wrench: dict = {}  # body name -> its ~/bodies/<body>/wrench subscription
         self._body_names: list[str] = []  # the body set the pending commands' indices refer to
+        self._joint_commands: dict = {}  # robot name -> its ~/robots/<robot>/joint_commands subscription
+        self._joint_pending: collections.deque = collections.deque()  # JointCommand, for the next tick
 
     # ---- the per-body subscriptions ------------------------------------------------------------------------
 
@@ -82,6 +88,25 @@ class CommandInputs:
             replace(c, body=new_index[old_names[c.body]]) for c in self._pending
             if c.body < len(old_names) and old_names[c.body] in new_index)
         self._body_names = list(names)
+        return added
+
+    def follow_robots(self, robots: list[str]) -> list:
+        """After the robot set changed: a ``~/robots/<robot>/joint_commands`` subscription for every robot (made
+        for new ones, destroyed for gone ones); pending joint commands of gone robots are dropped.  Returns the
+        subscriptions made."""
+        node = self._node
+        for name in [n for n in self._joint_commands if n not in robots]:
+            subscription = self._joint_commands.pop(name)
+            self.inputs.pop(subscription.topic_name, None)
+            node.destroy_subscription(subscription)
+        added = []
+        for name in robots:
+            if name not in self._joint_commands:
+                self._joint_commands[name] = self._subscription(
+                    JointState, itf.TOPIC_ROBOT_JOINT_COMMANDS.format(robot=name),
+                    lambda data, robot=name: self._on_joint_command(robot, data), per_entity=True)
+                added.append(self._joint_commands[name])
+        self._joint_pending = collections.deque(c for c in self._joint_pending if c.robot in self._joint_commands)
         return added
 
     def _subscription(self, msg_type, topic: str, handle, per_entity: bool = False):
@@ -134,6 +159,24 @@ class CommandInputs:
             return
         self._enqueue(command)
 
+    def _on_joint_command(self, robot: str, data: bytes) -> None:
+        source = f"robots/{robot}/joint_commands"
+        if len(data) > itf.MAX_JOINT_COMMAND_BYTES:
+            self.reject(source, WrenchError(
+                "message", f"{len(data)} bytes, more than a joint command may have "
+                f"({itf.MAX_JOINT_COMMAND_BYTES} bytes); dropped unread", "too large"))
+            return
+        self._record_received(self._joint_commands[robot].topic_name, data)
+        try:
+            command = joint_command(robot, data)
+        except WrenchError as exc:
+            self.reject(source, exc)
+            return
+        if len(self._joint_pending) >= itf.MAX_PENDING_COMMANDS:
+            self._joint_pending.popleft()
+            self._dropped += 1
+        self._joint_pending.append(command)
+
     def _oversized(self, source: str, data: bytes) -> bool:
         """Drop a message larger than any valid command, cheaply (no decoding, no recording)."""
         if len(data) <= itf.MAX_COMMAND_BYTES:
@@ -159,8 +202,11 @@ class CommandInputs:
     # ---- the tick, and the services that clear ------------------------------------------------------------
 
     def apply_pending(self, world) -> None:
-        """Hand the waiting commands to ``world`` (the tick, before its step); those over the world's limit of
-        active wrenches are rejected."""
+        """Hand the waiting commands to ``world`` (the tick, before its step): the joint commands to its robots
+        in the order they came (each holds until the next: :meth:`apply_joint_commands`), the wrenches to its
+        wrench schedule, where those over the limit of active wrenches are rejected."""
+        if self._joint_pending:
+            self.apply_joint_commands(world)
         if not self._pending:
             return
         commands = list(self._pending)
@@ -172,10 +218,34 @@ class CommandInputs:
                 f"{world.wrenches.max_active} active wrenches (clear some with ~/clear_wrenches)", "too many"),
                 count=len(commands) - accepted)
 
+    def apply_joint_commands(self, world) -> None:
+        """The waiting joint commands, in order, through ``Robots.command``; what it refuses (or clamps) is
+        reported per robot, joint and kind (:meth:`reject`)."""
+        commands = list(self._joint_pending)
+        self._joint_pending.clear()
+        robots = world.robots
+        if robots is None:
+            return
+        known = {name: None for name in robots.names()}
+        for c in commands:
+            if c.robot not in known:
+                continue
+            if known[c.robot] is None:
+                known[c.robot] = set(robots.joint_state(c.robot)[0])
+            problems = robots.command(c.robot, c.names, c.position, c.velocity, c.effort)
+            for text in problems:
+                self.reject(f"robots/{c.robot}/joint_commands", joint_rejection(text, c.names, known[c.robot]))
+
     def clear_pending(self) -> int:
-        """Drop the waiting commands (a reset, ~/clear_wrenches); returns how many there were."""
+        """Drop the waiting wrench commands (a reset, ~/clear_wrenches); returns how many there were."""
         count = len(self._pending)
         self._pending.clear()
+        return count
+
+    def clear_joint_commands(self) -> int:
+        """Drop the waiting joint commands (a reset of the state); returns how many there were."""
+        count = len(self._joint_pending)
+        self._joint_pending.clear()
         return count
 
     # ---- rejections -----------------------------------------------------------------------------------------
@@ -232,6 +302,49 @@ def body_wrench_command(body: str, data: bytes, world, params, frames: itf.Frame
         torque=(msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z),
         point=None, frame=frames.to_core(msg.header.frame_id), duration=0.0,
         limits=CommandLimits(max_force=params["max_force"], max_torque=params["max_torque"]))
+
+
+@dataclass(frozen=True)
+class JointCommand:
+    """A decoded ``~/robots/<robot>/joint_commands`` message, for ``Robots.command`` at the next tick."""
+
+    robot: str
+    names: list
+    position: list
+    velocity: list
+    effort: list
+
+
+def joint_command(robot: str, data: bytes) -> JointCommand:
+    """The command of a ``sensor_msgs/JointState``'s CDR bytes, as topic_based_ros2_control sends it (checked by
+    ``Robots.command`` at the tick: which joints, which arrays, finite values, limits)."""
+    msg = _decode(data, JointState)
+    return JointCommand(robot, list(msg.name), list(msg.position), list(msg.velocity), list(msg.effort))
+
+
+def joint_rejection(text: str, names, joints: set) -> WrenchError:
+    """A ``Robots.command`` rejection (a sentence naming the joint and the reason) as a reportable error: ``field``
+    the robot's joint it is about (``joint <name>`` in the sentence), ``name`` for a name the robot does not have
+    (kind ``unknown``: one report key for every unknown name, however many are sent), else ``command``; ``kind``
+    ``clamped`` for a value clamped to the URDF's limits (applied), ``invalid`` otherwise.  The sentence is kept
+    as it is, cut to :data:`MAX_REASON_LENGTH` characters."""
+    field, kind = "command", "invalid"
+    for joint in names:
+        if not isinstance(joint, str):
+            continue
+        if joint not in joints and (repr(joint) in text or f"joint {joint}" in text):
+            field, kind = "name", "unknown"
+            break
+        if joint in joints and re.search(rf"\bjoint {re.escape(joint)}(?![\w/.-])", text):
+            field = joint
+            break
+    if kind != "unknown" and "clamp" in text:
+        kind = "clamped"
+    if len(text) > MAX_REASON_LENGTH:
+        text = text[:MAX_REASON_LENGTH] + f"... ({len(text)} characters)"
+    error = WrenchError(field, text, kind)
+    error.args = (text,)  # the sentence as it is (it names the joint already)
+    return error
 
 
 def _decode(data: bytes, msg_type):
