@@ -458,7 +458,8 @@ class JointStateSerializer:
         for _ in range(3):  # position, velocity, effort
             writer.align(4)
             writer.raw(_U32.pack(k))
-            writer.align(8)  # as Fast CDR does, even for an empty sequence (the same bytes as rclpy's)
+            if k:  # an empty sequence has no elements to align (rclpy's buffer is longer: its size estimate
+                writer.align(8)  # aligns them anyway, and the bytes past the message are left uninitialised)
             starts.append(writer.pos)
             writer.raw(bytes(8 * k))
         template = writer.getvalue()
