@@ -1,0 +1,862 @@
+"""One sub-step of an articulation in joint space: implicit drives and damping, then constraint rows solved by
+projected Gauss–Seidel with warm starting — the joint-space sibling of :mod:`cgp_core.solver.sequential_impulse`
+(the same vocabulary: rows, effective masses, accumulated and clamped impulses, speculative targets, a position
+stage that never touches the velocities).
+
+**The system.**  A robot in reduced coordinates has ``n`` joint velocities qd; the caller (the robot model)
+gives, at the sub-step's start, the joint-space mass matrix M (n, n) (symmetric positive definite), the bias
+b(q, qd) (n,) (Coriolis, centrifugal and gravity: ``inverse_dynamics(q, qd, qdd=0)``) and the applied joint
+efforts τ (n,) (external forces mapped by Jᵀ, anything not a drive).  Per dof it also gives a *coordinate*
+``position`` (n,): the joint angle / displacement of a revolute or prismatic joint, which the limits, the
+position drives and the mimic couplings read (a dof without one — a floating base's — carries any number and
+must have infinite limits, no position drive and no mimic).
+
+**Drives and damping, implicitly.**  Per dof a drive mode (:data:`DRIVE_NONE`, :data:`DRIVE_EFFORT`,
+:data:`DRIVE_VELOCITY`, :data:`DRIVE_POSITION`).  A position drive's torque kp (q* − q) + kd (qd* − qd), a
+velocity drive's kd (qd* − qd) and URDF viscous damping −c qd are taken at the *end* of the sub-step (backward
+Euler in the drive), which is the linear solve
+
+    A qd⁺ = M qd + h (τ − b + τ_effort + Kp (q* − q) + Kd qd*),    A = M + h (C + Kd) + h² Kp
+
+(Kp, Kd, C diagonal), unconditionally stable: kp = 1e6 N m/rad on a 1 kg m² link at h = 1/240 s simply
+converges.  A drive whose torque there, kp (q* − q − h qd⁺) + kd (qd* − qd⁺), would exceed ±effort_limit is
+*saturated*: it is taken out of A (the others are solved again without it, until no new one saturates — at most
+n solves of a small dense system) and becomes a soft row (below) with the drive's own softness, whose impulse is
+clamped to ±h·effort_limit (Box2D's motor, Bullet's multibody motor).  The rows can hold a drive back (a gripper
+pressing on an object, a target behind a joint limit): a drive whose torque at the solved qd⁺ exceeds its limit is
+taken out of A too and the sub-step solved again (prepare, warm start, sweeps; rare, and at most n times), so no
+drive's reported torque ever exceeds its effort limit.
+
+Why this mix and not soft rows throughout: a soft row is the same equation (its softness γ = 1/(h kd + h² kp) is
+exactly the drive's term of A), but Gauss–Seidel converges slowly on stiff drives coupled through a dense M⁻¹ (an
+arm's links): a holding error of 1e-3 rad against gravity would need many sweeps per sub-step.  In A the
+unsaturated drives are solved exactly (one Cholesky factorization of an n × n matrix), every row's effective
+mass 1/(J A⁻¹ Jᵀ) sees the drives' stiffness (a limit row on a driven joint knows what the drive will do), and
+only the saturated drives — whose impulse is a constant ±h·effort_limit once clamped — are left to the sweeps.
+
+**Rows** (one sub-step's, in the order a sweep visits them: the soft and bounded ones first, the hard ones
+last, as Box2D does; every row asks J qd⁺ + γ λ = target within lower ≤ λ ≤ upper, λ the accumulated impulse):
+
+- saturated drives: J = e_i, γ = 1/(h kd + h² kp), target γ h (kp (q* − q) + kd qd*), |λ| ≤ h·effort_limit;
+- Coulomb joint friction: J = e_i, target 0, |λ| ≤ h·friction;
+- velocity limits: two one-sided rows ±e_i, J qd ≥ −velocity_limit, λ ≥ 0;
+- mimic couplings: J = e_follower − multiplier·e_leader, target 0, λ free (an equality); their position error
+  is the position stage's;
+- joint limits: one-sided rows (J = e_i at the lower limit, −e_i at the upper), *speculative*: J qd ≥ −s/h for
+  a gap s > 0 (the joint may close the gap in this sub-step, no more), ≥ 0 when at or past the limit; no bias
+  term (penetration is the position stage's, so it never becomes velocity: no energy gain), no restitution (a
+  joint stop is inelastic);
+- contacts with the world: per contact point three rows [normal, t₁, t₂] given by the caller as joint-space
+  Jacobian rows d·J_point (n,), optionally coupled to ONE free rigid body (the caller's 6-vector [−d, −r × d] of
+  it, r from its centre of mass to the point; d points from the body (or the world) to the robot), whose
+  velocity (v, ω) the row moves too (ΔV = M_b⁻¹ J_bᵀ Δλ) and whose momenta get the impulses in place.  Normal:
+  λ ≥ 0, speculative J v ≥ −max(s, 0)/h; friction: the two tangent rows of a point solved together and clamped
+  to the cone |λ_t| ≤ μ λₙ (tangents before their normal, as the contact solver does).
+
+Each row's effective mass is 1 / (J A⁻¹ Jᵀ + J_b M_b⁻¹ J_bᵀ + γ); A⁻¹ Jᵀ is precomputed for every row from the
+Cholesky factor of A (our own loop: no LAPACK, so compiled and plain-Python runs agree bit for bit).  A sweep
+stops the iterations once no row's velocity changed by more than ``velocity_tolerance``.
+
+**Warm starting.**  Rows are keyed by identity (kind, dof / mimic index / contact key and direction), the
+previous sub-step's accumulated impulse of the same key is applied before the first sweep (clamped to this
+sub-step's bounds).  A resting contact or a holding saturated drive starts at its answer.
+
+**Position stage** ("relax"): the hard rows with a position error — joint limits (gap s) and mimic couplings
+(error C = q_f − m q_l − offset) — predicted after the velocity step (s + h J qd⁺), are corrected by a
+displacement Δq found by the same projected Gauss–Seidel on the same A⁻¹ (limits: J Δq ≥ −β s⁺, λ ≥ 0; mimic:
+J Δq = −β C⁺); it is returned as a *pseudo-velocity* Δq / h that the caller integrates with qd⁺ but never adds
+to qd (split impulses): the correction adds no kinetic energy.  The constraints are linear in joint space, so
+β = 1 (the default) removes the error in one sub-step: a mimic follower tracks its leader to round-off.
+Contacts with the static world take part too, as in the contact solver's position stage (J Δq ≥
+β (−s⁺ − slop), at most ``max_correction``, β = ``contact_correction``): a robot started in the ground rises out of
+it without velocity.  A contact with a free body is not corrected here (the body's pose is the World's; its
+penetration recovery is the place for it — not yet done).
+
+**Integration** is the caller's: q⁺ = integrate(q, qd⁺ + pseudo, h) with the robot's own integrator (a floating
+base's quaternion, continuous joints); for 1-dof joints it is q + h (qd⁺ + pseudo) (:func:`integrate_dofs`).
+
+**Effort** (what a joint torque sensor reads, per dof [N m or N]): the drive's torque (implicit drive at qd⁺,
+or a saturated drive's row impulse / h), an effort drive's clamped command, the viscous damping −c qd⁺, and the
+impulses / h of the joint's own rows (friction, velocity limits, limits, mimic: Jᵀ λ / h, the mimic's reaction
+on the leader included).  Not in it: gravity and Coriolis (b), the caller's τ, contacts.  The caller averages
+it over a tick's sub-steps.
+
+**What the World calls, each sub-step, per robot** (a sketch: the model's functions are
+``cgp_core.robots.algorithms``; ``solver`` a :class:`JointSolver` kept per robot):
+
+1. ``M = mass_matrix(arrays, q)``; ``bias = inverse_dynamics(arrays, q, qd, 0, gravity)``; ``applied`` = Σ
+   J_pointᵀ F of the sub-step's wrenches on the robot's links; ``position`` = the 1-dof joints' coordinates;
+2. the robot's contacts from the detector, each point as a :class:`ContactRows` entry: ``joint_jacobian[c, k] =
+   d_k · point_jacobian(...)`` for d = (n, t₁, t₂) with n pointing *to the robot*, ``body``/``body_jacobian`` for a
+   free body on the other side (``[−d, −r × d]``, r from its COM), ``separation``, ``friction``, a stable ``key``;
+   :class:`FreeBodies` with the bodies' velocity M_b⁻¹ (P + h F) and the World's own momentum arrays (written in
+   place: pass the arrays themselves, not a fancy-indexed copy);
+3. ``step = solver.step(JointSystem(M, bias, applied, position, qd), joints, drives, contacts, bodies)``;
+4. ``qd = step.velocity``; ``q = integrate_positions(arrays, q, step.velocity + step.pseudo_velocity, h)``;
+5. add ``step.effort`` into the tick's sum (the joint_states effort is the mean over the sub-steps).
+
+The robot's solve comes before the rigid-body contact solver in the sub-step: the free body's impulse from the
+robot is then already in its momentum (Gauss–Seidel between the two solvers; a body pressed between a robot and
+the ground converges over sub-steps, not within one).
+
+**The stages** (:data:`STAGES`, timed into a :class:`~cgp_core.jit.StageProfile`), run by :func:`step_joints`:
+
+1. :func:`prepare_joints` — the implicit matrix A with its saturated drives found, its factor, qd_free, and
+   the rows (:class:`JointRows`) with A⁻¹ Jᵀ and effective masses;
+2. :func:`warm_start_joints` — the previous sub-step's impulses of the same keys applied;
+3. :func:`solve_joints` — the sweeps;
+4. :func:`relax_positions` — the position stage (pseudo-velocity);
+5. :func:`store_joints` — the free bodies' impulses added to their momenta, the effort, the warm-start memory.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from ..checks import positive
+from ..jit import StageProfile, clock, lap, njit
+
+#: drive modes (:attr:`JointDrives.mode`)
+DRIVE_NONE, DRIVE_EFFORT, DRIVE_VELOCITY, DRIVE_POSITION = 0, 1, 2, 3
+
+#: row kinds (:attr:`JointRows.kind`), in the order a sweep visits them; kinds up to ROW_LIMIT are the joint's
+#: own (they count in the effort)
+ROW_DRIVE, ROW_FRICTION, ROW_VELOCITY_LIMIT, ROW_MIMIC, ROW_LIMIT, ROW_TANGENT, ROW_NORMAL = range(7)
+
+#: a row's warm-start key is kind · KEY_SLOTS + its index within the kind (contacts: key · 3 + direction)
+KEY_SLOTS = 1 << 40
+
+#: a position-stage sweep moving no row by more than this [rad / m] ends the sweeps
+POSITION_TOLERANCE = 1e-14
+
+#: the stages of :attr:`JointSolver.profile`, in order
+STAGES = ("prepare", "warm_start", "solve", "relax", "store")
+PREPARE, WARM_START, SOLVE, RELAX, STORE = range(len(STAGES))
+
+
+# ---- the bundles ----------------------------------------------------------------------------------------------
+
+class JointSystem(NamedTuple):
+    """The robot at the start of the sub-step, as its model computes it (``n`` dofs)."""
+
+    mass_matrix: np.ndarray  # (n, n) joint-space M(q), SPD [kg m² / kg]
+    bias: np.ndarray         # (n,) b(q, qd): Coriolis + centrifugal + gravity, inverse_dynamics at qdd = 0 [N m / N]
+    applied: np.ndarray      # (n,) other applied joint efforts τ (external forces as Jᵀ F) [N m / N]
+    position: np.ndarray     # (n,) each dof's coordinate (revolute angle [rad], prismatic [m]; any value for dofs
+    #                          without one: they must have infinite limits, no position drive, no mimic)
+    velocity: np.ndarray     # (n,) qd [rad/s / m/s]
+
+
+class JointProperties(NamedTuple):
+    """The URDF's per-dof numbers and mimic couplings (``n`` dofs, ``k`` mimic joints)."""
+
+    lower: np.ndarray             # (n,) lower position limit (−inf: none)
+    upper: np.ndarray             # (n,) upper position limit (+inf: none)
+    effort_limit: np.ndarray      # (n,) |drive effort| ≤ this [N m / N] (inf: unlimited; 0: cannot be driven)
+    velocity_limit: np.ndarray    # (n,) |qd| ≤ this (inf or ≤ 0: none)
+    damping: np.ndarray           # (n,) viscous c: torque −c qd [N m s/rad / N s/m]
+    friction: np.ndarray          # (n,) Coulomb friction: |torque| ≤ this [N m / N]
+    mimic_follower: np.ndarray    # (k,) int64 dof of the follower
+    mimic_leader: np.ndarray      # (k,) int64 dof of the leader
+    mimic_multiplier: np.ndarray  # (k,) q_f = multiplier · q_l + offset
+    mimic_offset: np.ndarray      # (k,)
+
+    @staticmethod
+    def free(n: int) -> JointProperties:
+        """``n`` dofs without limits, damping, friction or mimics, with unlimited effort."""
+        inf = np.full(n, np.inf)
+        return JointProperties(-inf, inf.copy(), inf.copy(), inf.copy(), np.zeros(n), np.zeros(n),
+                               np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
+
+
+class JointDrives(NamedTuple):
+    """What each dof's actuator is told (``n`` dofs); gains finite and ≥ 0."""
+
+    mode: np.ndarray             # (n,) int64 DRIVE_NONE / EFFORT / VELOCITY / POSITION
+    target_position: np.ndarray  # (n,) q* (position mode)
+    target_velocity: np.ndarray  # (n,) qd* (velocity mode; position mode's feed-forward, usually 0)
+    target_effort: np.ndarray    # (n,) τ_cmd (effort mode; clamped to ±effort_limit) [N m / N]
+    stiffness: np.ndarray        # (n,) kp (position mode) [N m/rad / N/m]
+    damping: np.ndarray          # (n,) kd (velocity and position modes) [N m s/rad / N s/m]
+
+    @staticmethod
+    def none(n: int) -> JointDrives:
+        z = np.zeros(n)
+        return JointDrives(np.zeros(n, np.int64), z, z.copy(), z.copy(), z.copy(), z.copy())
+
+
+class ContactRows(NamedTuple):
+    """The robot's contact points this sub-step (``c`` points, ``n`` dofs), each three rows [normal, t₁, t₂];
+    the direction d of a row points from the other side (a free body or the static world) to the robot."""
+
+    joint_jacobian: np.ndarray  # (c, 3, n) d · J_point(q): the robot point's velocity along d per joint velocity
+    body: np.ndarray            # (c,) int64 row of the free body on the other side in FreeBodies, −1: static world
+    body_jacobian: np.ndarray   # (c, 3, 6) [−d, −r × d] of that body, r = point − its COM [m] (ignored for −1)
+    separation: np.ndarray      # (c,) gap along the normal at the sub-step's start [m] (< 0: penetration)
+    friction: np.ndarray        # (c,) Coulomb μ
+    key: np.ndarray             # (c,) int64 ≥ 0, < 2**37: the point's identity across sub-steps (warm start)
+
+    @staticmethod
+    def empty(n: int) -> ContactRows:
+        return ContactRows(np.zeros((0, 3, n)), np.zeros(0, np.int64), np.zeros((0, 3, 6)), np.zeros(0),
+                           np.zeros(0), np.zeros(0, np.int64))
+
+
+class FreeBodies(NamedTuple):
+    """The free rigid bodies the contacts may touch (``b`` rows; the World's bodies, or only those touched)."""
+
+    inv_mass: np.ndarray          # (b,) 1/m (0: cannot move)
+    inv_inertia: np.ndarray       # (b, 3, 3) world-frame I⁻¹ at the current pose
+    velocity: np.ndarray          # (b, 6) [v, ω] over the sub-step (M⁻¹ (momentum + h·force)); the rows' changes
+    #                               are written back in place
+    linear_momentum: np.ndarray   # (b, 3) P [kg m/s]: the contact impulses are added in place
+    angular_momentum: np.ndarray  # (b, 3) L about the COM [kg m²/s]: the contact impulses are added in place
+
+    @staticmethod
+    def empty() -> FreeBodies:
+        return FreeBodies(np.zeros(0), np.zeros((0, 3, 3)), np.zeros((0, 6)), np.zeros((0, 3)), np.zeros((0, 3)))
+
+
+class JointSolverMemory(NamedTuple):
+    """What a sub-step leaves for the next one's warm start (``w`` rows)."""
+
+    key: np.ndarray      # (w,) int64 row identity (kind · KEY_SLOTS + index), ascending
+    impulse: np.ndarray  # (w,) accumulated impulse λ [N m s / N s]
+
+    @staticmethod
+    def empty() -> JointSolverMemory:
+        return JointSolverMemory(np.zeros(0, np.int64), np.zeros(0))
+
+
+class JointSettings(NamedTuple):
+    """The numbers the stages take."""
+
+    h: float                    # sub-step [s]
+    velocity_iterations: int    # sweeps at most
+    velocity_tolerance: float   # a sweep changing no row velocity by more than this ends them [rad/s / m/s]
+    warm_start: bool            # start from the previous sub-step's impulses
+    position_iterations: int    # sweeps of the position stage (0: off)
+    position_correction: float  # β, the fraction of a limit's / mimic's position error removed per sub-step
+    contact_correction: float   # β of the contacts with the static world (the contact solver's position_correction)
+    penetration_slop: float     # contact penetration tolerated without correction [m]
+    max_correction: float       # at most this much contact penetration removed per sub-step [m]
+
+    @staticmethod
+    def default(h: float) -> JointSettings:
+        return JointSettings(h, 30, 1e-9, True, 10, 1.0, 0.2, 0.0005, 0.05)
+
+
+class JointRows(NamedTuple):
+    """One sub-step's ``R`` rows (order: drive, friction, velocity-limit, mimic, limit rows, then per contact
+    point t₁, t₂, normal)."""
+
+    kind: np.ndarray         # (R,) int64 ROW_*
+    key: np.ndarray          # (R,) int64 warm-start identity
+    J: np.ndarray            # (R, n) joint-space Jacobian row
+    W: np.ndarray            # (R, n) A⁻¹ Jᵀ: what a unit impulse along the row does to qd
+    body: np.ndarray         # (R,) int64 free body of a contact row, −1 none
+    Jb: np.ndarray           # (R, 6) the body's Jacobian row (contacts with a body)
+    Wb: np.ndarray           # (R, 6) M_b⁻¹ J_bᵀ
+    eff: np.ndarray          # (R,) 1 / (J A⁻¹ Jᵀ + J_b M_b⁻¹ J_bᵀ + γ)
+    stiff: np.ndarray        # (R,) J A⁻¹ Jᵀ + J_b M_b⁻¹ J_bᵀ: the row velocity per unit impulse
+    softness: np.ndarray     # (R,) γ (saturated drives; 0 for hard rows)
+    target: np.ndarray       # (R,) the row's target velocity
+    lower: np.ndarray        # (R,) bounds of the accumulated impulse (tangent rows: ±μ, scaled by λₙ in the sweep)
+    upper: np.ndarray        # (R,)
+    error: np.ndarray        # (R,) position error at the sub-step's start: a limit's gap s, a mimic's C
+
+
+class Implicit(NamedTuple):
+    """The implicit solve of the drives and damping."""
+
+    factor: np.ndarray    # (n, n) lower-triangular Cholesky factor L of A (L Lᵀ = A)
+    velocity: np.ndarray  # (n,) qd_free = A⁻¹ (M qd + h (...)): the velocity before any row
+    implicit: np.ndarray  # (n,) bool: the dof's drive is in A (not saturated)
+
+
+class JointStep(NamedTuple):
+    """What one sub-step gives the caller."""
+
+    velocity: np.ndarray         # (n,) qd⁺
+    pseudo_velocity: np.ndarray  # (n,) the position stage's Δq / h: integrate with qd⁺, never add to qd
+    effort: np.ndarray           # (n,) the joint torque/force this sub-step (see the module docstring) [N m / N]
+    contact_impulse: np.ndarray  # (c, 3) the contact points' accumulated impulses [normal, t₁, t₂] [N s]
+    sweeps: int                  # velocity sweeps run (summed over the passes a row-saturated drive caused)
+
+
+# ---- dense linear algebra (our own loops: bit-identical compiled and plain) ----------------------------------
+
+@njit
+def cholesky(A):
+    """The lower-triangular L with L Lᵀ = A for a symmetric positive definite A (n, n)."""
+    n = A.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        s = A[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        d = math.sqrt(s) if s > 0.0 else 0.0
+        L[j, j] = d
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / d
+    return L
+
+
+@njit
+def cholesky_solve(L, b):
+    """x with L Lᵀ x = b (b (n,))."""
+    n = len(b)
+    y = np.zeros(n)
+    for i in range(n):
+        s = b[i]
+        for k in range(i):
+            s -= L[i, k] * y[k]
+        y[i] = s / L[i, i]
+    x = np.zeros(n)
+    for i in range(n - 1, -1, -1):
+        s = y[i]
+        for k in range(i + 1, n):
+            s -= L[k, i] * x[k]
+        x[i] = s / L[i, i]
+    return x
+
+
+# ---- 1. prepare: the implicit drives, then the rows ----------------------------------------------------------
+
+@njit
+def _drive_gains(drives, joints, i):
+    """(kp, kd) of dof i's position / velocity drive, (0, 0) if it has none that acts."""
+    mode = drives.mode[i]
+    if joints.effort_limit[i] <= 0.0:
+        return 0.0, 0.0
+    if mode == DRIVE_POSITION:
+        return drives.stiffness[i], drives.damping[i]
+    if mode == DRIVE_VELOCITY:
+        return 0.0, drives.damping[i]
+    return 0.0, 0.0
+
+
+@njit
+def _drive_push(system, drives, i, kp, kd):
+    """kp (q* − q) + kd qd*: the drive's torque at zero end velocity, before the −(h kp + kd) qd⁺ term."""
+    push = kd * drives.target_velocity[i]
+    if kp > 0.0:
+        push += kp * (drives.target_position[i] - system.position[i])
+    return push
+
+
+@njit
+def _effort_command(drives, joints, i):
+    """An effort drive's command clamped to ±effort_limit (0 for other modes)."""
+    if drives.mode[i] != DRIVE_EFFORT:
+        return 0.0
+    limit = joints.effort_limit[i]
+    return min(max(drives.target_effort[i], -limit), limit)
+
+
+@njit
+def implicit_drives(system, joints, drives, h, allowed):
+    """The :class:`Implicit` solve A qd_free = M qd + h (τ − b + τ_effort + Kp (q* − q) + Kd qd*) with the
+    drives that do not saturate: solved with every acting drive that ``allowed`` (n,) bool lets in A, then again
+    without those whose torque exceeds their effort limit, until none more does."""
+    M, n = system.mass_matrix, len(system.velocity)
+    implicit = np.zeros(n, np.bool_)
+    for i in range(n):
+        kp, kd = _drive_gains(drives, joints, i)
+        implicit[i] = (kp > 0.0 or kd > 0.0) and allowed[i]
+    base = np.zeros(n)
+    for i in range(n):
+        s = 0.0
+        for k in range(n):
+            s += M[i, k] * system.velocity[k]
+        base[i] = s + h * (system.applied[i] - system.bias[i] + _effort_command(drives, joints, i))
+    while True:  # at most n + 1 passes: each but the last takes a drive out of A
+        A = M.copy()
+        rhs = base.copy()
+        for i in range(n):
+            A[i, i] += h * joints.damping[i]
+            if implicit[i]:
+                kp, kd = _drive_gains(drives, joints, i)
+                A[i, i] += h * kd + h * h * kp
+                rhs[i] += h * _drive_push(system, drives, i, kp, kd)
+        L = cholesky(A)
+        v = cholesky_solve(L, rhs)
+        saturated = False
+        for i in range(n):
+            if implicit[i]:
+                kp, kd = _drive_gains(drives, joints, i)
+                torque = _drive_push(system, drives, i, kp, kd) - (h * kp + kd) * v[i]
+                if abs(torque) > joints.effort_limit[i] * (1.0 + 1e-12):
+                    implicit[i] = False
+                    saturated = True
+        if not saturated:
+            return Implicit(L, v, implicit)
+
+
+@njit
+def _count_rows(joints, drives, implicit, n_contacts):
+    n = len(implicit)
+    count = len(joints.mimic_follower) + 3 * n_contacts
+    for i in range(n):
+        kp, kd = _drive_gains(drives, joints, i)
+        if (kp > 0.0 or kd > 0.0) and not implicit[i]:
+            count += 1
+        if joints.friction[i] > 0.0:
+            count += 1
+        if joints.velocity_limit[i] > 0.0 and joints.velocity_limit[i] < np.inf:
+            count += 2
+        if joints.lower[i] > -np.inf:
+            count += 1
+        if joints.upper[i] < np.inf:
+            count += 1
+    return count
+
+
+@njit
+def _empty_rows(R, n):
+    return JointRows(np.zeros(R, np.int64), np.zeros(R, np.int64), np.zeros((R, n)), np.zeros((R, n)),
+                     np.full(R, -1, np.int64), np.zeros((R, 6)), np.zeros((R, 6)), np.zeros(R), np.zeros(R),
+                     np.zeros(R), np.zeros(R), np.zeros(R), np.zeros(R), np.zeros(R))
+
+
+@njit
+def _dof_row(rows, r, kind, index, dof, sign):
+    """Row r: kind, key, J = sign · e_dof (bounds and target left to the caller)."""
+    rows.kind[r] = kind
+    rows.key[r] = kind * KEY_SLOTS + index
+    rows.J[r, dof] = sign
+
+
+@njit
+def _joint_rows(system, joints, drives, implicit, rows, h):
+    """Fill the joint's own rows (drive, friction, velocity limit, mimic, limit) from row 0; returns the next."""
+    n = len(implicit)
+    r = 0
+    for i in range(n):  # saturated drives: soft rows with the drive's softness, |λ| ≤ h effort_limit
+        kp, kd = _drive_gains(drives, joints, i)
+        if (kp > 0.0 or kd > 0.0) and not implicit[i]:
+            _dof_row(rows, r, ROW_DRIVE, i, i, 1.0)
+            gamma = 1.0 / (h * kd + h * h * kp)
+            rows.softness[r] = gamma
+            rows.target[r] = gamma * h * _drive_push(system, drives, i, kp, kd)
+            rows.lower[r], rows.upper[r] = -h * joints.effort_limit[i], h * joints.effort_limit[i]
+            r += 1
+    for i in range(n):
+        if joints.friction[i] > 0.0:
+            _dof_row(rows, r, ROW_FRICTION, i, i, 1.0)
+            rows.lower[r], rows.upper[r] = -h * joints.friction[i], h * joints.friction[i]
+            r += 1
+    for i in range(n):
+        vmax = joints.velocity_limit[i]
+        if vmax > 0.0 and vmax < np.inf:
+            for side in range(2):  # qd ≥ −vmax, then −qd ≥ −vmax
+                _dof_row(rows, r, ROW_VELOCITY_LIMIT, 2 * i + side, i, 1.0 - 2.0 * side)
+                rows.target[r], rows.upper[r] = -vmax, np.inf
+                r += 1
+    for j in range(len(joints.mimic_follower)):
+        f, lead, mult = joints.mimic_follower[j], joints.mimic_leader[j], joints.mimic_multiplier[j]
+        _dof_row(rows, r, ROW_MIMIC, j, f, 1.0)
+        rows.J[r, lead] -= mult
+        rows.lower[r], rows.upper[r] = -np.inf, np.inf
+        rows.error[r] = system.position[f] - mult * system.position[lead] - joints.mimic_offset[j]
+        r += 1
+    for i in range(n):
+        for side in range(2):  # lower limit: J = e_i, gap q − lower; upper: J = −e_i, gap upper − q
+            bound = joints.lower[i] if side == 0 else joints.upper[i]
+            if bound == np.inf or bound == -np.inf or bound != bound:
+                continue
+            sign = 1.0 - 2.0 * side
+            _dof_row(rows, r, ROW_LIMIT, 2 * i + side, i, sign)
+            gap = sign * (system.position[i] - bound)
+            rows.error[r] = gap
+            rows.target[r] = -max(gap, 0.0) / h
+            rows.upper[r] = np.inf
+            r += 1
+    return r
+
+
+@njit
+def _contact_rows(contacts, bodies, rows, first, h):
+    """Fill the contact points' rows from row ``first``: per point t₁, t₂, normal."""
+    for c in range(len(contacts.key)):
+        for slot in range(3):
+            r = first + 3 * c + slot
+            d = (slot + 1) % 3  # the rows t₁, t₂, normal take directions 1, 2, 0 of the point
+            rows.kind[r] = ROW_NORMAL if d == 0 else ROW_TANGENT
+            rows.key[r] = rows.kind[r] * KEY_SLOTS + 3 * contacts.key[c] + d
+            for k in range(rows.J.shape[1]):
+                rows.J[r, k] = contacts.joint_jacobian[c, d, k]
+            b = contacts.body[c]
+            rows.body[r] = b
+            if b >= 0:
+                for k in range(6):
+                    rows.Jb[r, k] = contacts.body_jacobian[c, d, k]
+                for k in range(3):
+                    rows.Wb[r, k] = bodies.inv_mass[b] * rows.Jb[r, k]
+                    rows.Wb[r, 3 + k] = (bodies.inv_inertia[b, k, 0] * rows.Jb[r, 3]
+                                         + bodies.inv_inertia[b, k, 1] * rows.Jb[r, 4]
+                                         + bodies.inv_inertia[b, k, 2] * rows.Jb[r, 5])
+            if d == 0:
+                rows.error[r] = contacts.separation[c]
+                rows.target[r] = -max(contacts.separation[c], 0.0) / h
+                rows.upper[r] = np.inf
+            else:
+                rows.lower[r], rows.upper[r] = -contacts.friction[c], contacts.friction[c]
+
+
+@njit
+def prepare_joints(system, joints, drives, contacts, bodies, h, allowed):
+    """Box2D's prepare stage in joint space: the :class:`Implicit` solve (drives ``allowed`` in A, (n,) bool) and
+    the sub-step's :class:`JointRows` with A⁻¹ Jᵀ and their effective masses."""
+    implicit = implicit_drives(system, joints, drives, h, allowed)
+    n = len(system.velocity)
+    rows = _empty_rows(_count_rows(joints, drives, implicit.implicit, len(contacts.key)), n)
+    first = _joint_rows(system, joints, drives, implicit.implicit, rows, h)
+    _contact_rows(contacts, bodies, rows, first, h)
+    for r in range(len(rows.kind)):
+        w = cholesky_solve(implicit.factor, rows.J[r])
+        k = 0.0
+        for i in range(n):
+            rows.W[r, i] = w[i]
+            k += rows.J[r, i] * w[i]
+        for i in range(6):
+            k += rows.Jb[r, i] * rows.Wb[r, i]
+        rows.stiff[r] = k
+        rows.eff[r] = 1.0 / (k + rows.softness[r]) if k + rows.softness[r] > 0.0 else 0.0
+    return implicit, rows
+
+
+# ---- 2.–3. warm start and the sweeps -------------------------------------------------------------------------
+
+@njit
+def _row_velocity(rows, r, v, V):
+    s = 0.0
+    for i in range(len(v)):
+        s += rows.J[r, i] * v[i]
+    b = rows.body[r]
+    if b >= 0:
+        for k in range(6):
+            s += rows.Jb[r, k] * V[b, k]
+    return s
+
+
+@njit
+def _apply_row(rows, r, delta, v, V):
+    for i in range(len(v)):
+        v[i] += rows.W[r, i] * delta
+    b = rows.body[r]
+    if b >= 0:
+        for k in range(6):
+            V[b, k] += rows.Wb[r, k] * delta
+
+
+@njit
+def warm_start_joints(rows, memory, v, V, warm_start):
+    """The accumulated impulses λ (R,), from the previous sub-step's of the same keys (clamped to this
+    sub-step's bounds; a tangent row to its cone), applied to v (n,) and V (b, 6); zeros without warm start."""
+    R = len(rows.kind)
+    lam = np.zeros(R)
+    if not warm_start or len(memory.key) == 0:
+        return lam
+    for r in range(R):
+        o = np.searchsorted(memory.key, rows.key[r])
+        if o < len(memory.key) and memory.key[o] == rows.key[r]:
+            lam[r] = memory.impulse[o]
+            if rows.kind[r] != ROW_TANGENT:  # (tangent rows: to their cone, below)
+                lam[r] = min(max(lam[r], rows.lower[r]), rows.upper[r])
+    for r in range(R):
+        if rows.kind[r] == ROW_TANGENT and (r + 1 < R and rows.kind[r + 1] == ROW_TANGENT):
+            _clamp_cone(rows, r, lam)
+    for r in range(R):
+        if lam[r] != 0.0:
+            _apply_row(rows, r, lam[r], v, V)
+    return lam
+
+
+@njit
+def _clamp_cone(rows, r, lam):
+    """Clamp the tangent pair (r, r + 1) to |λ_t| ≤ μ λₙ (the normal is row r + 2, μ in the pair's upper)."""
+    limit = rows.upper[r] * lam[r + 2]
+    norm = math.sqrt(lam[r] * lam[r] + lam[r + 1] * lam[r + 1])
+    if norm > limit:
+        scale = limit / norm if norm > 0.0 else 0.0
+        lam[r] *= scale
+        lam[r + 1] *= scale
+
+
+@njit
+def solve_joints(rows, lam, v, V, settings):
+    """Projected Gauss–Seidel over the rows, in place on λ, v, V; returns the sweeps run."""
+    R = len(rows.kind)
+    sweeps = 0
+    for _ in range(settings.velocity_iterations):
+        sweeps += 1
+        change = 0.0
+        r = 0
+        while r < R:
+            if rows.kind[r] == ROW_TANGENT:  # t₁ and t₂ of a point together, clamped to its cone
+                d1 = rows.eff[r] * (rows.target[r] - _row_velocity(rows, r, v, V))
+                d2 = rows.eff[r + 1] * (rows.target[r + 1] - _row_velocity(rows, r + 1, v, V))
+                old1, old2 = lam[r], lam[r + 1]
+                lam[r], lam[r + 1] = old1 + d1, old2 + d2
+                _clamp_cone(rows, r, lam)
+                d1, d2 = lam[r] - old1, lam[r + 1] - old2
+                _apply_row(rows, r, d1, v, V)
+                _apply_row(rows, r + 1, d2, v, V)
+                change = max(change, abs(d1) * rows.stiff[r], abs(d2) * rows.stiff[r + 1])
+                r += 2
+                continue
+            delta = rows.eff[r] * (rows.target[r] - _row_velocity(rows, r, v, V) - rows.softness[r] * lam[r])
+            old = lam[r]
+            lam[r] = min(max(old + delta, rows.lower[r]), rows.upper[r])
+            delta = lam[r] - old
+            _apply_row(rows, r, delta, v, V)
+            change = max(change, abs(delta) * (rows.stiff[r] + rows.softness[r]))
+            r += 1
+        if change <= settings.velocity_tolerance:
+            break
+    return sweeps
+
+
+@njit
+def saturated_by_rows(system, joints, drives, implicit, v, h, allowed):
+    """Whether a drive left in A has a torque beyond its effort limit at the solved velocity v (n,); such drives
+    are taken out of ``allowed`` (in place)."""
+    found = False
+    for i in range(len(v)):
+        if implicit.implicit[i]:
+            kp, kd = _drive_gains(drives, joints, i)
+            torque = _drive_push(system, drives, i, kp, kd) - (h * kp + kd) * v[i]
+            if abs(torque) > joints.effort_limit[i] * (1.0 + 1e-9):
+                allowed[i] = False
+                found = True
+    return found
+
+
+# ---- 4. the position stage -----------------------------------------------------------------------------------
+
+@njit
+def _positional(rows, r):
+    """Whether row r takes part in the position stage: limits, mimics, normals against the static world."""
+    kind = rows.kind[r]
+    return kind == ROW_LIMIT or kind == ROW_MIMIC or (kind == ROW_NORMAL and rows.body[r] < 0)
+
+
+@njit
+def relax_positions(rows, v, settings):
+    """The position stage: the displacement Δq (as the pseudo-velocity Δq / h, (n,)) that removes the fraction
+    β of the limits' and mimics' position errors predicted after the velocity step, and of the penetration of the
+    contacts with the static world beyond the slop (see the module docstring)."""
+    n, R, h = len(v), len(rows.kind), settings.h
+    d = np.zeros(n)
+    goal = np.zeros(R)
+    lam = np.zeros(R)
+    for r in range(R):
+        if _positional(rows, r):
+            predicted = rows.error[r]
+            for i in range(n):
+                predicted += h * rows.J[r, i] * v[i]
+            if rows.kind[r] == ROW_NORMAL:  # as the contact solver's position stage: slop, β, a cap
+                goal[r] = min(-settings.contact_correction * (predicted + settings.penetration_slop),
+                              settings.max_correction)
+            else:
+                goal[r] = -settings.position_correction * predicted
+    for _ in range(settings.position_iterations):
+        change = 0.0
+        for r in range(R):
+            if not _positional(rows, r) or rows.stiff[r] <= 0.0:
+                continue
+            s = 0.0
+            for i in range(n):
+                s += rows.J[r, i] * d[i]
+            delta = (goal[r] - s) / rows.stiff[r]
+            if rows.kind[r] != ROW_MIMIC:  # one-sided
+                delta = max(lam[r] + delta, 0.0) - lam[r]
+            lam[r] += delta
+            for i in range(n):
+                d[i] += rows.W[r, i] * delta
+            change = max(change, abs(delta) * rows.stiff[r])
+        if change <= POSITION_TOLERANCE:  # nothing (more) to correct: the usual case, one sweep
+            break
+    for i in range(n):
+        d[i] /= h
+    return d
+
+
+# ---- 5. store: impulses to the free bodies, the effort, the memory -------------------------------------------
+
+@njit
+def store_joints(system, joints, drives, implicit, rows, lam, v, bodies, h):
+    """Adds the contact rows' impulses to the free bodies' momenta (in place); returns the effort (n,) (see the
+    module docstring), the contact impulses (c, 3) and the new :class:`JointSolverMemory`."""
+    n, R = len(v), len(rows.kind)
+    effort = np.zeros(n)
+    for i in range(n):
+        effort[i] = _effort_command(drives, joints, i) - joints.damping[i] * v[i]
+        if implicit.implicit[i]:
+            kp, kd = _drive_gains(drives, joints, i)
+            effort[i] += _drive_push(system, drives, i, kp, kd) - (h * kp + kd) * v[i]
+    n_joint_rows = 0
+    for r in range(R):
+        if rows.kind[r] <= ROW_LIMIT:
+            n_joint_rows += 1
+            for i in range(n):
+                effort[i] += rows.J[r, i] * lam[r] / h
+        b = rows.body[r]
+        if b >= 0:
+            for k in range(3):
+                bodies.linear_momentum[b, k] += rows.Jb[r, k] * lam[r]
+                bodies.angular_momentum[b, k] += rows.Jb[r, 3 + k] * lam[r]
+    c = (R - n_joint_rows) // 3
+    impulse = np.zeros((c, 3))
+    for p in range(c):
+        r = n_joint_rows + 3 * p
+        impulse[p, 0], impulse[p, 1], impulse[p, 2] = lam[r + 2], lam[r], lam[r + 1]
+    order = np.argsort(rows.key, kind="mergesort")
+    return effort, impulse, JointSolverMemory(rows.key[order], lam[order])
+
+
+# ---- the sub-step ---------------------------------------------------------------------------------------------
+
+@njit
+def step_joints(system, joints, drives, contacts, bodies, memory, settings, profile):
+    """One sub-step of an articulation's joints (the stages in order, each timed into ``profile``,
+    (len(STAGES),)).  Bundles (plain tuples from Python, see "Bundles" in :mod:`cgp_core.jit`):
+    :class:`JointSystem`, :class:`JointProperties`, :class:`JointDrives`, :class:`ContactRows`,
+    :class:`FreeBodies` (velocity and momenta updated in place), :class:`JointSolverMemory`,
+    :class:`JointSettings`.  Returns the :class:`JointStep` and the new memory."""
+    system, joints, drives = JointSystem(*system), JointProperties(*joints), JointDrives(*drives)
+    contacts, bodies = ContactRows(*contacts), FreeBodies(*bodies)
+    memory, settings = JointSolverMemory(*memory), JointSettings(*settings)
+    h, n = settings.h, len(system.velocity)
+    allowed = np.ones(n, np.bool_)
+    sweeps = 0
+    start = clock()
+    while True:  # at most n + 1 passes: each but the last takes a drive out of A
+        implicit, rows = prepare_joints(system, joints, drives, contacts, bodies, h, allowed)
+        v = implicit.velocity.copy()
+        V = bodies.velocity.copy()
+        start = lap(profile, PREPARE, start)
+        lam = warm_start_joints(rows, memory, v, V, settings.warm_start)
+        start = lap(profile, WARM_START, start)
+        sweeps += solve_joints(rows, lam, v, V, settings)
+        start = lap(profile, SOLVE, start)
+        # the rows may have held a drive back (a contact, a limit): one whose torque now exceeds its limit is
+        # taken out of A and the sub-step solved again with it as a clamped row
+        if not saturated_by_rows(system, joints, drives, implicit, v, h, allowed):
+            break
+    for b in range(len(V)):
+        for k in range(6):
+            bodies.velocity[b, k] = V[b, k]
+    pseudo = relax_positions(rows, v, settings)
+    start = lap(profile, RELAX, start)
+    effort, impulse, memory = store_joints(system, joints, drives, implicit, rows, lam, v, bodies, h)
+    lap(profile, STORE, start)
+    return JointStep(v, pseudo, effort, impulse, sweeps), memory
+
+
+def integrate_dofs(position: np.ndarray, step: JointStep, h: float) -> np.ndarray:
+    """q⁺ = q + h (qd⁺ + pseudo) for robots of 1-dof joints (revolute, prismatic); others integrate
+    ``step.velocity + step.pseudo_velocity`` with their own integrator."""
+    return position + h * (step.velocity + step.pseudo_velocity)
+
+
+def position_gains(mass_matrix: np.ndarray, h: float, fraction: float = 0.25,
+                   damping_ratio: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Default position-drive gains (kp, kd), each (n,): per dof the spring of natural frequency ``fraction`` of
+    the sub-step rate (Box2D's cap on joint stiffness: 0.25 × 1/h Hz) on the dof's own inertia M[i, i], with
+    damping ratio ``damping_ratio``: kp = I ω², kd = 2 ζ I ω, ω = 2π fraction / h.  At h = 1/240 s, 1 kg m² gets
+    kp ≈ 1.4e5 N m/rad: a 20 N m gravity load holds to ~1.4e-4 rad."""
+    inertia = np.diag(np.asarray(mass_matrix, float)).copy()
+    omega = 2.0 * math.pi * fraction / h
+    return inertia * omega * omega, 2.0 * damping_ratio * inertia * omega
+
+
+def _shape(array, shape, what: str, dtype=np.float64) -> None:
+    a = np.asarray(array)
+    if a.shape != shape or a.dtype != dtype:
+        raise ValueError(f"{what} must be a {dtype.__name__} array of shape {shape}, got {a.dtype} {a.shape}")
+
+
+def check_bundles(system: JointSystem, joints: JointProperties, drives: JointDrives, contacts: ContactRows,
+                  bodies: FreeBodies) -> None:
+    """``ValueError`` naming the array unless every array has the shape and dtype its bundle documents and the
+    indices (mimic dofs, contact bodies, drive modes) are in range: the compiled kernels do not check bounds."""
+    n = len(system.velocity)
+    _shape(system.mass_matrix, (n, n), "mass_matrix")
+    for name in ("bias", "applied", "position", "velocity"):
+        _shape(getattr(system, name), (n,), name)
+    for name in ("lower", "upper", "effort_limit", "velocity_limit", "damping", "friction"):
+        _shape(getattr(joints, name), (n,), name)
+    k = len(joints.mimic_follower)
+    for name, dtype in (("mimic_follower", np.int64), ("mimic_leader", np.int64), ("mimic_multiplier", np.float64),
+                        ("mimic_offset", np.float64)):
+        _shape(getattr(joints, name), (k,), name, dtype)
+    if k and not (0 <= min(joints.mimic_follower.min(), joints.mimic_leader.min())
+                  and max(joints.mimic_follower.max(), joints.mimic_leader.max()) < n):
+        raise ValueError(f"mimic dofs must be in [0, {n})")
+    _shape(drives.mode, (n,), "mode", np.int64)
+    if n and not (DRIVE_NONE <= drives.mode.min() and drives.mode.max() <= DRIVE_POSITION):
+        raise ValueError("drive modes must be DRIVE_NONE, DRIVE_EFFORT, DRIVE_VELOCITY or DRIVE_POSITION")
+    for name in ("target_position", "target_velocity", "target_effort", "stiffness", "damping"):
+        _shape(getattr(drives, name), (n,), f"drive {name}")
+    if n and (drives.stiffness.min() < 0 or drives.damping.min() < 0 or not np.all(np.isfinite(drives.stiffness))
+              or not np.all(np.isfinite(drives.damping))):
+        raise ValueError("drive gains must be finite and >= 0")
+    c, b = len(contacts.key), len(bodies.inv_mass)
+    _shape(contacts.joint_jacobian, (c, 3, n), "joint_jacobian")
+    _shape(contacts.body, (c,), "contact body", np.int64)
+    _shape(contacts.body_jacobian, (c, 3, 6), "body_jacobian")
+    _shape(contacts.separation, (c,), "separation")
+    _shape(contacts.friction, (c,), "contact friction")
+    _shape(contacts.key, (c,), "contact key", np.int64)
+    if c and not (-1 <= contacts.body.min() and contacts.body.max() < b):
+        raise ValueError(f"contact bodies must be -1 (the static world) or in [0, {b})")
+    if c and not (0 <= contacts.key.min() and contacts.key.max() < 2 ** 37):
+        raise ValueError("contact keys must be in [0, 2**37)")
+    _shape(bodies.inv_inertia, (b, 3, 3), "inv_inertia")
+    for name, width in (("velocity", 6), ("linear_momentum", 3), ("angular_momentum", 3)):
+        _shape(getattr(bodies, name), (b, width), name)
+
+
+class JointSolver:
+    """The Python side of :func:`step_joints`: keeps the warm-start memory, the settings and the stage
+    profile between sub-steps.
+
+    ``step(system, joints, drives, contacts=None, bodies=None)`` runs one sub-step and returns its
+    :class:`JointStep`; :meth:`reset` forgets the warm start (a teleport, a new model).  ``check`` (default on):
+    every call checks the bundles' shapes and indices first (:func:`check_bundles`, ~25 µs for 7 dofs); a caller
+    that built them itself and proved them turns it off."""
+
+    def __init__(self, h: float, *, check: bool = True, **overrides):
+        self.settings = JointSettings.default(positive(h, "the sub-step h"))._replace(**overrides)
+        self.check = check
+        self.profile = StageProfile(STAGES)
+        self.memory = JointSolverMemory.empty()
+
+    def reset(self) -> None:
+        self.memory = JointSolverMemory.empty()
+
+    def step(self, system: JointSystem, joints: JointProperties, drives: JointDrives,
+             contacts: ContactRows | None = None, bodies: FreeBodies | None = None) -> JointStep:
+        n = len(system.velocity)
+        contacts = ContactRows.empty(n) if contacts is None else contacts
+        bodies = FreeBodies.empty() if bodies is None else bodies
+        if self.check:
+            check_bundles(system, joints, drives, contacts, bodies)
+        result, memory = step_joints(tuple(system), tuple(joints), tuple(drives), tuple(contacts), tuple(bodies),
+                                     tuple(self.memory), tuple(self.settings), self.profile.seconds)
+        self.memory = JointSolverMemory(*memory)
+        self.profile.calls += 1
+        return JointStep(*result)
+
+
+__all__ = ["DRIVE_EFFORT", "DRIVE_NONE", "DRIVE_POSITION", "DRIVE_VELOCITY", "STAGES", "ContactRows", "FreeBodies",
+           "JointDrives", "JointProperties", "JointSettings", "JointSolver", "JointSolverMemory", "JointStep",
+           "JointSystem", "check_bundles", "integrate_dofs", "position_gains", "step_joints"]
