@@ -66,6 +66,10 @@ Per robot of the scene (``robots:``; :mod:`cgp_sim_ros.ros.robots`), under ``~/r
   for it chooses the drive (position > velocity > effort); a command holds until the next one.  Queued and
   applied between ticks; rejections (unknown joint, NaN, ...) named on the log and ``~/events`` as the wrench
   commands' are.
+- ``joint_trajectory`` (trajectory_msgs/JointTrajectory, subscribed, ``COMMAND_QOS``): followed through the
+  position drives with joint_trajectory_controller's interpolation (cubic between points with velocities, linear
+  without; :mod:`cgp_sim_ros.trajectory`), from ``header.stamp`` in simulation time (0: when taken); a new
+  trajectory replaces the robot's current one, a ``joint_commands`` message stops it.
 
 Services (std_srvs): ``~/reset`` (Trigger), ``~/pause`` (SetBool), ``~/step`` (Trigger, one tick while paused),
 ``~/clear_wrenches`` (Trigger).
@@ -169,6 +173,8 @@ TOPIC_TF = "/tf"
 TOPIC_ROBOT_JOINT_STATES = "~/robots/{robot}/joint_states"
 TOPIC_ROBOT_JOINT_COMMANDS = "~/robots/{robot}/joint_commands"
 TOPIC_ROBOT_DESCRIPTION = "~/robots/{robot}/robot_description"
+# trajectory_msgs/JointTrajectory in, followed through the position drives (cgp_sim_ros/trajectory.py)
+TOPIC_ROBOT_JOINT_TRAJECTORY = "~/robots/{robot}/joint_trajectory"
 TOPIC_TF_STATIC = "/tf_static"
 SERVICE_RESET = "~/reset"
 SERVICE_PAUSE = "~/pause"
@@ -313,6 +319,9 @@ MAX_COMMAND_BYTES = 1024
 #: a ~/robots/<robot>/joint_commands message larger than this is dropped unread: 4 arrays of a few hundred joints
 #: with names of at most MAX_NAME_LENGTH characters fit many times over
 MAX_JOINT_COMMAND_BYTES = 65536
+#: a ~/robots/<robot>/joint_trajectory message larger than this is dropped unread (10,000 points of 7 joints with
+#: positions, velocities and accelerations are ~1.8 MB)
+MAX_TRAJECTORY_BYTES = 4 * 1024 * 1024
 #: a command callback goes on taking waiting commands for at most this long (wall seconds)
 COMMAND_BATCH_S = 0.002
 

@@ -33,12 +33,14 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 REPO = Path(__file__).resolve().parents[1]
 SCENE = REPO / "msgs_config" / "scenes" / "arm.yaml"
 ROBOT = "arm"
 JOINT_STATES = f"/cgp_sim/robots/{ROBOT}/joint_states"
 JOINT_COMMANDS = f"/cgp_sim/robots/{ROBOT}/joint_commands"
+JOINT_TRAJECTORY = f"/cgp_sim/robots/{ROBOT}/joint_trajectory"
 DESCRIPTION = f"/cgp_sim/robots/{ROBOT}/robot_description"
 EVENTS = "/cgp_sim/events"
 MOVABLE_TYPES = ("revolute", "prismatic", "continuous")
@@ -256,6 +258,38 @@ def test_joint_command_topic_takes_joint_state_as_topic_based_ros2_control_sends
     q = np.array(latest_state(probe, states, 10).position)
     assert np.max(np.abs(q[1:] - q0[1:])) <= 1e-3, (q, q0)
     assert not rejections(subs["events"])
+
+
+def test_joint_trajectory_is_followed_to_its_end_point(arm, probe, urdf):
+    """A JointTrajectory as joint_trajectory_controller takes it (stamp 0: start now; two points, positions only:
+    linear): the joints pass the first point's side and end at the last point (≤ 1e-3 rad, 0.5 s after its time);
+    a trajectory naming an unknown joint is refused on ~/events."""
+    node, subs, _ = arm
+    states, events = subs["sensor"], subs["events"]
+    q0 = np.array(latest_state(probe, states, 3).position)
+    publisher = probe.publisher(JOINT_TRAJECTORY, JointTrajectory)
+    probe.wait_for_subscriber(publisher, timeout=30)
+    lower, upper = np.array([urdf.limits[j] for j in urdf.movable]).T
+    end = np.clip(q0 - 0.3, lower + 0.05, upper - 0.05)
+    middle = 0.5 * (q0 + end)
+    msg = JointTrajectory(joint_names=urdf.movable)
+    for seconds, q in ((0.5, middle), (1.0, end)):
+        point = JointTrajectoryPoint(positions=q.tolist())
+        point.time_from_start.sec, point.time_from_start.nanosec = 0, int(seconds * 1e9)
+        msg.points.append(point)
+    sent_at = stamp_ns(states.messages[-1].header)
+    probe.publish_acked(publisher, msg)
+    done_ns = sent_at + 1_500_000_000  # the end point's time (≤ 1 s after the message was taken) + 0.5 s
+    probe.spin_until(lambda: stamp_ns(states.messages[-1].header) >= done_ns, 60, "1.5 s of simulated time")
+    reached = next(m for m in states.messages if stamp_ns(m.header) >= done_ns)
+    assert np.max(np.abs(np.array(reached.position) - end)) <= 1e-3, (list(reached.position), end)
+
+    bad = JointTrajectory(joint_names=["no_such_joint"], points=[JointTrajectoryPoint(positions=[0.0])])
+    probe.publish_acked(publisher, bad)
+    source = f"robots/{ROBOT}/joint_trajectory"
+    probe.spin_until(lambda: any(e.get("source") == source and "no_such_joint" in e["reason"]
+                                 for e in events_of(events)), 30, "the trajectory's rejection on ~/events")
+    assert node.alive()
 
 
 # ---- the bag ---------------------------------------------------------------------------------------------------
