@@ -85,6 +85,23 @@ class Urdf:
         self.limits = {name: (float(limit.get("lower", -math.pi)), float(limit.get("upper", math.pi)))
                        if limit is not None and kind != "continuous" else (-math.pi, math.pi)
                        for name, kind, _, _, limit in self.joints if kind in MOVABLE_TYPES}
+        #: mimic followers (commanded through their leader: ros2_control refuses command interfaces on them)
+        self.mimic = {j.get("name") for j in root.findall("joint") if j.find("mimic") is not None}
+        #: the joints a controller commands: the movable ones but the mimic followers, in URDF order
+        self.commanded = [name for name in self.movable if name not in self.mimic]
+
+    def targets(self, q: np.ndarray, step: float) -> np.ndarray:
+        """Targets for the commanded joints (``q``: their positions) ``step`` away (at most a fifth of a joint's
+        range), inside the limits with a margin."""
+        lower, upper = np.array([self.limits[j] for j in self.commanded]).T
+        span = upper - lower
+        moved = q + np.sign(step) * np.minimum(abs(step), 0.2 * span)
+        return np.clip(moved, lower + 0.1 * span, upper - 0.1 * span)
+
+    def of(self, msg, joints) -> np.ndarray:
+        """The positions of ``joints`` in a JointState."""
+        index = {name: i for i, name in enumerate(msg.name)}
+        return np.array([msg.position[index[j]] for j in joints])
 
 
 @pytest.fixture(scope="module")
@@ -206,30 +223,30 @@ def test_tf_has_every_link_with_fixed_frames_on_tf_static(arm, probe, urdf):
 def test_position_effort_velocity_commands_and_a_bad_one(arm, probe, urdf):
     node, subs, _ = arm
     states, events = subs["sensor"], subs["events"]
-    q0 = np.array(latest_state(probe, states, 3).position)
+    joints = urdf.commanded
+    q0 = urdf.of(latest_state(probe, states, 3), joints)
     # topic_based_ros2_control's publisher: reliable, volatile, keep last 1 (rclcpp::QoS(1))
     commands = probe.publisher(JOINT_COMMANDS, JointState,
                                QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                                           reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE))
     probe.wait_for_subscriber(commands, timeout=30)
 
-    # position for all joints: reached and held within 1e-3 rad
-    lower, upper = np.array([urdf.limits[j] for j in urdf.movable]).T
-    target = np.clip(q0 + 0.25, lower + 0.05, upper - 0.05)
-    probe.publish_acked(commands, JointState(name=urdf.movable, position=target.tolist()))
-    probe.spin_until(lambda: np.max(np.abs(np.array(states.messages[-1].position) - target)) <= 1e-3, 60,
+    # position for all (commanded) joints: reached and held within 1e-3 rad
+    target = urdf.targets(q0, 0.25)
+    probe.publish_acked(commands, JointState(name=joints, position=target.tolist()))
+    probe.spin_until(lambda: np.max(np.abs(urdf.of(states.messages[-1], joints) - target)) <= 1e-3, 60,
                      f"the joints at {target} (last: {list(states.messages[-1].position)})")
     for _ in range(30):  # and they stay there
-        assert np.max(np.abs(np.array(latest_state(probe, states).position) - target)) <= 1e-3
+        assert np.max(np.abs(urdf.of(latest_state(probe, states), joints) - target)) <= 1e-3
 
-    # effort only (all joints, 0 N m: the arm is let go), then velocity only: accepted
-    probe.publish_acked(commands, JointState(name=urdf.movable, effort=[0.0] * len(urdf.movable)))
+    # effort only (all joints, 0 N m / N: the arm is let go), then velocity only: accepted
+    probe.publish_acked(commands, JointState(name=joints, effort=[0.0] * len(joints)))
     latest_state(probe, states, 5)
-    probe.publish_acked(commands, JointState(name=urdf.movable, velocity=[0.0] * len(urdf.movable)))
+    probe.publish_acked(commands, JointState(name=joints, velocity=[0.0] * len(joints)))
     latest_state(probe, states, 5)
 
     # a bad command: an unknown joint and a NaN; the rejections are named on ~/events, the node ticks on
-    first = urdf.movable[0]
+    first = joints[0]
     probe.publish_acked(commands, JointState(name=["no_such_joint", first], position=[0.0, float("nan")]))
     probe.spin_until(lambda: {e["field"] for e in rejections(events)} >= {"name", first}, 30,
                      f"~/events naming the rejected joints (got {rejections(events)})")
@@ -248,14 +265,15 @@ def test_joint_command_topic_takes_joint_state_as_topic_based_ros2_control_sends
     joint only moves that joint; the others hold their pose."""
     node, subs, _ = arm
     states = subs["sensor"]
-    q0 = np.array(latest_state(probe, states, 3).position)
+    joints = urdf.commanded
+    q0 = urdf.of(latest_state(probe, states, 3), joints)
     commands = probe.publisher(JOINT_COMMANDS, JointState)
     probe.wait_for_subscriber(commands, timeout=30)
-    lower, upper = urdf.limits[urdf.movable[0]]
-    target = float(np.clip(q0[0] - 0.2, lower + 0.05, upper - 0.05))
-    probe.publish_acked(commands, JointState(name=[urdf.movable[0]], position=[target]))
-    probe.spin_until(lambda: abs(states.messages[-1].position[0] - target) <= 1e-3, 60, "the first joint at target")
-    q = np.array(latest_state(probe, states, 10).position)
+    target = float(urdf.targets(q0, -0.2)[0])
+    probe.publish_acked(commands, JointState(name=[joints[0]], position=[target]))
+    probe.spin_until(lambda: abs(urdf.of(states.messages[-1], joints[:1])[0] - target) <= 1e-3, 60,
+                     "the first joint at target")
+    q = urdf.of(latest_state(probe, states, 10), joints)
     assert np.max(np.abs(q[1:] - q0[1:])) <= 1e-3, (q, q0)
     assert not rejections(subs["events"])
 
@@ -266,13 +284,13 @@ def test_joint_trajectory_is_followed_to_its_end_point(arm, probe, urdf):
     a trajectory naming an unknown joint is refused on ~/events."""
     node, subs, _ = arm
     states, events = subs["sensor"], subs["events"]
-    q0 = np.array(latest_state(probe, states, 3).position)
+    joints = urdf.commanded
+    q0 = urdf.of(latest_state(probe, states, 3), joints)
     publisher = probe.publisher(JOINT_TRAJECTORY, JointTrajectory)
     probe.wait_for_subscriber(publisher, timeout=30)
-    lower, upper = np.array([urdf.limits[j] for j in urdf.movable]).T
-    end = np.clip(q0 - 0.3, lower + 0.05, upper - 0.05)
+    end = urdf.targets(q0, -0.3)
     middle = 0.5 * (q0 + end)
-    msg = JointTrajectory(joint_names=urdf.movable)
+    msg = JointTrajectory(joint_names=joints)
     for seconds, q in ((0.5, middle), (1.0, end)):
         point = JointTrajectoryPoint(positions=q.tolist())
         point.time_from_start.sec, point.time_from_start.nanosec = 0, int(seconds * 1e9)
@@ -282,7 +300,7 @@ def test_joint_trajectory_is_followed_to_its_end_point(arm, probe, urdf):
     done_ns = sent_at + 1_500_000_000  # the end point's time (≤ 1 s after the message was taken) + 0.5 s
     probe.spin_until(lambda: stamp_ns(states.messages[-1].header) >= done_ns, 60, "1.5 s of simulated time")
     reached = next(m for m in states.messages if stamp_ns(m.header) >= done_ns)
-    assert np.max(np.abs(np.array(reached.position) - end)) <= 1e-3, (list(reached.position), end)
+    assert np.max(np.abs(urdf.of(reached, joints) - end)) <= 1e-3, (list(reached.position), end)
 
     bad = JointTrajectory(joint_names=["no_such_joint"], points=[JointTrajectoryPoint(positions=[0.0])])
     probe.publish_acked(publisher, bad)
