@@ -34,14 +34,16 @@ __all__ = ["Ground", "step_bodies"]
 
 
 def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solver: ContactSolver, h: float, *,
-                gravity, ground: Ground | None, linear_damping: float = 0.0, angular_damping: float = 0.0,
-                islands: Islands | None = None) -> ContactSet:
+                gravity, ground: Ground | None, damping: tuple[float, float] = (0.0, 0.0),
+                islands: Islands | None = None, robots=None) -> ContactSet:
     """Advance all bodies (the awake ones, with ``islands``) by one sub-step of ``h`` seconds, in place.
 
     Args:
         gravity:          (3,) m/s².
         ground:           the static plane z = 0 (:class:`Ground`), or ``None`` for a scene without one.
-        linear_damping, angular_damping: viscous rates [1/s] (:func:`cgp_core.forces.apply_damping`).
+        damping:          ``(linear, angular)`` viscous rates [1/s] (:func:`cgp_core.forces.apply_damping`).
+        robots:           the world's robots (:class:`cgp_core.robots.world.Robots`) or ``None``: their links
+                          are bodies of ``model`` whose motion the robot stage computes in joint space.
         islands:          per-island sleep state (:class:`cgp_core.sleep.Islands`): sleeping bodies are left
                           out (no forces, no integration; static to the awake ones) and an island an awake body
                           touches is woken here.  ``None``: every body is stepped.
@@ -59,9 +61,12 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
 
     active = None if islands is None else islands.awake
 
-    # 1. accumulate forces (on top of any wrench forces already accumulated by the caller)
+    # 1. accumulate forces (on top of any wrench forces already accumulated by the caller); wrenches on robot
+    #    links become joint efforts (the robot stage adds gravity in joint space itself)
+    if robots is not None:
+        robots.take_wrenches(model, state)
     apply_gravity(model, state, gravity)
-    apply_damping(model, state, linear_damping, angular_damping)
+    apply_damping(model, state, *damping)
     if active is not None:
         state.force[~active] = 0.0  # sleeping bodies are held where they rest
         state.torque[~active] = 0.0
@@ -82,13 +87,22 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
         contacts = solver.detector.detect(model, state, h, ground=ground, velocity=velocity,
                                           angular_velocity=angular_velocity, rotation=R, active=active)
 
-    # 3. solve contacts: impulses added to P and L as momentum changes at the start of the sub-step, so that
+    # 3a. robot stage: the contacts that touch a link are rows in the robots' joint space, with limits, drives,
+    #     mimic couplings and joint friction (cgp_core.robots.world); the free bodies they touch get their share
+    #     of those impulses, and the remaining contacts go on to 3b
+    if robots is not None and robots.n_dofs:
+        contacts = robots.solve(contacts, model, state, h, gravity, velocity, angular_velocity, inv_inertia)
+
+    # 3b. solve contacts: impulses added to P and L as momentum changes at the start of the sub-step, so that
     #    momentum + h·force + impulse satisfies non-penetration, restitution and friction
     solver.solve_velocities(model, state, contacts, h, inv_inertia=inv_inertia, active=active)
 
     # 4. integrate; then continuous collision for bodies turning fast next to fixed hulls and meshes (put back at
     #    their time of impact: cgp_core.collision.convex_phase)
     integrator.step(model, state, h, active=active)
+    if robots is not None and robots.n_dofs:
+        robots.integrate(h)
+        robots.write_bodies(model, state)  # the links where the joints put them, whatever the integrator did
     solver.detector.sweep_fast_rotation(model, state, h)
 
     # 5. recover penetration (moves bodies apart; momenta untouched: adds no kinetic energy)

@@ -75,6 +75,7 @@ from .limits import (
     MAX_SPIN,
     rigid_work_refusal,
 )
+from .robots.world import Robots
 from .rotation import quat_conjugate, quat_rotate, quat_to_matrix
 from .scene import (
     GROUND_NAME,
@@ -198,12 +199,17 @@ class World:
         refusal = rigid_work_refusal(*scene.rigid_work(), self.substeps)
         if refusal:
             raise SceneError(scene.source, [f"{'world.' if substeps is None else ''}substeps: {refusal}"])
-        self.body_model, self._initial_body_state = scene.build_bodies()
+        #: the scene's robots (:class:`cgp_core.robots.world.Robots`; their links are bodies named <robot>/<link>)
+        self.robots = Robots(scene.robots) if scene.robots else None
+        self.body_model, self._initial_body_state = self._scene_bodies()
         self.body_state = self._initial_body_state.copy()
+        if self.robots is not None:
+            self.robots.attach(self.body_model)
         self._scene_flock_params = [p if seed is None else p.with_seed(seed + i) for i, p in enumerate(scene.flocks)]
         self.flocks = [Flock(p) for p in self._scene_flock_params]
         self.wrenches = WrenchSchedule()
-        self.sleep_enabled = bool(scene.world.sleep)
+        # robots keep every body awake: sleep islands do not join jointed links yet (issue 35's note)
+        self.sleep_enabled = bool(scene.world.sleep) and self.robots is None
         self._islands: Islands | None = None  # per-island sleep state of body_model (see islands())
         self.time_ns = 0
         self.ticks = 0
@@ -237,7 +243,7 @@ class World:
         islands = self.islands()
         if islands is not None and self.wrenches.active:
             islands.wake(self.wrenches.body)  # a wrench wakes the island of the body it acts on
-        if model.count and not self.bodies_asleep:
+        if (model.count or self.robots is not None) and not self.bodies_asleep:
             # An extreme (but accepted) force can overflow a body's state to inf / NaN within the sub-steps;
             # numpy's warnings about it would only repeat, on stderr, what _contain_blowups reports right
             # after as an event naming the body.
@@ -247,8 +253,12 @@ class World:
                 for _ in range(self.substeps):
                     self.wrenches.apply(state)
                     contacts = step_bodies(model, state, self.integrator, self.solver, h, gravity=self.gravity,
-                                           ground=self.ground, linear_damping=self.scene.world.linear_damping,
-                                           angular_damping=self.scene.world.angular_damping, islands=islands)
+                                           ground=self.ground, damping=(self.scene.world.linear_damping,
+                                                                        self.scene.world.angular_damping),
+                                           islands=islands,
+                                           robots=self.robots)
+            if self.robots is not None:
+                self.robots.end_tick()
             if self.report_contacts:
                 self._report_contacts(model, islands)  # before sleep: who slept *during* the sub-steps
             self._update_sleep(contacts, *self._contain_blowups())
@@ -397,6 +407,9 @@ class World:
             self._remove(list(self.spawned))
         if state:
             self.body_state = self._initial_body_state.copy()
+            if self.robots is not None:
+                self.robots.reset()
+                self.robots.write_bodies(self.body_model, self.body_state)
             for flock in self.flocks:
                 flock.reset()
             self.wrenches.clear()
@@ -532,8 +545,29 @@ class World:
         """Remove a body or a flock (from the scene or spawned); returns its kind.  A body's wrench commands go
         with it; the other bodies keep their order.  :class:`EditError` ``unknown`` if there is none."""
         kind = self.kind_of(name)
+        self._refuse_link(name, "deleted")
         self._remove([name])
         return kind
+
+    def _refuse_link(self, name: str, what: str) -> None:
+        """:class:`EditError` ``not_possible`` if body ``name`` is a robot's link (it moves by its joints)."""
+        if self.robots is None:
+            return
+        i = self.body_model.names.index(name)
+        group = self.robots.self_collision_group[i] if i < len(self.robots.self_collision_group) else -1
+        if group >= 0:
+            robot = self.robots.robots[group].name
+            raise EditError("not_possible", f"{name} is a link of robot {robot}: it moves by its joints and cannot "
+                            f"be {what} on its own")
+
+    def _scene_bodies(self):
+        """The scene's bodies, then the robots' links (:meth:`cgp_core.robots.world.Robots.body_specs`), as new
+        model and state objects."""
+        if self.robots is None:
+            return self.scene.build_bodies()
+        from dataclasses import replace
+
+        return replace(self.scene, bodies=list(self.scene.bodies) + self.robots.body_specs()).build_bodies()
 
     def set_body_state(self, name: str, position, orientation, linear_velocity=(0.0, 0.0, 0.0),
                        angular_velocity=(0.0, 0.0, 0.0)) -> None:
@@ -541,6 +575,7 @@ class World:
         has (the momenta are set from it: P = m v, L = I_world ω).  Wakes its island.  A fixed body takes a pose
         only (a non-zero twist is refused, as ``simulation_interfaces`` says for static objects)."""
         i = self._body_index(name)
+        self._refuse_link(name, "teleported")
         position, orientation = check_pose(position, orientation)
         v = check_vector(linear_velocity, "twist.linear", MAX_SPEED, "m/s")
         w = check_vector(angular_velocity, "twist.angular", MAX_SPIN, "rad/s")
@@ -650,11 +685,13 @@ class World:
         self.model_version += 1
 
     def _scene_names(self) -> list[str]:
-        return [b.name for b in self.scene.bodies] + [p.name for p in self._scene_flock_params]
+        links = [] if self.robots is None else [n for n in self.body_model.names if "/" in n and
+                                                 n.split("/", 1)[0] in self.robots.names()]
+        return [b.name for b in self.scene.bodies] + links + [p.name for p in self._scene_flock_params]
 
     def _restore_scene(self) -> None:
         """The scene's bodies and flocks, new objects (the states are reset by the caller)."""
-        self.body_model, self._initial_body_state = self.scene.build_bodies()
+        self.body_model, self._initial_body_state = self._scene_bodies()
         self.body_state = self._initial_body_state.copy()
         self.flocks = [Flock(p) for p in self._scene_flock_params]
         self.spawned = []
@@ -676,6 +713,8 @@ class World:
                 self._body_start, (state.linear_momentum, state.angular_momentum, state.orientation)))
         if hasattr(self.solver, "reset"):
             self.solver.reset()
+        if self.robots is not None:
+            self.robots.attach(self.body_model)
         self.wake()
 
     def remember_tick_start(self) -> None:

@@ -22,6 +22,7 @@ from ..limits import (
 from ..user_input import SceneLoader, UserInputError, load_yaml, read_user_text
 from .bodies import parse_bodies, parse_body
 from .flocks import parse_flock, parse_flocks
+from .robots import parse_robots
 from .specs import Scene, WorldSpec
 from .validation import SceneError, Validator, kind_of
 
@@ -101,12 +102,13 @@ def scene_from_dict(data: Any, source: str = "<dict>") -> Scene:
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise SceneError(source, [f"top level must be a mapping with keys world/bodies/flocks, got {kind_of(data)}"])
-    v.no_unknown_keys(data, {"world", "bodies", "flocks", "description"}, "")
+        raise SceneError(source, [f"top level must be a mapping with keys world/bodies/flocks/robots, got {kind_of(data)}"])
+    v.no_unknown_keys(data, {"world", "bodies", "flocks", "robots", "description"}, "")
     world = parse_world(v, data.get("world", {}))
     bodies = parse_bodies(v, data.get("bodies", []))
     flocks = parse_flocks(v, data.get("flocks", []), reserved={b.name for b in bodies})
-    scene = Scene(source=source, world=world, bodies=bodies, flocks=flocks)
+    robots = parse_robots(v, data.get("robots", []), {b.name for b in bodies} | {f.name for f in flocks})
+    scene = Scene(source=source, world=world, bodies=bodies, flocks=flocks, robots=robots)
     refusal = rigid_work_refusal(*scene.rigid_work(), world.substeps)
     if refusal:
         v.fail("world.substeps", refusal)

@@ -61,6 +61,7 @@ class Scene:
     world: WorldSpec
     bodies: list[BodySpec]
     flocks: list[Any]  # cgp_core.boids.FlockParams
+    robots: list[Any] = field(default_factory=list)  # cgp_core.scene.robots.RobotSpec (issue 35)
 
     def rigid_work(self) -> tuple[int, int]:
         """``(shapes, particles)`` of the bodies, the counts a tick's work is bounded by

@@ -1,0 +1,177 @@
+"""``robots`` entries of a scene: articulated robots from URDF (issue 35), parsed into :class:`RobotSpec`.
+
+A robot entry::
+
+    robots:
+      - name: arm                      # ROS-safe, unique among bodies, flocks and robots; its links are named
+                                       # <name>/<link> in the world's bodies
+        urdf: arm3.urdf                # a .urdf or .xacro file: relative to the scene file, then the built-in
+                                       # msgs_config/robots/; or file:// / package:// (package_paths, then
+                                       # AMENT_PREFIX_PATH / ROS_PACKAGE_PATH)
+        position: [0, 0, 0]            # the root link's frame in the world [m]
+        orientation: [0, 0, 0, 1]      # (x, y, z, w)
+        fixed_base: true               # root welded to the world (false: a floating base, 6 dof)
+        joints: {shoulder: 0.3}        # initial joint positions [rad or m] by joint name (default 0)
+        hold: true                     # position drives on every movable joint holding the initial positions
+        stiffness: 1.0e5               # the position drives' gains [N m/rad or N/m] and [N m s/rad or N s/m]
+        damping: 1.0e3                 #   (implicit, bounded by each joint's effort limit; also what a
+                                       #   joint_commands position or velocity target is driven with)
+        self_collision: false          # links of the robot collide with each other (never directly jointed ones)
+        friction: 0.8                  # Coulomb μ and restitution of every link
+        restitution: 0.0
+        xacro_args: {}                 # arguments of a .xacro file
+        package_paths: {}              # package name -> directory, for package:// URIs
+
+The URDF is loaded while the scene is (:func:`cgp_core.robots.urdf.load_urdf`), so a bad URDF is a scene error
+naming the entry, like any other value.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .validation import COORDINATES, Validator, kind_of, short_repr
+
+ROBOT_KEYS = {"name", "urdf", "position", "orientation", "fixed_base", "joints", "hold", "stiffness", "damping",
+              "self_collision", "friction", "restitution", "xacro_args", "package_paths"}
+#: the most robots a scene holds (each is a dense joint-space system of its own)
+MAX_ROBOTS = 16
+
+
+@dataclass
+class RobotSpec:
+    name: str
+    model: Any  # cgp_core.robots.model.RobotModel
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    orientation: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0]))
+    joints: dict = field(default_factory=dict)  # joint name -> initial position
+    hold: bool = True
+    stiffness: float = 1.0e5
+    damping: float = 1.0e3
+    self_collision: bool = False
+    friction: float = 0.8
+    restitution: float = 0.0
+    notes: list = field(default_factory=list)
+
+
+def builtin_robot_dir() -> Path:
+    """The robots shipped with the package (``msgs_config/robots``)."""
+    return Path(str(resources.files("msgs_config") / "robots"))
+
+
+def robot_file(v: Validator, value: Any, key: str) -> Path | str | None:
+    """Where ``urdf:`` points: a ``package://`` URI as given (the loader resolves it), a ``file://`` URI or an
+    absolute path, or a relative path from the scene file's directory, then the built-in robots."""
+    if not isinstance(value, str) or not value:
+        v.fail(key, f"must be a file name or URI (.urdf or .xacro), got {kind_of(value)} {short_repr(value)}")
+        return None
+    if value.startswith("package://"):
+        return value
+    path = Path(value[len("file://"):] if value.startswith("file://") else value)
+    if path.is_absolute():
+        return path
+    source = Path(v.source)
+    for candidate in ([source.parent / path] if source.is_file() else []) + [builtin_robot_dir() / path]:
+        if candidate.is_file():
+            return candidate
+    v.fail(key, f"no robot file {short_repr(value)} (looked next to the scene file and in the built-in robots: "
+                f"{', '.join(sorted(p.name for p in builtin_robot_dir().glob('*.urdf')))})")
+    return None
+
+
+def parse_robots(v: Validator, raw: Any, seen: set[str]) -> list[RobotSpec]:
+    if raw is None:
+        return []
+    if not isinstance(raw, list):
+        v.fail("robots", f"must be a list of robot entries, got {kind_of(raw)}")
+        return []
+    if len(raw) > MAX_ROBOTS:
+        v.fail("robots", f"{len(raw)} robots; a scene holds at most {MAX_ROBOTS}")
+        return []
+    specs = []
+    for i, entry in enumerate(raw):
+        spec = parse_robot(v, entry, f"robots[{i}]", seen)
+        if spec is not None:
+            specs.append(spec)
+    return specs
+
+
+def parse_robot(v: Validator, raw: Any, key: str, seen: set[str], *, name: str | None = None) -> RobotSpec | None:
+    """One robot entry (``name`` given: a spawn, whose entry has none)."""
+    from ..robots.urdf import UrdfError, load_urdf
+
+    before = len(v.problems)
+    d = v.mapping(raw, key)
+    if not d and not isinstance(raw, dict):
+        return None
+    v.no_unknown_keys(d, ROBOT_KEYS, key)
+    if name is None:
+        if "name" not in d:
+            v.fail(f"{key}.name", "missing")
+            return None
+        name = v.name(d["name"], f"{key}.name", seen)
+    if "urdf" not in d:
+        v.fail(f"{key}.urdf", "missing (a .urdf or .xacro file)")
+        return None
+    position = v.vector(d.get("position", [0, 0, 0]), f"{key}.position", 3, within=COORDINATES, unit="m")
+    q = v.vector(d.get("orientation", [0, 0, 0, 1]), f"{key}.orientation", 4, default=np.array([0, 0, 0, 1.0]))
+    if np.linalg.norm(q) < 1e-9:
+        v.fail(f"{key}.orientation", "zero quaternion (x, y, z, w); identity is [0, 0, 0, 1]")
+    fixed_base = v.boolean(d.get("fixed_base", True), f"{key}.fixed_base", True)
+    hold = v.boolean(d.get("hold", True), f"{key}.hold", True)
+    self_collision = v.boolean(d.get("self_collision", False), f"{key}.self_collision", False)
+    stiffness = v.number(d.get("stiffness", 1.0e5), f"{key}.stiffness", minimum=0.0, maximum=1e9)
+    damping = v.number(d.get("damping", 1.0e3), f"{key}.damping", minimum=0.0, maximum=1e9)
+    friction = v.number(d.get("friction", 0.8), f"{key}.friction", minimum=0.0, maximum=10.0)
+    restitution = v.number(d.get("restitution", 0.0), f"{key}.restitution", minimum=0.0, maximum=1.0)
+    xacro_args = _string_map(v, d.get("xacro_args", {}), f"{key}.xacro_args")
+    package_paths = _string_map(v, d.get("package_paths", {}), f"{key}.package_paths")
+    joints_raw = v.mapping(d.get("joints", {}), f"{key}.joints")
+    joints = {}
+    for joint, value in joints_raw.items():
+        joints[str(joint)] = v.number(value, f"{key}.joints.{joint}", within=(-1e4, 1e4), unit="rad or m")
+    path = robot_file(v, d["urdf"], f"{key}.urdf")
+    if path is None or len(v.problems) > before:
+        return None
+    try:
+        with warnings.catch_warnings(record=True) as caught:  # an inertia repaired says so: a note, not stderr
+            warnings.simplefilter("always")
+            model = load_urdf(path, package_paths=package_paths, xacro_args=xacro_args or None,
+                              fixed_base=fixed_base, name=name)
+    except UrdfError as exc:
+        v.fail(f"{key}.urdf", str(exc))
+        return None
+    notes = [("warn", f"{v.source}: {key}: robot {name}: {w.message}") for w in caught]
+    movable = set(model.dof_names) | set(model.joint_names)
+    for joint, value in joints.items():
+        if joint not in movable:
+            v.fail(f"{key}.joints.{joint}", f"{name} has no movable joint {joint!r} (its joints: "
+                                            f"{', '.join(model.dof_names) or 'none'})")
+            continue
+        if joint in model.dof_names:
+            k = model.dof_names.index(joint)
+            if not model.lower[k] <= value <= model.upper[k]:
+                v.fail(f"{key}.joints.{joint}", f"{value:g} is outside the joint's limits "
+                                                f"[{model.lower[k]:g}, {model.upper[k]:g}]")
+    if len(v.problems) > before:
+        return None
+    return RobotSpec(name=name, model=model, position=position, orientation=q / np.linalg.norm(q), joints=joints,
+                     hold=hold, stiffness=stiffness, damping=damping, self_collision=self_collision,
+                     friction=friction, restitution=restitution, notes=notes)
+
+
+def _string_map(v: Validator, raw: Any, key: str) -> dict[str, str]:
+    d = v.mapping(raw, key)
+    out = {}
+    for k, value in d.items():
+        if not isinstance(value, (str, int, float)) or isinstance(value, bool):
+            v.fail(f"{key}.{k}", f"must be a string, got {kind_of(value)}")
+            continue
+        out[str(k)] = str(value)
+    return out

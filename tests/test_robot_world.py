@@ -1,0 +1,214 @@
+"""Robots in a World (issue 35): the `arm` scene's URDF robot in reduced coordinates, its drives, its mimic
+gripper, its links' contacts with the ground and free bodies, wrenches on links, and the scene's refusals.
+Closed forms: a body resting on a link loads the joints by its weight's moment, a wrench on a link by Jᵀ F."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cgp_core import World
+from cgp_core.editing import EditError
+from cgp_core.scene import SceneError, scene_from_dict
+
+ARM_JOINTS = ["shoulder_pan", "shoulder_lift", "elbow", "wrist", "finger_left_joint"]
+
+
+def arm_scene(*, joints=None, hold=True, bodies=(), gravity=(0, 0, -9.81), ground=True, **robot):
+    entry = {"name": "arm", "urdf": "arm.urdf", "hold": hold,
+             "joints": joints if joints is not None else {"shoulder_lift": 0.6, "elbow": 1.2, "wrist": 0.6}}
+    entry.update(robot)
+    return scene_from_dict({"world": {"gravity": list(gravity), "ground": ground, "substeps": 4},
+                            "robots": [entry], "bodies": list(bodies)}, "<test>")
+
+
+def run(world: World, seconds: float, each=None) -> None:
+    for _ in range(round(seconds / world.dt)):
+        world.step()
+        if each is not None:
+            each(world)
+
+
+def positions(world: World) -> dict[str, float]:
+    names, q, _, _ = world.robots.joint_state("arm")
+    return dict(zip(names, q))
+
+
+def tool_position(world: World) -> np.ndarray:
+    names, _, p = world.robots.frame_poses("arm")
+    return p[list(names).index("tool")]
+
+
+def test_the_arm_holds_its_pose_under_position_control():
+    world = World.from_scene("arm")
+    start = positions(world)
+    worst = 0.0
+
+    def check(w):
+        nonlocal worst
+        now = positions(w)
+        worst = max(worst, max(abs(now[j] - start[j]) for j in start))
+
+    run(world, 3.0, check)
+    assert worst <= 1e-3, worst
+    # every link's body is where the joints put it: the tool frame above the ground, the joints exact
+    assert tool_position(world)[2] > 0.3
+
+
+def test_the_mimic_finger_follows_its_leader_exactly():
+    world = World.from_scene("arm")
+    assert world.robots.command("arm", ["finger_left_joint"], position=[0.028]) == []
+    trace = []
+    run(world, 1.5, lambda w: trace.append((positions(w)["finger_left_joint"], positions(w)["finger_right_joint"])))
+    left, right = np.array(trace).T
+    assert abs(left[-1] - 0.028) < 1e-3
+    assert np.abs(right - left).max() < 1e-6  # q_f = 1·q_l + 0 at every tick, not a spring's lag
+
+
+def test_a_crate_resting_on_the_upper_arm_loads_the_shoulder_by_its_weights_moment():
+    # the upper arm horizontal along +x (shoulder_lift = π/2), the forearm folded up out of the way
+    joints = {"shoulder_lift": np.pi / 2, "elbow": -np.pi / 2, "wrist": 0.0}
+    crate_x, m = 0.25, 0.4
+    top = 0.2 + 0.025  # the shoulder_lift axis (0.1 + 0.1 above the ground) + half the upper arm's width
+    crate = {"name": "crate", "shape": "box", "size": [0.06, 0.06, 0.04], "mass": m, "friction": 1.0,
+             "position": [crate_x, 0.0, top + 0.02 + 0.002]}
+    loaded, bare = World(arm_scene(joints=joints, bodies=[crate])), World(arm_scene(joints=joints))
+    for world in (loaded, bare):
+        run(world, 1.5)
+    efforts = {}
+    for label, world in (("loaded", loaded), ("bare", bare)):
+        names, _, _, effort = world.robots.joint_state("arm")
+        efforts[label] = dict(zip(names, effort))
+    x = loaded.body_state.position[loaded.body_model.index("crate")][0]
+    assert abs(x - crate_x) < 0.01  # it stayed on the arm
+    # the weight m g at lever x about the shoulder's y axis: τ_y = m g x; the drive holds it with −m g x
+    delta = efforts["loaded"]["shoulder_lift"] - efforts["bare"]["shoulder_lift"]
+    assert delta == pytest.approx(-m * 9.81 * x, rel=0.03)
+    assert abs(efforts["loaded"]["elbow"] - efforts["bare"]["elbow"]) < 0.02 * m * 9.81 * x  # not on the forearm
+
+
+def test_a_wrench_on_a_link_is_taken_by_the_joints_as_j_transpose_f():
+    """A force F at the tool, held by the position drives: their efforts change by −Jᵀ F, J the tool point's
+    Jacobian (here by finite differences of the forward kinematics)."""
+    joints = {"shoulder_lift": 0.6, "elbow": 1.2, "wrist": 0.6}
+    force = np.array([3.0, 0.0, -2.0])
+    pushed, bare = World(arm_scene(joints=joints, gravity=(0, 0, 0))), World(arm_scene(joints=joints,
+                                                                                         gravity=(0, 0, 0)))
+    point = tool_position(pushed)
+    for _ in range(60):
+        pushed.apply_wrench("arm/hand", force=force, point=point)
+        pushed.step()
+        bare.step()
+    names, q, _, effort = pushed.robots.joint_state("arm")
+    _, _, _, effort_bare = bare.robots.joint_state("arm")
+    # J by central differences of the tool's position in the joint positions
+    r = pushed.robots.robot("arm")
+    from cgp_core.robots import algorithms
+
+    qfull = pushed.robots.q[r.q_slice].copy()
+    tool = list(r.model.frame_names).index("tool")
+
+    def tool_at(qv):
+        rot, pos = algorithms.forward_kinematics(r.arrays, qv)
+        b = r.model.frame_body[tool]
+        return pos[b] + rot[b] @ r.model.frame_position[tool]
+
+    for k, joint in enumerate(names[:4]):
+        dq = np.zeros_like(qfull)
+        dq[k] = 1e-6
+        column = (tool_at(qfull + dq) - tool_at(qfull - dq)) / 2e-6
+        assert effort[k] - effort_bare[k] == pytest.approx(-column @ force, abs=1e-3), joint
+
+
+def test_the_turning_arm_pushes_a_crate_and_never_sinks_into_it():
+    # the forearm slants down to ~0.2 m above the ground at 0.48 m out; a tall crate stands 0.35 rad ahead of it
+    crate = {"name": "crate", "shape": "box", "size": [0.1, 0.1, 0.3], "mass": 0.3, "friction": 0.4,
+             "position": [0.48 * np.cos(0.35), 0.48 * np.sin(0.35), 0.15]}
+    world = World(arm_scene(joints={"shoulder_lift": 1.2, "elbow": 1.3, "wrist": -0.3}, bodies=[crate]))
+    start = world.body_state.position[world.body_model.index("crate")].copy()
+    world.robots.command("arm", ["shoulder_pan"], velocity=[1.0])
+    world.report_contacts = True
+    deepest = 0.0
+
+    def check(w):
+        nonlocal deepest
+        if w.contacts.separation.size:
+            deepest = min(deepest, float(w.contacts.separation.min()))
+
+    run(world, 1.5, check)
+    moved = world.body_state.position[world.body_model.index("crate")] - start
+    assert np.linalg.norm(moved[:2]) > 0.05, moved
+    assert deepest > -0.01, deepest
+
+
+def test_a_limp_arm_falls_onto_the_ground_and_rests_there():
+    world = World(arm_scene(hold=False))
+    run(world, 3.0)
+    lowest = min(world.body_state.position[i][2] - world.body_model.half_extents[i].min()
+                 for i, name in enumerate(world.body_model.names) if name.startswith("arm/"))
+    assert lowest > -0.01
+    _, _, qd, _ = world.robots.joint_state("arm")
+    assert np.abs(qd).max() < 0.05, qd
+
+
+def test_robot_entries_are_refused_by_name():
+    with pytest.raises(SceneError, match=r"robots\[0\]\.joints\.knee: arm has no movable joint 'knee'"):
+        arm_scene(joints={"knee": 0.1})
+    with pytest.raises(SceneError, match=r"robots\[0\]\.joints\.elbow: 9 is outside the joint's limits"):
+        arm_scene(joints={"elbow": 9.0})
+    with pytest.raises(SceneError, match=r"robots\[0\]\.urdf: no robot file 'nope\.urdf'"):
+        arm_scene(urdf="nope.urdf")
+    with pytest.raises(SceneError, match=r"robots\[0\]\.colour: unknown key"):
+        arm_scene(colour=[1, 0, 0, 1])
+
+
+def test_links_move_by_their_joints_only_and_reset_restores_the_pose():
+    world = World.from_scene("arm")
+    with pytest.raises(EditError, match="arm/forearm is a link of robot arm"):
+        world.delete("arm/forearm")
+    with pytest.raises(EditError, match="arm/forearm is a link of robot arm"):
+        world.set_body_state("arm/forearm", [0, 0, 1], [0, 0, 0, 1])
+    start = positions(world)
+    world.robots.command("arm", ["shoulder_pan"], position=[1.0])
+    run(world, 1.0)
+    assert positions(world)["shoulder_pan"] > 0.5
+    world.reset()
+    assert positions(world) == pytest.approx(start, abs=1e-12)
+    run(world, 0.2)
+    assert positions(world)["shoulder_pan"] == pytest.approx(0.0, abs=1e-3)  # the command went with the reset
+
+
+def test_bad_joint_commands_are_named_and_the_rest_applies():
+    world = World.from_scene("arm")
+    problems = world.robots.command("arm", ["knee", "elbow", "finger_right_joint", "wrist"],
+                                    position=[0.0, float("nan"), 0.01, 5.0])
+    assert any("no movable joint 'knee'" in p for p in problems)
+    assert any("elbow: position nan is not finite" in p for p in problems)
+    assert any("finger_right_joint mimics finger_left_joint" in p for p in problems)
+    assert any("wrist: position 5 clamped to its limits [-2, 2]" in p for p in problems)
+    run(world, 1.0)
+    assert positions(world)["wrist"] == pytest.approx(2.0, abs=2e-3)
+
+
+def test_tf_reaches_every_link_at_the_forward_kinematics_poses():
+    world = World.from_scene("arm")
+    world.robots.command("arm", ["shoulder_pan", "elbow"], position=[0.7, 0.4])
+    run(world, 0.5)
+    edges = world.robots.transforms("arm")
+    frames, R_fk, p_fk = world.robots.frame_poses("arm")
+    assert sorted(child for _, child, *_ in edges) == sorted(frames)  # every URDF link, once
+    from cgp_core.rotation import quat_to_matrix
+
+    pose = {"world": (np.eye(3), np.zeros(3))}
+    pending = list(edges)
+    while pending:  # compose the tree from the world down
+        for edge in list(pending):
+            parent, child, q, t, _ = edge
+            if parent in pose:
+                Rp, tp = pose[parent]
+                pose[child] = (Rp @ quat_to_matrix(q[None])[0], tp + Rp @ t)
+                pending.remove(edge)
+    for f, frame in enumerate(frames):
+        assert np.allclose(pose[frame][0], R_fk[f], atol=1e-12) and np.allclose(pose[frame][1], p_fk[f], atol=1e-12)
+    static = {child for _, child, _, _, s in edges if s}
+    assert static == {"base_link", "tool"}  # the fixed root and the fixed tool frame
