@@ -102,7 +102,8 @@ def scene_from_dict(data: Any, source: str = "<dict>") -> Scene:
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise SceneError(source, [f"top level must be a mapping with keys world/bodies/flocks/robots, got {kind_of(data)}"])
+        raise SceneError(source, ["top level must be a mapping with keys world/bodies/flocks/robots, got "
+                                  f"{kind_of(data)}"])
     v.no_unknown_keys(data, {"world", "bodies", "flocks", "robots", "description"}, "")
     world = parse_world(v, data.get("world", {}))
     bodies = parse_bodies(v, data.get("bodies", []))
