@@ -13,6 +13,9 @@ topic_based_ros2_control, RViz and a recorder would.
   reached (≤ 1e-3 rad, read back on joint_states), an effort-only and a velocity-only command are accepted (no
   rejection), a bad one (unknown joint, NaN) is rejected with a line on ``~/events`` naming it, and the node
   keeps ticking.
+- ``~/robots/arm/joint_trajectory``: a JointTrajectory is followed to its end point (≤ 1e-3 rad); one naming an
+  unknown joint is refused on ``~/events``.
+- Two robots from one URDF stay apart: topics by robot name, frames ``<frame_prefix><robot>/<link>``.
 - The bag holds JointState and the robot_description, decoded by mcap_ros2 (not our reader).
 """
 
@@ -308,6 +311,35 @@ def test_joint_trajectory_is_followed_to_its_end_point(arm, probe, urdf):
     probe.spin_until(lambda: any(e.get("source") == source and "no_such_joint" in e["reason"]
                                  for e in events_of(events)), 30, "the trajectory's rejection on ~/events")
     assert node.alive()
+
+
+def test_two_robots_from_one_urdf_stay_apart_with_a_frame_prefix(start_node, probe, tmp_path, urdf):
+    """Two robots loaded from the same URDF: their topics by robot name, their frames ``<prefix><robot>/<link>``
+    under ``<prefix>world`` (``frame_prefix:=sim1/``), so one /tf holds both."""
+    scene = tmp_path / "two_arms.yaml"
+    scene.write_text(f"world: {{gravity: [0, 0, -9.81], ground: true}}\n"
+                     f"robots:\n"
+                     f"  - {{name: left, urdf: {robot_file()}, position: [0, 0.5, 0]}}\n"
+                     f"  - {{name: right, urdf: {robot_file()}, position: [0, -0.5, 0]}}\n")
+    tf = probe.subscribe("/tf", TFMessage)
+    states = {name: probe.subscribe(f"/cgp_sim/robots/{name}/joint_states", JointState) for name in ("left", "right")}
+    start_node("--scene", str(scene), "--frame-prefix", "sim1/", "--start-paused", "true")
+    probe.wait_until_matched("/tf", *(f"/cgp_sim/robots/{name}/joint_states" for name in states), timeout=60)
+    pause(probe, False)
+    for name, box in states.items():
+        probe.spin_until(lambda box=box: len(box.messages) >= 3, 30, f"{name}'s joint_states")
+        assert list(box.messages[-1].name) == urdf.movable  # the same joint names: the topic tells them apart
+    static = probe.subscribe("/tf_static", TFMessage, TF_STATIC_LISTENER)
+    probe.spin_until(lambda: static.messages and tf.messages, 30, "/tf and /tf_static")
+    probe.spin_for(0.2)
+    edges = {t.child_frame_id: t.header.frame_id
+             for m in [*tf.messages[-3:], static.messages[-1]] for t in m.transforms}
+    for name in ("left", "right"):
+        prefix = f"sim1/{name}/"
+        assert {c for c in edges if c.startswith(prefix)} == {prefix + link for link in urdf.links}
+        assert edges[prefix + urdf.root] == "sim1/world"
+        for link, parent in urdf.parent.items():
+            assert edges[prefix + link] == prefix + parent
 
 
 # ---- the bag ---------------------------------------------------------------------------------------------------
