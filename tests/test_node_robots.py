@@ -258,6 +258,10 @@ def test_position_effort_velocity_commands_and_a_bad_one(arm, probe, urdf):
     assert first in named[first]["reason"] and "nan" in named[first]["reason"].lower()
     # only the bad command was rejected: the position, effort and velocity commands before it were accepted
     assert {e["field"] for e in rejections(events)} == {"name", first}, rejections(events)
+    # a message larger than any joint command (64 kB) is dropped unread, and said so
+    probe.publish_acked(commands, JointState(name=["x" * 70_000], position=[0.0]))
+    probe.spin_until(lambda: any(e["field"] == "message" and e["kind"] == "too large" for e in rejections(events)),
+                     30, "the oversized command's rejection")
     before = stamp_ns(states.messages[-1].header)
     assert stamp_ns(latest_state(probe, states, 10).header) > before
     assert node.alive()
