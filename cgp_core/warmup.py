@@ -73,6 +73,20 @@ def warm_up(ticks: int = 24, *, complete: bool = True, flocks: bool = True) -> W
     if complete:
         warm_up_convex(flocks=flocks)
         _warm_up_grid()
+        warm_up_robots()
+    return world
+
+
+def warm_up_robots(ticks: int = 4) -> World:
+    """Step the built-in ``arm`` scene: the robots' kernels (kinematics, Jacobians, CRBA, RNEA, the joint solver
+    with position, velocity and effort drives, limits, a mimic coupling and link contacts)."""
+    from .world import World
+
+    world = World.from_scene("arm")
+    world.robots.command("arm", ["shoulder_pan", "elbow", "wrist"], position=[0.3], velocity=[0.0, 0.5],
+                         effort=[0.0, 0.0, 1.0])
+    for _ in range(ticks):
+        world.step()
     return world
 
 
@@ -211,6 +225,10 @@ PARTS: tuple[CompilePart, ...] = (
     # all), more than any other part; it calls the sphere / box / capsule kernels too (compiled here as well)
     CompilePart("convex", _CONVEX_MODULES + _CONTACT_MODULES,
                 ("cgp_core.collision.convex_phase:convex_phase", "cgp_core.collision.convex_phase:sweep_times"),
+                steps_flocks=False, default_scene=False),
+    # issue 35's robots: the recursive algorithms and the joint solver (~15 s on an idle core)
+    CompilePart("robots", ("cgp_core.robots",),
+                ("cgp_core.robots.algorithms:mass_matrix", "cgp_core.robots.joint_solver:step_joints"),
                 steps_flocks=False, default_scene=False),
 )
 
