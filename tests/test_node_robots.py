@@ -242,11 +242,15 @@ def test_position_effort_velocity_commands_and_a_bad_one(arm, probe, urdf):
     for _ in range(30):  # and they stay there
         assert np.max(np.abs(urdf.of(latest_state(probe, states), joints) - target)) <= 1e-3
 
-    # effort only (all joints, 0 N m / N: the arm is let go), then velocity only: accepted
+    # effort only (all joints, 0 N m / N: the arm is let go), then velocity only (the first joint turning at
+    # 0.3 rad/s, the others held still): accepted, and the first joint reaches its velocity
     probe.publish_acked(commands, JointState(name=joints, effort=[0.0] * len(joints)))
     latest_state(probe, states, 5)
-    probe.publish_acked(commands, JointState(name=joints, velocity=[0.0] * len(joints)))
-    latest_state(probe, states, 5)
+    velocity = [0.3] + [0.0] * (len(joints) - 1)
+    probe.publish_acked(commands, JointState(name=joints, velocity=velocity))
+    index = list(states.messages[-1].name).index(joints[0])
+    probe.spin_until(lambda: abs(states.messages[-1].velocity[index] - 0.3) <= 1e-2, 30,
+                     f"{joints[0]} turning at 0.3 rad/s (last: {states.messages[-1].velocity[index]})")
 
     # a bad command: an unknown joint and a NaN; the rejections are named on ~/events, the node ticks on
     first = joints[0]
