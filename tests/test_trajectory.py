@@ -51,3 +51,31 @@ def test_refusals_name_the_field(args, field):
     with pytest.raises(TrajectoryError) as info:
         check_trajectory(*args)
     assert info.value.field == field
+
+
+def test_any_input_is_a_trajectory_or_a_named_refusal():
+    """Hypothesis: whatever a JointTrajectory carries (lengths, NaN, infinities, huge numbers, unordered times),
+    check_trajectory gives a Trajectory whose samples are finite, or a TrajectoryError — nothing else."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    number = st.floats(allow_nan=True, allow_infinity=True, width=64)
+    row = st.lists(number, max_size=4)
+
+    @settings(max_examples=300, deadline=None)
+    @given(joints=st.lists(st.sampled_from(["a", "b", "c", "d"]), max_size=4), stamp=st.integers(0, 2**62),
+           times=st.lists(number, max_size=5), positions=st.lists(row, max_size=5),
+           velocities=st.lists(row, max_size=5), t=number)
+    def check(joints, stamp, times, positions, velocities, t):
+        m = len(times)
+        positions, velocities = (positions + [[]] * m)[:m], (velocities + [[]] * m)[:m]
+        try:
+            tr = check_trajectory(joints, stamp, times, positions, velocities)
+        except TrajectoryError as exc:
+            assert exc.field and exc.kind
+            return
+        if np.isfinite(t) and abs(t) < 1e12 and np.all(np.abs(tr.positions) < 1e100) and (
+                tr.velocities is None or np.all(np.abs(tr.velocities) < 1e100)):
+            assert np.all(np.isfinite(sample(tr, t, np.zeros(len(tr.joints)))))
+
+    check()
