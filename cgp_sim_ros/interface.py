@@ -52,12 +52,34 @@ Subscribed:
                                                                  ``""``/``world`` or the body's name
 ==============================  ===============================  ===================================================
 
+Per robot of the scene (``robots:``; :mod:`cgp_sim_ros.ros.robots`), under ``~/robots/<robot>/``:
+
+- ``joint_states`` (sensor_msgs/JointState, published every tick, ``STATE_QOS``): the robot's movable 1-dof joints
+  in URDF order (mimic followers included), position, velocity and effort (the tick's mean), SI units, stamped
+  with the tick's simulation time; ``header.frame_id`` empty.  Reliable, so that robot_state_publisher's and
+  topic_based_ros2_control's SensorDataQoS (best-effort) readers and RViz's reliable ones all match.
+- ``robot_description`` (std_msgs/String, ``LATCHED_QOS``: reliable, transient local, depth 1, as
+  robot_state_publisher offers it): the URDF as loaded (xacro expanded); sent on the first tick and when the
+  robots change.
+- ``joint_commands`` (sensor_msgs/JointState, subscribed, ``COMMAND_QOS``), exactly as topic_based_ros2_control
+  sends it: ``name`` plus any of ``position`` / ``velocity`` / ``effort``; per joint the array that has an entry
+  for it chooses the drive (position > velocity > effort); a command holds until the next one.  Queued and
+  applied between ticks; rejections (unknown joint, NaN, ...) named on the log and ``~/events`` as the wrench
+  commands' are.
+- ``joint_trajectory`` (trajectory_msgs/JointTrajectory, subscribed, ``COMMAND_QOS``): followed through the
+  position drives with joint_trajectory_controller's interpolation (cubic between points with velocities, linear
+  without; :mod:`cgp_sim_ros.trajectory`), from ``header.stamp`` in simulation time (0: when taken); a new
+  trajectory replaces the robot's current one, a ``joint_commands`` message stops it.
+
 Services (std_srvs): ``~/reset`` (Trigger), ``~/pause`` (SetBool), ``~/step`` (Trigger, one tick while paused),
 ``~/clear_wrenches`` (Trigger).
 
 TF (``tf2_msgs/TFMessage``, absolute names as every tf2 user expects): ``/tf`` every tick with ``world`` →
 ``<body>`` for every movable body (``child_frame_id`` = the Odometry's), ``/tf_static`` (transient local) with
-the fixed bodies, sent again whenever that set or a fixed body's pose changes.
+the fixed bodies, sent again whenever that set or a fixed body's pose changes.  Robots: every URDF link frame as
+``<robot>/<link>`` (:meth:`Frames.link`; the root link's parent is ``world``, every other link's its URDF parent
+link), the moving ones on ``/tf``, the fixed-joint ones (and a fixed base's root) on ``/tf_static``; a robot's
+link bodies are not on TF as bodies (their frames are the links').
 
 ``simulation_interfaces`` (ROS 2's simulator standard, Jazzy 1.5.1; implemented in
 :mod:`cgp_sim_ros.ros.sim_services`, every call also a line on ``~/events``):
@@ -112,6 +134,11 @@ class Frames:
     def body(self, name: str) -> str:
         return self.prefix + name
 
+    def link(self, robot: str, link: str) -> str:
+        """A robot's URDF link frame: ``<prefix><robot>/<link>`` — the robot's name keeps two robots loaded from
+        one URDF apart (RViz's RobotModel display / Foxglove's URDF layer: TF prefix ``<prefix><robot>``)."""
+        return f"{self.prefix}{robot}/{link}"
+
     def to_core(self, frame_id: str) -> str:
         """``frame_id`` as cgp_core's wrench and state checks name frames (the prefix removed); other ids are
         returned as they are, for those checks to refuse by their own rules."""
@@ -142,6 +169,12 @@ TOPIC_EVENTS = "~/events"
 TOPIC_CLOCK = "/clock"
 TOPIC_APPLY_WRENCH = "~/apply_wrench"
 TOPIC_TF = "/tf"
+# per robot (issue 36): sensor_msgs/JointState out and in, the URDF latched (std_msgs/String)
+TOPIC_ROBOT_JOINT_STATES = "~/robots/{robot}/joint_states"
+TOPIC_ROBOT_JOINT_COMMANDS = "~/robots/{robot}/joint_commands"
+TOPIC_ROBOT_DESCRIPTION = "~/robots/{robot}/robot_description"
+# trajectory_msgs/JointTrajectory in, followed through the position drives (cgp_sim_ros/trajectory.py)
+TOPIC_ROBOT_JOINT_TRAJECTORY = "~/robots/{robot}/joint_trajectory"
 TOPIC_TF_STATIC = "/tf_static"
 SERVICE_RESET = "~/reset"
 SERVICE_PAUSE = "~/pause"
@@ -283,6 +316,12 @@ REPORT_PERIOD_S = 2.0
 #: `header.frame_id`, names of at most MAX_NAME_LENGTH (255) characters (≈ 620 serialized bytes in all).
 #: Anything larger is dropped on arrival, before it is decoded or recorded.
 MAX_COMMAND_BYTES = 1024
+#: a ~/robots/<robot>/joint_commands message larger than this is dropped unread: 4 arrays of a few hundred joints
+#: with names of at most MAX_NAME_LENGTH characters fit many times over
+MAX_JOINT_COMMAND_BYTES = 65536
+#: a ~/robots/<robot>/joint_trajectory message larger than this is dropped unread (10,000 points of 7 joints with
+#: positions, velocities and accelerations are ~1.8 MB)
+MAX_TRAJECTORY_BYTES = 4 * 1024 * 1024
 #: a command callback goes on taking waiting commands for at most this long (wall seconds)
 COMMAND_BATCH_S = 0.002
 

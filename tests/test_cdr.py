@@ -500,10 +500,11 @@ def slow_tf_message(stamp_ns, frame_id, children, translations, rotations):
     from tf2_msgs.msg import TFMessage
 
     msg = TFMessage()
-    for child, p, q in zip(children, translations.tolist(), rotations.tolist()):
+    parents = [frame_id] * len(children) if isinstance(frame_id, str) else frame_id
+    for parent, child, p, q in zip(parents, children, translations.tolist(), rotations.tolist()):
         t = TransformStamped()
         t.header.stamp = time_msg(stamp_ns)
-        t.header.frame_id = frame_id
+        t.header.frame_id = parent
         t.child_frame_id = child
         t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = p
         t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z, t.transform.rotation.w = q
@@ -523,3 +524,38 @@ def test_tf_message_serializer_equals_rclpy(n):
         translations = translations + 1.0
     with pytest.raises(ValueError, match=r"rotations must have shape"):
         serializer.serialize(0, translations, np.zeros((n + 1, 4)))
+
+
+def test_tf_message_serializer_with_a_parent_per_transform_equals_rclpy():
+    """A robot's links: each transform with its own parent frame (strings of different lengths)."""
+    parents = ["world", "arm/base_link", "arm/l1", "arm/upper_arm_link_é", "arm/w"]
+    children = ["arm/base_link", "arm/l1", "arm/upper_arm_link_é", "arm/w", "arm/tool0"]
+    serializer = cdr.TFMessageSerializer(parents, children)
+    translations, rotations = random_poses(5, seed=3)
+    for stamp in (17, 1_700_000_000_000_000_001):
+        assert_equivalent(serializer.serialize(stamp, translations, rotations),
+                          slow_tf_message(stamp, parents, children, translations, rotations))
+    with pytest.raises(ValueError, match=r"4 parent frame ids for 5"):
+        cdr.TFMessageSerializer(parents[:4], children)
+
+
+@pytest.mark.parametrize("k", (0, 1, 6, 7))
+def test_joint_state_serializer_equals_rclpy(k):
+    from sensor_msgs.msg import JointState
+
+    names = [("joint_" + "x" * (i % 5) + ("é" if i % 3 == 2 else ""))[: 2 + i % 9] for i in range(k)]
+    serializer = cdr.JointStateSerializer(names)
+    rng = np.random.default_rng(k)
+    for stamp in (17, 1_700_000_000_000_000_001):  # the buffer is reused: later ticks must overwrite
+        position, velocity, effort = rng.normal(size=(3, k))
+        msg = JointState(name=names, position=position.tolist(), velocity=velocity.tolist(), effort=effort.tolist())
+        msg.header.stamp = time_msg(stamp)
+        out = serializer.serialize(stamp, position, velocity, effort)
+        if k:
+            assert_equivalent(out, msg)
+        else:  # rclpy's buffer is 8 bytes longer (its size estimate aligns the empty float64 sequences; the
+            # bytes past the message are uninitialised): the message itself is the same
+            assert out == reference_bytes(msg)[0]
+            assert_same_message(deserialize_message(out, JointState), msg)
+    with pytest.raises(ValueError, match=r"velocity must have shape"):
+        serializer.serialize(0, np.zeros(k), np.zeros(k + 1), np.zeros(k))

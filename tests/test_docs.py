@@ -53,7 +53,8 @@ def _interface_names():
 
     names = [v for k, v in vars(itf).items() if k.startswith(("TOPIC_", "SERVICE_", "ACTION_"))]
     assert len(names) > 20, names  # the interface module still defines its names as TOPIC_/SERVICE_/ACTION_
-    return [name.replace("{body}", "<body>").replace("{flock}", "<flock>") for name in names], itf.PARAMETERS
+    return [name.replace("{body}", "<body>").replace("{flock}", "<flock>").replace("{robot}", "<robot>")
+            for name in names], itf.PARAMETERS
 
 
 @pytest.mark.parametrize("page", [INTERFACE_PAGE, REPO / "README.md"], ids=["docs/interface.md", "README.md"])

@@ -22,23 +22,30 @@ flood the log.
 from __future__ import annotations
 
 import collections
+import re
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
+import numpy as np
 from cgp_sim_msgs.msg import ApplyWrench
 from geometry_msgs.msg import WrenchStamped
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
 
 from cgp_core.wrenches import MAX_NAME_LENGTH, CommandLimits, WrenchError, make_command
 
 from .. import interface as itf
+from ..trajectory import Trajectory, TrajectoryError, check_trajectory, sample
 from .qos import COMMAND_QOS
 
 #: The per-body command subscriptions are made without rclpy's default QoS-event handlers (the "incompatible
 #: QoS / type" warnings): each handler is a waitable the executor adds to its wait set, in Python, on every spin
 #: (see cgp_sim_ros/ros/publishing.py, which does the same for the per-entity publishers).
 _NO_EVENT_HANDLERS = SubscriptionEventCallbacks(use_default_callbacks=False)
+#: a joint command's rejection as reported (log, ~/events) is cut to this many characters (a name may be long)
+MAX_REASON_LENGTH = 300
 
 
 class CommandInputs:
@@ -56,6 +63,12 @@ class CommandInputs:
         self._apply_wrench = self._subscription(ApplyWrench, itf.TOPIC_APPLY_WRENCH, self._on_apply_wrench)
         self._body_wrench: dict = {}  # body name -> its ~/bodies/<body>/wrench subscription
         self._body_names: list[str] = []  # the body set the pending commands' indices refer to
+        self._joint_commands: dict = {}  # robot name -> its ~/robots/<robot>/joint_commands subscription
+        self._joint_trajectory: dict = {}  # robot name -> its ~/robots/<robot>/joint_trajectory subscription
+        #: JointCommand and RobotTrajectory, in the order they came, for the next tick
+        self._joint_pending: collections.deque = collections.deque()
+        #: robot name -> the trajectory it follows (FollowedTrajectory), until its end or a joint command
+        self.following: dict = {}
 
     # ---- the per-body subscriptions ------------------------------------------------------------------------
 
@@ -82,6 +95,29 @@ class CommandInputs:
             replace(c, body=new_index[old_names[c.body]]) for c in self._pending
             if c.body < len(old_names) and old_names[c.body] in new_index)
         self._body_names = list(names)
+        return added
+
+    def follow_robots(self, robots: list[str]) -> list:
+        """After the robot set changed: ``~/robots/<robot>/joint_commands`` and ``joint_trajectory``
+        subscriptions for every robot (made for new ones, destroyed for gone ones); pending joint commands and
+        trajectories of gone robots are dropped.  Returns the subscriptions made."""
+        node = self._node
+        added = []
+        for subscriptions, topic, msg_type, handle in (
+                (self._joint_commands, itf.TOPIC_ROBOT_JOINT_COMMANDS, JointState, self._on_joint_command),
+                (self._joint_trajectory, itf.TOPIC_ROBOT_JOINT_TRAJECTORY, JointTrajectory, self._on_trajectory)):
+            for name in [n for n in subscriptions if n not in robots]:
+                subscription = subscriptions.pop(name)
+                self.inputs.pop(subscription.topic_name, None)
+                node.destroy_subscription(subscription)
+            for name in robots:
+                if name not in subscriptions:
+                    subscriptions[name] = self._subscription(
+                        msg_type, topic.format(robot=name),
+                        lambda data, robot=name, handle=handle: handle(robot, data), per_entity=True)
+                    added.append(subscriptions[name])
+        self._joint_pending = collections.deque(c for c in self._joint_pending if c.robot in self._joint_commands)
+        self.following = {robot: f for robot, f in self.following.items() if robot in self._joint_commands}
         return added
 
     def _subscription(self, msg_type, topic: str, handle, per_entity: bool = False):
@@ -134,6 +170,49 @@ class CommandInputs:
             return
         self._enqueue(command)
 
+    def _on_joint_command(self, robot: str, data: bytes) -> None:
+        source = f"robots/{robot}/joint_commands"
+        if len(data) > itf.MAX_JOINT_COMMAND_BYTES:
+            self.reject(source, WrenchError(
+                "message", f"{len(data)} bytes, more than a joint command may have "
+                f"({itf.MAX_JOINT_COMMAND_BYTES} bytes); dropped unread", "too large"))
+            return
+        self._record_received(self._joint_commands[robot].topic_name, data)
+        try:
+            command = joint_command(robot, data)
+        except WrenchError as exc:
+            self.reject(source, exc)
+            return
+        self._enqueue_joint(command)
+
+    def _on_trajectory(self, robot: str, data: bytes) -> None:
+        source = f"robots/{robot}/joint_trajectory"
+        if len(data) > itf.MAX_TRAJECTORY_BYTES:
+            self.reject(source, WrenchError(
+                "message", f"{len(data)} bytes, more than a trajectory may have ({itf.MAX_TRAJECTORY_BYTES} bytes); "
+                "dropped unread", "too large"))
+            return
+        self._record_received(self._joint_trajectory[robot].topic_name, data)
+        try:
+            msg = _decode(data, JointTrajectory)
+            trajectory = check_trajectory(
+                msg.joint_names, msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec,
+                [p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec for p in msg.points],
+                [list(p.positions) for p in msg.points], [list(p.velocities) for p in msg.points])
+        except TrajectoryError as exc:
+            self.reject(source, _as_wrench_error(exc))
+            return
+        except WrenchError as exc:
+            self.reject(source, exc)
+            return
+        self._enqueue_joint(RobotTrajectory(robot, trajectory))
+
+    def _enqueue_joint(self, command) -> None:
+        if len(self._joint_pending) >= itf.MAX_PENDING_COMMANDS:
+            self._joint_pending.popleft()
+            self._dropped += 1
+        self._joint_pending.append(command)
+
     def _oversized(self, source: str, data: bytes) -> bool:
         """Drop a message larger than any valid command, cheaply (no decoding, no recording)."""
         if len(data) <= itf.MAX_COMMAND_BYTES:
@@ -159,8 +238,13 @@ class CommandInputs:
     # ---- the tick, and the services that clear ------------------------------------------------------------
 
     def apply_pending(self, world) -> None:
-        """Hand the waiting commands to ``world`` (the tick, before its step); those over the world's limit of
-        active wrenches are rejected."""
+        """Hand the waiting commands to ``world`` (the tick, before its step): the joint commands to its robots
+        in the order they came (each holds until the next: :meth:`apply_joint_commands`), the wrenches to its
+        wrench schedule, where those over the limit of active wrenches are rejected."""
+        if self._joint_pending:
+            self.apply_joint_commands(world)
+        if self.following:
+            self.follow_trajectories(world)
         if not self._pending:
             return
         commands = list(self._pending)
@@ -172,10 +256,74 @@ class CommandInputs:
                 f"{world.wrenches.max_active} active wrenches (clear some with ~/clear_wrenches)", "too many"),
                 count=len(commands) - accepted)
 
+    def apply_joint_commands(self, world) -> None:
+        """The waiting joint commands, in order, through ``Robots.command``; what it refuses (or clamps) is
+        reported per robot, joint and kind (:meth:`reject`)."""
+        commands = list(self._joint_pending)
+        self._joint_pending.clear()
+        robots = world.robots
+        if robots is None:
+            return
+        known = {name: None for name in robots.names()}
+        for c in commands:
+            if c.robot not in known:
+                continue
+            if known[c.robot] is None:
+                known[c.robot] = set(robots.joint_state(c.robot)[0])
+            if isinstance(c, RobotTrajectory):
+                self._take_trajectory(world, c, known[c.robot])
+                continue
+            self.following.pop(c.robot, None)  # a joint command stops the robot's trajectory
+            problems = robots.command(c.robot, c.names, c.position, c.velocity, c.effort)
+            for text in problems:
+                self.reject(f"robots/{c.robot}/joint_commands", joint_rejection(text, c.names, known[c.robot]))
+
+    def _take_trajectory(self, world, command, joints: set) -> None:
+        """A new trajectory for a robot (replacing the one it follows): its joints must be the robot's; it starts
+        at its stamp, or now (a zero stamp), from the joints' current positions."""
+        trajectory = command.trajectory
+        unknown = [j for j in trajectory.joints if j not in joints]
+        if unknown:
+            self.reject(f"robots/{command.robot}/joint_trajectory", WrenchError(
+                "joint_names", f"{command.robot} has no movable joint {unknown[0]!r} (joints: "
+                f"{', '.join(sorted(joints))}); trajectory ignored"[:300], "unknown"))
+            return
+        names, position, _, _ = world.robots.joint_state(command.robot)
+        index = {name: i for i, name in enumerate(names)}
+        start = np.array([position[index[j]] for j in trajectory.joints])
+        start_ns = trajectory.start_ns if trajectory.start_ns is not None else world.time_ns
+        self.following[command.robot] = FollowedTrajectory(trajectory, start_ns, start)
+
+    def follow_trajectories(self, world) -> None:
+        """Every followed trajectory's position targets for the end of this tick (through ``Robots.command``);
+        a trajectory past its last point is commanded its last positions once more and let go (the position
+        drives hold them)."""
+        robots = world.robots
+        t_end = world.time_ns + round(world.dt * 1e9)
+        for robot, f in list(self.following.items()):
+            t = (t_end - f.start_ns) * 1e-9
+            if t < 0.0:  # starts later: the drives hold what they held
+                continue
+            targets = sample(f.trajectory, t, f.start_positions)
+            problems = robots.command(robot, list(f.trajectory.joints), targets.tolist(), [], [])
+            for text in problems:
+                self.reject(f"robots/{robot}/joint_trajectory",
+                            joint_rejection(text, f.trajectory.joints, set(f.trajectory.joints)))
+            if t >= f.trajectory.duration:
+                del self.following[robot]
+
     def clear_pending(self) -> int:
-        """Drop the waiting commands (a reset, ~/clear_wrenches); returns how many there were."""
+        """Drop the waiting wrench commands (a reset, ~/clear_wrenches); returns how many there were."""
         count = len(self._pending)
         self._pending.clear()
+        return count
+
+    def clear_joint_commands(self) -> int:
+        """Drop the waiting joint commands and trajectories and stop the followed ones (a reset of the state);
+        returns how many were waiting."""
+        count = len(self._joint_pending)
+        self._joint_pending.clear()
+        self.following.clear()
         return count
 
     # ---- rejections -----------------------------------------------------------------------------------------
@@ -232,6 +380,70 @@ def body_wrench_command(body: str, data: bytes, world, params, frames: itf.Frame
         torque=(msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z),
         point=None, frame=frames.to_core(msg.header.frame_id), duration=0.0,
         limits=CommandLimits(max_force=params["max_force"], max_torque=params["max_torque"]))
+
+
+@dataclass(frozen=True)
+class JointCommand:
+    """A decoded ``~/robots/<robot>/joint_commands`` message, for ``Robots.command`` at the next tick."""
+
+    robot: str
+    names: list
+    position: list
+    velocity: list
+    effort: list
+
+
+@dataclass(frozen=True)
+class RobotTrajectory:
+    """A checked ``~/robots/<robot>/joint_trajectory`` message, for the next tick."""
+
+    robot: str
+    trajectory: Trajectory
+
+
+@dataclass(frozen=True)
+class FollowedTrajectory:
+    """A trajectory a robot follows: its start in simulation time (ns) and the joints' positions then."""
+
+    trajectory: Trajectory
+    start_ns: int
+    start_positions: np.ndarray
+
+
+def _as_wrench_error(exc: TrajectoryError) -> WrenchError:
+    return WrenchError(exc.field, exc.reason, exc.kind)
+
+
+def joint_command(robot: str, data: bytes) -> JointCommand:
+    """The command of a ``sensor_msgs/JointState``'s CDR bytes, as topic_based_ros2_control sends it (checked by
+    ``Robots.command`` at the tick: which joints, which arrays, finite values, limits)."""
+    msg = _decode(data, JointState)
+    return JointCommand(robot, list(msg.name), list(msg.position), list(msg.velocity), list(msg.effort))
+
+
+def joint_rejection(text: str, names, joints: set) -> WrenchError:
+    """A ``Robots.command`` rejection (a sentence naming the joint and the reason) as a reportable error: ``field``
+    the robot's joint it is about (``joint <name>`` in the sentence), ``name`` for a name the robot does not have
+    (kind ``unknown``: one report key for every unknown name, however many are sent), else ``command``; ``kind``
+    ``clamped`` for a value clamped to the URDF's limits (applied), ``invalid`` otherwise.  The sentence is kept
+    as it is, cut to :data:`MAX_REASON_LENGTH` characters."""
+    field, kind = "command", "invalid"
+    for joint in names:
+        if not isinstance(joint, str):
+            continue
+        if joint not in joints and (repr(joint) in text or f"joint {joint}" in text):
+            field, kind = "name", "unknown"
+            break
+        if joint in joints and re.search(rf"\bjoint {re.escape(joint)}(?![\w/.-])", text):
+            field = joint
+            break
+    if kind != "unknown" and "clamp" in text:
+        kind = "clamped"
+    if len(text) > MAX_REASON_LENGTH:
+        text = text[:MAX_REASON_LENGTH] + f"... ({len(text)} characters)"
+    error = WrenchError(field, text, kind)
+    error.args = (text,)  # the sentence as it is (it names the joint already)
+    return error
 
 
 def _decode(data: bytes, msg_type):

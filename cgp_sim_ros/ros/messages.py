@@ -50,6 +50,8 @@ from cgp_sim_msgs.msg import Contacts, FlockStats
 from geometry_msgs.msg import PoseArray
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
 from cgp_core.bodies import Shape
@@ -74,6 +76,11 @@ MARKER_OVERHEAD_BYTES = 200
 _POINT_BYTES = 24
 
 
+def robot_names(world) -> list[str]:
+    """The world's robots (``World.robots``, :class:`cgp_core.robots.world.Robots`), none when it has none."""
+    return [] if getattr(world, "robots", None) is None else list(world.robots.names())
+
+
 def part_marker_ids(parts) -> set[int]:
     """The marker ids of a compound body's parts: 3k for part k, 3k + 1 and 3k + 2 for a capsule part's caps."""
     ids = set()
@@ -93,6 +100,8 @@ class TickMessages:
     MarkerArray = MarkerArray
     FlockStats = FlockStats
     Contacts = Contacts
+    JointState = JointState
+    String = String
 
     def __init__(self, world, frames: Frames = UNPREFIXED, plan: DetailPlan | None = None,
                  contact_force_scale: float | None = None, drawings: Drawings | None = None):
@@ -115,6 +124,11 @@ class TickMessages:
         self._odometry = cdr.OdometryBatchSerializer(frame_id, [frames.body(name) for name in model.names])
         self._flock_poses = [cdr.PoseArraySerializer(frame_id) for _ in world.flocks]
         self._flock_stats = [cdr.FlockStatsSerializer(frame_id) for _ in world.flocks]
+        #: every robot's ~/robots/<robot>/joint_states, in the order of robot_names(world) (its joints do not
+        #: change while the robot exists: laid out once)
+        robots = world.robots
+        self._joint_states = [(name, cdr.JointStateSerializer(robots.joint_state(name)[0]))
+                              for name in robot_names(world)]
         #: the fish drawing per flock name ('full' | 'low') and the parts K each flock's marker is split into
         #: (see :meth:`set_plan`)
         self.fish_detail: dict[str, str] = {}
@@ -210,6 +224,16 @@ class TickMessages:
             out.append(ser.serialize(stamp_ns, o.count, (o.polarization, o.milling, *o.centroid, o.radius_of_gyration,
                                                          o.mean_nearest_neighbor_distance, o.mean_speed, o.min_speed,
                                                          o.max_speed)))
+        return out
+
+    def joint_states(self, stamp_ns: int) -> list[bytes]:
+        """Every robot's ``sensor_msgs/JointState`` (``Robots.joint_state``: positions, velocities and the tick's
+        mean efforts of its movable joints, URDF order), in the order of :func:`robot_names`."""
+        robots = self.world.robots
+        out = []
+        for name, ser in self._joint_states:
+            _, position, velocity, effort = robots.joint_state(name)
+            out.append(ser.serialize(stamp_ns, position, velocity, effort))
         return out
 
     def sent_contacts(self) -> np.ndarray:

@@ -1,6 +1,6 @@
 """The cgp_sim node: a thin, timer-driven adapter between ``cgp_core.World`` and the ROS graph.
 
-Per tick (one timer callback): drain the validated wrench commands into the world → ``World.step()`` →
+Per tick (one timer callback): drain the validated wrench and joint commands into the world → ``World.step()`` →
 serialize the state once per message (numpy-built CDR, :mod:`cgp_sim_ros.ros.messages`) → publish those bytes
 and hand the same bytes to the recorder and the live view.  No physics here: every equation lives in
 ``cgp_core``.  What is published, and the one path every message takes, is :mod:`cgp_sim_ros.ros.publishing`;
@@ -46,6 +46,7 @@ from .. import interface as itf
 from ..drawing import detail as lod
 from . import process
 from .commands import CommandInputs
+from .messages import robot_names
 from .pace import BatchReport, RateCheck
 from .parameters import ConfigError, coerce, read_parameters, refusal
 from .publishing import TickPublisher
@@ -228,6 +229,7 @@ class SimNode(Node):
         self.world.reset(state=state, spawned=spawned)
         if state:
             self.commands.clear_pending()
+            self.commands.clear_joint_commands()
         self.outputs.redraw_all_markers()
         self.world_edited()
 
@@ -238,6 +240,7 @@ class SimNode(Node):
         self._sync_entities()
         self.outputs.publish_static_tf()
         self.outputs.publish_static_markers()
+        self.outputs.publish_robot_descriptions()
 
     def add_spawned(self, prepared, drawings=()) -> None:
         """Add an entity the spawn worker prepared (:class:`cgp_core.world.PreparedSpawn`, between two ticks:
@@ -264,7 +267,8 @@ class SimNode(Node):
         a spawn, a delete or a reset; a no-op when ``world.model_version`` did not change):
 
         - ``~/bodies/<body>/odom`` publishers, ``~/bodies/<body>/wrench`` subscriptions (movable bodies),
-          ``~/flocks/<flock>/poses`` and ``~/flocks/<flock>/stats`` publishers: created for new entities,
+          ``~/flocks/<flock>/poses`` and ``~/flocks/<flock>/stats`` publishers, ``~/robots/<robot>/joint_states``
+          and ``robot_description`` publishers and ``joint_commands`` subscriptions: created for new entities,
           destroyed for gone ones, kept for the others (subscribers stay matched);
         - the new topics are added to the recording (new channels mid-recording, counted in metadata.yaml) and
           to the Foxglove live view, if on (new channels; the command inputs follow ``command_inputs``);
@@ -279,6 +283,7 @@ class SimNode(Node):
         movable = {n for n, fixed in zip(names, world.body_model.fixed) if not fixed}
         added = self.outputs.follow_entities()
         added += self.commands.follow_bodies(names, movable)
+        added += self.commands.follow_robots(robot_names(world))
         if self.recorder is not None and added:
             self.recorder.add_endpoints(added)
         if self.foxglove is not None:

@@ -5,11 +5,12 @@ bag (:class:`~cgp_sim_ros.ros.recorder.Recorder`) and shown in the Foxglove live
 What a tick publishes, in order (:meth:`TickPublisher.tick_messages`; the bytes are built by
 :class:`~cgp_sim_ros.ros.messages.TickMessages` and :class:`~cgp_sim_ros.ros.tf.BodyTransforms`): ``/clock``,
 ``~/bodies/poses``, every body's ``~/bodies/<body>/odom``, every flock's ``~/flocks/<flock>/poses`` (recorded
-on the ticks the level-of-detail plan says) and ``~/flocks/<flock>/stats``, ``~/contacts`` (parameter
-``contacts``), ``/tf``, the first ``/tf_static``, ``~/markers``, then the first ``~/static_markers`` (if the world
-has static meshes).  Besides the ticks: ``~/events`` (:meth:`TickPublisher.event`), ``/tf_static`` and
-``~/static_markers`` again when the fixed bodies / the static meshes change, DELETE markers for what is no
-longer drawn.
+on the ticks the level-of-detail plan says) and ``~/flocks/<flock>/stats``, every robot's
+``~/robots/<robot>/joint_states``, ``~/contacts`` (parameter ``contacts``), ``/tf``, the first ``/tf_static``,
+``~/markers``, then the first ``~/static_markers`` (if the world has static meshes) and every robot's first
+``~/robots/<robot>/robot_description`` (latched).  Besides the ticks: ``~/events`` (:meth:`TickPublisher.event`),
+``/tf_static``, ``~/static_markers`` and ``robot_description`` again when the fixed bodies / the static meshes /
+the robots change, DELETE markers for what is no longer drawn.
 
 The per-body and per-flock publishers follow the world's entities (:meth:`TickPublisher.follow_entities`).
 They are made without rclpy's default QoS-event handlers (the "incompatible QoS / type" warnings).  Each
@@ -29,7 +30,7 @@ from std_msgs.msg import String
 from .. import interface as itf
 from ..drawing.bodies import Drawings, model_shapes
 from ..wire import cdr
-from .messages import TickMessages
+from .messages import TickMessages, robot_names
 from .qos import CLOCK_QOS, EVENTS_QOS, LATCHED_QOS, STATE_QOS, TF_QOS, TF_STATIC_QOS
 from .tf import BodyTransforms
 
@@ -77,36 +78,50 @@ class TickPublisher:
         self._odom: dict = {}
         self._flock_poses: dict = {}
         self._flock_stats: dict = {}
+        self._joint_states: dict = {}
+        self._descriptions: dict = {}
         self.pub_odom: list = []
         self.pub_flock_poses: list = []
         self.pub_flock_stats: list = []
+        self.pub_joint_states: list = []
+        #: robot -> the robot_description last sent (see publish_robot_descriptions)
+        self._description_sent: dict[str, str] = {}
         self._marker_ids: dict[str, set[int]] = {}  # marker namespace -> the ids drawn (see retire_markers)
         self._delete_all_markers = False  # see redraw_all_markers
 
     # ---- the world's entities -------------------------------------------------------------------------------
 
     def follow_entities(self) -> list:
-        """``~/bodies/<body>/odom``, ``~/flocks/<flock>/poses`` and ``~/flocks/<flock>/stats`` publishers for the
-        world's bodies and flocks now: created for new entities, destroyed for gone ones, kept for the others
+        """``~/bodies/<body>/odom``, ``~/flocks/<flock>/poses``, ``~/flocks/<flock>/stats``,
+        ``~/robots/<robot>/joint_states`` and ``~/robots/<robot>/robot_description`` publishers for the world's
+        bodies, flocks and robots now: created for new entities, destroyed for gone ones, kept for the others
         (subscribers stay matched).  Returns the publishers made."""
         node, world = self._node, self.world
         names = list(world.body_model.names)
         flock_names = [f.params.name for f in world.flocks]
+        robots = robot_names(world)
         added = []
-        for publishers, wanted, topic, msg_type, key in (
-                (self._odom, names, itf.TOPIC_BODY_ODOM, TickMessages.Odometry, "body"),
-                (self._flock_poses, flock_names, itf.TOPIC_FLOCK_POSES, TickMessages.PoseArray, "flock"),
-                (self._flock_stats, flock_names, itf.TOPIC_FLOCK_STATS, TickMessages.FlockStats, "flock")):
+        for publishers, wanted, topic, msg_type, key, qos in (
+                (self._odom, names, itf.TOPIC_BODY_ODOM, TickMessages.Odometry, "body", STATE_QOS),
+                (self._flock_poses, flock_names, itf.TOPIC_FLOCK_POSES, TickMessages.PoseArray, "flock", STATE_QOS),
+                (self._flock_stats, flock_names, itf.TOPIC_FLOCK_STATS, TickMessages.FlockStats, "flock", STATE_QOS),
+                (self._joint_states, robots, itf.TOPIC_ROBOT_JOINT_STATES, TickMessages.JointState, "robot",
+                 STATE_QOS),
+                (self._descriptions, robots, itf.TOPIC_ROBOT_DESCRIPTION, TickMessages.String, "robot",
+                 LATCHED_QOS)):
             for name in [n for n in publishers if n not in wanted]:
                 node.destroy_publisher(publishers.pop(name))
+                if publishers is self._descriptions:
+                    self._description_sent.pop(name, None)
             for name in wanted:
                 if name not in publishers:
-                    publishers[name] = node.create_publisher(msg_type, topic.format(**{key: name}), STATE_QOS,
+                    publishers[name] = node.create_publisher(msg_type, topic.format(**{key: name}), qos,
                                                              event_callbacks=_NO_EVENT_HANDLERS)
                     added.append(publishers[name])
         self.pub_odom = [self._odom[n] for n in names]
         self.pub_flock_poses = [self._flock_poses[n] for n in flock_names]
         self.pub_flock_stats = [self._flock_stats[n] for n in flock_names]
+        self.pub_joint_states = [self._joint_states[n] for n in robots]
         return added
 
     def rebuild(self) -> None:
@@ -149,6 +164,19 @@ class TickPublisher:
         self._static_sent = signature
         t = self.world.time_ns
         self.publish(self.pub_static_markers, self.messages.static_markers(t), t)
+
+    def publish_robot_descriptions(self) -> None:
+        """``~/robots/<robot>/robot_description`` (latched) of every robot whose URDF was not sent yet or changed
+        since.  Not before the first tick, as ``/tf_static``: the robot is drawn from it and TF together."""
+        if self.world.ticks == 0:
+            return
+        robots = self.world.robots
+        for name in robot_names(self.world):
+            text = robots.description(name)
+            if self._description_sent.get(name) == text:
+                continue
+            self._description_sent[name] = text
+            self.publish(self._descriptions[name], serialize_message(String(data=text)), self.world.time_ns)
 
     def publish_static_tf(self) -> None:
         """``/tf_static`` again if the fixed bodies changed.  Not before the first tick: a node publishes nothing
@@ -196,6 +224,7 @@ class TickPublisher:
         self._delete_all_markers = False
         if self.world.ticks == 1:
             self.publish_static_markers()
+            self.publish_robot_descriptions()
         if self.messages.contacts_of > self.messages.contacts_sent:
             self.contacts_capped += 1
             self.contacts_most = max(self.contacts_most, self.messages.contacts_of)
@@ -224,6 +253,8 @@ class TickPublisher:
         for pub, data in zip(self.pub_flock_poses, messages.flock_poses(t)):
             yield pub, data, record_poses
         for pub, data in zip(self.pub_flock_stats, messages.flock_stats(t)):  # tiny: recorded on every tick
+            yield pub, data, True
+        for pub, data in zip(self.pub_joint_states, messages.joint_states(t)):
             yield pub, data, True
         if self.pub_contacts is not None and world.report_contacts:  # (nobody listens otherwise)
             yield self.pub_contacts, messages.contacts(t), True

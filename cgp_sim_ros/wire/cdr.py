@@ -45,6 +45,7 @@ __all__ = [
     "OdometryBatchSerializer",
     "odometry_batch",
     "TFMessageSerializer",
+    "JointStateSerializer",
     "FLOCK_STATS_FIELDS",
     "FlockStatsSerializer",
     "CONTACT_FIELDS",
@@ -383,8 +384,8 @@ def odometry_batch(stamp_ns: int, frame_id: str, child_frame_ids: Sequence[str],
 
 # ------------------------------------------------------------------------------------------- TFMessage
 class TFMessageSerializer:
-    """``tf2_msgs/TFMessage`` of n ``geometry_msgs/TransformStamped`` (``frame_id`` → ``child_frame_ids[i]``)
-    per tick, all with one stamp.
+    """``tf2_msgs/TFMessage`` of n ``geometry_msgs/TransformStamped`` (``frame_id`` → ``child_frame_ids[i]``;
+    ``frame_id`` one id for all or a sequence of n, one per transform) per tick, all with one stamp.
 
     The message is laid out once (the frame ids do not change): ``uint32 n``, then per transform the stamp,
     the two strings and 7 float64 (translation, rotation x y z w) 8-aligned.  It is kept at memory offset 4 of
@@ -392,15 +393,19 @@ class TFMessageSerializer:
     values with two vectorized assignments.  Not thread-safe.
     """
 
-    def __init__(self, frame_id: str, child_frame_ids: Sequence[str]) -> None:
-        frame = _encode_string(frame_id, "frame_id")
+    def __init__(self, frame_id: str | Sequence[str], child_frame_ids: Sequence[str]) -> None:
+        # one parent for all (the bodies: ``world``) or one per transform (a robot's links: their parent links)
+        parents = [frame_id] * len(child_frame_ids) if isinstance(frame_id, str) else list(frame_id)
+        if len(parents) != len(child_frame_ids):
+            raise ValueError(f"{len(parents)} parent frame ids for {len(child_frame_ids)} child frame ids")
+        encoded = {parent: _encode_string(parent, "frame_id") for parent in set(parents)}
         writer = _Writer()
         writer.raw(_U32.pack(len(child_frame_ids)))
         stamps, floats = [], []
         for i, child in enumerate(child_frame_ids):
             stamps.append(writer.pos)  # TransformStamped starts with header.stamp: 4-aligned after a string
             writer.raw(bytes(8))
-            writer.string(frame)
+            writer.string(encoded[parents[i]])
             writer.string(_encode_string(child, f"child_frame_ids[{i}]"))
             writer.align(8)
             floats.append(writer.pos)
@@ -431,6 +436,54 @@ class TFMessageSerializer:
         self._words[self._sec_index] = sec & 0xFFFFFFFF
         self._words[self._sec_index + 1] = nanosec
         self._floats[self._float_index] = values
+        return bytes(self._view)
+
+
+# ------------------------------------------------------------------------------------------ JointState
+class JointStateSerializer:
+    """``sensor_msgs/JointState`` of a robot's k joints (names fixed), one per tick: header, the k names, then
+    position, velocity and effort, each a sequence of k float64.  Laid out once (the names do not change); kept
+    at memory offset 4 of its buffer so that the float64 are 8-aligned in memory too, and a tick writes the stamp
+    and the (3, k) values with two assignments.  Not thread-safe."""
+
+    def __init__(self, names: Sequence[str], frame_id: str = "") -> None:
+        writer = _Writer()
+        writer.header(0, frame_id)
+        writer.align(4)
+        writer.raw(_U32.pack(len(names)))
+        for i, name in enumerate(names):
+            writer.string(_encode_string(name, f"names[{i}]"))
+        self.count = k = len(names)
+        starts = []
+        for _ in range(3):  # position, velocity, effort
+            writer.align(4)
+            writer.raw(_U32.pack(k))
+            if k:  # an empty sequence has no elements to align (rclpy's buffer is longer: its size estimate
+                writer.align(8)  # aligns them anyway, and the bytes past the message are left uninitialised)
+            starts.append(writer.pos)
+            writer.raw(bytes(8 * k))
+        template = writer.getvalue()
+        self._size = len(template)
+        self._buffer = np.zeros(4 + self._size + (-(4 + self._size) % 8), dtype=np.uint8)
+        self._buffer[4:4 + self._size] = np.frombuffer(template, dtype=np.uint8)
+        # body offset b is at memory offset 4 (buffer padding) + 4 (encapsulation) + b
+        self._words = self._buffer.view("<u4")
+        self._stamp = slice(2, 4)
+        self._value_index = ((8 + np.asarray(starts, dtype=np.intp)) // 8)[:, None] + np.arange(k)
+        self._floats = self._buffer.view("<f8")
+        self._view = memoryview(self._buffer)[4:4 + self._size]
+
+    def serialize(self, stamp_ns: int, position, velocity, effort) -> bytes:
+        """``position``, ``velocity``, ``effort``: (k,) each, in the order of the names."""
+        sec, nanosec = split_stamp(stamp_ns)
+        values = np.empty((3, self.count))
+        for row, (array, what) in enumerate(((position, "position"), (velocity, "velocity"), (effort, "effort"))):
+            arr = np.asarray(array, dtype=np.float64)
+            if arr.shape != (self.count,):
+                raise ValueError(f"{what} must have shape ({self.count},), got {arr.shape}")
+            values[row] = arr
+        self._words[self._stamp] = (sec & 0xFFFFFFFF, nanosec)
+        self._floats[self._value_index] = values
         return bytes(self._view)
 
 
