@@ -631,22 +631,30 @@ class Robots:
         k = self.robots.index(r)
         m = r.model
         rotation, position = self._poses[k]
-        out = []
         fixed_root = int(m.joint_type[0]) == JOINT_FIXED_ROOT
+        parents, children, rotations, translations, static = [], [], [], [], []
         for b in range(m.n_bodies):
             p = int(m.parent[b])
             if p < 0:
-                R, t, parent, static = rotation[b], position[b], "world", fixed_root
+                R, t, parent, fixed = rotation[b], position[b], "world", fixed_root
             else:
                 R = rotation[p].T @ rotation[b]
                 t = rotation[p].T @ (position[b] - position[p])
-                parent, static = m.body_names[p], False
-            out.append((parent, m.body_names[b], matrix_to_quat(R[None])[0], t.copy(), static))
+                parent, fixed = m.body_names[p], False
+            parents.append(parent)
+            children.append(m.body_names[b])
+            rotations.append(R)
+            translations.append(np.array(t, float))
+            static.append(fixed)
         heads = set(m.body_names)
         for f, frame in enumerate(m.frame_names):
             if frame in heads:
                 continue
             b = int(m.frame_body[f])
-            out.append((m.body_names[b], frame, matrix_to_quat(m.frame_rotation[f][None])[0],
-                        np.asarray(m.frame_position[f], float).copy(), True))
-        return out
+            parents.append(m.body_names[b])
+            children.append(frame)
+            rotations.append(m.frame_rotation[f])
+            translations.append(np.asarray(m.frame_position[f], float).copy())
+            static.append(True)
+        quaternions = matrix_to_quat(np.array(rotations))  # one batched call: ~130 µs each one by one
+        return list(zip(parents, children, quaternions, translations, static))
