@@ -263,6 +263,12 @@ class World:
                 self.robots.end_tick()
             if self.report_contacts:
                 self._report_contacts(model, islands)  # before sleep: who slept *during* the sub-steps
+            if self.robots is not None:
+                for name in self.robots.contain_blowups(model, state):
+                    self.events.append(WorldEvent(self.time, "error", f"numerical blow-up of robot {name} (a "
+                                                  "joint state non-finite or a link beyond the blow-up speeds): "
+                                                  "reset to its initial joint positions at rest, its drives "
+                                                  "holding them"))
             self._update_sleep(contacts, *self._contain_blowups())
         elif self.report_contacts:
             self._report_contacts(model, islands)  # everything asleep (or no bodies): the last contacts hold

@@ -1,7 +1,7 @@
 """Write the built-in gallery scenes whose body lists are too long to type: ``pyramid``, ``sphere_pile``,
 ``convex_pile`` and ``bullet``.
 
-    python tools/gallery_scenes.py          # rewrites msgs_config/scenes/{pyramid,sphere_pile,convex_pile,bullet}.yaml
+    python tools/gallery_scenes.py          # rewrites msgs_config/scenes/{pyramid,sphere_pile,convex_pile,bullet,chain}.yaml
 
 The files are committed; this script is how they were made (edit it, not the YAML, and run it again).
 """
@@ -152,9 +152,52 @@ def bullet() -> str:
     return "".join(lines)
 
 
+#: the chain scene: links, link mass [kg], the block's mass ratio, the pin's height [m], the start angle [rad]
+CHAIN_LINKS, CHAIN_LINK_MASS, CHAIN_RATIO, CHAIN_TOP, CHAIN_ANGLE = 30, 0.1, 1000.0, 4.25, 1.0
+
+
+def chain() -> str:
+    """A heavy ball on a 30-link chain (issue 35's joints between free bodies): a block 1,000x heavier than a link
+    on a pin, 30 capsule links pinned end to end, a 5 kg ball pinned at the end; released at 1 rad from the
+    vertical, the ball sweeps through a wall of 12 boxes near the bottom of its arc."""
+    r, seg = 0.02, 0.08
+    pitch = seg + 2 * r
+    d = np.array([np.sin(CHAIN_ANGLE), 0.0, -np.cos(CHAIN_ANGLE)])
+    top = np.array([0.0, 0.0, CHAIN_TOP])
+    half = np.sin((np.pi - CHAIN_ANGLE) / 2), np.cos((np.pi - CHAIN_ANGLE) / 2)  # capsule z along the chain
+    lines = [HEADER, "description: >\n",
+             "  Joints between free bodies (issue 35): a 5 kg ball on a chain of 30 capsule links (0.1 kg each)\n"
+             "  hanging from a block 1,000 times heavier on a pin, released at 1 rad, sweeps through a wall of\n"
+             "  boxes. The joints form a tree, simulated in reduced coordinates like a robot: no link ever\n"
+             "  separates from the next, whatever the mass ratios (tests/test_body_joints.py).\n",
+             "world: {gravity: [0, 0, -9.81], ground: true, substeps: 4}\nbodies:\n",
+             f"  - {{name: block, shape: box, size: [0.3, 0.3, 0.3], mass: {CHAIN_LINK_MASS * CHAIN_RATIO:g}, "
+             f"position: {_vec(top - [0, 0, 0.15])}, color: [0.3, 0.3, 0.35, 1.0]}}\n"]
+    joints = [f"  - {{name: pin, type: revolute, parent: world, child: block, anchor: {_vec(top)}, "
+              "axis: [0, 1, 0]}\n"]
+    start = top - [0, 0, 0.3]
+    for k in range(CHAIN_LINKS):
+        lines.append(f"  - {{name: link_{k}, shape: capsule, radius: {r:g}, length: {seg:g}, "
+                     f"mass: {CHAIN_LINK_MASS:g}, position: {_vec(start + (k + 0.5) * pitch * d)}, "
+                     f"orientation: {_vec((0.0, half[0], 0.0, half[1]))}, color: [0.75, 0.7, 0.5, 1.0]}}\n")
+        joints.append(f"  - {{name: j_{k}, type: revolute, parent: {'block' if k == 0 else f'link_{k - 1}'}, "
+                      f"child: link_{k}, anchor: {_vec(start + k * pitch * d)}, axis: [0, 1, 0]}}\n")
+    end = start + CHAIN_LINKS * pitch * d
+    lines.append(f"  - {{name: ball, shape: sphere, radius: 0.15, mass: 5, position: {_vec(end + 0.15 * d)}, "
+                 "color: [0.2, 0.2, 0.22, 1.0]}\n")
+    joints.append(f"  - {{name: j_ball, type: revolute, parent: link_{CHAIN_LINKS - 1}, child: ball, "
+                  f"anchor: {_vec(end)}, axis: [0, 1, 0]}}\n")
+    for i in range(3):
+        for j in range(4):
+            lines.append(f"  - {{name: box_{i}_{j}, shape: box, size: [0.3, 0.3, 0.3], mass: 0.5, "
+                         f"position: {_vec((-1.0, -0.45 + 0.3 * j, 0.15 + 0.3 * i))}, friction: 0.5, "
+                         "color: [0.85, 0.65, 0.3, 1.0]}\n")
+    return "".join(lines + ["joints:\n"] + joints)
+
+
 def main() -> None:
     for name, text in (("pyramid", pyramid()), ("sphere_pile", sphere_pile()), ("convex_pile", convex_pile()),
-                       ("bullet", bullet())):
+                       ("bullet", bullet()), ("chain", chain())):
         path = SCENES / f"{name}.yaml"
         path.write_text(text)
         print(f"wrote {path} ({len(text):,} bytes)")

@@ -491,6 +491,39 @@ class Robots:
             inertia_world = R @ body_model.inertia_body[rows] @ np.swapaxes(R, 1, 2)
             state.angular_momentum[rows] = np.einsum("kij,kj->ki", inertia_world, angular[links])
 
+    def contain_blowups(self, body_model, state) -> list[str]:
+        """Put back every robot whose state went non-finite or absurd (a link faster than
+        :data:`~cgp_core.limits.BLOWUP_SPEED` or spinning faster than :data:`~cgp_core.limits.BLOWUP_SPIN`):
+        its initial positions at rest, its drives holding them, the solver's warm start forgotten; the others go
+        on.  Returns the names of the robots put back (the World reports them as events)."""
+        from ..limits import BLOWUP_SPEED, BLOWUP_SPIN
+
+        bad = []
+        with np.errstate(over="ignore", invalid="ignore"):
+            for k, r in enumerate(self.robots):
+                rows = np.flatnonzero(self.body_robot == k)
+                finite = np.isfinite(self.q[r.q_slice]).all() and np.isfinite(self.qd[r.dof_slice]).all()
+                if finite and rows.size:
+                    speed = np.linalg.norm(state.linear_momentum[rows], axis=1) / body_model.mass[rows]
+                    spin = np.linalg.norm(state.angular_velocity(body_model)[rows], axis=1)
+                    finite = bool((speed < BLOWUP_SPEED).all() and (spin < BLOWUP_SPIN).all())
+                if not finite:
+                    bad.append(k)
+        if not bad:
+            return []
+        initial = self._initial_drives()
+        for k in bad:
+            r = self.robots[k]
+            self.q[r.q_slice] = self.q0[r.q_slice]
+            self.qd[r.dof_slice] = self.qd0[r.dof_slice] * 0.0
+            self._pseudo[r.dof_slice] = 0.0
+            for field, start in zip(self.drives, initial):
+                field[r.dof_slice] = start[r.dof_slice]
+        if self._solver is not None:
+            self._solver.reset()
+        self.write_bodies(body_model, state)
+        return [self.robots[k].name for k in bad]
+
     def end_tick(self) -> None:
         """The tick's mean joint efforts (what a joint torque sensor would read over the tick)."""
         if self._substeps:
