@@ -212,3 +212,18 @@ def test_tf_reaches_every_link_at_the_forward_kinematics_poses():
         assert np.allclose(pose[frame][0], R_fk[f], atol=1e-12) and np.allclose(pose[frame][1], p_fk[f], atol=1e-12)
     static = {child for _, child, _, _, s in edges if s}
     assert static == {"base_link", "tool"}  # the fixed root and the fixed tool frame
+
+
+def test_a_robot_that_blows_up_is_put_back_and_the_world_goes_on():
+    crate = {"name": "crate", "shape": "box", "size": [0.1, 0.1, 0.1], "mass": 0.3, "position": [-0.6, 0, 1.0]}
+    world = World(arm_scene(bodies=[crate]))
+    start = positions(world)
+    world.robots.qd[1] = np.nan  # what a numerical blow-up leaves
+    world.step()
+    events = [e.text for e in world.take_events() if e.level == "error"]
+    assert any("numerical blow-up of robot arm" in text for text in events), events
+    assert positions(world) == pytest.approx(start, abs=1e-9)
+    run(world, 0.5)
+    assert np.isfinite(world.body_state.position).all()
+    assert world.body_state.position[world.body_model.index("crate")][2] < 0.9  # it kept falling meanwhile
+    assert max(abs(positions(world)[j] - start[j]) for j in start) < 1e-3  # held again
