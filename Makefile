@@ -63,7 +63,7 @@ $(STAMPS)/deps: $(REQUIREMENTS) $(CONSTRAINTS) | $(STAMPS)/venv
 # The interface packages: ours (cgp_sim_msgs) and ROS 2 Jazzy's tf2_msgs and simulation_interfaces, which have no
 # wheel (our byte-identical copies, built unless the environment has them), in one call that builds side by side
 # only what rclpy loads (no C++), and only the packages whose inputs changed (a content hash per package in
-# $(STAMPS)/msgs-<package>.sha256): ~40 s for the three on 2 cores the first time (docs/development.md).
+# $(STAMPS)/msgs-<package>.sha256): ~1 min for the three on 2 cores the first time (docs/development.md).
 $(STAMPS)/msgs: $(STAMPS)/deps $(MSGS_SRC) $(TF2_MSGS_SRC) $(SIMULATION_INTERFACES_SRC)
 	@echo "setup: building the interface packages (cgp_sim_msgs; tf2_msgs and simulation_interfaces unless installed)"
 	@$(VPY) tools/build_msgs.py --stamps $(STAMPS)
