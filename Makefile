@@ -1,8 +1,9 @@
 # cgp_sim — the two commands are `make run` and `make test`; both run `make setup` first.
 #
 # Set-up is incremental: every slow step leaves a stamp in .venv/.stamps and reruns only when its inputs
-# change (requirements files -> pip; msgs_config/cgp_sim_msgs, msgs_config/upstream/<pkg> -> cmake, one stamp per
-# interface package; setup.py and the data files -> pip install -e .; the Python sources -> the kernels' warm-up).
+# change (requirements files -> pip; msgs_config/cgp_sim_msgs, msgs_config/upstream/<pkg> -> cmake, each interface
+# package rebuilt only when a hash of its own inputs changed; setup.py and the data files -> pip install -e .; the
+# Python sources -> the kernels' warm-up).
 # The upstream copies (tf2_msgs, simulation_interfaces) are built only where no installed package of that name
 # exists (tools/build_msgs.py says which it uses).
 
@@ -32,9 +33,10 @@ PIP := $(VPY) -m pip install --disable-pip-version-check --quiet -c $(CONSTRAINT
 BAG_DIR ?= $(CURDIR)/bags/cgp_sim_$(shell date +%Y_%m_%d-%H_%M_%S)
 ARGS ?=
 
-MSGS_SRC := $(shell find msgs_config/cgp_sim_msgs -type f -not -path '*/__pycache__/*') tools/build_msgs.py
-TF2_MSGS_SRC := $(shell find msgs_config/upstream/tf2_msgs -type f) tools/build_msgs.py
-SIMULATION_INTERFACES_SRC := $(shell find msgs_config/upstream/simulation_interfaces -type f) tools/build_msgs.py
+MSGS_TOOLS := tools/build_msgs.py tools/rosidl_python_only.cmake
+MSGS_SRC := $(shell find msgs_config/cgp_sim_msgs -type f -not -path '*/__pycache__/*') $(MSGS_TOOLS)
+TF2_MSGS_SRC := $(shell find msgs_config/upstream/tf2_msgs -type f) $(MSGS_TOOLS)
+SIMULATION_INTERFACES_SRC := $(shell find msgs_config/upstream/simulation_interfaces -type f) $(MSGS_TOOLS)
 # The project is installed editable (the venv imports the checkout): pip reruns only for setup.py's own inputs,
 # tools/install_data_files.py for the data files it lists (the ament layout), the warm-up for any Python source.
 PROJECT_SRC := setup.py setup.cfg package.xml README.md resource/cgp_sim_ros scripts/sim_node \
@@ -58,28 +60,20 @@ $(STAMPS)/deps: $(REQUIREMENTS) $(CONSTRAINTS) | $(STAMPS)/venv
 	@$(PIP) $(addprefix -r ,$(REQUIREMENTS)) 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)
 	@touch $@
 
-$(STAMPS)/msgs: $(STAMPS)/deps $(MSGS_SRC)
-	@echo "setup: building the cgp_sim_msgs interface package (cmake + ninja)"
-	@$(VPY) tools/build_msgs.py cgp_sim_msgs
-	@touch $@
-
-# ROS 2 Jazzy's tf2_msgs and simulation_interfaces have no wheel: our byte-identical copies are built unless the
-# environment has them (~25 s and ~2 min the first time).
-$(STAMPS)/msgs-tf2_msgs: $(STAMPS)/deps $(TF2_MSGS_SRC)
-	@echo "setup: tf2_msgs (built from msgs_config/upstream unless installed)"
-	@$(VPY) tools/build_msgs.py tf2_msgs
-	@touch $@
-
-$(STAMPS)/msgs-simulation_interfaces: $(STAMPS)/deps $(SIMULATION_INTERFACES_SRC)
-	@echo "setup: simulation_interfaces (built from msgs_config/upstream unless installed)"
-	@$(VPY) tools/build_msgs.py simulation_interfaces
+# The interface packages: ours (cgp_sim_msgs) and ROS 2 Jazzy's tf2_msgs and simulation_interfaces, which have no
+# wheel (our byte-identical copies, built unless the environment has them), in one call that builds side by side
+# only what rclpy loads (no C++), and only the packages whose inputs changed (a content hash per package in
+# $(STAMPS)/msgs-<package>.sha256): ~1 min for the three on 2 cores the first time (docs/development.md).
+$(STAMPS)/msgs: $(STAMPS)/deps $(MSGS_SRC) $(TF2_MSGS_SRC) $(SIMULATION_INTERFACES_SRC)
+	@echo "setup: building the interface packages (cgp_sim_msgs; tf2_msgs and simulation_interfaces unless installed)"
+	@$(VPY) tools/build_msgs.py --stamps $(STAMPS)
 	@touch $@
 
 # Editable: the venv's cgp_core, cgp_sim_ros and msgs_config are the checkout's, so the node, the tests (which
 # import the checkout) and the compile workers share one numba cache (the checkout's __pycache__), and no
 # installed copy can fall behind an edit.  pip -e installs no data_files: tools/install_data_files.py puts
 # setup.py's (the ament layout ros2 run and ament_index_python resolve) into the venv.
-$(STAMPS)/project: $(STAMPS)/msgs $(STAMPS)/msgs-tf2_msgs $(STAMPS)/msgs-simulation_interfaces $(PROJECT_SRC)
+$(STAMPS)/project: $(STAMPS)/msgs $(PROJECT_SRC)
 	@echo "setup: installing cgp_sim (cgp_core, cgp_sim_ros, msgs_config) into .venv, editable"
 	@$(PIP) --no-deps --no-build-isolation -e . 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)
 	@rm -rf build cgp_sim_ros.egg-info

@@ -193,6 +193,9 @@ class CompilePart:
     #: cached (``--default-scene``); the others only ``make setup`` does (a scene that needs them and finds no
     #: cache compiles them in its first tick)
     default_scene: bool = True
+    #: parts whose workers must have finished before this one starts (when they compile too): the kernels this
+    #: part shares with them (its kernels call theirs) are then loaded from the cache, not compiled a second time
+    after: tuple[str, ...] = ()
 
 
 #: the modules of the sphere / box / capsule contacts (the default scene's), and those of issue 25's shapes
@@ -223,9 +226,11 @@ PARTS: tuple[CompilePart, ...] = (
                 ("cgp_core.boids.rules:_neighbor_sums", "cgp_core.boids.flock:_move")),
     # issue 25's shapes: ~60 s of compiling on an idle core (GJK, EPA, the manifolds and the stage that calls them
     # all), more than any other part; it calls the sphere / box / capsule kernels too (compiled here as well)
+    # (after "contacts": the sphere / box / capsule kernels it calls are that part's, ~25 s of CPU that both
+    # workers compiled side by side on a cold cache, issue 34; the first 3 parts keep both cores busy meanwhile)
     CompilePart("convex", _CONVEX_MODULES + _CONTACT_MODULES,
                 ("cgp_core.collision.convex_phase:convex_phase", "cgp_core.collision.convex_phase:sweep_times"),
-                steps_flocks=False, default_scene=False),
+                steps_flocks=False, default_scene=False, after=("contacts",)),
     # issue 35's robots: the recursive algorithms and the joint solver (~15 s on an idle core)
     CompilePart("robots", ("cgp_core.robots",),
                 ("cgp_core.robots.algorithms:mass_matrix", "cgp_core.robots.joint_solver:step_joints"),
@@ -285,26 +290,44 @@ def _sigint_deferred():
 
 def compile_in_parallel(parts: list[CompilePart], worker_module: str, *worker_args: str) -> dict[str, str]:
     """Run one worker process per part, ``python -P -m <worker_module> --part <name> <worker_args>`` with
-    ``CGP_SIM_JIT_ONLY`` set to the part's modules, all at once; wait for them.  The workers import the same
+    ``CGP_SIM_JIT_ONLY`` set to the part's modules, side by side (a part starts once the parts it comes
+    :attr:`~CompilePart.after`, among those given, have finished); wait for them.  The workers import the same
     packages as this process (its package root first on ``PYTHONPATH``), so they write the cache this process
     reads.  Returns ``{part name: the worker's output}`` for each worker that failed (the kernels it should
     have compiled then compile on first use)."""
     root = str(Path(__file__).resolve().parents[1])  # the directory cgp_core (and cgp_sim_ros) was imported from
     python_path = os.pathsep.join([root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
-    workers, failed = {}, {}
-    try:
+    names = {part.name for part in parts}
+    waiting = list(parts)
+    workers, readers, outputs, failed = {}, {}, {}, {}
+
+    def start_ready() -> None:
         # A Ctrl-C between a worker's start and its entry in `workers` would leave that worker out of the
         # clean-up below, compiling on after the caller exits: SIGINT waits until every worker is entered.
         with _sigint_deferred():
-            for part in parts:
+            for part in [p for p in waiting if all(a not in names or a in outputs for a in p.after)]:
+                waiting.remove(part)
                 env = dict(os.environ, PYTHONPATH=python_path, CGP_SIM_JIT_ONLY=",".join(part.modules))
-                workers[part.name] = subprocess.Popen(
+                worker = workers[part.name] = subprocess.Popen(
                     [sys.executable, "-P", "-m", worker_module, "--part", part.name, *worker_args], env=env,
                     stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                # each worker's output read on a thread of its own: a worker must not block on a full pipe
+                readers[part.name] = threading.Thread(
+                    target=lambda name=part.name, worker=worker: outputs.__setitem__(name, worker.communicate()[0]),
+                    daemon=True)
+                readers[part.name].start()
+
+    try:
+        start_ready()
+        while any(reader.is_alive() for reader in readers.values()):
+            for reader in readers.values():
+                reader.join(timeout=0.1)
+            start_ready()
+        if waiting:
+            raise RuntimeError(f"compile parts wait for each other: {', '.join(p.name for p in waiting)}")
         for name, worker in workers.items():
-            output, _ = worker.communicate()
-            if worker.returncode != 0:
-                failed[name] = output
+            if worker.wait() != 0:
+                failed[name] = outputs.get(name, "")
     finally:  # interrupted (Ctrl-C): no worker outlives the caller
         for worker in workers.values():
             if worker.poll() is None:
@@ -355,7 +378,9 @@ def main(argv: list[str], *, name: str, parts: tuple[CompilePart, ...], worker_m
     started = time.perf_counter()
     if args.default_scene:
         parts = tuple(p for p in parts if p.default_scene)
-    compile_missing(parts, worker_module, lambda text: print(f"{name}: {text}", file=sys.stderr, flush=True))
+    # (the workers get --default-scene too: without it they compiled every kernel but the convex part's)
+    compile_missing(parts, worker_module, lambda text: print(f"{name}: {text}", file=sys.stderr, flush=True),
+                    *(["--default-scene"] if args.default_scene else []))
     scenario(complete=not args.default_scene)
     print(f"{name}: simulation kernels compiled and cached ({time.perf_counter() - started:.1f} s)")
     return 0

@@ -38,6 +38,11 @@ def test_colcon_build_of_a_workspace_holding_the_repo(tmp_path):
     assert build.returncode == 0, build.stdout[-3000:] + build.stderr[-3000:]
     for package in ("cgp_sim_msgs", "cgp_sim_ros"):
         assert f"Finished <<< {package}" in build.stdout, build.stdout[-2000:]
+    # a workspace build is a normal interface package, with every generator: the C++ headers and type supports
+    # too (only the venv's build, tools/build_msgs.py, leaves out what a Python node does not load)
+    msgs = ws / "install" / "cgp_sim_msgs"
+    assert (msgs / "include" / "cgp_sim_msgs" / "cgp_sim_msgs" / "msg" / "contacts.hpp").is_file()
+    assert (msgs / "lib" / "libcgp_sim_msgs__rosidl_typesupport_cpp.so").is_file()
     # our copies of ROS 2's tf2_msgs and simulation_interfaces (msgs_config/upstream, COLCON_IGNORE) are not
     # built in a workspace: the installed ones (the underlay's; rosdep's on a ROS install) are used, unshadowed
     for package in ("tf2_msgs", "simulation_interfaces"):

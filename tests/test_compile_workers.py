@@ -254,6 +254,33 @@ def test_ctrl_c_while_a_worker_is_being_started_leaves_no_worker_running(tmp_pat
                 process.wait()
 
 
+def test_a_part_after_another_starts_once_that_ones_worker_has_finished(tmp_path, monkeypatch):
+    """CompilePart.after: the convex part's worker starts when the contacts part's has finished (the kernels
+    both call are then loaded from the cache, not compiled twice); the other parts run side by side."""
+    from cgp_core import warmup
+
+    (tmp_path / "stamping_worker.py").write_text(
+        "import pathlib, sys, time\n"
+        f"out = pathlib.Path({str(tmp_path)!r})\n"
+        "name = sys.argv[sys.argv.index('--part') + 1]\n"
+        "(out / f'{name}.start').touch()\n"
+        "deadline = time.monotonic() + 60\n"
+        "while name == 'first' and not (out / 'free.start').exists() and time.monotonic() < deadline:\n"
+        "    time.sleep(0.01)\n"
+        "time.sleep(0.2)\n"
+        "(out / f'{name}.end').touch()\n")
+    monkeypatch.setenv("PYTHONPATH", str(tmp_path))
+    parts = [warmup.CompilePart("first", ("cgp_core",), ()),
+             warmup.CompilePart("second", ("cgp_core",), (), after=("first",)),
+             warmup.CompilePart("free", ("cgp_core",), ()),
+             warmup.CompilePart("alone", ("cgp_core",), (), after=("not_compiling_now",))]
+    assert warmup.compile_in_parallel(parts, "stamping_worker") == {}
+    stamp = {f.name: f.stat().st_mtime_ns for f in tmp_path.iterdir() if f.suffix in (".start", ".end")}
+    assert len(stamp) == 8  # every worker ran, "alone" too (the part it comes after is not among those given)
+    assert stamp["second.start"] >= stamp["first.end"]
+    assert stamp["free.start"] <= stamp["first.end"]
+
+
 LOADED_DURING_TICKS = r"""
 import sys
 from pathlib import Path

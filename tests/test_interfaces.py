@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import json
+import os
 import re
 import sys
 from pathlib import Path
@@ -115,6 +116,21 @@ def test_build_msgs_uses_an_installed_package_instead_of_our_copy(tmp_path):
     assert build_msgs.installed_elsewhere("tf2_msgs", venv, {"AMENT_PREFIX_PATH": str(ros)}) == ros
     install(venv, "simulation_interfaces", ours=False)  # e.g. a future wheel, installed into the venv
     assert build_msgs.installed_elsewhere("simulation_interfaces", venv, {}) == venv
+
+
+def test_build_msgs_rebuilds_a_package_only_when_its_inputs_change(tmp_path, monkeypatch):
+    """The stamp of a package is a hash of its sources (and of the build script): another package's edit, or
+    a checkout that only touched the files' times, leaves it alone; an edit of its own sources does not."""
+    source = tmp_path / "pkg"
+    (source / "msg").mkdir(parents=True)
+    (source / "msg" / "A.msg").write_text("float64 x\n")
+    (source / "CMakeLists.txt").write_text("project(pkg)\n")
+    first = build_msgs.build_inputs_hash("pkg", source)
+    os.utime(source / "msg" / "A.msg", (1, 1))  # a new time only
+    assert build_msgs.build_inputs_hash("pkg", source) == first
+    assert build_msgs.build_inputs_hash("other", source) != first
+    (source / "msg" / "A.msg").write_text("float64 x\nfloat64 y\n")
+    assert build_msgs.build_inputs_hash("pkg", source) != first
 
 
 def test_frame_prefix_names_the_frames_and_is_checked():
