@@ -20,8 +20,8 @@ from cgp_core.inertia import shape_mass_properties
 from cgp_core.rotation import quat_rotate, quat_to_matrix
 from cgp_core.scene import builtin_scene_names, scene_description
 
-GALLERY = ["arm", "box_stack", "bullet", "chain", "contacts", "convex_pile", "couzin_torus", "default", "fish_school", "predator",
-           "pyramid", "ramp", "sphere_pile", "tennis_racket", "zero_g"]
+GALLERY = ["arm", "box_stack", "bullet", "chain", "contacts", "convex_pile", "couzin_torus", "default", "fish_school",
+           "predator", "pyramid", "ramp", "sphere_pile", "tennis_racket", "zero_g"]
 # (bullet and convex_pile are tested for their point in tests/test_convex_scenes.py)
 
 

@@ -1,7 +1,7 @@
 """Write the built-in gallery scenes whose body lists are too long to type: ``pyramid``, ``sphere_pile``,
-``convex_pile`` and ``bullet``.
+``convex_pile``, ``bullet`` and ``chain``.
 
-    python tools/gallery_scenes.py          # rewrites msgs_config/scenes/{pyramid,sphere_pile,convex_pile,bullet,chain}.yaml
+    python tools/gallery_scenes.py   # rewrites msgs_config/scenes/{pyramid,sphere_pile,convex_pile,bullet,chain}.yaml
 
 The files are committed; this script is how they were made (edit it, not the YAML, and run it again).
 """
