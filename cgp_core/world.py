@@ -288,7 +288,9 @@ class World:
         the contacts of the islands that slept through them, held from the tick before."""
         report = self.solver.finish_report(self.dt)
         previous = self.contacts
-        if islands is not None and self._contacts_of == (model, self.ticks - 1):  # the tick before, same bodies
+        held_model, held_tick = self._contacts_of
+        # `is`, not ==: a body model is a dataclass of arrays, whose == is ambiguous (a spawn replaces the model)
+        if islands is not None and held_model is model and held_tick == self.ticks - 1:  # the tick before, same bodies
             report = carry_sleeping(report, previous, islands.asleep, model.fixed, self.body_state.position)
         self.contacts, self._contacts_of = report, (model, self.ticks)
 
