@@ -249,6 +249,8 @@ class World:
             # after as an event naming the body.
             if self.report_contacts:
                 self.solver.start_report()
+                if self.robots is not None:  # the link contacts are solved (and summed) in the robot stage
+                    self.robots.start_report(model.count)
             with np.errstate(over="ignore", invalid="ignore"):
                 for _ in range(self.substeps):
                     self.wrenches.apply(state)
@@ -279,6 +281,8 @@ class World:
         """The tick's :attr:`contacts` (:mod:`cgp_core.solver.report`): the solver's sums over the sub-steps, and
         the contacts of the islands that slept through them, held from the tick before."""
         report = self.solver.finish_report(self.dt)
+        if self.robots is not None:
+            report = self.robots.finish_report(report, self.dt)
         previous = self.contacts
         if islands is not None and self._contacts_of == (model, self.ticks - 1):  # the tick before, same bodies
             report = carry_sleeping(report, previous, islands.asleep, model.fixed, self.body_state.position)
