@@ -205,6 +205,7 @@ class World:
         self.body_state = self._initial_body_state.copy()
         if self.robots is not None:
             self.robots.attach(self.body_model)
+            self.solver.detector.exclude(*self.robots.exclusion)
         self._scene_flock_params = [p if seed is None else p.with_seed(seed + i) for i, p in enumerate(scene.flocks)]
         self.flocks = [Flock(p) for p in self._scene_flock_params]
         self.wrenches = WrenchSchedule()
@@ -719,6 +720,7 @@ class World:
             self.solver.reset()
         if self.robots is not None:
             self.robots.attach(self.body_model)
+            self.solver.detector.exclude(*self.robots.exclusion)
         self.wake()
 
     def remember_tick_start(self) -> None:

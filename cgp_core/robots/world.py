@@ -297,12 +297,25 @@ class Robots:
                 self.self_collision_group[row] = k
                 if not body_model.fixed[row]:
                     self.body_robot[row], self.body_link[row] = k, b
+        # the pairs the robot stage would drop: never tested by the detector (Detector.exclude)
+        jointed = np.full(n, -1, np.int64)
+        for r in self.robots:
+            rows = {b: index.get(link_name(r.name, link)) for b, link in enumerate(r.model.body_names)}
+            for b, row in rows.items():
+                parent = int(r.model.parent[b])
+                if row is not None and parent >= 0 and rows.get(parent) is not None:
+                    jointed[row] = rows[parent]
+        self.exclusion = (self.self_collision_group, jointed,
+                          np.array([r.spec.self_collision for r in self.robots], bool))
         # per robot: its moving link bodies' world rows and robot bodies (write_bodies, take_wrenches)
         self._link_rows = np.flatnonzero(self.body_robot >= 0)
         self._robot_rows = [np.flatnonzero(self.body_robot == k) for k in range(len(self.robots))]
         self._robot_links = [self.body_link[rows] for rows in self._robot_rows]
-        self._inertia_body = [np.ascontiguousarray(body_model.inertia_body[rows]) for rows in self._robot_rows]
-        self._link_mass = [body_model.mass[rows, None] for rows in self._robot_rows]
+        self._all_rows = np.concatenate(self._robot_rows) if self.robots else np.zeros(0, np.int64)
+        self._all_com = np.concatenate([r.model.com[links] for r, links in zip(self.robots, self._robot_links)]) \
+            if self.robots else np.zeros((0, 3))
+        self._all_inertia = np.ascontiguousarray(body_model.inertia_body[self._all_rows])
+        self._all_mass = body_model.mass[self._all_rows, None]
 
     def reset(self) -> None:
         self.q = self.q0.copy()
@@ -666,26 +679,31 @@ class Robots:
                                                                moving[r.dof_slice], h)
 
     def write_bodies(self, body_model, state) -> None:
-        """Every moving link body's pose (COM, orientation) and momenta (P = m v, L = I_world ω) from q, q̇."""
+        """Every moving link body's pose (COM, orientation) and momenta (P = m v, L = I_world ω) from q, q̇ (the
+        kinematics per robot, the rest for all robots' links at once)."""
         self.prepare()
+        rows = self._all_rows
+        if not rows.size:
+            return
+        parts = []
         for k, r in enumerate(self.robots):
-            rows = self._robot_rows[k]
-            if not rows.size:
-                continue
             links = self._robot_links[k]
+            if not links.size:
+                continue
             rotation, position = self._poses[k]
             linear, angular = algorithms.body_velocities(r.kernel_arrays, self.q[r.q_slice], self.qd[r.dof_slice],
                                                          rotation, position)
-            R = rotation[links]
-            com = np.einsum("kij,kj->ki", R, r.model.com[links])
-            state.position[rows] = position[links] + com
-            state.orientation[rows] = matrix_to_quat(R)
-            if state.rotation is not None:
-                state.rotation[rows] = R
-            v = linear[links] + np.cross(angular[links], com)
-            state.linear_momentum[rows] = self._link_mass[k] * v
-            inertia_world = R @ self._inertia_body[k] @ np.swapaxes(R, 1, 2)
-            state.angular_momentum[rows] = np.einsum("kij,kj->ki", inertia_world, angular[links])
+            parts.append((rotation[links], position[links], linear[links], angular[links]))
+        R, position, linear, angular = (np.concatenate([p[i] for p in parts]) for i in range(4))
+        com = np.einsum("kij,kj->ki", R, self._all_com)
+        state.position[rows] = position + com
+        state.orientation[rows] = matrix_to_quat(R)
+        if state.rotation is not None:
+            state.rotation[rows] = R
+        v = linear + np.cross(angular, com)
+        state.linear_momentum[rows] = self._all_mass * v
+        inertia_world = R @ self._all_inertia @ np.swapaxes(R, 1, 2)
+        state.angular_momentum[rows] = np.einsum("kij,kj->ki", inertia_world, angular)
 
     def end_tick(self) -> None:
         """The tick's mean joint efforts (what a joint torque sensor would read over the tick)."""
