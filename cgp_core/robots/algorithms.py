@@ -60,7 +60,7 @@ from .model import JOINT_FLOATING, JOINT_PLANAR, JOINT_PRISMATIC, JOINT_REVOLUTE
 
 __all__ = ["forward_kinematics", "frame_poses", "motion_subspace", "body_velocities", "point_jacobian",
            "angular_jacobian", "spatial_inertias", "mass_matrix", "inverse_dynamics", "bias_forces",
-           "forward_dynamics", "integrate_positions", "cholesky_solve"]
+           "forward_dynamics", "integrate_positions", "cholesky_solve", "joint_space_terms", "advance"]
 
 
 # ---- small 3-vector helpers (no allocation of temporaries beyond the result) -----------------------------------
@@ -468,6 +468,31 @@ def bias_forces(arrays, q, qd, gravity):
     """``b(q, qd)`` (n_dofs,): Coriolis, centrifugal and gravity forces, :func:`inverse_dynamics` with qdd = 0."""
     arrays = RobotArrays(*arrays)
     return inverse_dynamics(arrays, q, qd, np.zeros(arrays.n_dofs), gravity)
+
+
+@njit
+def joint_space_terms(arrays, q, qd, gravity):
+    """``(M(q), b(q, qd))``: :func:`mass_matrix` and :func:`inverse_dynamics` at qdd = 0 in one call, sharing the
+    poses, motion subspaces and spatial inertias the two would each compute (the robot stage needs both every
+    sub-step); the same numbers as the two calls."""
+    arrays = RobotArrays(*arrays)
+    rotation, position = forward_kinematics(arrays, q)
+    S = motion_subspace(arrays, rotation, position)
+    inertias = spatial_inertias(arrays, rotation, position)
+    M = _mass_matrix(arrays, S, inertias)
+    return M, _rnea(arrays, S, inertias, qd, np.zeros(arrays.n_dofs), gravity, np.zeros((len(arrays.parent), 6)))
+
+
+@njit
+def advance(arrays, q, moving, qd, h):
+    """The robot stage's end of a sub-step in one call: ``q_new = integrate_positions(q, moving, h)``, the bodies'
+    poses there (:func:`forward_kinematics`) and their velocities with ``qd`` (:func:`body_velocities`):
+    ``(q_new, rotation, position, linear, angular)``."""
+    arrays = RobotArrays(*arrays)
+    q_new = integrate_positions(arrays, q, moving, h)
+    rotation, position = forward_kinematics(arrays, q_new)
+    linear, angular = body_velocities(arrays, q_new, qd, rotation, position)
+    return q_new, rotation, position, linear, angular
 
 
 @njit

@@ -125,6 +125,21 @@ def place_root(model, rotation: np.ndarray, position: np.ndarray):
     return replace(model, joint_rotation=joint_rotation, joint_position=joint_position)
 
 
+def _kernel_list(items: list):
+    """``items`` (plain tuples of one type) as the list a compiled kernel takes: a ``numba.typed.List`` (a Python
+    list with the JIT off; an empty list stays a Python list: nothing is stepped from it)."""
+    from ..jit import JIT_DISABLED
+
+    if JIT_DISABLED or not items:
+        return list(items)
+    from numba.typed import List
+
+    out = List()
+    for item in items:
+        out.append(item)
+    return out
+
+
 def _islands(count: int, robot_a: np.ndarray, robot_b: np.ndarray) -> tuple[np.ndarray, list[list[int]]]:
     """Union-find over the link–link contacts between robots (``robot_a``, ``robot_b`` per contact, −1 for a
     side that is no link): ``(root (count,), groups)``, each robot's island representative (its smallest robot)
@@ -244,6 +259,15 @@ class Robots:
         self.body_robot = np.zeros(0, np.int64)
         self.body_link = np.zeros(0, np.int64)
         self._tally = None  # the contact report's sums over the tick (start_report ... finish_report)
+        # the robots that touch nothing in a sub-step are stepped in one compiled call (joint_solver.
+        # step_lone_robots): their bundles as lists the kernel takes, their offsets in q / qd
+        self._q_start = np.array([r.q_slice.start for r in self.robots] + [self.n_q], np.int64)
+        self._dof_start = np.array([r.dof_slice.start for r in self.robots] + [self.n_dofs], np.int64)
+        self._q_of_local = (np.concatenate([r.q_of_dof for r in self.robots]) if self.robots
+                            else np.zeros(0, np.int64))
+        self._models = _kernel_list([r.kernel_arrays for r in self.robots])
+        self._property_list = _kernel_list([tuple(r.properties) for r in self.robots])
+        self._profile = None
         self.reset()
 
     # ---- building ---------------------------------------------------------------------------------------
@@ -326,6 +350,9 @@ class Robots:
         for r in self.robots:
             if r.solver is not None:
                 r.solver.reset()
+        from .joint_solver import JointSolverMemory
+
+        self._memories = _kernel_list([tuple(JointSolverMemory.empty()) for _ in self.robots])
         self.drives = self._initial_drives()
         self._wrench_torque = np.zeros(self.n_dofs)
         self._pseudo = np.zeros(self.n_dofs)
@@ -341,6 +368,7 @@ class Robots:
         self._drives = drives
         for r in self.robots:
             r.drives = tuple(a[r.dof_slice] for a in drives)
+        self._drive_list = _kernel_list([r.drives for r in self.robots])
 
     def _initial_drives(self):
         """Position drives holding the initial positions on every movable joint of a robot with ``hold``
@@ -392,12 +420,13 @@ class Robots:
 
     def prepare(self) -> None:
         """The body poses of every robot at the current q (cached for the sub-step)."""
+        self._velocities = None
         self._poses = [algorithms.forward_kinematics(r.kernel_arrays, self.q[r.q_slice]) for r in self.robots]
 
     def solve(self, contacts, body_model, state, h: float, gravity, velocity, angular_velocity, inv_inertia):
         """The robot stage (module docstring, step 3): every robot, or island of robots whose links touch,
         solved on its own; returns the contacts left for the body solver."""
-        from .joint_solver import FreeBodies, JointSolver, JointSystem
+        from .joint_solver import FreeBodies, JointSolver, JointSolverMemory, JointSystem
 
         if contacts.count:
             a, b = contacts.body_a, contacts.body_b
@@ -436,8 +465,22 @@ class Robots:
         else:
             root, groups = None, [[k] for k in range(len(self.robots))]
         self.islands = groups
+        lone = np.array([g[0] for g in groups if len(g) == 1 and (g[0] if root is None else int(root[g[0]]))
+                         not in owner], np.int64)
+        if lone.size:
+            from .joint_solver import JointSettings, step_lone_robots
+
+            if self._profile is None:
+                self._profile = self.robots[0].solver.profile
+            step_lone_robots(lone, self._models, self._property_list, self._drive_list, self._memories, self.q,
+                             self.qd, self._wrench_torque, self._q_start, self._dof_start, self._q_of_local, gravity,
+                             tuple(JointSettings.default(h)), self._profile.seconds, self._pseudo,
+                             self._effort_sum)
+            self._profile.calls += 1
         bodies = None
         for group in groups:
+            if len(group) == 1 and (group[0] if root is None else int(root[group[0]])) not in owner:
+                continue  # stepped above
             picked = owner.get(group[0] if root is None else int(root[group[0]]))
             if picked is not None and picked.size:
                 selected = contacts.select(picked)
@@ -451,13 +494,13 @@ class Robots:
             if len(group) == 1:
                 r = self.robots[group[0]]
                 q, qd = self.q[r.q_slice], self.qd[r.dof_slice]
-                a_ = r.kernel_arrays
-                M = algorithms.mass_matrix(a_, q)
-                bias = algorithms.inverse_dynamics(a_, q, qd, np.zeros(r.model.n_dofs), gravity)
+                M, bias = algorithms.joint_space_terms(r.kernel_arrays, q, qd, gravity)
                 coordinate = np.where(r.has_coordinate, q[r.q_of_dof_clipped], 0.0)
                 system = JointSystem(M, bias, self._wrench_torque[r.dof_slice].copy(), coordinate, qd.copy())
                 rows = self._contact_rows(selected, body_model, state, {group[0]: 0}, r.model.n_dofs)
+                r.solver.memory = JointSolverMemory(*self._memories[group[0]])
                 step = r.solver.step(system, r.properties, r.drives, rows, use_bodies)
+                self._memories[group[0]] = tuple(r.solver.memory)
                 self._finish(group, step, rows, selected, state)
             else:
                 self._solve_island(group, selected, body_model, state, gravity, use_bodies)
@@ -480,7 +523,7 @@ class Robots:
     def _solve_island(self, group, selected, body_model, state, gravity, bodies) -> None:
         """Robots whose links touch each other in this sub-step: one joint-space system of all their dofs
         (block-diagonal M), their warm-start memories merged and split again."""
-        from .joint_solver import JointProperties, JointSolver, JointSystem
+        from .joint_solver import JointProperties, JointSolver, JointSolverMemory, JointSystem
 
         offsets, mimic_offsets = {}, {}
         n = k_mimic = 0
@@ -494,9 +537,7 @@ class Robots:
             r = self.robots[k]
             s = slice(offsets[k], offsets[k] + r.model.n_dofs)
             q = self.q[r.q_slice]
-            M[s, s] = algorithms.mass_matrix(r.kernel_arrays, q)
-            bias[s] = algorithms.inverse_dynamics(r.kernel_arrays, q, self.qd[r.dof_slice], np.zeros(r.model.n_dofs),
-                                                  gravity)
+            M[s, s], bias[s] = algorithms.joint_space_terms(r.kernel_arrays, q, self.qd[r.dof_slice], gravity)
             applied[s] = self._wrench_torque[r.dof_slice]
             coordinate[s] = np.where(r.has_coordinate, q[r.q_of_dof_clipped], 0.0)
             qd[s] = self.qd[r.dof_slice]
@@ -509,7 +550,7 @@ class Robots:
         drives = tuple(np.concatenate([self.robots[k].drives[i] for k in group]) for i in range(6))
         rows = self._contact_rows(selected, body_model, state, offsets, n)
         solver = JointSolver(self._h, check=False)
-        solver.memory = _merge_memories([(self.robots[k].solver.memory, offsets[k], mimic_offsets[k])
+        solver.memory = _merge_memories([(JointSolverMemory(*self._memories[k]), offsets[k], mimic_offsets[k])
                                          for k in group])
         step = solver.step(JointSystem(M, bias, applied, coordinate, qd), properties, drives, rows, bodies)
         contact_robots = {}
@@ -521,8 +562,8 @@ class Robots:
                         contact_robots.setdefault(key, set()).add(int(self.body_robot[side]))
         for k in group:
             r = self.robots[k]
-            r.solver.memory = _split_memory(solver.memory, offsets[k], r.model.n_dofs, mimic_offsets[k],
-                                            len(r.properties.mimic_follower), k, contact_robots)
+            self._memories[k] = tuple(_split_memory(solver.memory, offsets[k], r.model.n_dofs, mimic_offsets[k],
+                                                    len(r.properties.mimic_follower), k, contact_robots))
             r.solver.profile.seconds += solver.profile.seconds / len(group)
         self._finish(group, step, rows, selected, state)
 
@@ -672,27 +713,38 @@ class Robots:
         return ContactReport(*contacts, body, wrench[body, :3], wrench[body, 3:], report.duration)
 
     def integrate(self, h: float) -> None:
-        """q ← q + h q̇ per robot (a floating root's quaternion by the exponential map)."""
+        """q ← q + h q̇ per robot (a floating root's quaternion by the exponential map); the bodies' poses and
+        velocities there are kept for :meth:`write_bodies` (one compiled call per robot:
+        :func:`~cgp_core.robots.algorithms.advance`)."""
         moving = self.qd + self._pseudo  # the position stage's pseudo-velocity moves q, never qd (no energy)
+        poses, velocities = [], []
         for r in self.robots:
-            self.q[r.q_slice] = algorithms.integrate_positions(r.kernel_arrays, self.q[r.q_slice],
-                                                               moving[r.dof_slice], h)
+            q, rotation, position, linear, angular = algorithms.advance(
+                r.kernel_arrays, self.q[r.q_slice], moving[r.dof_slice], self.qd[r.dof_slice], h)
+            self.q[r.q_slice] = q
+            poses.append((rotation, position))
+            velocities.append((linear, angular))
+        self._poses, self._velocities = poses, velocities
 
     def write_bodies(self, body_model, state) -> None:
         """Every moving link body's pose (COM, orientation) and momenta (P = m v, L = I_world ω) from q, q̇ (the
-        kinematics per robot, the rest for all robots' links at once)."""
-        self.prepare()
+        kinematics per robot — from :meth:`integrate` when it just ran —, the rest for all robots' links at
+        once)."""
+        velocities, self._velocities = getattr(self, "_velocities", None), None
+        if velocities is None:
+            self.prepare()
+            velocities = [algorithms.body_velocities(r.kernel_arrays, self.q[r.q_slice], self.qd[r.dof_slice],
+                                                     *self._poses[k]) for k, r in enumerate(self.robots)]
         rows = self._all_rows
         if not rows.size:
             return
         parts = []
-        for k, r in enumerate(self.robots):
+        for k in range(len(self.robots)):
             links = self._robot_links[k]
             if not links.size:
                 continue
             rotation, position = self._poses[k]
-            linear, angular = algorithms.body_velocities(r.kernel_arrays, self.q[r.q_slice], self.qd[r.dof_slice],
-                                                         rotation, position)
+            linear, angular = velocities[k]
             parts.append((rotation[links], position[links], linear[links], angular[links]))
         R, position, linear, angular = (np.concatenate([p[i] for p in parts]) for i in range(4))
         com = np.einsum("kij,kj->ki", R, self._all_com)
