@@ -562,3 +562,70 @@ def integrate_positions(arrays, q, qd, h):
             for k in range(arrays.q_count[i]):
                 out[s + k] = q[s + k] + h * qd[d + k]
     return out
+
+
+@njit
+def write_link_bodies(rows, rotation, position, linear, angular, com, mass, inertia_body, out_position,
+                      out_orientation, out_rotation, out_linear_momentum, out_angular_momentum):
+    """Link bodies' world state from their robot bodies' poses and velocities (``k`` links, world rows ``rows``):
+    COM ``p + R c``, orientation (Shepperd's method, as :func:`cgp_core.rotation.matrix_to_quat`, w ≥ 0), the
+    rotation matrix (``out_rotation`` of shape (0, 3, 3): none kept), P = m (v + ω × R c) and L = R I Rᵀ ω.
+    ``rotation (k, 3, 3)``, ``position``, ``linear``, ``angular``, ``com`` (body frame) ``(k, 3)``, ``mass (k,)``,
+    ``inertia_body (k, 3, 3)``; the ``out_*`` arrays are the state's (written in place)."""
+    keep_rotation = out_rotation.shape[0] > 0
+    for t in range(len(rows)):
+        row = rows[t]
+        R = rotation[t]
+        c = np.empty(3)
+        for i in range(3):
+            c[i] = R[i, 0] * com[t, 0] + R[i, 1] * com[t, 1] + R[i, 2] * com[t, 2]
+            out_position[row, i] = position[t, i] + c[i]
+        m00, m11, m22 = R[0, 0], R[1, 1], R[2, 2]
+        trace = m00 + m11 + m22
+        cand0, cand1 = 1.0 + trace, 1.0 + m00 - m11 - m22
+        cand2, cand3 = 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22
+        k, best = 0, cand0
+        if cand1 > best:
+            k, best = 1, cand1
+        if cand2 > best:
+            k, best = 2, cand2
+        if cand3 > best:
+            k, best = 3, cand3
+        s = 2.0 * math.sqrt(max(best, 1e-300))
+        if k == 0:
+            x, y, z, w = R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1], 0.25 * s * s
+        elif k == 1:
+            x, y, z, w = 0.25 * s * s, R[0, 1] + R[1, 0], R[0, 2] + R[2, 0], R[2, 1] - R[1, 2]
+        elif k == 2:
+            x, y, z, w = R[0, 1] + R[1, 0], 0.25 * s * s, R[1, 2] + R[2, 1], R[0, 2] - R[2, 0]
+        else:
+            x, y, z, w = R[0, 2] + R[2, 0], R[1, 2] + R[2, 1], 0.25 * s * s, R[1, 0] - R[0, 1]
+        x, y, z, w = x / s, y / s, z / s, w / s
+        norm = math.sqrt(x * x + y * y + z * z + w * w)
+        x, y, z, w = x / norm, y / norm, z / norm, w / norm
+        if w < 0.0:
+            x, y, z, w = -x, -y, -z, -w
+        out_orientation[row, 0], out_orientation[row, 1] = x, y
+        out_orientation[row, 2], out_orientation[row, 3] = z, w
+        if keep_rotation:
+            for i in range(3):
+                for j in range(3):
+                    out_rotation[row, i, j] = R[i, j]
+        wx, wy, wz = angular[t, 0], angular[t, 1], angular[t, 2]
+        vx = linear[t, 0] + (wy * c[2] - wz * c[1])
+        vy = linear[t, 1] + (wz * c[0] - wx * c[2])
+        vz = linear[t, 2] + (wx * c[1] - wy * c[0])
+        out_linear_momentum[row, 0] = mass[t] * vx
+        out_linear_momentum[row, 1] = mass[t] * vy
+        out_linear_momentum[row, 2] = mass[t] * vz
+        RI = np.empty((3, 3))
+        for i in range(3):
+            for j in range(3):
+                RI[i, j] = R[i, 0] * inertia_body[t, 0, j] + R[i, 1] * inertia_body[t, 1, j] \
+                    + R[i, 2] * inertia_body[t, 2, j]
+        for i in range(3):
+            s_ = 0.0
+            for j in range(3):
+                iw = RI[i, 0] * R[j, 0] + RI[i, 1] * R[j, 1] + RI[i, 2] * R[j, 2]
+                s_ += iw * angular[t, j]
+            out_angular_momentum[row, i] = s_

@@ -125,6 +125,9 @@ def place_root(model, rotation: np.ndarray, position: np.ndarray):
     return replace(model, joint_rotation=joint_rotation, joint_position=joint_position)
 
 
+_NO_ROTATION = np.zeros((0, 3, 3))
+
+
 def _kernel_list(items: list):
     """``items`` (plain tuples of one type) as the list a compiled kernel takes: a ``numba.typed.List`` (a Python
     list with the JIT off; an empty list stays a Python list: nothing is stepped from it)."""
@@ -339,7 +342,7 @@ class Robots:
         self._all_com = np.concatenate([r.model.com[links] for r, links in zip(self.robots, self._robot_links)]) \
             if self.robots else np.zeros((0, 3))
         self._all_inertia = np.ascontiguousarray(body_model.inertia_body[self._all_rows])
-        self._all_mass = body_model.mass[self._all_rows, None]
+        self._all_mass_flat = np.ascontiguousarray(body_model.mass[self._all_rows], dtype=float)
 
     def reset(self) -> None:
         self.q = self.q0.copy()
@@ -747,15 +750,10 @@ class Robots:
             linear, angular = velocities[k]
             parts.append((rotation[links], position[links], linear[links], angular[links]))
         R, position, linear, angular = (np.concatenate([p[i] for p in parts]) for i in range(4))
-        com = np.einsum("kij,kj->ki", R, self._all_com)
-        state.position[rows] = position + com
-        state.orientation[rows] = matrix_to_quat(R)
-        if state.rotation is not None:
-            state.rotation[rows] = R
-        v = linear + np.cross(angular, com)
-        state.linear_momentum[rows] = self._all_mass * v
-        inertia_world = R @ self._all_inertia @ np.swapaxes(R, 1, 2)
-        state.angular_momentum[rows] = np.einsum("kij,kj->ki", inertia_world, angular)
+        algorithms.write_link_bodies(rows, R, position, linear, angular, self._all_com, self._all_mass_flat,
+                                     self._all_inertia, state.position, state.orientation,
+                                     state.rotation if state.rotation is not None else _NO_ROTATION,
+                                     state.linear_momentum, state.angular_momentum)
 
     def end_tick(self) -> None:
         """The tick's mean joint efforts (what a joint torque sensor would read over the tick)."""
