@@ -629,3 +629,23 @@ def write_link_bodies(rows, rotation, position, linear, angular, com, mass, iner
                 iw = RI[i, 0] * R[j, 0] + RI[i, 1] * R[j, 1] + RI[i, 2] * R[j, 2]
                 s_ += iw * angular[t, j]
             out_angular_momentum[row, i] = s_
+
+
+@njit
+def advance_all(models, q, moving, qd, q_start, dof_start, body_start, h, rotation, position, linear, angular):
+    """:func:`advance` for every robot in one call: robot ``k`` (``models[k]``, a list of plain
+    :class:`RobotArrays` tuples) has its positions at ``q[q_start[k]:q_start[k + 1]]`` (updated in place), its
+    velocities at ``dof_start``, and its bodies' poses and velocities are written at rows ``body_start[k]`` … of
+    ``rotation (B, 3, 3)``, ``position``, ``linear``, ``angular (B, 3)``."""
+    for k in range(len(models)):
+        qs, qe, ds, de, bs = q_start[k], q_start[k + 1], dof_start[k], dof_start[k + 1], body_start[k]
+        q_new, R, p, v, w = advance(models[k], q[qs:qe].copy(), moving[ds:de].copy(), qd[ds:de].copy(), h)
+        for i in range(qe - qs):
+            q[qs + i] = q_new[i]
+        for b in range(len(R)):
+            for i in range(3):
+                position[bs + b, i] = p[b, i]
+                linear[bs + b, i] = v[b, i]
+                angular[bs + b, i] = w[b, i]
+                for j in range(3):
+                    rotation[bs + b, i, j] = R[b, i, j]

@@ -269,6 +269,7 @@ class Robots:
         self._q_of_local = (np.concatenate([r.q_of_dof for r in self.robots]) if self.robots
                             else np.zeros(0, np.int64))
         self._models = _kernel_list([r.kernel_arrays for r in self.robots])
+        self._body_start = np.cumsum([0] + [r.model.n_bodies for r in self.robots]).astype(np.int64)
         self._property_list = _kernel_list([tuple(r.properties) for r in self.robots])
         self._profile = None
         self.reset()
@@ -339,6 +340,10 @@ class Robots:
         self._robot_rows = [np.flatnonzero(self.body_robot == k) for k in range(len(self.robots))]
         self._robot_links = [self.body_link[rows] for rows in self._robot_rows]
         self._all_rows = np.concatenate(self._robot_rows) if self.robots else np.zeros(0, np.int64)
+        #: each moving link's robot body in the robots' bodies side by side (advance_all's rows)
+        self._all_link_index = (np.concatenate([self._body_start[k] + links for k, links in
+                                                enumerate(self._robot_links)]).astype(np.int64)
+                                if self.robots else np.zeros(0, np.int64))
         self._all_com = np.concatenate([r.model.com[links] for r, links in zip(self.robots, self._robot_links)]) \
             if self.robots else np.zeros((0, 3))
         self._all_inertia = np.ascontiguousarray(body_model.inertia_body[self._all_rows])
@@ -717,39 +722,40 @@ class Robots:
 
     def integrate(self, h: float) -> None:
         """q ← q + h q̇ per robot (a floating root's quaternion by the exponential map); the bodies' poses and
-        velocities there are kept for :meth:`write_bodies` (one compiled call per robot:
-        :func:`~cgp_core.robots.algorithms.advance`)."""
+        velocities there are kept for :meth:`write_bodies` (one compiled call for all robots:
+        :func:`~cgp_core.robots.algorithms.advance_all`)."""
         moving = self.qd + self._pseudo  # the position stage's pseudo-velocity moves q, never qd (no energy)
-        poses, velocities = [], []
-        for r in self.robots:
-            q, rotation, position, linear, angular = algorithms.advance(
-                r.kernel_arrays, self.q[r.q_slice], moving[r.dof_slice], self.qd[r.dof_slice], h)
-            self.q[r.q_slice] = q
-            poses.append((rotation, position))
-            velocities.append((linear, angular))
-        self._poses, self._velocities = poses, velocities
+        B = self._body_start[-1]
+        rotation, position = np.empty((B, 3, 3)), np.empty((B, 3))
+        linear, angular = np.empty((B, 3)), np.empty((B, 3))
+        if self.robots:
+            algorithms.advance_all(self._models, self.q, moving, self.qd, self._q_start, self._dof_start,
+                                   self._body_start, h, rotation, position, linear, angular)
+        starts = self._body_start
+        self._poses = [(rotation[starts[k]:starts[k + 1]], position[starts[k]:starts[k + 1]])
+                       for k in range(len(self.robots))]
+        self._velocities = (rotation, position, linear, angular)
 
     def write_bodies(self, body_model, state) -> None:
         """Every moving link body's pose (COM, orientation) and momenta (P = m v, L = I_world ω) from q, q̇ (the
         kinematics per robot — from :meth:`integrate` when it just ran —, the rest for all robots' links at
         once)."""
-        velocities, self._velocities = getattr(self, "_velocities", None), None
-        if velocities is None:
+        flat, self._velocities = getattr(self, "_velocities", None), None
+        rows = self._all_rows
+        if flat is None:  # not right after integrate: the kinematics at the current q
             self.prepare()
+            rotation = np.concatenate([p[0] for p in self._poses]) if self.robots else np.zeros((0, 3, 3))
+            position = np.concatenate([p[1] for p in self._poses]) if self.robots else np.zeros((0, 3))
             velocities = [algorithms.body_velocities(r.kernel_arrays, self.q[r.q_slice], self.qd[r.dof_slice],
                                                      *self._poses[k]) for k, r in enumerate(self.robots)]
-        rows = self._all_rows
+            linear = np.concatenate([v[0] for v in velocities]) if self.robots else np.zeros((0, 3))
+            angular = np.concatenate([v[1] for v in velocities]) if self.robots else np.zeros((0, 3))
+        else:
+            rotation, position, linear, angular = flat
         if not rows.size:
             return
-        parts = []
-        for k in range(len(self.robots)):
-            links = self._robot_links[k]
-            if not links.size:
-                continue
-            rotation, position = self._poses[k]
-            linear, angular = velocities[k]
-            parts.append((rotation[links], position[links], linear[links], angular[links]))
-        R, position, linear, angular = (np.concatenate([p[i] for p in parts]) for i in range(4))
+        index = self._all_link_index
+        R, position, linear, angular = rotation[index], position[index], linear[index], angular[index]
         algorithms.write_link_bodies(rows, R, position, linear, angular, self._all_com, self._all_mass_flat,
                                      self._all_inertia, state.position, state.orientation,
                                      state.rotation if state.rotation is not None else _NO_ROTATION,
