@@ -121,6 +121,11 @@ MAX_ROLLING_RESISTANCE = 1.0
 MIN_INERTIA_RATIO = 1e-6
 #: any other number of a scene (rule weights, gains, time constants) in magnitude
 MAX_MAGNITUDE = 1e6
+#: joint velocities of one robot: each robot's joint-space step factors its own dense (n, n) matrix every sub-step
+#: (O(n³): 64 dofs ~0.1 ms); robots are solved one by one, so a world's robots are bounded by MAX_BODIES (their
+#: links) and the tick's work, not by this.  Robots whose links touch in a sub-step are solved together (their
+#: dofs summed: a pile of arms pays the cube of the pile's dofs)
+MAX_ROBOT_DOFS = 64
 
 
 def rigid_work_refusal(shapes: int, particles: int, substeps: int) -> str | None:

@@ -85,8 +85,18 @@ def warm_up_robots(ticks: int = 4) -> World:
     world = World.from_scene("arm")
     world.robots.command("arm", ["shoulder_pan", "elbow", "wrist"], position=[0.3], velocity=[0.0, 0.5],
                          effort=[0.0, 0.0, 1.0])
-    for _ in range(ticks):
+    for _ in range(ticks):  # a robot that touches nothing: the robots' batched kernels (step_lone_robots, ...)
         world.step()
+    # a robot whose link touches a body (a crate resting on its level upper arm): its contact rows, the joint step
+    # from Python (Robots.solve)
+    from .scene import scene_from_dict
+
+    touching = World(scene_from_dict({
+        "robots": [{"name": "arm", "urdf": "arm.urdf", "joints": {"shoulder_lift": 1.5708, "elbow": -1.5708}}],
+        "bodies": [{"name": "crate", "shape": "box", "size": [0.06, 0.06, 0.04], "mass": 0.4,
+                    "position": [0.25, 0.0, 0.247]}]}, "<warm-up>"))
+    for _ in range(ticks):
+        touching.step()
     return world
 
 
@@ -233,7 +243,8 @@ PARTS: tuple[CompilePart, ...] = (
                 steps_flocks=False, default_scene=False, after=("contacts",)),
     # issue 35's robots: the recursive algorithms and the joint solver (~15 s on an idle core)
     CompilePart("robots", ("cgp_core.robots",),
-                ("cgp_core.robots.algorithms:mass_matrix", "cgp_core.robots.joint_solver:step_joints"),
+                ("cgp_core.robots.algorithms:mass_matrix", "cgp_core.robots.joint_solver:step_joints",
+                 "cgp_core.robots.joint_solver:step_lone_robots"),
                 steps_flocks=False, default_scene=False),
 )
 

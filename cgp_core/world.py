@@ -207,6 +207,7 @@ class World:
         self.body_state = self._initial_body_state.copy()
         if self.robots is not None:
             self.robots.attach(self.body_model)
+            self.solver.detector.exclude(*self.robots.exclusion)
         self._scene_flock_params = [p if seed is None else p.with_seed(seed + i) for i, p in enumerate(scene.flocks)]
         self.flocks = [Flock(p) for p in self._scene_flock_params]
         self.wrenches = WrenchSchedule()
@@ -251,6 +252,8 @@ class World:
             # after as an event naming the body.
             if self.report_contacts:
                 self.solver.start_report()
+                if self.robots is not None:  # the link contacts are solved (and summed) in the robot stage
+                    self.robots.start_report(model.count)
             with np.errstate(over="ignore", invalid="ignore"):
                 for _ in range(self.substeps):
                     self.wrenches.apply(state)
@@ -287,6 +290,8 @@ class World:
         """The tick's :attr:`contacts` (:mod:`cgp_core.solver.report`): the solver's sums over the sub-steps, and
         the contacts of the islands that slept through them, held from the tick before."""
         report = self.solver.finish_report(self.dt)
+        if self.robots is not None:
+            report = self.robots.finish_report(report, self.dt)
         previous = self.contacts
         held_model, held_tick = self._contacts_of
         # `is`, not ==: a body model is a dataclass of arrays, whose == is ambiguous (a spawn replaces the model)
@@ -725,6 +730,7 @@ class World:
             self.solver.reset()
         if self.robots is not None:
             self.robots.attach(self.body_model)
+            self.solver.detector.exclude(*self.robots.exclusion)
         self.wake()
 
     def remember_tick_start(self) -> None:

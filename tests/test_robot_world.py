@@ -120,7 +120,10 @@ def test_a_wrench_on_a_link_is_taken_by_the_joints_as_j_transpose_f():
         assert effort[k] - effort_bare[k] == pytest.approx(-column @ force, abs=1e-3), joint
 
 
-def test_the_turning_arm_pushes_a_crate_and_never_sinks_into_it():
+def _push_a_crate():
+    """The arm turning at 1 rad/s into a tall crate: the crate's displacement and the deepest contact per pair of
+    kinds, (link, crate) and the others, over 1.5 s (the link contacts are in the report since the robot stage
+    adds its contacts to it)."""
     # the forearm slants down to ~0.2 m above the ground at 0.48 m out; a tall crate stands 0.35 rad ahead of it
     crate = {"name": "crate", "shape": "box", "size": [0.1, 0.1, 0.3], "mass": 0.3, "friction": 0.4,
              "position": [0.48 * np.cos(0.35), 0.48 * np.sin(0.35), 0.15]}
@@ -128,17 +131,32 @@ def test_the_turning_arm_pushes_a_crate_and_never_sinks_into_it():
     start = world.body_state.position[world.body_model.index("crate")].copy()
     world.robots.command("arm", ["shoulder_pan"], velocity=[1.0])
     world.report_contacts = True
-    deepest = 0.0
+    deepest = {"link": 0.0, "other": 0.0}
+    links = set(np.flatnonzero(world.robots.body_robot >= 0).tolist())
 
     def check(w):
-        nonlocal deepest
-        if w.contacts.separation.size:
-            deepest = min(deepest, float(w.contacts.separation.min()))
+        c = w.contacts
+        for a, b, s in zip(c.body_a, c.body_b, c.separation):
+            kind = "link" if int(a) in links or int(b) in links else "other"
+            deepest[kind] = min(deepest[kind], float(s))
 
     run(world, 1.5, check)
-    moved = world.body_state.position[world.body_model.index("crate")] - start
+    return world.body_state.position[world.body_model.index("crate")] - start, deepest
+
+
+def test_the_turning_arm_pushes_a_crate_and_never_sinks_into_it():
+    moved, deepest = _push_a_crate()
     assert np.linalg.norm(moved[:2]) > 0.05, moved
-    assert deepest > -0.01, deepest
+    assert deepest["other"] > -0.01, deepest
+
+
+@pytest.mark.xfail(strict=True, reason="a link pushing a free body that the ground's friction holds back sinks "
+                   "into it (2.8 cm here): the robot stage and the body stage are two Gauss-Seidel blocks per "
+                   "sub-step and contacts with free bodies get no position correction in the robot stage "
+                   "(issue 35: one solve loop); shown since the link contacts are in the contact report")
+def test_the_pushing_link_never_sinks_into_the_crate():
+    _, deepest = _push_a_crate()
+    assert deepest["link"] > -0.01, deepest
 
 
 def test_a_limp_arm_falls_onto_the_ground_and_rests_there():
@@ -227,3 +245,23 @@ def test_a_robot_that_blows_up_is_put_back_and_the_world_goes_on():
     assert np.isfinite(world.body_state.position).all()
     assert world.body_state.position[world.body_model.index("crate")][2] < 0.9  # it kept falling meanwhile
     assert max(abs(positions(world)[j] - start[j]) for j in start) < 1e-3  # held again
+
+
+def test_a_copy_of_a_world_with_robots_steps_alike_and_is_commanded_alone():
+    """The node's warm-up steps a deep copy of the world (cgp_sim_ros/ros/process.py): the robots' compiled-kernel
+    lists do not copy as they are, so the copy builds them again; its drives are its own."""
+    import copy
+
+    world = World.from_scene("arm")
+    for _ in range(3):
+        world.step()
+    twin = copy.deepcopy(world)
+    for _ in range(5):
+        world.step()
+        twin.step()
+    np.testing.assert_array_equal(twin.robots.q, world.robots.q)
+    twin.robots.drives.target_position[0] += 0.5
+    for _ in range(30):
+        twin.step()
+    assert twin.robots.q[0] == pytest.approx(0.5, abs=1e-3)
+    assert world.robots.q[0] == pytest.approx(0.0, abs=1e-9)

@@ -151,6 +151,8 @@ class CollisionDetector:
         self._shapes: ShapeModel | None = None  # the convex stage's primitives (None: the model has none)
         self._plain_shapes: tuple = ()
         self._sweeps = None  # what sweep_fast_rotation needs from the last detect
+        #: body pairs never tested (the robots' jointed links, :meth:`exclude`), or None
+        self.excluded = None
         #: whether the last broad phase found the scene too dense for the sweep and ran the grid (the default
         #: broad phase only; see SWEEP_TESTS_PER_BOX)
         self.dense = False
@@ -222,7 +224,34 @@ class CollisionDetector:
             self.touched_sleeping = np.flatnonzero(touched)
         return contacts
 
+    def exclude(self, group: np.ndarray, jointed: np.ndarray, self_collision: np.ndarray) -> None:
+        """Body pairs the narrow phase never tests (what :class:`cgp_core.robots.world.Robots` would drop anyway):
+        two bodies of one group ``group (n,)`` (−1: none), unless the group has ``self_collision (g,)`` and they are
+        not jointed (``jointed (n,)``: the body each is jointed to, −1: none).  A robot's links overlap their
+        parents' at every joint: their hulls' GJK / EPA would be most of a robot's detection time."""
+        self.excluded = (np.asarray(group, np.int64), np.asarray(jointed, np.int64), np.asarray(self_collision, bool))
+
+    def _drop_excluded(self, i, j, prim_body):
+        group, jointed, self_collision = self.excluded
+        if not len(i) or len(group) <= int(prim_body.max(initial=-1)):
+            return i, j
+        a, b = prim_body[i], prim_body[j]
+        ga = group[a]
+        drop = (ga >= 0) & (ga == group[b])
+        if drop.any():
+            drop &= ~self_collision[np.maximum(ga, 0)] | (jointed[a] == b) | (jointed[b] == a)
+            keep = ~drop
+            i, j = np.ascontiguousarray(i[keep]), np.ascontiguousarray(j[keep])
+        return i, j
+
     def _candidate_pairs(self, lo, hi, prim_body, active):
+        """The broad phase: primitive pairs ``i, j`` whose AABBs overlap (less those :meth:`exclude` names)."""
+        i, j = self._broad_pairs(lo, hi, prim_body, active)
+        if self.excluded is not None:
+            i, j = self._drop_excluded(i, j, prim_body)
+        return i, j
+
+    def _broad_pairs(self, lo, hi, prim_body, active):
         """The broad phase: primitive pairs ``i, j`` whose AABBs overlap."""
         count = len(lo)
         if count <= SMALL_SCENE:

@@ -51,6 +51,7 @@ time, the joint-space form of ``dL/dt = τ`` with ``b`` holding the ``ω × L`` 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -60,7 +61,7 @@ from .model import JOINT_FLOATING, JOINT_PLANAR, JOINT_PRISMATIC, JOINT_REVOLUTE
 
 __all__ = ["forward_kinematics", "frame_poses", "motion_subspace", "body_velocities", "point_jacobian",
            "angular_jacobian", "spatial_inertias", "mass_matrix", "inverse_dynamics", "bias_forces",
-           "forward_dynamics", "integrate_positions", "cholesky_solve"]
+           "forward_dynamics", "integrate_positions", "cholesky_solve", "joint_space_terms", "advance"]
 
 
 # ---- small 3-vector helpers (no allocation of temporaries beyond the result) -----------------------------------
@@ -471,6 +472,58 @@ def bias_forces(arrays, q, qd, gravity):
 
 
 @njit
+def joint_space_terms(arrays, q, qd, gravity):
+    """``(M(q), b(q, qd))``: :func:`mass_matrix` and :func:`inverse_dynamics` at qdd = 0 in one call, sharing the
+    poses, motion subspaces and spatial inertias the two would each compute (the robot stage needs both every
+    sub-step); the same numbers as the two calls."""
+    arrays = RobotArrays(*arrays)
+    rotation, position = forward_kinematics(arrays, q)
+    S = motion_subspace(arrays, rotation, position)
+    inertias = spatial_inertias(arrays, rotation, position)
+    M = _mass_matrix(arrays, S, inertias)
+    return M, _rnea(arrays, S, inertias, qd, np.zeros(arrays.n_dofs), gravity, np.zeros((len(arrays.parent), 6)))
+
+
+class BodyMotion(NamedTuple):
+    """The poses and velocities of ``B`` robot bodies (their joint frames) in the world."""
+
+    rotation: np.ndarray  # (B, 3, 3) body-to-world rotation
+    position: np.ndarray  # (B, 3) joint-frame origin [m]
+    linear: np.ndarray    # (B, 3) velocity of that origin [m/s]
+    angular: np.ndarray   # (B, 3) angular velocity [rad/s]
+
+
+class LinkInertia(NamedTuple):
+    """The mass properties of ``k`` link bodies (their world bodies' rows)."""
+
+    com: np.ndarray           # (k, 3) COM in the robot body's frame [m]
+    mass: np.ndarray          # (k,) [kg]
+    inertia_body: np.ndarray  # (k, 3, 3) about the COM in body axes [kg m²]
+
+
+class BodyStateArrays(NamedTuple):
+    """The world's body state arrays a link body's state is written into (in place)."""
+
+    position: np.ndarray          # (n, 3) COM [m]
+    orientation: np.ndarray       # (n, 4) quaternion xyzw
+    rotation: np.ndarray          # (n, 3, 3), or (0, 3, 3): none kept
+    linear_momentum: np.ndarray   # (n, 3) [kg m/s]
+    angular_momentum: np.ndarray  # (n, 3) [kg m²/s]
+
+
+@njit
+def advance(arrays, q, moving, qd, h):
+    """The robot stage's end of a sub-step in one call: ``q_new = integrate_positions(q, moving, h)``, the bodies'
+    poses there (:func:`forward_kinematics`) and their velocities with ``qd`` (:func:`body_velocities`):
+    ``(q_new, BodyMotion)``."""
+    arrays = RobotArrays(*arrays)
+    q_new = integrate_positions(arrays, q, moving, h)
+    rotation, position = forward_kinematics(arrays, q_new)
+    linear, angular = body_velocities(arrays, q_new, qd, rotation, position)
+    return q_new, BodyMotion(rotation, position, linear, angular)
+
+
+@njit
 def cholesky_solve(M, b):
     """``x = M⁻¹ b`` for a symmetric positive definite ``M`` (k, k) by ``M = L Lᵀ`` (plain loops; a zero or
     negative pivot gives nan, which the caller's blow-up checks see)."""
@@ -537,3 +590,96 @@ def integrate_positions(arrays, q, qd, h):
             for k in range(arrays.q_count[i]):
                 out[s + k] = q[s + k] + h * qd[d + k]
     return out
+
+
+@njit
+def write_link_bodies(rows, motion, links, out):
+    """Link bodies' world state from their robot bodies' poses and velocities (``k`` links, world rows ``rows``):
+    COM ``p + R c``, orientation (Shepperd's method, as :func:`cgp_core.rotation.matrix_to_quat`, w ≥ 0), the
+    rotation matrix (``out.rotation`` of shape (0, 3, 3): none kept), P = m (v + ω × R c) and L = R I Rᵀ ω.
+    Bundles as plain tuples: ``motion`` :class:`BodyMotion` of the k links, ``links`` :class:`LinkInertia`,
+    ``out`` :class:`BodyStateArrays` (written in place)."""
+    rotation, position, linear, angular = motion
+    com, mass, inertia_body = links
+    out_position, out_orientation, out_rotation, out_linear_momentum, out_angular_momentum = out
+    keep_rotation = out_rotation.shape[0] > 0
+    for t in range(len(rows)):
+        row = rows[t]
+        R = rotation[t]
+        c = np.empty(3)
+        for i in range(3):
+            c[i] = R[i, 0] * com[t, 0] + R[i, 1] * com[t, 1] + R[i, 2] * com[t, 2]
+            out_position[row, i] = position[t, i] + c[i]
+        m00, m11, m22 = R[0, 0], R[1, 1], R[2, 2]
+        trace = m00 + m11 + m22
+        cand0, cand1 = 1.0 + trace, 1.0 + m00 - m11 - m22
+        cand2, cand3 = 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22
+        k, best = 0, cand0
+        if cand1 > best:
+            k, best = 1, cand1
+        if cand2 > best:
+            k, best = 2, cand2
+        if cand3 > best:
+            k, best = 3, cand3
+        s = 2.0 * math.sqrt(max(best, 1e-300))
+        if k == 0:
+            x, y, z, w = R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1], 0.25 * s * s
+        elif k == 1:
+            x, y, z, w = 0.25 * s * s, R[0, 1] + R[1, 0], R[0, 2] + R[2, 0], R[2, 1] - R[1, 2]
+        elif k == 2:
+            x, y, z, w = R[0, 1] + R[1, 0], 0.25 * s * s, R[1, 2] + R[2, 1], R[0, 2] - R[2, 0]
+        else:
+            x, y, z, w = R[0, 2] + R[2, 0], R[1, 2] + R[2, 1], 0.25 * s * s, R[1, 0] - R[0, 1]
+        x, y, z, w = x / s, y / s, z / s, w / s
+        norm = math.sqrt(x * x + y * y + z * z + w * w)
+        x, y, z, w = x / norm, y / norm, z / norm, w / norm
+        if w < 0.0:
+            x, y, z, w = -x, -y, -z, -w
+        out_orientation[row, 0], out_orientation[row, 1] = x, y
+        out_orientation[row, 2], out_orientation[row, 3] = z, w
+        if keep_rotation:
+            for i in range(3):
+                for j in range(3):
+                    out_rotation[row, i, j] = R[i, j]
+        wx, wy, wz = angular[t, 0], angular[t, 1], angular[t, 2]
+        vx = linear[t, 0] + (wy * c[2] - wz * c[1])
+        vy = linear[t, 1] + (wz * c[0] - wx * c[2])
+        vz = linear[t, 2] + (wx * c[1] - wy * c[0])
+        out_linear_momentum[row, 0] = mass[t] * vx
+        out_linear_momentum[row, 1] = mass[t] * vy
+        out_linear_momentum[row, 2] = mass[t] * vz
+        RI = np.empty((3, 3))
+        for i in range(3):
+            for j in range(3):
+                RI[i, j] = R[i, 0] * inertia_body[t, 0, j] + R[i, 1] * inertia_body[t, 1, j] \
+                    + R[i, 2] * inertia_body[t, 2, j]
+        for i in range(3):
+            s_ = 0.0
+            for j in range(3):
+                iw = RI[i, 0] * R[j, 0] + RI[i, 1] * R[j, 1] + RI[i, 2] * R[j, 2]
+                s_ += iw * angular[t, j]
+            out_angular_momentum[row, i] = s_
+
+
+@njit
+def advance_all(models, q, moving, qd, starts, h, out):
+    """:func:`advance` for every robot in one call: robot ``k`` (``models[k]``, a list of plain
+    :class:`RobotArrays` tuples) has its positions at ``q[q_start[k]:q_start[k + 1]]`` (updated in place), its
+    velocities at ``dof_start``, and its bodies' poses and velocities are written at rows ``body_start[k]`` … of
+    ``out`` (a plain :class:`BodyMotion` tuple of all robots' B bodies).  ``starts``: ``(q_start, dof_start,
+    body_start)``, (robots + 1,) int64 each."""
+    q_start, dof_start, body_start = starts
+    rotation, position, linear, angular = out
+    for k in range(len(models)):
+        qs, qe, ds, de, bs = q_start[k], q_start[k + 1], dof_start[k], dof_start[k + 1], body_start[k]
+        q_new, motion = advance(models[k], q[qs:qe].copy(), moving[ds:de].copy(), qd[ds:de].copy(), h)
+        R, p, v, w = motion.rotation, motion.position, motion.linear, motion.angular
+        for i in range(qe - qs):
+            q[qs + i] = q_new[i]
+        for b in range(len(R)):
+            for i in range(3):
+                position[bs + b, i] = p[b, i]
+                linear[bs + b, i] = v[b, i]
+                angular[bs + b, i] = w[b, i]
+                for j in range(3):
+                    rotation[bs + b, i, j] = R[b, i, j]

@@ -122,6 +122,7 @@ import numpy as np
 
 from ..checks import positive
 from ..jit import StageProfile, clock, lap, njit
+from .algorithms import joint_space_terms
 
 #: drive modes (:attr:`JointDrives.mode`)
 DRIVE_NONE, DRIVE_EFFORT, DRIVE_VELOCITY, DRIVE_POSITION = 0, 1, 2, 3
@@ -892,3 +893,69 @@ class JointSolver:
 __all__ = ["DRIVE_EFFORT", "DRIVE_NONE", "DRIVE_POSITION", "DRIVE_VELOCITY", "STAGES", "ContactRows", "FreeBodies",
            "JointDrives", "JointProperties", "JointSettings", "JointSolver", "JointSolverMemory", "JointStep",
            "JointSystem", "check_bundles", "integrate_dofs", "position_gains", "step_joints"]
+
+
+# ---- many robots in one call ----------------------------------------------------------------------------------
+
+class RobotLists(NamedTuple):
+    """Every robot's bundles, one list entry per robot (``numba.typed.List`` of plain tuples; a Python list with
+    the JIT off)."""
+
+    models: list       # :class:`~cgp_core.robots.model.RobotArrays`
+    properties: list   # :class:`JointProperties`
+    drives: list       # :class:`JointDrives` (views of the world's drive arrays)
+    memories: list     # :class:`JointSolverMemory` (replaced by each step)
+
+
+class RobotsState(NamedTuple):
+    """All robots' joint-space arrays side by side (robot ``k``'s at its offsets)."""
+
+    q: np.ndarray           # (n_q,) positions
+    qd: np.ndarray          # (n_dofs,) velocities (written: q̇ after the sub-step)
+    applied: np.ndarray     # (n_dofs,) applied joint efforts (wrench commands as Jᵀ F) [N m / N]
+    pseudo: np.ndarray      # (n_dofs,) the position stage's pseudo-velocity (written)
+    effort_sum: np.ndarray  # (n_dofs,) the joints' efforts summed over the tick's sub-steps (added to)
+
+
+class RobotOffsets(NamedTuple):
+    """Where robot ``k``'s part starts in the side-by-side arrays."""
+
+    q_start: np.ndarray    # (robots + 1,) int64 in q
+    dof_start: np.ndarray  # (robots + 1,) int64 in qd
+    q_of_dof: np.ndarray   # (n_dofs,) int64 each 1-dof joint's position index within its robot (−1: none)
+
+
+@njit
+def step_lone_robots(which, robots, state, offsets, gravity, settings, profile):
+    """One sub-step of the robots ``which`` (int64 indices) that touch nothing this sub-step, in one compiled call
+    (what :meth:`cgp_core.robots.world.Robots.solve` does per robot from Python, without the Python): per robot
+    ``k`` its M and bias (:func:`~cgp_core.robots.algorithms.joint_space_terms`), :func:`step_joints` without
+    contact rows, q̇ written into ``qd``, the pseudo-velocity into ``pseudo``, the effort added to
+    ``effort_sum``, the new warm-start memory into ``memories[k]``.  Bundles as plain tuples:
+    :class:`RobotLists`, :class:`RobotsState`, :class:`RobotOffsets`."""
+    models, properties, drives, memories = robots
+    q, qd, applied, pseudo, effort_sum = state
+    q_start, dof_start, q_of_dof = offsets
+    for w in range(len(which)):
+        k = which[w]
+        qs, qe, ds, de = q_start[k], q_start[k + 1], dof_start[k], dof_start[k + 1]
+        n = de - ds
+        qk = q[qs:qe].copy()
+        qdk = qd[ds:de].copy()
+        M, bias = joint_space_terms(models[k], qk, qdk, gravity)
+        coordinate = np.zeros(n)
+        for i in range(n):
+            j = q_of_dof[ds + i]
+            if j >= 0:
+                coordinate[i] = qk[j]
+        system = (M, bias, applied[ds:de].copy(), coordinate, qdk)
+        contacts = (np.zeros((0, 3, n)), np.zeros(0, np.int64), np.zeros((0, 3, 6)), np.zeros(0), np.zeros(0),
+                    np.zeros(0, np.int64))
+        bodies = (np.zeros(0), np.zeros((0, 3, 3)), np.zeros((0, 6)), np.zeros((0, 3)), np.zeros((0, 3)))
+        step, memory = step_joints(system, properties[k], drives[k], contacts, bodies, memories[k], settings,
+                                   profile)
+        memories[k] = (memory.key, memory.impulse)
+        for i in range(n):
+            qd[ds + i] = step.velocity[i]
+            pseudo[ds + i] = step.pseudo_velocity[i]
+            effort_sum[ds + i] += step.effort[i]

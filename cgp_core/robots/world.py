@@ -1,13 +1,21 @@
 """Robots in a :class:`~cgp_core.world.World`: the robot stage of each rigid-body sub-step.
 
-The world's robots are one system in **reduced coordinates**: the joint positions ``q`` and velocities ``qd`` of
-every robot side by side (robot ``r``'s at ``q_offset[r]`` / ``dof_offset[r]``), with the block-diagonal mass
-matrix of their trees (:func:`~cgp_core.robots.algorithms.mass_matrix`, the composite-rigid-body algorithm) and
-their bias forces (:func:`~cgp_core.robots.algorithms.inverse_dynamics` with q̈ = 0: Coriolis, centrifugal,
-gravity).  Joints are exact by construction: a link's pose is a function of q, so no joint can stretch, whatever
-the mass ratios.  Everything that constrains the joint velocities is a row of
-:mod:`cgp_core.robots.joint_solver`: joint limits, drives bounded by the effort limit, mimic couplings, joint
-friction, and the **contacts of the links** — with the ground, fixed bodies, free bodies and other links.
+Each robot is a system in **reduced coordinates**: its joint positions ``q`` and velocities ``qd`` (all robots'
+side by side in :attr:`Robots.q` / :attr:`Robots.qd`, robot ``r``'s at ``r.q_slice`` / ``r.dof_slice``), the mass
+matrix of its tree (:func:`~cgp_core.robots.algorithms.mass_matrix`, the composite-rigid-body algorithm) and its
+bias forces (:func:`~cgp_core.robots.algorithms.inverse_dynamics` with q̈ = 0: Coriolis, centrifugal, gravity).
+Joints are exact by construction: a link's pose is a function of q, so no joint can stretch, whatever the mass
+ratios.  Everything that constrains the joint velocities is a row of :mod:`cgp_core.robots.joint_solver`: joint
+limits, drives bounded by the effort limit, mimic couplings, joint friction, and the **contacts of the links** —
+with the ground, fixed bodies, free bodies and other links.
+
+**Solved per robot.**  Every robot is solved on its own, with its own :class:`~.joint_solver.JointSolver` (its
+warm-start memory), its M, bias, drives, properties and the contact rows of its links: the cost is linear in the
+robots (a dense Cholesky of each robot's n × n, not of all robots' dofs at once).  Robots whose links touch each
+other in a sub-step are an *island* (union-find over the link–link contacts between robots): such an island is
+solved as one system, its block-diagonal M and its robots' rows together, their warm-start memories merged for the
+solve and split again after it.  A free body touched by several robots is solved by each in turn (Gauss–Seidel
+between the robots, as between the robot stage and the body stage).
 
 Links are bodies of the world's :class:`~cgp_core.bodies.BodyModel` too (:mod:`.links`): the collision detector
 finds their contacts like any body's, markers and contact reports show them, and their poses and momenta are
@@ -36,15 +44,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..limits import MAX_ROBOT_DOFS
 from ..rotation import matrix_to_quat, quat_to_matrix
 from ..scene.robots import RobotSpec
 from . import algorithms
 from .links import link_body_specs, link_name
 from .model import JOINT_FIXED_ROOT, JOINT_FLOATING, JOINT_PRISMATIC, JOINT_REVOLUTE, neutral_positions
-
-#: the combined joint space of all robots is solved densely (a Cholesky factor of the whole block-diagonal
-#: matrix): beyond this many joint velocities in one world the cost would grow as dofs³
-MAX_WORLD_DOFS = 256
 
 
 class RobotInstance:
@@ -66,8 +71,28 @@ class RobotInstance:
         self.base_position = np.asarray(spec.position, float)
         self.model = place_root(spec.model, self.base_rotation, self.base_position)
         self.arrays = self.model.arrays
+        #: the bundle as a plain tuple: what the compiled kernels are called with every sub-step (numba types a
+        #: tuple faster than the NamedTuple)
+        self.kernel_arrays = tuple(self.arrays)
         self.q_slice = slice(q_offset, q_offset + self.model.n_q)
         self.dof_slice = slice(dof_offset, dof_offset + self.model.n_dofs)
+        m = self.model
+        #: (n_dofs,) the robot's own position index of each 1-dof joint's velocity (−1: a floating root's)
+        self.q_of_dof = np.full(m.n_dofs, -1, np.int64)
+        for b in range(len(m.body_names)):
+            if int(m.joint_type[b]) in (JOINT_REVOLUTE, JOINT_PRISMATIC):
+                self.q_of_dof[m.dof_start[b]] = m.q_start[b]
+        self.has_coordinate = self.q_of_dof >= 0
+        self.q_of_dof_clipped = np.maximum(self.q_of_dof, 0)
+        from .joint_solver import JointProperties
+
+        #: the joint solver's per-dof numbers and mimic couplings of this robot (its own dof indices)
+        self.properties = JointProperties(*(np.ascontiguousarray(getattr(m, name), dtype=float) for name in (
+            "lower", "upper", "effort_limit", "velocity_limit", "damping", "friction")),
+            np.asarray(m.mimic_follower, np.int64).reshape(-1), np.asarray(m.mimic_leader, np.int64).reshape(-1),
+            np.asarray(m.mimic_multiplier, float).reshape(-1), np.asarray(m.mimic_offset, float).reshape(-1),
+            np.zeros((0, m.n_dofs)), np.zeros(0))  # a scene articulation's loop rows: set at each sub-step
+        self.solver = None  # its JointSolver (warm-start memory), made at the first sub-step
 
     def initial_positions(self) -> np.ndarray:
         """(n_q,) the scene's initial joint positions (others at the neutral configuration)."""
@@ -101,6 +126,115 @@ def place_root(model, rotation: np.ndarray, position: np.ndarray):
     return replace(model, joint_rotation=joint_rotation, joint_position=joint_position)
 
 
+_NO_ROTATION = np.zeros((0, 3, 3))
+
+
+def _kernel_list(items: list):
+    """``items`` (plain tuples of one type) as the list a compiled kernel takes: a ``numba.typed.List`` (a Python
+    list with the JIT off; an empty list stays a Python list: nothing is stepped from it)."""
+    from ..jit import JIT_DISABLED
+
+    if JIT_DISABLED or not items:
+        return list(items)
+    from numba.typed import List
+
+    out = List()
+    for item in items:
+        out.append(item)
+    return out
+
+
+def _islands(count: int, robot_a: np.ndarray, robot_b: np.ndarray) -> tuple[np.ndarray, list[list[int]]]:
+    """Union-find over the link–link contacts between robots (``robot_a``, ``robot_b`` per contact, −1 for a
+    side that is no link): ``(root (count,), groups)``, each robot's island representative (its smallest robot)
+    and the islands as ascending lists of robots, ordered by their smallest robot."""
+    parent = np.arange(count)
+
+    def find(k):
+        while parent[k] != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    for a, b in zip(robot_a.tolist(), robot_b.tolist()):
+        if a >= 0 and b >= 0 and a != b:
+            ra, rb = find(a), find(b)
+            if ra != rb:
+                parent[max(ra, rb)] = min(ra, rb)
+    root = np.array([find(k) for k in range(count)], np.int64)
+    groups: dict[int, list[int]] = {}
+    for k in range(count):
+        groups.setdefault(int(root[k]), []).append(k)
+    return root, list(groups.values())
+
+
+def _shift_keys(key: np.ndarray, dofs: int, mimics: int, equalities: int = 0) -> np.ndarray:
+    """Warm-start keys (:data:`~.joint_solver.KEY_SLOTS`) of a robot moved ``dofs`` dofs, ``mimics`` mimic
+    couplings and ``equalities`` loop rows along (negative: back): the dof rows' indices move, the contact rows'
+    keys are the detector's."""
+    from .joint_solver import (
+        KEY_SLOTS,
+        ROW_DRIVE,
+        ROW_EQUALITY,
+        ROW_FRICTION,
+        ROW_LIMIT,
+        ROW_MIMIC,
+        ROW_VELOCITY_LIMIT,
+    )
+
+    kind = key // KEY_SLOTS
+    shift = np.zeros(len(key), np.int64)
+    shift[(kind == ROW_DRIVE) | (kind == ROW_FRICTION)] = dofs
+    shift[(kind == ROW_VELOCITY_LIMIT) | (kind == ROW_LIMIT)] = 2 * dofs
+    shift[kind == ROW_MIMIC] = mimics
+    shift[kind == ROW_EQUALITY] = equalities
+    return key + shift
+
+
+def _merge_memories(parts):
+    """One island's warm-start memory from its robots' (``(memory, dof offset, mimic offset, loop row offset)``
+    each); a contact between two of them is in both, with the same impulse: kept once."""
+    from .joint_solver import JointSolverMemory
+
+    key = np.concatenate([_shift_keys(m.key, d, k, e) for m, d, k, e in parts])
+    impulse = np.concatenate([m.impulse for m, _, _, _ in parts])
+    key, first = np.unique(key, return_index=True)
+    return JointSolverMemory(key, impulse[first])
+
+
+def _split_memory(memory, dofs: int, n: int, mimics: int, k_mimic: int, equalities: int, k_equality: int,
+                  robot: int, contact_robots: dict):
+    """Robot ``robot``'s part of an island's memory (its dofs ``dofs`` … ``dofs + n``, mimics and loop rows
+    likewise, back in its own indices; the contacts that touch its links, ``contact_robots``: contact key →
+    robots)."""
+    from .joint_solver import (
+        KEY_SLOTS,
+        ROW_DRIVE,
+        ROW_EQUALITY,
+        ROW_FRICTION,
+        ROW_LIMIT,
+        ROW_MIMIC,
+        ROW_NORMAL,
+        ROW_TANGENT,
+        ROW_VELOCITY_LIMIT,
+        JointSolverMemory,
+    )
+
+    kind, index = memory.key // KEY_SLOTS, memory.key % KEY_SLOTS
+    dof = np.where((kind == ROW_VELOCITY_LIMIT) | (kind == ROW_LIMIT), index // 2, index)
+    mine = np.zeros(len(kind), bool)
+    per_dof = (kind == ROW_DRIVE) | (kind == ROW_FRICTION) | (kind == ROW_VELOCITY_LIMIT) | (kind == ROW_LIMIT)
+    mine |= per_dof & (dof >= dofs) & (dof < dofs + n)
+    mine |= (kind == ROW_MIMIC) & (index >= mimics) & (index < mimics + k_mimic)
+    mine |= (kind == ROW_EQUALITY) & (index >= equalities) & (index < equalities + k_equality)
+    contact = (kind == ROW_NORMAL) | (kind == ROW_TANGENT)
+    for r in np.flatnonzero(contact):
+        mine[r] = robot in contact_robots.get(int(index[r] // 3), ())
+    key = _shift_keys(memory.key[mine], -dofs, -mimics, -equalities)
+    order = np.argsort(key, kind="mergesort")
+    return JointSolverMemory(key[order], memory.impulse[mine][order])
+
+
 def _q_index(model, dof: int) -> int:
     """The position index of a 1-dof joint's velocity index ``dof``."""
     body = int(np.searchsorted(model.dof_start, dof, side="right") - 1)
@@ -108,15 +242,17 @@ def _q_index(model, dof: int) -> int:
 
 
 class Robots:
-    """All robots of a world and their combined joint-space state (see the module docstring).
+    """All robots of a world: their joint-space state side by side, each solved on its own (module docstring).
 
-    Attributes (arrays of the world's combined joint space):
+    Attributes (arrays of all robots side by side; robot ``r``'s part at ``r.q_slice`` / ``r.dof_slice``):
         q:          (n_q,) joint positions [rad, m; a floating root: position + quaternion xyzw].
         qd:         (n_dofs,) joint velocities [rad/s, m/s; a floating root: world-frame v, ω].
         effort:     (n_dofs,) the joint efforts [N m, N] applied in the last tick, averaged over its sub-steps.
         drives:     the joint solver's drive targets and gains (:class:`~cgp_core.robots.joint_solver.JointDrives`).
         body_robot, body_link: (n_bodies,) int64 per world body: the robot and the robot body it is, −1 for a
                     body that is not a moving link (set by :meth:`attach`).
+        islands:    the last sub-step's groups of robots solved together (lists of robot indices; a robot alone
+                    when no link of it touched another robot's).
     """
 
     def __init__(self, specs: list[RobotSpec]):
@@ -124,12 +260,12 @@ class Robots:
         q_offset = dof_offset = 0
         for spec in specs:
             robot = RobotInstance(spec, q_offset, dof_offset)
+            if robot.model.n_dofs > MAX_ROBOT_DOFS:
+                raise ValueError(f"robot {spec.name} has {robot.model.n_dofs} joint velocities; a robot has at most "
+                                 f"{MAX_ROBOT_DOFS} (cgp_core.limits.MAX_ROBOT_DOFS)")
             self.robots.append(robot)
             q_offset += robot.model.n_q
             dof_offset += robot.model.n_dofs
-        if dof_offset > MAX_WORLD_DOFS:
-            raise ValueError(f"the robots have {dof_offset} joint velocities in all; a world holds at most "
-                             f"{MAX_WORLD_DOFS}")
         self.n_q, self.n_dofs = q_offset, dof_offset
         self.q0 = np.concatenate([r.initial_positions() for r in self.robots]) if self.robots else np.zeros(0)
         self.qd0 = np.zeros(self.n_dofs)
@@ -139,16 +275,44 @@ class Robots:
         self._joint_limits = self._per_dof("lower", "upper", "effort_limit", "velocity_limit", "damping",
                                            "friction")
         self._mimic = self._mimic_rows()
-        from .joint_solver import JointProperties
-
-        lim = self._joint_limits
-        self._properties = JointProperties(lim["lower"], lim["upper"], lim["effort_limit"], lim["velocity_limit"],
-                                           lim["damping"], lim["friction"], *self._mimic,
-                                           np.zeros((0, self.n_dofs)), np.zeros(0))
-        self._solver = None
+        self.islands: list[list[int]] = [[k] for k in range(len(self.robots))]
+        self._h = None
         self.body_robot = np.zeros(0, np.int64)
         self.body_link = np.zeros(0, np.int64)
+        self._tally = None  # the contact report's sums over the tick (start_report ... finish_report)
+        # the robots that touch nothing in a sub-step are stepped in one compiled call (joint_solver.
+        # step_lone_robots): their bundles as lists the kernel takes, their offsets in q / qd
+        self._q_start = np.array([r.q_slice.start for r in self.robots] + [self.n_q], np.int64)
+        self._dof_start = np.array([r.dof_slice.start for r in self.robots] + [self.n_dofs], np.int64)
+        self._q_of_local = (np.concatenate([r.q_of_dof for r in self.robots]) if self.robots
+                            else np.zeros(0, np.int64))
+        self._models = _kernel_list([r.kernel_arrays for r in self.robots])
+        self._body_start = np.cumsum([0] + [r.model.n_bodies for r in self.robots]).astype(np.int64)
+        self._property_list = _kernel_list([tuple(r.properties) for r in self.robots])
+        #: the robots with loop closures (scene articulations): their equality rows change every sub-step
+        self._looped = [k for k, r in enumerate(self.robots)
+                        if r.spec.articulation is not None and r.spec.articulation.loops]
+        self._profile = None
         self.reset()
+
+    _KERNEL_LISTS = ("_models", "_property_list", "_drive_list", "_memories")
+
+    def __deepcopy__(self, memo):
+        """A copy (the node's warm-up steps a throwaway copy of the world): the compiled kernels' typed lists do
+        not copy, so they are built again from the copied robots; each robot's drives are views of the copied
+        :attr:`drives` again, as commands need."""
+        import copy
+
+        new = type(self).__new__(type(self))
+        memo[id(self)] = new
+        for key, value in self.__dict__.items():
+            if key not in self._KERNEL_LISTS:
+                new.__dict__[key] = copy.deepcopy(value, memo)
+        new._models = _kernel_list([r.kernel_arrays for r in new.robots])
+        new._property_list = _kernel_list([tuple(r.properties) for r in new.robots])
+        new._memories = _kernel_list([tuple(copy.deepcopy(tuple(m), memo)) for m in self._memories])
+        new.drives = new._drives
+        return new
 
     # ---- building ---------------------------------------------------------------------------------------
 
@@ -201,12 +365,41 @@ class Robots:
                     if name in index:
                         self.self_collision_group[index[name]] = k
             for b, link in enumerate(r.model.body_names):
-                row = index.get(link if r.spec.articulation is not None else link_name(r.name, link))
+                row = index.get(self._body_name(r, link))
                 if row is None:
                     continue
                 self.self_collision_group[row] = k
                 if not body_model.fixed[row]:
                     self.body_robot[row], self.body_link[row] = k, b
+        # the pairs the robot stage would drop: never tested by the detector (Detector.exclude)
+        jointed = np.full(n, -1, np.int64)
+        for r in self.robots:
+            rows = {b: index.get(self._body_name(r, link)) for b, link in enumerate(r.model.body_names)}
+            for b, row in rows.items():
+                parent = int(r.model.parent[b])
+                if row is not None and parent >= 0 and rows.get(parent) is not None:
+                    jointed[row] = rows[parent]
+        self.exclusion = (self.self_collision_group, jointed,
+                          np.array([r.spec.self_collision for r in self.robots], bool))
+        # per robot: its moving link bodies' world rows and robot bodies (write_bodies, take_wrenches)
+        self._link_rows = np.flatnonzero(self.body_robot >= 0)
+        self._robot_rows = [np.flatnonzero(self.body_robot == k) for k in range(len(self.robots))]
+        self._robot_links = [self.body_link[rows] for rows in self._robot_rows]
+        self._all_rows = np.concatenate(self._robot_rows) if self.robots else np.zeros(0, np.int64)
+        #: each moving link's robot body in the robots' bodies side by side (advance_all's rows)
+        self._all_link_index = (np.concatenate([self._body_start[k] + links for k, links in
+                                                enumerate(self._robot_links)]).astype(np.int64)
+                                if self.robots else np.zeros(0, np.int64))
+        self._all_com = np.concatenate([r.model.com[links] for r, links in zip(self.robots, self._robot_links)]) \
+            if self.robots else np.zeros((0, 3))
+        self._all_inertia = np.ascontiguousarray(body_model.inertia_body[self._all_rows])
+        self._all_mass_flat = np.ascontiguousarray(body_model.mass[self._all_rows], dtype=float)
+
+    @staticmethod
+    def _body_name(r: RobotInstance, link: str) -> str:
+        """The world body of robot ``r``'s body ``link``: ``<robot>/<link>``, or the scene body's own name for an
+        articulation of jointed scene bodies."""
+        return link if r.spec.articulation is not None else link_name(r.name, link)
 
     def reset(self) -> None:
         self.q = self.q0.copy()
@@ -214,12 +407,28 @@ class Robots:
         self.effort = np.zeros(self.n_dofs)
         self._effort_sum = np.zeros(self.n_dofs)
         self._substeps = 0
-        if self._solver is not None:
-            self._solver.reset()
+        for r in self.robots:
+            if r.solver is not None:
+                r.solver.reset()
+        from .joint_solver import JointSolverMemory
+
+        self._memories = _kernel_list([tuple(JointSolverMemory.empty()) for _ in self.robots])
         self.drives = self._initial_drives()
         self._wrench_torque = np.zeros(self.n_dofs)
         self._pseudo = np.zeros(self.n_dofs)
         self.prepare()
+
+    @property
+    def drives(self):
+        return self._drives
+
+    @drives.setter
+    def drives(self, drives) -> None:
+        """The drives of all robots; each robot solves with views of its part (commands write through them)."""
+        self._drives = drives
+        for r in self.robots:
+            r.drives = tuple(a[r.dof_slice] for a in drives)
+        self._drive_list = _kernel_list([r.drives for r in self.robots])
 
     def _initial_drives(self):
         """Position drives holding the initial positions on every movable joint of a robot with ``hold``
@@ -273,7 +482,7 @@ class Robots:
         force at the link's COM and the torque, through the link's point and angular Jacobians; the link rows'
         accumulators are cleared (a link moves by its joints only)."""
         self._wrench_torque[:] = 0.0
-        rows = np.flatnonzero(self.body_robot >= 0)
+        rows = self._link_rows
         if not rows.size:
             return
         F, T = state.force[rows], state.torque[rows]
@@ -284,41 +493,36 @@ class Robots:
             link = int(self.body_link[row])
             rotation, position = self._poses[self.body_robot[row]]
             com = state.position[row]
-            Jp = algorithms.point_jacobian(r.arrays, rotation, position, link, com)
-            Jw = algorithms.angular_jacobian(r.arrays, rotation, position, link)
+            Jp = algorithms.point_jacobian(r.kernel_arrays, rotation, position, link, com)
+            Jw = algorithms.angular_jacobian(r.kernel_arrays, rotation, position, link)
             self._wrench_torque[r.dof_slice] += Jp.T @ F[i] + Jw.T @ T[i]
-        state.force[rows] = 0.0
-        state.torque[rows] = 0.0
+        if loaded.size:
+            state.force[rows] = 0.0
+            state.torque[rows] = 0.0
 
     def prepare(self) -> None:
         """The body poses of every robot at the current q (cached for the sub-step)."""
-        self._poses = [algorithms.forward_kinematics(r.arrays, self.q[r.q_slice]) for r in self.robots]
+        self._velocities = None
+        self._poses = [algorithms.forward_kinematics(r.kernel_arrays, self.q[r.q_slice]) for r in self.robots]
         self._loop_rows()
 
     def _loop_rows(self) -> None:
-        """The articulations' loop closures at the current q, as the joint solver's equality rows (three per
-        loop: :meth:`cgp_core.robots.articulations.LoopClosure.rows`)."""
-        blocks, errors = [], []
-        for k, r in enumerate(self.robots):
-            if r.spec.articulation is None:
-                continue
+        """The articulations' loop closures at the current q, as their joint solver's equality rows (three per
+        loop: :meth:`cgp_core.robots.articulations.LoopClosure.rows`), in each robot's own dofs."""
+        for k in self._looped:
+            r = self.robots[k]
             rotation, position = self._poses[k]
-            for loop in r.spec.articulation.loops:
-                J, C = loop.rows(r.arrays, rotation, position)
-                block = np.zeros((3, self.n_dofs))
-                block[:, r.dof_slice] = J
-                blocks.append(block)
-                errors.append(C)
-        if blocks:
-            self._properties = self._properties._replace(equality_jacobian=np.vstack(blocks),
-                                                         equality_error=np.concatenate(errors))
+            rows = [loop.rows(r.arrays, rotation, position) for loop in r.spec.articulation.loops]
+            jacobian = np.ascontiguousarray(np.vstack([j for j, _ in rows]))
+            error = np.ascontiguousarray(np.concatenate([c for _, c in rows]))
+            r.properties = r.properties._replace(equality_jacobian=jacobian, equality_error=error)
+            self._property_list[k] = tuple(r.properties)
 
     def loop_errors(self) -> dict[str, float]:
         """Every loop-closing joint's error |p_a − p_b| [m] at the current q, by joint name."""
         out = {}
-        for r in self.robots:
-            if r.spec.articulation is None:
-                continue
+        for k in self._looped:
+            r = self.robots[k]
             rotation, position = algorithms.forward_kinematics(r.arrays, self.q[r.q_slice])
             for loop in r.spec.articulation.loops:
                 pa, pb = loop.points(rotation, position)
@@ -326,58 +530,162 @@ class Robots:
         return out
 
     def solve(self, contacts, body_model, state, h: float, gravity, velocity, angular_velocity, inv_inertia):
-        """The robot stage (module docstring, step 3): returns the contacts left for the body solver."""
-        from .joint_solver import FreeBodies, JointSystem
+        """The robot stage (module docstring, step 3): every robot, or island of robots whose links touch,
+        solved on its own; returns the contacts left for the body solver."""
+        from .joint_solver import FreeBodies, JointSolver, JointSolverMemory, JointSystem
 
         if contacts.count:
             a, b = contacts.body_a, contacts.body_b
-            link_side_a = (a >= 0) & (self.body_robot[np.maximum(a, 0)] >= 0)
-            link_side_b = self.body_robot[b] >= 0
+            robot_a = np.where(a >= 0, self.body_robot[np.maximum(a, 0)], -1)
+            robot_b = self.body_robot[b]
+            link_side_a, link_side_b = robot_a >= 0, robot_b >= 0
+            ours = link_side_a | link_side_b
         else:
-            link_side_a = link_side_b = np.zeros(0, bool)
-        ours = link_side_a | link_side_b
-        keep = self._contact_filter(contacts, link_side_a, link_side_b) if ours.any() else np.ones(contacts.count,
-                                                                                                     bool)
-        ours &= keep
-        rest = ~ours & keep
-        M = np.zeros((self.n_dofs, self.n_dofs))
-        bias = np.zeros(self.n_dofs)
-        for r in self.robots:
-            q, qd = self.q[r.q_slice], self.qd[r.dof_slice]
-            M[r.dof_slice, r.dof_slice] = algorithms.mass_matrix(r.arrays, q)
-            bias[r.dof_slice] = algorithms.inverse_dynamics(r.arrays, q, qd, np.zeros(r.model.n_dofs),
-                                                            np.asarray(gravity, float))
-        q_of = self._q_of_dof()
-        coordinate = np.where(q_of >= 0, self.q[np.maximum(q_of, 0)], 0.0)
-        system = JointSystem(M, bias, self._wrench_torque.copy(), coordinate, self.qd.copy())
-        chosen = np.flatnonzero(ours)
-        rows = self._contact_rows(contacts.select(chosen), body_model, state)
-        bodies = FreeBodies(np.ascontiguousarray(body_model.inv_mass, dtype=float), inv_inertia,
-                            np.ascontiguousarray(np.hstack([velocity, angular_velocity])),
-                            state.linear_momentum, state.angular_momentum) if rows.key.size else FreeBodies.empty()
-        if self._solver is None or self._solver.settings.h != h:
-            from .joint_solver import JointSolver
+            ours = np.zeros(0, bool)
+        if ours.any():
+            keep = self._contact_filter(contacts, link_side_a, link_side_b)
+            ours &= keep
+            rest = contacts.select(np.flatnonzero(~ours & keep))
+            chosen = np.flatnonzero(ours)
+        else:
+            rest, chosen = contacts, np.zeros(0, np.int64)
+        if self._h != h:  # a new sub-step length: new solvers, the warm-start memories kept
+            for r in self.robots:
+                memory = r.solver.memory if r.solver is not None else None
+                r.solver = JointSolver(h, check=False)
+                if memory is not None:
+                    r.solver.memory = memory
+            self._h = h
+        gravity = np.asarray(gravity, float)
+        # which robot each chosen contact belongs to; robots joined by a link–link contact form an island
+        owner = {}  # island root → its contacts (indices into ``contacts``, in the detector's order)
+        if chosen.size:
+            ra, rb = robot_a[chosen], robot_b[chosen]
+            root, groups = _islands(len(self.robots), ra, rb)
+            island_of = np.where(rb >= 0, root[np.maximum(rb, 0)], root[np.maximum(ra, 0)])
+            order = np.argsort(island_of, kind="stable")
+            bounds = np.searchsorted(island_of[order], np.arange(len(self.robots) + 1))
+            for k in range(len(self.robots)):
+                if bounds[k + 1] > bounds[k]:
+                    owner[k] = chosen[order[bounds[k]:bounds[k + 1]]]
+        else:
+            root, groups = None, [[k] for k in range(len(self.robots))]
+        self.islands = groups
+        lone = np.array([g[0] for g in groups if len(g) == 1 and (g[0] if root is None else int(root[g[0]]))
+                         not in owner], np.int64)
+        if lone.size:
+            from .joint_solver import JointSettings, step_lone_robots
 
-            memory = self._solver.memory if self._solver is not None else None
-            self._solver = JointSolver(h)
-            if memory is not None:
-                self._solver.memory = memory
-        step = self._solver.step(system, self._properties, self.drives, rows, bodies)
-        self.qd = step.velocity.copy()
-        self._pseudo = step.pseudo_velocity.copy()
-        self._effort_sum += step.effort
+            if self._profile is None:
+                self._profile = self.robots[0].solver.profile
+            step_lone_robots(lone, (self._models, self._property_list, self._drive_list, self._memories),
+                             (self.q, self.qd, self._wrench_torque, self._pseudo, self._effort_sum),
+                             (self._q_start, self._dof_start, self._q_of_local), gravity,
+                             tuple(JointSettings.default(h)), self._profile.seconds)
+            self._profile.calls += 1
+        bodies = None
+        for group in groups:
+            if len(group) == 1 and (group[0] if root is None else int(root[group[0]])) not in owner:
+                continue  # stepped above
+            picked = owner.get(group[0] if root is None else int(root[group[0]]))
+            if picked is not None and picked.size:
+                selected = contacts.select(picked)
+                if bodies is None:
+                    bodies = FreeBodies(np.ascontiguousarray(body_model.inv_mass, dtype=float), inv_inertia,
+                                        np.ascontiguousarray(np.hstack([velocity, angular_velocity])),
+                                        state.linear_momentum, state.angular_momentum)
+                use_bodies = bodies
+            else:
+                selected, use_bodies = None, FreeBodies.empty()
+            if len(group) == 1:
+                r = self.robots[group[0]]
+                q, qd = self.q[r.q_slice], self.qd[r.dof_slice]
+                M, bias = algorithms.joint_space_terms(r.kernel_arrays, q, qd, gravity)
+                coordinate = np.where(r.has_coordinate, q[r.q_of_dof_clipped], 0.0)
+                system = JointSystem(M, bias, self._wrench_torque[r.dof_slice].copy(), coordinate, qd.copy())
+                rows = self._contact_rows(selected, body_model, state, {group[0]: 0}, r.model.n_dofs)
+                r.solver.memory = JointSolverMemory(*self._memories[group[0]])
+                step = r.solver.step(system, r.properties, r.drives, rows, use_bodies)
+                self._memories[group[0]] = tuple(r.solver.memory)
+                self._finish(group, step, rows, selected, state)
+            else:
+                self._solve_island(group, selected, body_model, state, gravity, use_bodies)
         self._substeps += 1
-        return contacts.select(np.flatnonzero(rest))
+        return rest
+
+    def _finish(self, group, step, rows, selected, state) -> None:
+        """Write an island's step: q̇, the pseudo-velocity, the effort; the contact report's sums."""
+        offset = 0
+        for k in group:
+            r = self.robots[k]
+            n = r.model.n_dofs
+            self.qd[r.dof_slice] = step.velocity[offset:offset + n]
+            self._pseudo[r.dof_slice] = step.pseudo_velocity[offset:offset + n]
+            self._effort_sum[r.dof_slice] += step.effort[offset:offset + n]
+            offset += n
+        if self._tally is not None and selected is not None and selected.count:
+            self._tally_contacts(selected, rows, step.contact_impulse, state)
+
+    def _solve_island(self, group, selected, body_model, state, gravity, bodies) -> None:
+        """Robots whose links touch each other in this sub-step: one joint-space system of all their dofs
+        (block-diagonal M), their warm-start memories merged and split again."""
+        from .joint_solver import JointProperties, JointSolver, JointSolverMemory, JointSystem
+
+        offsets, mimic_offsets, equality_offsets = {}, {}, {}
+        n = k_mimic = k_equality = 0
+        for k in group:
+            offsets[k], mimic_offsets[k], equality_offsets[k] = n, k_mimic, k_equality
+            n += self.robots[k].model.n_dofs
+            k_mimic += len(self.robots[k].properties.mimic_follower)
+            k_equality += len(self.robots[k].properties.equality_error)
+        M = np.zeros((n, n))
+        bias, applied, coordinate, qd = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+        for k in group:
+            r = self.robots[k]
+            s = slice(offsets[k], offsets[k] + r.model.n_dofs)
+            q = self.q[r.q_slice]
+            M[s, s], bias[s] = algorithms.joint_space_terms(r.kernel_arrays, q, self.qd[r.dof_slice], gravity)
+            applied[s] = self._wrench_torque[r.dof_slice]
+            coordinate[s] = np.where(r.has_coordinate, q[r.q_of_dof_clipped], 0.0)
+            qd[s] = self.qd[r.dof_slice]
+        parts = [self.robots[k].properties for k in group]
+        properties = JointProperties(*(np.concatenate([getattr(p, name) for p in parts]) for name in (
+            "lower", "upper", "effort_limit", "velocity_limit", "damping", "friction")),
+            np.concatenate([p.mimic_follower + offsets[k] for p, k in zip(parts, group)]),
+            np.concatenate([p.mimic_leader + offsets[k] for p, k in zip(parts, group)]),
+            np.concatenate([p.mimic_multiplier for p in parts]), np.concatenate([p.mimic_offset for p in parts]),
+            np.zeros((k_equality, n)), np.concatenate([p.equality_error for p in parts]))
+        for p, k in zip(parts, group):  # each robot's loop rows in its own columns (block-diagonal)
+            e0, n0 = equality_offsets[k], offsets[k]
+            properties.equality_jacobian[e0:e0 + len(p.equality_error), n0:n0 + p.equality_jacobian.shape[1]] = \
+                p.equality_jacobian
+        drives = tuple(np.concatenate([self.robots[k].drives[i] for k in group]) for i in range(6))
+        rows = self._contact_rows(selected, body_model, state, offsets, n)
+        solver = JointSolver(self._h, check=False)
+        solver.memory = _merge_memories([(JointSolverMemory(*self._memories[k]), offsets[k], mimic_offsets[k],
+                                          equality_offsets[k]) for k in group])
+        step = solver.step(JointSystem(M, bias, applied, coordinate, qd), properties, drives, rows, bodies)
+        contact_robots = {}
+        if selected is not None:
+            for c in range(selected.count):
+                key = int(rows.key[c])
+                for side in (int(selected.body_a[c]), int(selected.body_b[c])):
+                    if side >= 0 and self.body_robot[side] >= 0:
+                        contact_robots.setdefault(key, set()).add(int(self.body_robot[side]))
+        for k in group:
+            r = self.robots[k]
+            self._memories[k] = tuple(_split_memory(solver.memory, offsets[k], r.model.n_dofs, mimic_offsets[k],
+                                                    len(r.properties.mimic_follower), equality_offsets[k],
+                                                    len(r.properties.equality_error), k, contact_robots))
+            r.solver.profile.seconds += solver.profile.seconds / len(group)
+        self._finish(group, step, rows, selected, state)
 
     def _q_of_dof(self) -> np.ndarray:
         """(n_dofs,) the position index of every 1-dof joint's velocity (−1 for a floating root's)."""
         if not hasattr(self, "_q_of_dof_cache"):
             out = np.full(self.n_dofs, -1, np.int64)
             for r in self.robots:
-                m = r.model
-                for b in range(len(m.body_names)):
-                    if int(m.joint_type[b]) in (JOINT_REVOLUTE, JOINT_PRISMATIC):
-                        out[r.dof_slice.start + m.dof_start[b]] = r.q_slice.start + m.q_start[b]
+                out[r.dof_slice] = np.where(r.q_of_dof >= 0, r.q_of_dof + r.q_slice.start, -1)
             self._q_of_dof_cache = out
         return self._q_of_dof_cache
 
@@ -407,22 +715,25 @@ class Robots:
                     keep[c] = False
         return keep
 
-    def _contact_rows(self, contacts, body_model, state):
-        """Rows in joint space for the contacts that touch a link (module docstring, step 3): per point the three
-        directions (n, t₁, t₂) of the contact solver, each pointing from the other side to the robot's side."""
+    def _contact_rows(self, contacts, body_model, state, offsets: dict, n: int):
+        """Rows in the joint space of an island (``offsets``: robot → its first dof there; ``n`` dofs) for the
+        contacts that touch its links (module docstring, step 3): per point the three directions (n, t₁, t₂) of the
+        contact solver; each row is the velocity of side B relative to side A along the direction, its impulse
+        pushes B along it and A against it."""
         from ..solver.sequential_impulse import tangent_basis_scalar
         from .joint_solver import ContactRows
 
+        if contacts is None or not contacts.count:
+            return ContactRows.empty(n)
         m = contacts.count
-        J = np.zeros((m, 3, self.n_dofs))
+        J = np.zeros((m, 3, n))
         body = np.full(m, -1, np.int64)
         body_jacobian = np.zeros((m, 3, 6))
         for c in range(m):
-            n = contacts.normal[c]
-            t = tangent_basis_scalar(n[0], n[1], n[2])
-            D = np.array([n, [t[0], t[1], t[2]], [t[3], t[4], t[5]]])  # (3 directions, 3), from A to B
+            nrm = contacts.normal[c]
+            t = tangent_basis_scalar(nrm[0], nrm[1], nrm[2])
+            D = np.array([nrm, [t[0], t[1], t[2]], [t[3], t[4], t[5]]])  # (3 directions, 3), from A to B
             p = contacts.point[c]
-            robot_sign = 1.0 if self.body_robot[contacts.body_b[c]] >= 0 else -1.0  # d from the other side
             for side, sign in ((int(contacts.body_a[c]), -1.0), (int(contacts.body_b[c]), 1.0)):
                 if side < 0:
                     continue
@@ -430,32 +741,119 @@ class Robots:
                 if k >= 0:
                     r = self.robots[k]
                     rotation, position = self._poses[k]
-                    Jp = algorithms.point_jacobian(r.arrays, rotation, position, int(self.body_link[side]), p)
-                    J[c, :, r.dof_slice] += (sign * robot_sign) * (D @ Jp)
+                    Jp = algorithms.point_jacobian(r.kernel_arrays, rotation, position, int(self.body_link[side]), p)
+                    start = offsets[k]
+                    J[c, :, start:start + r.model.n_dofs] += sign * (D @ Jp)
                 elif body_model.inv_mass[side] > 0.0:
                     body[c] = side
                     arm = p - state.position[side]
-                    d = robot_sign * D  # from the body to the robot: the body's row is [−d, −r × d]
-                    body_jacobian[c, :, :3] = -d
-                    body_jacobian[c, :, 3:] = -np.cross(arm, d)
+                    d = sign * D  # the body's row: sign · [D, r × D]
+                    body_jacobian[c, :, :3] = d
+                    body_jacobian[c, :, 3:] = np.cross(arm, d)
         return ContactRows(J, body, body_jacobian, contacts.separation.copy(), contacts.friction.copy(),
                            contacts.key % (1 << 37))
 
+    # ---- the contact report (cgp_core.solver.report): the link contacts solved here --------------------------
+
+    def start_report(self, bodies: int) -> None:
+        """Sum the robot stage's contacts over the tick's sub-steps (the world's :attr:`report_contacts`)."""
+        self._tally = {"body_impulse": np.zeros((bodies, 6)), "touched": np.zeros(bodies, bool), "steps": []}
+
+    def _tally_contacts(self, contacts, rows, impulse, state) -> None:
+        """One island's sub-step into the tally: per contact its impulse on B (λₙ n + λ₁ t₁ + λ₂ t₂: the rows'
+        directions), per body the impulse and its angular impulse about the COM (A gets the opposite)."""
+        tally = self._tally
+        m = contacts.count
+        from ..solver.sequential_impulse import tangent_basis_scalar
+
+        tangents = np.array([tangent_basis_scalar(*contacts.normal[c]) for c in range(m)]).reshape(m, 2, 3)
+        friction = impulse[:, 1, None] * tangents[:, 0] + impulse[:, 2, None] * tangents[:, 1]
+        on_b = impulse[:, 0, None] * contacts.normal + friction
+        for side, sign in ((contacts.body_a, -1.0), (contacts.body_b, 1.0)):
+            hit = np.flatnonzero(side >= 0)
+            if hit.size:
+                body = side[hit]
+                force = sign * on_b[hit]
+                np.add.at(tally["body_impulse"], (body, slice(0, 3)), force)
+                np.add.at(tally["body_impulse"], (body, slice(3, 6)),
+                          np.cross(contacts.point[hit] - state.position[body], force))
+                touched = (contacts.separation[hit] <= 0.0) | (impulse[hit, 0] > 0.0)
+                tally["touched"][body[touched]] = True
+        tally["steps"].append((self._substeps, contacts.key.copy(), contacts.body_a.copy(), contacts.body_b.copy(),
+                               contacts.point.copy(), contacts.normal.copy(), contacts.separation.copy(),
+                               impulse[:, 0].copy(), friction))
+
+    def finish_report(self, report, dt: float):
+        """``report`` (the body solver's :class:`~cgp_core.solver.report.ContactReport` of the tick) with the
+        robot stage's contacts added: the contacts of the last sub-step with their impulses summed over the
+        sub-steps they persisted in (matched by key), and every body's contact force and torque."""
+        from ..solver.report import ContactReport
+
+        tally, self._tally = self._tally, None
+        if tally is None:
+            return report
+        steps = tally["steps"]
+        last = max((s[0] for s in steps), default=None)
+        fields = [np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
+                  np.zeros(0), np.zeros((0, 3))]
+        if last is not None:
+            final = [s for s in steps if s[0] == last]
+            key = np.concatenate([s[1] for s in final])
+            normal_impulse = np.concatenate([s[7] for s in final])
+            friction = np.concatenate([s[8] for s in final])
+            for s in steps:
+                if s[0] == last:
+                    continue
+                for c, k in enumerate(s[1]):
+                    hit = np.flatnonzero(key == k)
+                    if hit.size:
+                        normal_impulse[hit[0]] += s[7][c]
+                        friction[hit[0]] += s[8][c]
+            separation = np.concatenate([s[6] for s in final])
+            pick = (separation <= 0.0) | (normal_impulse > 0.0)
+            fields = [np.concatenate([s[2] for s in final]).astype(np.intp)[pick],
+                      np.concatenate([s[3] for s in final]).astype(np.intp)[pick],
+                      np.concatenate([s[4] for s in final])[pick], np.concatenate([s[5] for s in final])[pick],
+                      separation[pick], normal_impulse[pick], friction[pick]]
+        n = len(tally["touched"])
+        wrench = np.zeros((n, 6))
+        listed = tally["touched"].copy()
+        inside = report.body < n
+        listed[report.body[inside]] = True
+        wrench[report.body[inside], :3] = report.force[inside]
+        wrench[report.body[inside], 3:] = report.torque[inside]
+        wrench[tally["touched"]] += tally["body_impulse"][tally["touched"]] / dt
+        body = np.flatnonzero(listed)
+        contacts = [np.concatenate((old, new)) for old, new in zip(report[:7], fields)]
+        return ContactReport(*contacts, body, wrench[body, :3], wrench[body, 3:], report.duration)
+
     def integrate(self, h: float) -> None:
-        """q ← q + h q̇ per robot (a floating root's quaternion by the exponential map)."""
+        """q ← q + h q̇ per robot (a floating root's quaternion by the exponential map); the bodies' poses and
+        velocities there are kept for :meth:`write_bodies` (one compiled call for all robots:
+        :func:`~cgp_core.robots.algorithms.advance_all`)."""
         moving = self.qd + self._pseudo  # the position stage's pseudo-velocity moves q, never qd (no energy)
-        for r in self.robots:
-            self.q[r.q_slice] = algorithms.integrate_positions(r.arrays, self.q[r.q_slice], moving[r.dof_slice], h)
-        self._project_loops()
+        B = self._body_start[-1]
+        rotation, position = np.empty((B, 3, 3)), np.empty((B, 3))
+        linear, angular = np.empty((B, 3)), np.empty((B, 3))
+        if self.robots:
+            algorithms.advance_all(self._models, self.q, moving, self.qd,
+                                   (self._q_start, self._dof_start, self._body_start), h,
+                                   (rotation, position, linear, angular))
+        starts = self._body_start
+        self._poses = [(rotation[starts[k]:starts[k + 1]], position[starts[k]:starts[k + 1]])
+                       for k in range(len(self.robots))]
+        self._velocities = (rotation, position, linear, angular)
+        if self._looped:
+            self._project_loops()
+            self._velocities = None  # q moved: write_bodies computes the kinematics again
 
     def _project_loops(self, iterations: int = 4, tolerance: float = 1e-13) -> None:
         """Each articulation's loop closures made exact again after the integration (a Newton projection of q
         onto C(q) = 0, mass-weighted: Δq = −M⁻¹ Jᵀ (J M⁻¹ Jᵀ)⁺ C): the velocity rows keep J qd = 0 and the
         position stage corrects the error at the sub-step's start, but a step along the tangent leaves the
         curvature's ½ (h ω)² r; this removes it.  Velocities are not touched (no energy is added)."""
-        for r in self.robots:
-            if r.spec.articulation is None or not r.spec.articulation.loops:
-                continue
+        for k in self._looped:
+            r = self.robots[k]
             q = self.q[r.q_slice]
             for _ in range(iterations):
                 rotation, position = algorithms.forward_kinematics(r.arrays, q)
@@ -470,38 +868,43 @@ class Robots:
             self.q[r.q_slice] = q
 
     def write_bodies(self, body_model, state) -> None:
-        """Every moving link body's pose (COM, orientation) and momenta (P = m v, L = I_world ω) from q, q̇."""
-        self.prepare()
-        for k, r in enumerate(self.robots):
-            rows = np.flatnonzero(self.body_robot == k)
-            if not rows.size:
-                continue
-            links = self.body_link[rows]
-            rotation, position = self._poses[k]
-            linear, angular = algorithms.body_velocities(r.arrays, self.q[r.q_slice], self.qd[r.dof_slice],
-                                                         rotation, position)
-            R = rotation[links]
-            com = np.einsum("kij,kj->ki", R, r.model.com[links])
-            state.position[rows] = position[links] + com
-            state.orientation[rows] = matrix_to_quat(R)
-            if state.rotation is not None:
-                state.rotation[rows] = R
-            v = linear[links] + np.cross(angular[links], com)
-            state.linear_momentum[rows] = body_model.mass[rows, None] * v
-            inertia_world = R @ body_model.inertia_body[rows] @ np.swapaxes(R, 1, 2)
-            state.angular_momentum[rows] = np.einsum("kij,kj->ki", inertia_world, angular[links])
+        """Every moving link body's pose (COM, orientation) and momenta (P = m v, L = I_world ω) from q, q̇ (the
+        kinematics per robot — from :meth:`integrate` when it just ran —, the rest for all robots' links at
+        once)."""
+        flat, self._velocities = getattr(self, "_velocities", None), None
+        rows = self._all_rows
+        if flat is None:  # not right after integrate: the kinematics at the current q
+            self.prepare()
+            rotation = np.concatenate([p[0] for p in self._poses]) if self.robots else np.zeros((0, 3, 3))
+            position = np.concatenate([p[1] for p in self._poses]) if self.robots else np.zeros((0, 3))
+            velocities = [algorithms.body_velocities(r.kernel_arrays, self.q[r.q_slice], self.qd[r.dof_slice],
+                                                     *self._poses[k]) for k, r in enumerate(self.robots)]
+            linear = np.concatenate([v[0] for v in velocities]) if self.robots else np.zeros((0, 3))
+            angular = np.concatenate([v[1] for v in velocities]) if self.robots else np.zeros((0, 3))
+        else:
+            rotation, position, linear, angular = flat
+        if not rows.size:
+            return
+        index = self._all_link_index
+        R, position, linear, angular = rotation[index], position[index], linear[index], angular[index]
+        algorithms.write_link_bodies(rows, (R, position, linear, angular),
+                                     (self._all_com, self._all_mass_flat, self._all_inertia),
+                                     (state.position, state.orientation,
+                                      state.rotation if state.rotation is not None else _NO_ROTATION,
+                                      state.linear_momentum, state.angular_momentum))
 
     def contain_blowups(self, body_model, state) -> list[str]:
         """Put back every robot whose state went non-finite or absurd (a link faster than
         :data:`~cgp_core.limits.BLOWUP_SPEED` or spinning faster than :data:`~cgp_core.limits.BLOWUP_SPIN`):
-        its initial positions at rest, its drives holding them, the solver's warm start forgotten; the others go
+        its initial positions at rest, its drives holding them, its solver's warm start forgotten; the others go
         on.  Returns the names of the robots put back (the World reports them as events)."""
         from ..limits import BLOWUP_SPEED, BLOWUP_SPIN
+        from .joint_solver import JointSolverMemory
 
         bad = []
         with np.errstate(over="ignore", invalid="ignore"):
             for k, r in enumerate(self.robots):
-                rows = np.flatnonzero(self.body_robot == k)
+                rows = self._robot_rows[k] if hasattr(self, "_robot_rows") else np.zeros(0, np.int64)
                 finite = np.isfinite(self.q[r.q_slice]).all() and np.isfinite(self.qd[r.dof_slice]).all()
                 if finite and rows.size:
                     speed = np.linalg.norm(state.linear_momentum[rows], axis=1) / body_model.mass[rows]
@@ -515,12 +918,13 @@ class Robots:
         for k in bad:
             r = self.robots[k]
             self.q[r.q_slice] = self.q0[r.q_slice]
-            self.qd[r.dof_slice] = self.qd0[r.dof_slice] * 0.0
+            self.qd[r.dof_slice] = 0.0
             self._pseudo[r.dof_slice] = 0.0
             for field, start in zip(self.drives, initial):
                 field[r.dof_slice] = start[r.dof_slice]
-        if self._solver is not None:
-            self._solver.reset()
+            if r.solver is not None:
+                r.solver.reset()
+            self._memories[k] = tuple(JointSolverMemory.empty())
         self.write_bodies(body_model, state)
         return [self.robots[k].name for k in bad]
 

@@ -40,8 +40,9 @@ from .validation import COORDINATES, Validator, kind_of, short_repr
 
 ROBOT_KEYS = {"name", "urdf", "position", "orientation", "fixed_base", "joints", "hold", "stiffness", "damping",
               "self_collision", "friction", "restitution", "xacro_args", "package_paths"}
-#: the most robots a scene holds (each is a dense joint-space system of its own)
-MAX_ROBOTS = 16
+#: the most robots a scene holds (each a dense joint-space system of its own, solved on its own: the cost grows
+#: linearly with the robots; 64 arms are issue 35's benchmark)
+MAX_ROBOTS = 256
 
 
 @dataclass
