@@ -73,7 +73,8 @@ def test_features_states_and_stepping(start_node, probe):
                                       F.SIMULATION_RESET_SPAWNED, F.SIMULATION_STATE_GETTING,
                                       F.SIMULATION_STATE_SETTING, F.SIMULATION_STATE_PAUSE,
                                       F.STEP_SIMULATION_SINGLE, F.STEP_SIMULATION_MULTIPLE, F.STEP_SIMULATION_ACTION}
-    assert list(features.spawn_formats) == ["yaml", "stl", "obj"] and "body or flock" in features.custom_info
+    assert list(features.spawn_formats) == ["yaml", "stl", "obj", "urdf", "xacro"]
+    assert "body, flock or robot" in features.custom_info
 
     assert sim.simulation_state() == S.STATE_PAUSED
     again = sim.set_simulation_state(S.STATE_PAUSED)
