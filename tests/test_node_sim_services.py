@@ -320,7 +320,7 @@ def test_every_refusal_has_its_code_and_changes_nothing(start_node, probe, tmp_p
         (dict(name="b", resource="body: {shape: box, size: [1, 1"), R.RESOURCE_PARSE_ERROR, "malformed YAML: line 2"),
         (dict(name="b", resource="body: {shape: box, size: [1, -1, 1]}"), R.RESOURCE_PARSE_ERROR,
          "resource_string: body (b).size[1]: must be > 0, got -1"),
-        (dict(name="b", resource="robot: {}"), R.RESOURCE_PARSE_ERROR, "exactly one key, body or flock"),
+        (dict(name="b", resource="tree: {}"), R.RESOURCE_PARSE_ERROR, "exactly one key, body, flock or robot"),
         (dict(name="crate", resource=BOX), R.NAME_NOT_UNIQUE, "name 'crate' is taken by a body"),
         (dict(name="fish", resource=BOX), R.NAME_NOT_UNIQUE, "taken by a flock"),
         (dict(name="", resource=BOX), R.NAME_INVALID, "name is empty"),
@@ -348,7 +348,7 @@ def test_every_refusal_has_its_code_and_changes_nothing(start_node, probe, tmp_p
     # entity states: unknown names, frames, NaN, fixed bodies and flocks with a twist
     SR = SetEntityState.Response
     for kwargs, code, text in [
-        (dict(name="nobody"), Result.RESULT_NOT_FOUND, "no body or flock named 'nobody'"),
+        (dict(name="nobody"), Result.RESULT_NOT_FOUND, "no body, flock or robot named 'nobody'"),
         (dict(name="crate", position=(0, 0, math.inf)), SR.INVALID_POSE, "must be finite"),
         (dict(name="crate", position=(0, 0, 1), frame="odom"), SR.INVALID_POSE, "'odom'"),
         (dict(name="pillar", position=(6, 0, 4), linear=(1, 0, 0)), FAILED, "pillar is fixed"),
