@@ -14,6 +14,7 @@ from pathlib import Path
 
 from sensor_msgs.msg import JointState
 from sim_client import OK, SimClient
+from simulation_interfaces.msg import Result
 from simulation_interfaces.srv import GetSimulatorFeatures, ResetSimulation, SpawnEntity
 from std_msgs.msg import String
 
@@ -77,6 +78,11 @@ def test_robots_spawned_from_a_file_and_from_urdf_text_publish_and_go_when_delet
         assert probe.node.count_publishers(topic(robot, "robot_description")) == 1
         assert probe.node.count_subscribers(topic(robot, "joint_commands")) == 1
 
+    # a fixed base takes no teleport: refused, saying why
+    moved = sim.set_state("arm_file", position=(-7.0, -8.0, 0.0))
+    assert moved.result.result == Result.RESULT_OPERATION_FAILED and "fixed base" in moved.result.error_message
+    assert abs(sim.state("arm_file").state.pose.position.x + 8.0) < 1e-9
+
     answer = sim.delete("arm_file")
     assert answer.result.result == OK, answer.result.error_message
     wait_gone(probe, topic("arm_file", "joint_states"))
@@ -84,6 +90,7 @@ def test_robots_spawned_from_a_file_and_from_urdf_text_publish_and_go_when_delet
     probe.spin_until(lambda: probe.node.count_subscribers(topic("arm_file", "joint_commands")) == 0, 20,
                      "the joint_commands subscription of the deleted robot to go")
     assert not any(n == "arm_file" or n.startswith("arm_file/") for n in sim.names())
+    assert sim.state("arm_file").result.result == Result.RESULT_NOT_FOUND
     # the other one goes on publishing
     count = len(probe.received[topic("arm_text", "joint_states")].messages)
     probe.wait_for_messages(topic("arm_text", "joint_states"), count + 10, timeout=20)
