@@ -506,7 +506,13 @@ class World:
 
     def spawn(self, entry, *, name: str, position=(0.0, 0.0, 0.0), orientation=(0.0, 0.0, 0.0, 1.0),
               source: str = "<spawn>") -> str:
-        """Add a body or a flock while the world runs; returns its kind (``"body"`` / ``"flock"``).
+        """Add a body, a flock or a robot while the world runs; returns its kind (``"body"`` / ``"flock"`` /
+        ``"robot"``).
+
+        A robot: ``{"robot": {...}}``, a scene's ``robots`` entry without ``name``, ``position``, ``orientation``
+        (the pose places its root link), ``urdf`` a file or ``urdf_xml`` URDF text; its links are appended as
+        bodies ``<name>/<link>``, the robots already there keep their joint state, drives and commands
+        (:meth:`cgp_core.robots.world.Robots.with_robot`).  See docs/robots.md.
 
         ``entry``: ``{"body": {...}}`` or ``{"flock": {...}}``, the entry a scene file's ``bodies`` / ``flocks``
         list holds (parsed YAML), without ``name`` and, for a body, without ``position`` / ``orientation``: those

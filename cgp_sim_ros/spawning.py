@@ -79,6 +79,7 @@ def prepare(request: SpawnRequest) -> Spawned | Refusal:
             # that is no file here is one of the built-in robots (msgs_config/robots)
             found = robot.is_absolute() or robot.exists()
             data = {"robot": {"urdf": str(robot.absolute()) if found else str(robot)}}
+            source = "uri"  # (the loader's messages name the file)
         elif not request.uri and request.resource.lstrip().startswith("<"):  # URDF XML text
             data = {"robot": {"urdf_xml": request.resource}}
         elif request.uri:

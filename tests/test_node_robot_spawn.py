@@ -131,11 +131,24 @@ def test_hostile_urdf_xml_is_refused_without_reading_the_file(start_node, probe,
     answer = spawn(sim, "evil_yaml", resource=json.dumps({"robot": {"urdf_xml": hostile["xxe"]}}))
     assert answer.result.result == SpawnEntity.Response.RESOURCE_PARSE_ERROR, answer.result
     assert "robot.urdf_xml" in answer.result.error_message and "CGP-SECRET" not in answer.result.error_message
+    # a file that is no URDF named by a robot entry, as a uri, or a FIFO as a uri: refused, never quoted
+    not_xml = tmp_path / "notes.urdf"
+    not_xml.write_text(f"root:{secret.read_text()}:0:0\n")
+    fifo = tmp_path / "pipe.urdf"
+    os.mkfifo(fifo)
+    for label, kwargs, text in (("yaml_file", dict(resource=json.dumps({"robot": {"urdf": str(not_xml)}})),
+                                 "malformed XML"),
+                                ("uri_file", dict(uri=str(not_xml)), "malformed XML"),
+                                ("fifo", dict(uri=f"file://{fifo}"), "not a regular file")):
+        answer = spawn(sim, f"evil_{label}", **kwargs)
+        assert answer.result.result == SpawnEntity.Response.RESOURCE_PARSE_ERROR, (label, answer.result)
+        assert text in answer.result.error_message and "CGP-SECRET" not in answer.result.error_message, \
+            answer.result.error_message
     deadline = time.monotonic() + 10
-    probe.spin_until(lambda: sum("evil_" in m.data for m in events.messages) >= 4 or time.monotonic() > deadline,
+    probe.spin_until(lambda: sum("evil_" in m.data for m in events.messages) >= 7 or time.monotonic() > deadline,
                      15, "the refusals on ~/events")
     spawn_events = [m.data for m in events.messages if "spawn_entity" in m.data]
-    assert len(spawn_events) >= 4
+    assert len(spawn_events) >= 7
     assert all("CGP-SECRET" not in e for e in spawn_events)
     assert not any(n.startswith("evil") for n in sim.names())
     assert node.alive()

@@ -316,7 +316,7 @@ def test_every_refusal_has_its_code_and_changes_nothing(start_node, probe, tmp_p
         (dict(name="b"), R.NO_RESOURCE, "both empty"),
         (dict(name="b", uri=str(tmp_path / "robot.sdf")), R.UNSUPPORTED_FORMAT,
          "not a .yaml, .stl, .obj, .urdf or .xacro file"),
-        (dict(name="b", uri=str(urdf)), R.RESOURCE_PARSE_ERROR, "robot.urdf: no <link>"),
+        (dict(name="b", uri=str(urdf)), R.RESOURCE_PARSE_ERROR, "no <link>"),
         (dict(name="b", resource="<robot name='r'><link name='a'>"), R.RESOURCE_PARSE_ERROR,
          "resource_string: robot.urdf_xml: URDF text: malformed XML"),
         (dict(name="b", uri="package://robots/robot.yaml"), R.UNSUPPORTED_FORMAT, "only local files are spawned"),
