@@ -152,3 +152,28 @@ def test_hostile_urdf_xml_is_refused_without_reading_the_file(start_node, probe,
     assert all("CGP-SECRET" not in e for e in spawn_events)
     assert not any(n.startswith("evil") for n in sim.names())
     assert node.alive()
+
+
+def test_the_bag_records_a_spawned_robot_from_its_spawn_to_its_delete(start_node, probe, tmp_path):
+    from mcap_ros2.reader import read_ros2_messages
+
+    bag = tmp_path / "bag"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
+    node = start_node("--scene", "default", "--bag", str(bag), env=env)
+    probe.client(GetSimulatorFeatures, "/cgp_sim/get_simulator_features", timeout=30)
+    sim = SimClient(probe)
+    answer = spawn(sim, "arm_text", resource=ARM_URDF.read_text(), position=(-8.0, 8.0, 0.0))
+    assert answer.result.result == OK, answer.result.error_message
+    states = topic("arm_text", "joint_states")
+    probe.wait_for_publisher(states, timeout=20)
+    probe.subscribe(states, JointState)
+    probe.wait_for_messages(states, 20, timeout=30)
+    assert sim.delete("arm_text").result.result == OK
+    wait_gone(probe, states)
+    assert node.stop() == 0, node.log()[-3000:]
+    recorded, descriptions = [], []
+    for mcap_file in sorted(bag.glob("*.mcap")):
+        for m in read_ros2_messages(str(mcap_file), topics=[states, topic("arm_text", "robot_description")]):
+            (recorded if m.channel.topic == states else descriptions).append(m)
+    assert len(recorded) >= 20 and all(set(m.ros_msg.name) == ARM_JOINTS for m in recorded)
+    assert [m.ros_msg.data for m in descriptions] == [ARM_URDF.read_text()]
