@@ -17,6 +17,7 @@ from sim_client import OK, SimClient
 from simulation_interfaces.msg import Result
 from simulation_interfaces.srv import GetSimulatorFeatures, ResetSimulation, SpawnEntity
 from std_msgs.msg import String
+from tf2_msgs.msg import TFMessage
 
 REPO = Path(__file__).resolve().parents[1]
 ARM_URDF = REPO / "msgs_config" / "robots" / "arm.urdf"
@@ -49,7 +50,12 @@ def wait_gone(probe, name: str, timeout: float = 20.0) -> None:
     probe.spin_until(lambda: probe.node.count_publishers(name) == 0, timeout, f"no publisher left on {name}")
 
 
+def tf_children(messages) -> set[str]:
+    return {t.child_frame_id for m in messages for t in m.transforms}
+
+
 def test_robots_spawned_from_a_file_and_from_urdf_text_publish_and_go_when_deleted(start_node, probe):
+    tf = probe.subscribe("/tf", TFMessage)
     node, sim = start(start_node, probe)
     assert "urdf" in sim.call(GetSimulatorFeatures).features.spawn_formats
 
@@ -83,9 +89,21 @@ def test_robots_spawned_from_a_file_and_from_urdf_text_publish_and_go_when_delet
     assert moved.result.result == Result.RESULT_OPERATION_FAILED and "fixed base" in moved.result.error_message
     assert abs(sim.state("arm_file").state.pose.position.x + 8.0) < 1e-9
 
+    # their moving links on /tf, named <robot>/<link> (frame_prefix empty by default)
+    def both_on_tf() -> bool:
+        children = tf_children(tf.messages)
+        return all(any(c.endswith(link) for c in children) for link in ("arm_file/shoulder", "arm_text/forearm"))
+
+    probe.spin_until(both_on_tf, 20, "the spawned robots' links on /tf")
+
     answer = sim.delete("arm_file")
     assert answer.result.result == OK, answer.result.error_message
     wait_gone(probe, topic("arm_file", "joint_states"))
+    probe.spin_for(0.3)  # what was on the way
+    seen = len(tf.messages)
+    probe.spin_for(0.5)
+    later = tf_children(tf.messages[seen:])
+    assert any("arm_text/" in c for c in later) and not any("arm_file/" in c for c in later), later
     wait_gone(probe, topic("arm_file", "robot_description"))
     probe.spin_until(lambda: probe.node.count_subscribers(topic("arm_file", "joint_commands")) == 0, 20,
                      "the joint_commands subscription of the deleted robot to go")
