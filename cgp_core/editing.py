@@ -32,7 +32,7 @@ __all__ = ["EditError", "EntityState", "WORLD_FRAMES", "concatenate_bodies", "se
 class EditError(ValueError):
     """A world edit that was refused (nothing changed).  ``kind``:
 
-    ``unknown``       no body or flock of that name;
+    ``unknown``       no body, flock or robot of that name;
     ``name_taken``    the name is already a body's or a flock's;
     ``name_invalid``  not a usable name (see :data:`cgp_core.scene.ROS_SAFE_NAME`);
     ``invalid_pose``  a pose / twist that is not finite, a zero quaternion, a frame other than the world's;

@@ -76,7 +76,7 @@ from .limits import (
     rigid_work_refusal,
 )
 from .robots.world import Robots
-from .rotation import quat_conjugate, quat_rotate, quat_to_matrix
+from .rotation import matrix_to_quat, quat_conjugate, quat_rotate, quat_to_matrix
 from .scene import (
     GROUND_NAME,
     ROS_SAFE_NAME,
@@ -105,11 +105,12 @@ class PreparedSpawn:
     """A validated entity, built and ready to add (:meth:`World.prepare_spawn`): a body's model and state rows
     (one body) or a flock with its initial state."""
 
-    kind: str  # "body" | "flock"
+    kind: str  # "body" | "flock" | "robot"
     name: str
-    model: object = None  # BodyModel of the one body
+    model: object = None  # BodyModel of the one body (a robot: of its links, <name>/<link>)
     state: object = None  # its BodyState
     flock: object = None  # Flock
+    robot: object = None  # a robot's RobotSpec (cgp_core.scene.robots), placed at the spawn pose
     #: what loading it had to say (BodySpec.notes: a hull of non-convex points, a BVH built), reported as events
     #: when it is added
     notes: list = field(default_factory=list)
@@ -130,6 +131,13 @@ def prepare_spawn(entry, world_spec, *, name: str, taken: set[str], position=(0.
             raise EditError("invalid_pose", "initial_pose.orientation: a flock has no orientation (the boids "
                             "have their own); give the identity (0, 0, 0, 1)")
         return PreparedSpawn(kind, name, flock=Flock(spec))
+    if kind == "robot":
+        try:
+            links = Robots([spec]).body_specs()  # its links' bodies at its initial joint positions
+        except ValueError as exc:  # more joint velocities than a world holds
+            raise EditError("not_possible", str(exc)) from None
+        model, state = Scene(source, world_spec, links, []).build_bodies()
+        return PreparedSpawn(kind, name, model=model, state=state, robot=spec, notes=list(spec.notes))
     model, state = Scene(source, world_spec, [spec], []).build_bodies()
     return PreparedSpawn(kind, name, model=model, state=state, notes=list(spec.notes))
 
@@ -202,6 +210,7 @@ class World:
         #: the scene's robots (:class:`cgp_core.robots.world.Robots`; their links are bodies named <robot>/<link>)
         #: and the articulations of its joints: bodies that keep their names, cgp_core.robots.articulations)
         robot_specs = list(scene.robots) + list(getattr(scene, "articulations", []))
+        self._scene_robot_specs = robot_specs
         self.robots = Robots(robot_specs) if robot_specs else None
         self.body_model, self._initial_body_state = self._scene_bodies()
         self.body_state = self._initial_body_state.copy()
@@ -459,19 +468,22 @@ class World:
     # ---- editing while it runs: spawn, delete, teleport, query -------------------------------------------
 
     def entity_names(self, pattern: str = "") -> list[str]:
-        """Bodies (in model order) then flocks; with ``pattern``, those whose name it matches anywhere (a POSIX
-        extended regular expression, see :func:`cgp_core.editing.name_filter`; ``ValueError`` if invalid)."""
-        names = list(self.body_model.names) + [f.params.name for f in self.flocks]
+        """Bodies (in model order: a robot's links are bodies ``<robot>/<link>``), then flocks, then robots; with
+        ``pattern``, those whose name it matches anywhere (a POSIX extended regular expression, see
+        :func:`cgp_core.editing.name_filter`; ``ValueError`` if invalid)."""
+        names = list(self.body_model.names) + [f.params.name for f in self.flocks] + self.robot_names()
         if not pattern:
             return names
         regex = name_filter(pattern)
         return [name for name in names if regex.search(name)]
 
     def entity_kind(self, name: str) -> str | None:
-        """``"body"``, ``"flock"`` or None."""
+        """``"body"``, ``"flock"``, ``"robot"`` or None."""
         if name in self.body_model.names:
             return "body"
-        return "flock" if any(f.params.name == name for f in self.flocks) else None
+        if any(f.params.name == name for f in self.flocks):
+            return "flock"
+        return "robot" if name in self.robot_names() else None
 
     def entities_in_sphere(self, center, radius: float) -> list[str]:
         """Entities overlapping the ball of ``radius`` [m] around ``center`` (3,): bodies whose surface is within
@@ -483,6 +495,9 @@ class World:
             gap = np.linalg.norm(flock.positions - center, axis=1) - 0.5 * flock.params.boid_size
             if gap.size and float(gap.min()) <= radius:
                 names.append(flock.params.name)
+        for robot in self.robot_names():  # a robot with a link within the ball
+            if any(n.startswith(f"{robot}/") for n in names):
+                names.append(robot)
         return names
 
     def unique_name(self, base: str) -> str:
@@ -498,7 +513,13 @@ class World:
 
     def spawn(self, entry, *, name: str, position=(0.0, 0.0, 0.0), orientation=(0.0, 0.0, 0.0, 1.0),
               source: str = "<spawn>") -> str:
-        """Add a body or a flock while the world runs; returns its kind (``"body"`` / ``"flock"``).
+        """Add a body, a flock or a robot while the world runs; returns its kind (``"body"`` / ``"flock"`` /
+        ``"robot"``).
+
+        A robot: ``{"robot": {...}}``, a scene's ``robots`` entry without ``name``, ``position``, ``orientation``
+        (the pose places its root link), ``urdf`` a file or ``urdf_xml`` URDF text; its links are appended as
+        bodies ``<name>/<link>``, the robots already there keep their joint state, drives and commands
+        (:meth:`cgp_core.robots.world.Robots.with_robot`).  See docs/robots.md.
 
         ``entry``: ``{"body": {...}}`` or ``{"flock": {...}}``, the entry a scene file's ``bodies`` / ``flocks``
         list holds (parsed YAML), without ``name`` and, for a body, without ``position`` / ``orientation``: those
@@ -536,9 +557,12 @@ class World:
             self.flocks = [*self.flocks, prepared.flock]
             self._flock_mean_velocity_start.append(self.flocks[-1].mean_velocity())
         else:
-            if self.body_model.count + 1 > MAX_BODIES:
-                raise EditError("not_possible", f"the world has {self.body_model.count} bodies, the most it "
-                                f"holds ({MAX_BODIES})")
+            robots = None
+            if prepared.kind == "robot":
+                robots = self._robots_with(prepared.robot)  # refused here, before anything changes
+            if self.body_model.count + prepared.model.count > MAX_BODIES:
+                raise EditError("not_possible", f"the world has {self.body_model.count} bodies; with "
+                                f"{prepared.model.count} more it would pass the most it holds ({MAX_BODIES})")
             (shapes, particles), (new_shapes, new_particles) = self.body_model.rigid_work(), prepared.model.rigid_work()
             refusal = rigid_work_refusal(shapes + new_shapes, particles + new_particles, self.substeps)
             if refusal:
@@ -547,6 +571,8 @@ class World:
             if self.body_state.rotation is not None:  # the integrator keeps R: the new body needs one too
                 state.rotation = state.rotation_matrices()
             old_model = self.body_model
+            if robots is not None:
+                self._set_robots(robots)
             self.body_model, self.body_state = concatenate_bodies(old_model, self.body_state, model, state)
             _, self._initial_body_state = concatenate_bodies(old_model, self._initial_body_state, model,
                                                              state.copy())
@@ -557,12 +583,81 @@ class World:
         return prepared.kind
 
     def delete(self, name: str) -> str:
-        """Remove a body or a flock (from the scene or spawned); returns its kind.  A body's wrench commands go
-        with it; the other bodies keep their order.  :class:`EditError` ``unknown`` if there is none."""
+        """Remove a body, a flock or a robot (from the scene or spawned); returns its kind.  A body's wrench
+        commands go with it; the other bodies keep their order.  A robot goes with its links (and their wrench
+        commands); the other robots keep their joint state, drives and commands.  :class:`EditError` ``unknown``
+        if there is none."""
         kind = self.kind_of(name)
-        self._refuse_link(name, "deleted")
+        if kind != "robot":
+            self._refuse_link(name, "deleted")
         self._remove([name])
         return kind
+
+    # ---- robots as entities ---------------------------------------------------------------------------------
+
+    def robot_names(self) -> list[str]:
+        """The URDF robots (scene or spawned) as entities: their names (a scene's ``joints:`` articulations are
+        not entities: their bodies are)."""
+        if self.robots is None:
+            return []
+        return [r.name for r in self.robots.robots if r.spec.articulation is None]
+
+    def _robots_with(self, spec):
+        """The world's robots with ``spec``'s added (:meth:`Robots.with_robot`), or :class:`EditError`."""
+        from .scene.robots import MAX_ROBOTS
+
+        count = 0 if self.robots is None else len(self.robots.robots)
+        if count + 1 > MAX_ROBOTS:
+            raise EditError("not_possible", f"the world has {count} robots, the most it holds ({MAX_ROBOTS})")
+        try:
+            return Robots([spec]) if self.robots is None else self.robots.with_robot(spec)
+        except ValueError as exc:  # MAX_ROBOT_DOFS
+            raise EditError("not_possible", f"with robot {spec.name!r}: {exc}") from None
+
+    def _set_robots(self, robots) -> None:
+        """Replace :attr:`robots` (a robot added or removed): bodies sleep only in a world without robots."""
+        self.robots = robots
+        self.sleep_enabled = bool(self.scene.world.sleep) and robots is None
+        self._islands = None
+
+    def _robot_links(self, name: str) -> list[str]:
+        prefix = f"{name}/"
+        return [n for n in self.body_model.names if n.startswith(prefix)]
+
+    def _robot_root(self, name: str):
+        """Robot ``name``'s root link frame in the world and its velocity (of the frame's origin; ω in world axes):
+        a :class:`~cgp_core.robots.algorithms.BodyMotion` of one body (rotation (3, 3), position, v, ω (3,))."""
+        from .robots import algorithms
+
+        robots = self.robots
+        r = robots.robot(name)
+        q, qd = robots.q[r.q_slice], robots.qd[r.dof_slice]
+        rotation, position = algorithms.forward_kinematics(r.arrays, q)
+        linear, angular = algorithms.body_velocities(r.arrays, q, qd, rotation, position)
+        return algorithms.BodyMotion(rotation[0], position[0], linear[0], angular[0])
+
+    def _set_robot_state(self, name: str, position, orientation, v, w) -> None:
+        """Teleport a floating-base robot: its root link frame to ``position`` / ``orientation``, its root's twist
+        (of the frame's origin, world axes) to ``v``, ``ω``; the joints keep their positions and velocities."""
+        from .robots.model import JOINT_FLOATING
+
+        r = self.robots.robot(name)
+        if int(r.model.joint_type[0]) != JOINT_FLOATING:
+            raise EditError("not_possible", f"{name} is a robot with a fixed base (welded to the world where it "
+                            "was loaded or spawned): its state is its joints' (~/robots/<robot>/joint_commands); "
+                            "to move its base, delete it and spawn it again at the new pose")
+        q = self.robots.q[r.q_slice]
+        q[0:3] = position
+        q[3:7] = orientation
+        qd = self.robots.qd[r.dof_slice]
+        qd[0:3] = v
+        qd[3:6] = w
+        self.robots.write_bodies(self.body_model, self.body_state)
+        rows = [self.body_model.names.index(n) for n in self._robot_links(name)]
+        for start, now in zip(self._body_start, (self.body_state.linear_momentum, self.body_state.angular_momentum,
+                                                 self.body_state.orientation)):
+            start[rows] = now[rows]
+        self.wake()
 
     def _refuse_link(self, name: str, what: str) -> None:
         """:class:`EditError` ``not_possible`` if body ``name`` is a robot's link (it moves by its joints)."""
@@ -588,7 +683,16 @@ class World:
                        angular_velocity=(0.0, 0.0, 0.0)) -> None:
         """Teleport a body: COM ``position`` (3,), ``orientation`` (4,) xyzw, and the world-frame twist it then
         has (the momenta are set from it: P = m v, L = I_world ω).  Wakes its island.  A fixed body takes a pose
-        only (a non-zero twist is refused, as ``simulation_interfaces`` says for static objects)."""
+        only (a non-zero twist is refused, as ``simulation_interfaces`` says for static objects).
+
+        A robot: its root link frame's pose and twist (of the frame's origin); a floating-base robot only (a
+        fixed base is refused, naming why: delete it and spawn it again elsewhere); the joints keep their state."""
+        if self.entity_kind(name) == "robot":
+            position, orientation = check_pose(position, orientation)
+            v = check_vector(linear_velocity, "twist.linear", MAX_SPEED, "m/s")
+            w = check_vector(angular_velocity, "twist.angular", MAX_SPIN, "rad/s")
+            self._set_robot_state(name, position, orientation, v, w)
+            return
         i = self._body_index(name)
         self._refuse_link(name, "teleported")
         position, orientation = check_pose(position, orientation)
@@ -638,7 +742,12 @@ class World:
         flock.positions[:] += offset
 
     def entity_state(self, name: str) -> EntityState:
-        """The state of a body or flock (see :class:`~cgp_core.editing.EntityState`)."""
+        """The state of a body, flock or robot (see :class:`~cgp_core.editing.EntityState`; a robot's is its root
+        link frame's pose and twist — the velocity of the frame's origin, world axes — with zero accelerations)."""
+        if self.entity_kind(name) == "robot":
+            R, p, v, w = self._robot_root(name)
+            zero = np.zeros(3)
+            return EntityState("robot", p.copy(), matrix_to_quat(R[None])[0], v.copy(), w.copy(), zero, zero.copy())
         if self.entity_kind(name) == "flock":
             index = next(k for k, f in enumerate(self.flocks) if f.params.name == name)
             flock = self.flocks[index]
@@ -662,26 +771,34 @@ class World:
                            (v - v0) / self.dt, (w - w0) / self.dt)
 
     def kind_of(self, name: str) -> str:
-        """``"body"`` or ``"flock"``; :class:`EditError` ``unknown`` (naming the entities there are) if neither."""
+        """``"body"``, ``"flock"`` or ``"robot"``; :class:`EditError` ``unknown`` (naming the entities there are)
+        if none."""
         kind = self.entity_kind(name)
         if kind is None:
             known = self.entity_names()
-            raise EditError("unknown", f"no body or flock named {name!r} (entities: "
+            raise EditError("unknown", f"no body, flock or robot named {name!r} (entities: "
                             f"{', '.join(known[:20]) + (' ...' if len(known) > 20 else '') or 'none'})")
         return kind
 
     def _body_index(self, name: str) -> int:
-        if self.kind_of(name) != "body":
-            raise EditError("not_possible", f"{name!r} is a flock, not a body")
+        kind = self.kind_of(name)
+        if kind != "body":
+            raise EditError("not_possible", f"{name!r} is a {kind}, not a body")
         return self.body_model.names.index(name)
 
     def _flock(self, name: str) -> Flock:
-        if self.kind_of(name) != "flock":
-            raise EditError("not_possible", f"{name!r} is a body, not a flock")
+        kind = self.kind_of(name)
+        if kind != "flock":
+            raise EditError("not_possible", f"{name!r} is a {kind}, not a flock")
         return next(f for f in self.flocks if f.params.name == name)
 
     def _remove(self, names: list[str]) -> None:
-        """Delete these (existing) bodies and flocks: new model and state without them."""
+        """Delete these (existing) bodies, flocks and robots (with their links): new model and state without
+        them."""
+        robots = [n for n in names if self.entity_kind(n) == "robot"]
+        for robot in robots:
+            names = [*names, *self._robot_links(robot)]
+            self._set_robots(self.robots.without(robot))
         gone = set(names)
         doomed = [i for i, n in enumerate(self.body_model.names) if n in gone]
         if doomed:
@@ -693,6 +810,8 @@ class World:
             _, self._initial_body_state = select_bodies(model, self._initial_body_state, keep)
             self.wrenches.renumber_bodies(new_index)
             self._bodies_changed(keep)
+        elif robots and self.robots is not None:  # a robot without collision geometry: no bodies of its own
+            self.robots.attach(self.body_model)
         kept = [(f, v) for f, v in zip(self.flocks, self._flock_mean_velocity_start) if f.params.name not in gone]
         self.flocks = [f for f, _ in kept]
         self._flock_mean_velocity_start = [v for _, v in kept]
@@ -702,10 +821,13 @@ class World:
     def _scene_names(self) -> list[str]:
         links = [] if self.robots is None else [n for n in self.body_model.names if "/" in n and
                                                  n.split("/", 1)[0] in self.robots.names()]
-        return [b.name for b in self.scene.bodies] + links + [p.name for p in self._scene_flock_params]
+        robots = [s.name for s in self._scene_robot_specs if s.articulation is None]
+        return [b.name for b in self.scene.bodies] + links + [p.name for p in self._scene_flock_params] + robots
 
     def _restore_scene(self) -> None:
-        """The scene's bodies and flocks, new objects (the states are reset by the caller)."""
+        """The scene's bodies, flocks and robots, new objects (the states are reset by the caller)."""
+        if self.robots is not None or self._scene_robot_specs:  # spawned robots go, deleted ones come back
+            self._set_robots(Robots(self._scene_robot_specs) if self._scene_robot_specs else None)
         self.body_model, self._initial_body_state = self._scene_bodies()
         self.body_state = self._initial_body_state.copy()
         self.flocks = [Flock(p) for p in self._scene_flock_params]

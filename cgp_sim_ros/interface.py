@@ -52,7 +52,8 @@ Subscribed:
                                                                  ``""``/``world`` or the body's name
 ==============================  ===============================  ===================================================
 
-Per robot of the scene (``robots:``; :mod:`cgp_sim_ros.ros.robots`), under ``~/robots/<robot>/``:
+Per robot of the scene (``robots:``; :mod:`cgp_sim_ros.ros.robots`) or spawned (``~/spawn_entity``: they appear
+with it and go when it is deleted), under ``~/robots/<robot>/``:
 
 - ``joint_states`` (sensor_msgs/JointState, published every tick, ``STATE_QOS``): the robot's movable 1-dof joints
   in URDF order (mimic followers included), position, velocity and effort (the tick's mean), SI units, stamped

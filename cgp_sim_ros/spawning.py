@@ -10,7 +10,11 @@ and answers a :class:`Spawned` or a :class:`Refusal` — plain data that pickles
 exception: the node maps its ``kind`` to the service's result code).  The node then adds it between two ticks
 and checks the name and the limits again (the world may have changed meanwhile).
 
-ROS-free: the worker never imports rclpy.  Issue 36's robots (a URDF and its meshes) are one more such job.
+A robot (issue 36) is one more such entity: a ``.urdf`` / ``.xacro`` file as ``uri``, URDF XML as
+``resource_string`` (it starts with ``<``), or YAML ``{robot: <a scene's robots entry>}``; its URDF is parsed here
+(the hardened parser of :mod:`cgp_core.robots.urdf`: no DTD, no entity) and its links' bodies built and drawn.
+
+ROS-free: the worker never imports rclpy.
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ from pathlib import Path
 from urllib.parse import unquote, urlparse
 
 #: the formats spawn_entity takes (SimulatorFeatures.spawn_formats)
-SPAWN_FORMATS = ("yaml", "stl", "obj")
+SPAWN_FORMATS = ("yaml", "stl", "obj", "urdf", "xacro")
 
 
 @dataclass(frozen=True)
@@ -67,9 +71,17 @@ def prepare(request: SpawnRequest) -> Spawned | Refusal:
 
     try:
         mesh = mesh_uri(request.uri) if request.uri else None
+        robot = robot_uri(request.uri) if request.uri else None
         source = request.source
         if mesh is not None:  # a mesh file: a convex body, its hull (the file read bounded by the scene loader)
             data, source = {"body": {"shape": "convex", "mesh": str(mesh)}}, str(mesh)
+        elif robot is not None:  # a robot's URDF / xacro file (read bounded by the URDF loader); a bare name
+            # that is no file here is one of the built-in robots (msgs_config/robots)
+            found = robot.is_absolute() or robot.exists()
+            data = {"robot": {"urdf": str(robot.absolute()) if found else str(robot)}}
+            source = "uri"  # (the loader's messages name the file)
+        elif not request.uri and request.resource.lstrip().startswith("<"):  # URDF XML text
+            data = {"robot": {"urdf_xml": request.resource}}
         elif request.uri:
             text, source = read_uri(request.uri)
             data = parse_yaml(text, source)
@@ -112,6 +124,17 @@ def mesh_uri(uri: str) -> Path | None:
     return path if path.suffix.lower() in (".stl", ".obj") else None
 
 
+def robot_uri(uri: str) -> Path | None:
+    """The robot file a ``uri`` names (a path or ``file://`` URI ending in .urdf / .xacro), or None.  It is read
+    by the URDF loader (:func:`cgp_core.robots.urdf.load_urdf`: a regular file only, size-capped, hardened XML;
+    a .xacro file expanded by xacro, as a scene's robot is)."""
+    parsed = urlparse(uri)
+    if parsed.scheme not in ("", "file"):
+        return None
+    path = Path(unquote(parsed.path) if parsed.scheme == "file" else uri).expanduser()
+    return path if path.suffix.lower() in (".urdf", ".xacro") else None
+
+
 def read_uri(uri: str) -> tuple[str, str]:
     """The YAML text and its source name for a ``uri`` (a path or ``file://`` URI of a .yaml file, read as every
     user file is: :func:`cgp_core.user_input.read_user_text`, a regular file only, size-capped); raises a
@@ -124,8 +147,9 @@ def read_uri(uri: str) -> tuple[str, str]:
                                              f"URI; spawn_formats: {', '.join(SPAWN_FORMATS)})")
     path = Path(unquote(parsed.path) if parsed.scheme == "file" else uri).expanduser()
     if path.suffix.lower() not in (".yaml", ".yml"):
-        raise Refused("unsupported_format", f"uri {brief(uri)}: not a .yaml, .stl or .obj file; cgp_sim spawns "
-                                             f"YAML, or a mesh as a convex body (spawn_formats: "
+        raise Refused("unsupported_format", f"uri {brief(uri)}: not a .yaml, .stl, .obj, .urdf or .xacro file; "
+                                             f"cgp_sim spawns YAML, a mesh as a convex body or a robot's URDF "
+                                             f"(spawn_formats: "
                                              f"{', '.join(SPAWN_FORMATS)})")
     try:
         return read_user_text(path), str(path)
@@ -149,7 +173,8 @@ def warm_up() -> None:
                   {"body": {"shape": "convex", "mesh": "rock.stl"}},
                   {"body": {"shape": "compound", "parts": [{"shape": "box", "size": [1, 1, 1]},
                                                            {"shape": "convex", "mesh": "rock.stl"}]}},
-                  {"flock": {"count": 10}}):
+                  {"flock": {"count": 10}},
+                  {"robot": {"urdf": "arm.urdf"}}):
         _prepare_entry(entry, world)
 
 

@@ -73,7 +73,8 @@ def test_features_states_and_stepping(start_node, probe):
                                       F.SIMULATION_RESET_SPAWNED, F.SIMULATION_STATE_GETTING,
                                       F.SIMULATION_STATE_SETTING, F.SIMULATION_STATE_PAUSE,
                                       F.STEP_SIMULATION_SINGLE, F.STEP_SIMULATION_MULTIPLE, F.STEP_SIMULATION_ACTION}
-    assert list(features.spawn_formats) == ["yaml", "stl", "obj"] and "body or flock" in features.custom_info
+    assert list(features.spawn_formats) == ["yaml", "stl", "obj", "urdf", "xacro"]
+    assert "body, flock or robot" in features.custom_info
 
     assert sim.simulation_state() == S.STATE_PAUSED
     again = sim.set_simulation_state(S.STATE_PAUSED)
@@ -313,13 +314,17 @@ def test_every_refusal_has_its_code_and_changes_nothing(start_node, probe, tmp_p
 
     cases = [
         (dict(name="b"), R.NO_RESOURCE, "both empty"),
-        (dict(name="b", uri=str(urdf)), R.UNSUPPORTED_FORMAT, "not a .yaml, .stl or .obj file"),
+        (dict(name="b", uri=str(tmp_path / "robot.sdf")), R.UNSUPPORTED_FORMAT,
+         "not a .yaml, .stl, .obj, .urdf or .xacro file"),
+        (dict(name="b", uri=str(urdf)), R.RESOURCE_PARSE_ERROR, "no <link>"),
+        (dict(name="b", resource="<robot name='r'><link name='a'>"), R.RESOURCE_PARSE_ERROR,
+         "resource_string: robot.urdf_xml: URDF text: malformed XML"),
         (dict(name="b", uri="package://robots/robot.yaml"), R.UNSUPPORTED_FORMAT, "only local files are spawned"),
         (dict(name="b", uri=str(tmp_path / "missing.yaml")), R.RESOURCE_PARSE_ERROR, "cannot read"),
         (dict(name="b", resource="body: {shape: box, size: [1, 1"), R.RESOURCE_PARSE_ERROR, "malformed YAML: line 2"),
         (dict(name="b", resource="body: {shape: box, size: [1, -1, 1]}"), R.RESOURCE_PARSE_ERROR,
          "resource_string: body (b).size[1]: must be > 0, got -1"),
-        (dict(name="b", resource="robot: {}"), R.RESOURCE_PARSE_ERROR, "exactly one key, body or flock"),
+        (dict(name="b", resource="tree: {}"), R.RESOURCE_PARSE_ERROR, "exactly one key, body, flock or robot"),
         (dict(name="crate", resource=BOX), R.NAME_NOT_UNIQUE, "name 'crate' is taken by a body"),
         (dict(name="fish", resource=BOX), R.NAME_NOT_UNIQUE, "taken by a flock"),
         (dict(name="", resource=BOX), R.NAME_INVALID, "name is empty"),
@@ -347,7 +352,7 @@ def test_every_refusal_has_its_code_and_changes_nothing(start_node, probe, tmp_p
     # entity states: unknown names, frames, NaN, fixed bodies and flocks with a twist
     SR = SetEntityState.Response
     for kwargs, code, text in [
-        (dict(name="nobody"), Result.RESULT_NOT_FOUND, "no body or flock named 'nobody'"),
+        (dict(name="nobody"), Result.RESULT_NOT_FOUND, "no body, flock or robot named 'nobody'"),
         (dict(name="crate", position=(0, 0, math.inf)), SR.INVALID_POSE, "must be finite"),
         (dict(name="crate", position=(0, 0, 1), frame="odom"), SR.INVALID_POSE, "'odom'"),
         (dict(name="pillar", position=(6, 0, 4), linear=(1, 0, 0)), FAILED, "pillar is fixed"),

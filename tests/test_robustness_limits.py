@@ -71,7 +71,7 @@ def test_a_file_that_is_not_an_entry_of_ours_is_refused_without_quoting_it(tmp_p
 
         spawn_entry(parse_yaml(secret, "uri"), "uri", name="x")
     message = str(info.value)
-    assert "a mapping of 2 keys, none of them body or flock" in message, message
+    assert "a mapping of 2 keys, none of them body, flock or robot" in message, message
     assert "root" not in message and "daemon" not in message and "20228" not in message
     # malformed YAML: line and column, never the text (PyYAML / libyaml quote characters, aliases, tags)
     for text in ("body: *s3cr3t_alias\n", "body: !s3cr3t_tag x\n", "body: {a: 1, a: 2}\n", "b: \"\\s3cr3t\"\n"):

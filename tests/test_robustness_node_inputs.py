@@ -107,7 +107,7 @@ def test_a_refusal_never_echoes_the_file_it_read(node):
     (tmp / "link.yaml").symlink_to(secret)
     seen = len(events.messages)
     message = refused(sim.spawn("x", uri=str(tmp / "link.yaml")), R.RESOURCE_PARSE_ERROR,
-                      "a mapping of 2 keys, none of them body or flock")
+                      "a mapping of 2 keys, none of them body, flock or robot")
     probe.spin_until(lambda: any('"spawn_entity"' in m.data for m in events.messages[seen:]), 10, "the event")
     for text in [message] + [m.data for m in events.messages[seen:]]:
         assert "c2VjcmV0" not in text and "alice" not in text and "20228" not in text, text

@@ -94,8 +94,10 @@ def test_spawn_errors_are_the_scene_file_errors_with_the_key_path():
          "spawn_entity: body.name: given by the request's name; leave it out"),
         ({"flock": {"count": 10, "spawn": {"center": [0, 0, 1]}}},
          "spawn_entity: flock.spawn.center: given by the request's initial_pose (the spawn centre); leave it out"),
-        ({"robot": {}}, "spawn_entity: must be a mapping with exactly one key, body or flock (a scene file's "
-                        "bodies / flocks entry), got a mapping of 1 keys, none of them body or flock"),
+        ({"tree": {}}, "spawn_entity: must be a mapping with exactly one key, body, flock or robot (a scene "
+                       "file's bodies / flocks / robots entry), got a mapping of 1 keys, none of them body, flock "
+                       "or robot"),
+        ({"robot": {}}, "spawn_entity: robot.urdf: missing (a .urdf or .xacro file, or urdf_xml: URDF XML text)"),
         ({"body": {"shape": "cube"}}, "spawn_entity: body (box1).shape: must be one of sphere, box, capsule, "
                                       "particles, convex, compound, mesh, got 'cube'\n"
                                       "spawn_entity: body (box1).radius: missing"),
@@ -133,7 +135,7 @@ def test_refused_names_and_poses_change_nothing():
         assert error.value.kind == ("unknown" if name == "nobody" else "not_possible")
     with pytest.raises(EditError) as error:
         world.delete("nobody")
-    assert error.value.kind == "unknown" and "no body or flock named 'nobody'" in str(error.value)
+    assert error.value.kind == "unknown" and "no body, flock or robot named 'nobody'" in str(error.value)
     with pytest.raises(EditError) as error:
         world.move_flock("fish", [0, 0, 100])  # outside its bounds
     assert error.value.kind == "not_possible"

@@ -314,6 +314,39 @@ class Robots:
         new.drives = new._drives
         return new
 
+    # ---- robots added and removed at run time (World.spawn / World.delete) ------------------------------------
+
+    def with_robot(self, spec: RobotSpec) -> Robots:
+        """A new :class:`Robots` with ``spec``'s robot appended (its coordinates last in the combined joint space,
+        at its initial positions, at rest, its drives holding them if ``hold``); every robot already here keeps
+        its joint positions, velocities, efforts, drives (commands included) and pending wrench torques.  The
+        joint solver starts cold (its warm start is per contact point of the old joint space).  ValueError past
+        a robot past MAX_ROBOT_DOFS (cgp_core.limits); call :meth:`attach` with the new body model."""
+        return self._carried([r.spec for r in self.robots] + [spec])
+
+    def without(self, name: str) -> Robots | None:
+        """A new :class:`Robots` without robot ``name`` (the others' coordinates shifted down, their state carried
+        over as in :meth:`with_robot`), or None if it was the last one."""
+        self.robot(name)  # KeyError if unknown
+        specs = [r.spec for r in self.robots if r.name != name]
+        return self._carried(specs) if specs else None
+
+    def _carried(self, specs: list[RobotSpec]) -> Robots:
+        new = Robots(specs)
+        old = {r.name: r for r in self.robots}
+        for r in new.robots:
+            was = old.get(r.name)
+            if was is None or was.spec is not r.spec:
+                continue
+            new.q[r.q_slice] = self.q[was.q_slice]
+            for attribute in ("qd", "effort", "_effort_sum", "_wrench_torque", "_pseudo"):
+                getattr(new, attribute)[r.dof_slice] = getattr(self, attribute)[was.dof_slice]
+            for field, before in zip(new.drives, self.drives):
+                field[r.dof_slice] = before[was.dof_slice]
+        new._substeps = self._substeps
+        new.prepare()
+        return new
+
     # ---- building ---------------------------------------------------------------------------------------
 
     def _per_dof(self, *names) -> dict:

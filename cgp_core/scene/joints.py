@@ -31,7 +31,7 @@ JOINT_KEYS = {"name", "type", "parent", "child", "anchor", "axis", "limits", "da
 DRIVE_KEYS = {"mode", "target", "stiffness", "damping", "effort_limit"}
 JOINT_TYPES = ("revolute", "prismatic", "fixed")
 DRIVE_MODES = ("position", "velocity", "effort")
-#: the most joints a scene holds (their trees are dense joint-space systems: cgp_core.robots.world.MAX_WORLD_DOFS)
+#: the most joints a scene holds (their trees are dense joint-space systems: cgp_core.limits.MAX_ROBOT_DOFS per tree)
 MAX_JOINTS = 200
 
 

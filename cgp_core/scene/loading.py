@@ -23,7 +23,7 @@ from ..user_input import SceneLoader, UserInputError, load_yaml, read_user_text
 from .bodies import parse_bodies, parse_body
 from .flocks import parse_flock, parse_flocks
 from .joints import parse_joints
-from .robots import articulation_spec, parse_robots
+from .robots import articulation_spec, parse_robot, parse_robots
 from .specs import Scene, WorldSpec
 from .validation import SceneError, Validator, kind_of
 
@@ -124,8 +124,8 @@ def scene_from_dict(data: Any, source: str = "<dict>") -> Scene:
     return scene
 
 
-#: what a spawned entity may be: one scene-file entry of ``bodies`` or ``flocks``
-SPAWN_KINDS = ("body", "flock")
+#: what a spawned entity may be: one scene-file entry of ``bodies``, ``flocks`` or ``robots``
+SPAWN_KINDS = ("body", "flock", "robot")
 
 
 def spawn_entry(data: Any, source: str, *, name: str, taken: set[str] = frozenset(),
@@ -135,8 +135,13 @@ def spawn_entry(data: Any, source: str, *, name: str, taken: set[str] = frozense
     body, without ``position`` / ``orientation`` (``position`` (3,), ``orientation`` (4,) xyzw here: the pose of
     the body origin, as a scene gives it); for a flock ``position`` is the spawn centre (``spawn.center``).
 
-    Returns ``("body", BodySpec)`` or ``("flock", FlockParams)``.  Raises :class:`SceneError` with the same
-    texts as a scene file, key paths starting at ``body`` / ``flock`` (``body (box1).size[1]: must be > 0``)."""
+    A robot (``{robot: <entry>}``) is a ``robots`` entry without ``name``, ``position`` and ``orientation`` (the
+    root link's pose: ``position`` / ``orientation`` here); instead of ``urdf`` (a file) it may give ``urdf_xml``
+    (URDF XML text, parsed by the hardened parser, never expanded as xacro).
+
+    Returns ``("body", BodySpec)``, ``("flock", FlockParams)`` or ``("robot", RobotSpec)``.  Raises
+    :class:`SceneError` with the same texts as a scene file, key paths starting at ``body`` / ``flock`` /
+    ``robot`` (``body (box1).size[1]: must be > 0``)."""
     v = Validator(source)
     if not isinstance(data, dict) or len(data) != 1 or next(iter(data)) not in SPAWN_KINDS:
         # not an entry of ours: its keys are not quoted (a uri may name any readable file, /etc/shadow)
@@ -144,14 +149,14 @@ def spawn_entry(data: Any, source: str, *, name: str, taken: set[str] = frozense
         if isinstance(data, dict) and data:
             ours = [k for k in SPAWN_KINDS if k in data]
             keys = f"a mapping of {len(data)} keys" + (f" ({' and '.join(ours)} among them)" if ours
-                                                       else ", none of them body or flock")
-        raise SceneError(source, [f"must be a mapping with exactly one key, body or flock (a scene file's "
-                                  f"bodies / flocks entry), got {keys}"])
+                                                       else ", none of them body, flock or robot")
+        raise SceneError(source, [f"must be a mapping with exactly one key, body, flock or robot (a scene file's "
+                                  f"bodies / flocks / robots entry), got {keys}"])
     kind, raw = next(iter(data.items()))
     if not isinstance(raw, dict):
         raise SceneError(source, [f"{kind}: must be a mapping (a scene file's {kind} entry), got {kind_of(raw)}"])
     given_by_request = {"name": "the request's name"}
-    if kind == "body":
+    if kind in ("body", "robot"):
         given_by_request.update(position="the request's initial_pose", orientation="the request's initial_pose")
     for key, where in given_by_request.items():
         if key in raw:
@@ -164,6 +169,9 @@ def spawn_entry(data: Any, source: str, *, name: str, taken: set[str] = frozense
     if kind == "body":
         entry.update(position=[float(x) for x in position], orientation=[float(x) for x in orientation])
         spec = parse_body(v, entry, kind, set(taken))
+    elif kind == "robot":
+        entry = dict(raw, position=[float(x) for x in position], orientation=[float(x) for x in orientation])
+        spec = parse_robot(v, entry, kind, set(taken), name=name)
     else:
         if spawn is None or isinstance(spawn, dict):
             entry["spawn"] = {**(spawn or {}), "center": [float(x) for x in position]}

@@ -43,6 +43,9 @@ ROBOT_KEYS = {"name", "urdf", "position", "orientation", "fixed_base", "joints",
 #: the most robots a scene holds (each a dense joint-space system of its own, solved on its own: the cost grows
 #: linearly with the robots; 64 arms are issue 35's benchmark)
 MAX_ROBOTS = 256
+#: a spawned robot's entry (``{robot: {...}}``, :func:`cgp_core.scene.spawn_entry`) may give the URDF as XML text
+#: instead of a file: ``urdf_xml`` (never expanded as xacro: xacro evaluates expressions and includes files)
+SPAWN_ROBOT_KEYS = (ROBOT_KEYS - {"name"}) | {"urdf_xml"}
 
 
 @dataclass
@@ -115,21 +118,31 @@ def parse_robots(v: Validator, raw: Any, seen: set[str]) -> list[RobotSpec]:
 
 
 def parse_robot(v: Validator, raw: Any, key: str, seen: set[str], *, name: str | None = None) -> RobotSpec | None:
-    """One robot entry (``name`` given: a spawn, whose entry has none)."""
+    """One robot entry (``name`` given: a spawn, whose entry has none; it may give ``urdf_xml``, URDF XML text,
+    instead of ``urdf``)."""
     from ..robots.urdf import UrdfError, load_urdf
 
     before = len(v.problems)
     d = v.mapping(raw, key)
     if not d and not isinstance(raw, dict):
         return None
-    v.no_unknown_keys(d, ROBOT_KEYS, key)
+    v.no_unknown_keys(d, ROBOT_KEYS if name is None else SPAWN_ROBOT_KEYS, key)
     if name is None:
         if "name" not in d:
             v.fail(f"{key}.name", "missing")
             return None
         name = v.name(d["name"], f"{key}.name", seen)
-    if "urdf" not in d:
-        v.fail(f"{key}.urdf", "missing (a .urdf or .xacro file)")
+    xml = d.get("urdf_xml") if name is not None else None
+    if "urdf" in d and "urdf_xml" in d:
+        v.fail(f"{key}.urdf_xml", "give urdf (a file) or urdf_xml (URDF text), not both")
+        return None
+    if "urdf" not in d and xml is None:
+        v.fail(f"{key}.urdf", "missing (a .urdf or .xacro file" + (", or urdf_xml: URDF XML text)" if name is not None
+                                                                  else ")"))
+        return None
+    if xml is not None and not (isinstance(xml, str) and xml.lstrip().startswith("<")):
+        v.fail(f"{key}.urdf_xml", f"must be URDF XML text (starting with '<'), got {kind_of(xml)}"
+                                  f"{'' if not isinstance(xml, str) else f' of {len(xml)} characters'}")
         return None
     position = v.vector(d.get("position", [0, 0, 0]), f"{key}.position", 3, within=COORDINATES, unit="m")
     q = v.vector(d.get("orientation", [0, 0, 0, 1]), f"{key}.orientation", 4, default=np.array([0, 0, 0, 1.0]))
@@ -148,7 +161,12 @@ def parse_robot(v: Validator, raw: Any, key: str, seen: set[str], *, name: str |
     joints = {}
     for joint, value in joints_raw.items():
         joints[str(joint)] = v.number(value, f"{key}.joints.{joint}", within=(-1e4, 1e4), unit="rad or m")
-    path = robot_file(v, d["urdf"], f"{key}.urdf")
+    if xml is not None:
+        path, urdf_key = xml, f"{key}.urdf_xml"
+        if xacro_args:
+            v.fail(f"{key}.xacro_args", "urdf_xml is never expanded as xacro: give a .xacro file as urdf")
+    else:
+        path, urdf_key = robot_file(v, d["urdf"], f"{key}.urdf"), f"{key}.urdf"
     if path is None or len(v.problems) > before:
         return None
     try:
@@ -157,7 +175,7 @@ def parse_robot(v: Validator, raw: Any, key: str, seen: set[str], *, name: str |
             model = load_urdf(path, package_paths=package_paths, xacro_args=xacro_args or None,
                               fixed_base=fixed_base, name=name)
     except UrdfError as exc:
-        v.fail(f"{key}.urdf", str(exc))
+        v.fail(urdf_key, str(exc))
         return None
     notes = [("warn", f"{v.source}: {key}: robot {name}: {w.message}") for w in caught]
     movable = set(model.dof_names) | set(model.joint_names)

@@ -128,13 +128,47 @@ class ConvexKernels:
         if any(int(k) in _CONVEX_SHAPES for k in model.shape):  # the scene's first ticks load them
             self._future = Future()
             self._future.set_result(None)
+        #: issue 36: the robots' kernels (kinematics, CRBA, RNEA, the joint solver) likewise before the first
+        #: robot is spawned into a world that had none (a 0.36 s tick when its first tick loaded them)
+        self._robots_future: Future | None = None
+        if getattr(world, "robots", None) is not None:
+            self._robots_future = Future()
+            self._robots_future.set_result(None)
 
     def before_adding(self, prepared) -> Future | None:
         """A future to wait for before ``prepared`` (a :class:`cgp_core.world.PreparedSpawn`) is added, or None
         when nothing needs loading."""
+        if getattr(prepared, "kind", None) == "robot" and self._robots_future is None:
+            self._robots_future = Future()
+            threading.Thread(target=self._load_robots, args=(self._robots_future,), name="cgp-sim-kernels",
+                             daemon=True).start()
+        robots = self._robots_future if getattr(prepared, "kind", None) == "robot" else None
         model = getattr(prepared, "model", None)
         if model is None or not any(int(k) in _CONVEX_SHAPES for k in model.shape):
-            return None
+            return robots if robots is not None and not robots.done() else None
+        if robots is not None and not robots.done():
+            convex = self._convex()
+            both = Future()
+
+            def joined(_):
+                if robots.done() and convex.done() and not both.done():
+                    both.set_result(None)
+            robots.add_done_callback(joined)
+            convex.add_done_callback(joined)
+            return both
+        return self._convex()
+
+    @staticmethod
+    def _load_robots(future: Future) -> None:
+        from cgp_core.warmup import warm_up_robots
+
+        try:
+            warm_up_robots()
+        except Exception:  # noqa: BLE001 - the first tick with the robot loads (and reports) whatever failed here
+            pass
+        future.set_result(None)
+
+    def _convex(self) -> Future:
         if self._future is None:
             self._future = Future()
             threading.Thread(target=self._load, args=(self._future,), name="cgp-sim-kernels", daemon=True).start()

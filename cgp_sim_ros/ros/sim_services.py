@@ -86,10 +86,14 @@ FEATURES = (
 )
 CUSTOM_INFO = (
     "cgp_sim: spawn_entity takes YAML (resource_string, or a .yaml file as uri: a path or file:// URI) with "
-    "exactly one key, body or flock, whose value is a scene-file entry without name (the request's) and, for a "
+    "exactly one key, body, flock or robot, whose value is a scene-file entry without name (the request's) and, for a "
     "body, without position/orientation (initial_pose; for a flock initial_pose.position is the spawn centre); "
     "a mesh: in it is read from the .yaml file's directory (else the built-in meshes) or a file:// URI. An .stl / "
-    ".obj file as uri spawns a convex body, the hull of the mesh (density 1000 kg/m3). "
+    ".obj file as uri spawns a convex body, the hull of the mesh (density 1000 kg/m3). A robot: a .urdf / .xacro "
+    "file as uri, URDF XML as resource_string (starting with '<'; no DOCTYPE/entities, never xacro), or YAML "
+    "{robot: <a scene's robots entry without name/position/orientation; urdf_xml: URDF text instead of urdf>}; "
+    "initial_pose places its root link; it is an entity (its links are bodies <robot>/<link>), its state is the "
+    "root link frame's pose and twist, set only for a floating base. "
     "Entity states: a body's COM pose, twist in world axes, last tick's acceleration; a flock's centroid and "
     "mean velocity (set moves it rigidly). Reset scopes STATE, SPAWNED, ALL; time keeps running (no "
     "SCOPE_TIME). get_entities filters: POSIX ERE on names, TYPE_SPHERE bounds. See docs/simulation-interfaces.md."
@@ -358,7 +362,8 @@ class SimulationInterfaces:
                                                 "bytes of YAML are parsed"), ""
             source = "resource_string"
         else:
-            return R.NO_RESOURCE, "uri and resource_string are both empty: give the entity as YAML", ""
+            return R.NO_RESOURCE, ("uri and resource_string are both empty: give the entity as YAML (or a robot as "
+                                   "URDF)"), ""
         if request.entity_namespace:
             return UNSUPPORTED, (f"entity_namespace {brief(request.entity_namespace)}: not supported; an entity's "
                                  "topics are the node's (~/bodies/<name>/...)"), ""
@@ -488,7 +493,7 @@ class SimulationInterfaces:
                                            "identity (0, 0, 0, 1)"
                 world.move_flock(name, position)
             else:
-                if accelerating and world.body_model.fixed[world.body_model.names.index(name)]:
+                if kind == "body" and accelerating and world.body_model.fixed[world.body_model.names.index(name)]:
                     return FAILED, f"{name} is fixed: it takes a pose, not an acceleration"
                 world.set_body_state(name, position, orientation, linear, angular)
         except EditError as exc:
