@@ -241,8 +241,10 @@ PARTS: tuple[CompilePart, ...] = (
     CompilePart("convex", _CONVEX_MODULES + _CONTACT_MODULES,
                 ("cgp_core.collision.convex_phase:convex_phase", "cgp_core.collision.convex_phase:sweep_times"),
                 steps_flocks=False, default_scene=False, after=("contacts",)),
-    # issue 35's robots: the recursive algorithms and the joint solver (~15 s on an idle core)
-    CompilePart("robots", ("cgp_core.robots",),
+    # issue 35's robots: the recursive algorithms and the joint solver (~15 s on an idle core); rotation's small
+    # kernels too, which the floating root's integration calls (without them the worker's kernels failed to type:
+    # a compiled kernel cannot call rotation's plain-Python functions)
+    CompilePart("robots", ("cgp_core.robots", "cgp_core.rotation"),
                 ("cgp_core.robots.algorithms:mass_matrix", "cgp_core.robots.joint_solver:step_joints",
                  "cgp_core.robots.joint_solver:step_lone_robots"),
                 steps_flocks=False, default_scene=False),

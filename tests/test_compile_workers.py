@@ -359,3 +359,53 @@ def test_a_cached_kernel_is_recompiled_when_a_module_it_calls_changes(tmp_path):
     assert run_with_callee("2 * x") == "41"
     assert list((package / "__pycache__").glob("caller.twice_plus_one-*.nbi")), "caller's kernel was not cached"
     assert run_with_callee("3 * x") == "61"
+
+
+def _covers(modules, module: str) -> bool:
+    """Whether a worker with ``CGP_SIM_JIT_ONLY=modules`` compiles ``module``'s kernels (cgp_core.jit's rule)."""
+    return any(module == m or module.startswith(m + ".") for m in modules)
+
+
+def test_every_kernel_a_part_compiles_calls_only_kernels_that_part_compiles():
+    """A compile worker compiles its part's modules; every other module's kernels are plain Python there, and a
+    compiled kernel that calls one fails to type (the robots part without cgp_core.rotation failed so on every
+    cold cache, and the robots' kernels then compiled at first use).  So a kernel that a part's kernel calls
+    from another cgp_core module must be that part's too."""
+    import ast
+    import importlib
+    import pkgutil
+
+    from numba.core.registry import CPUDispatcher
+
+    from cgp_core.jit import ParallelKernel
+    from cgp_core.warmup import PARTS
+
+    def kernel(obj) -> bool:
+        return isinstance(obj, (CPUDispatcher, ParallelKernel))
+
+    missing = []
+    for part in PARTS:
+        names = []
+        for name in part.modules:
+            module = importlib.import_module(name)
+            names.append(name)
+            if hasattr(module, "__path__"):
+                names += [info.name for info in pkgutil.walk_packages(module.__path__, name + ".")]
+        for name in names:
+            module = importlib.import_module(name)
+            tree = ast.parse(Path(module.__file__).read_text())
+            imported = {}  # name in this module -> the module of the kernel it names
+            for node in ast.walk(tree):
+                if isinstance(node, ast.ImportFrom) and node.level:
+                    source = importlib.util.resolve_name("." * node.level + (node.module or ""), module.__package__)
+                    for alias in node.names:
+                        if kernel(getattr(importlib.import_module(source), alias.name, None)):
+                            imported[alias.asname or alias.name] = source
+            for function in tree.body:
+                if not isinstance(function, ast.FunctionDef) or not kernel(getattr(module, function.name, None)):
+                    continue
+                for node in ast.walk(function):
+                    source = imported.get(node.id) if isinstance(node, ast.Name) else None
+                    if source is not None and not _covers(part.modules, source):
+                        missing.append(f"part {part.name}: {name}.{function.name} calls {source}.{node.id}")
+    assert not missing, "\n".join(sorted(set(missing)))
