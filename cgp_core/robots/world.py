@@ -48,6 +48,17 @@ from ..limits import MAX_ROBOT_DOFS
 from ..rotation import matrix_to_quat, quat_to_matrix
 from ..scene.robots import RobotSpec
 from . import algorithms
+from .joint_solver import (
+    KEY_SLOTS,
+    ROW_DRIVE,
+    ROW_EQUALITY,
+    ROW_FRICTION,
+    ROW_LIMIT,
+    ROW_MIMIC,
+    ROW_NORMAL,
+    ROW_TANGENT,
+    ROW_VELOCITY_LIMIT,
+)
 from .links import link_body_specs, link_name
 from .model import JOINT_FIXED_ROOT, JOINT_FLOATING, JOINT_PRISMATIC, JOINT_REVOLUTE, neutral_positions
 
@@ -145,43 +156,26 @@ def _kernel_list(items: list):
 
 
 def _islands(count: int, robot_a: np.ndarray, robot_b: np.ndarray) -> tuple[np.ndarray, list[list[int]]]:
-    """Union-find over the link–link contacts between robots (``robot_a``, ``robot_b`` per contact, −1 for a
-    side that is no link): ``(root (count,), groups)``, each robot's island representative (its smallest robot)
-    and the islands as ascending lists of robots, ordered by their smallest robot."""
-    parent = np.arange(count)
+    """The robots joined by link–link contacts (``robot_a``, ``robot_b`` per contact, −1 for a side that is no
+    link), as scipy's connected components: ``(root (count,), groups)``, each robot's island representative (its
+    smallest robot) and the islands as ascending lists of robots, ordered by their smallest robot."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
 
-    def find(k):
-        while parent[k] != k:
-            parent[k] = parent[parent[k]]
-            k = parent[k]
-        return k
-
-    for a, b in zip(robot_a.tolist(), robot_b.tolist()):
-        if a >= 0 and b >= 0 and a != b:
-            ra, rb = find(a), find(b)
-            if ra != rb:
-                parent[max(ra, rb)] = min(ra, rb)
-    root = np.array([find(k) for k in range(count)], np.int64)
-    groups: dict[int, list[int]] = {}
-    for k in range(count):
-        groups.setdefault(int(root[k]), []).append(k)
-    return root, list(groups.values())
+    between = (robot_a >= 0) & (robot_b >= 0) & (robot_a != robot_b)
+    a, b = robot_a[between], robot_b[between]
+    graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(count, count))
+    _, label = connected_components(graph, directed=False)
+    # labels number the components in the order of their smallest robot, so the first robot of each label is it
+    _, smallest = np.unique(label, return_index=True)
+    root = smallest[label].astype(np.int64)
+    return root, [np.flatnonzero(label == c).tolist() for c in range(len(smallest))]
 
 
 def _shift_keys(key: np.ndarray, dofs: int, mimics: int, equalities: int = 0) -> np.ndarray:
     """Warm-start keys (:data:`~.joint_solver.KEY_SLOTS`) of a robot moved ``dofs`` dofs, ``mimics`` mimic
     couplings and ``equalities`` loop rows along (negative: back): the dof rows' indices move, the contact rows'
     keys are the detector's."""
-    from .joint_solver import (
-        KEY_SLOTS,
-        ROW_DRIVE,
-        ROW_EQUALITY,
-        ROW_FRICTION,
-        ROW_LIMIT,
-        ROW_MIMIC,
-        ROW_VELOCITY_LIMIT,
-    )
-
     kind = key // KEY_SLOTS
     shift = np.zeros(len(key), np.int64)
     shift[(kind == ROW_DRIVE) | (kind == ROW_FRICTION)] = dofs
@@ -207,18 +201,7 @@ def _split_memory(memory, dofs: int, n: int, mimics: int, k_mimic: int, equaliti
     """Robot ``robot``'s part of an island's memory (its dofs ``dofs`` … ``dofs + n``, mimics and loop rows
     likewise, back in its own indices; the contacts that touch its links, ``contact_robots``: contact key →
     robots)."""
-    from .joint_solver import (
-        KEY_SLOTS,
-        ROW_DRIVE,
-        ROW_EQUALITY,
-        ROW_FRICTION,
-        ROW_LIMIT,
-        ROW_MIMIC,
-        ROW_NORMAL,
-        ROW_TANGENT,
-        ROW_VELOCITY_LIMIT,
-        JointSolverMemory,
-    )
+    from .joint_solver import JointSolverMemory
 
     kind, index = memory.key // KEY_SLOTS, memory.key % KEY_SLOTS
     dof = np.where((kind == ROW_VELOCITY_LIMIT) | (kind == ROW_LIMIT), index // 2, index)
