@@ -15,6 +15,7 @@ from .algorithms import (
     point_jacobian,
 )
 from .model import (
+    JOINT_BALL,
     JOINT_FIXED_ROOT,
     JOINT_FLOATING,
     JOINT_PLANAR,
@@ -29,7 +30,8 @@ from .model import (
 )
 from .urdf import UrdfError, load_urdf
 
-__all__ = ["JOINT_FIXED_ROOT", "JOINT_FLOATING", "JOINT_REVOLUTE", "JOINT_PRISMATIC", "JOINT_PLANAR", "Geometry",
+__all__ = ["JOINT_FIXED_ROOT", "JOINT_FLOATING", "JOINT_REVOLUTE", "JOINT_PRISMATIC", "JOINT_PLANAR", "JOINT_BALL",
+           "Geometry",
            "RobotModel", "RobotArrays", "robot_arrays", "neutral_positions", "plane_basis", "UrdfError", "load_urdf",
            "forward_kinematics", "frame_poses", "motion_subspace", "body_velocities", "point_jacobian",
            "angular_jacobian", "mass_matrix", "inverse_dynamics", "bias_forces", "forward_dynamics",

@@ -57,7 +57,7 @@ import numpy as np
 
 from ..jit import njit
 from ..rotation import quat_multiply_scalar, rotvec_to_quat_scalar
-from .model import JOINT_FLOATING, JOINT_PLANAR, JOINT_PRISMATIC, JOINT_REVOLUTE, RobotArrays
+from .model import JOINT_BALL, JOINT_FLOATING, JOINT_PLANAR, JOINT_PRISMATIC, JOINT_REVOLUTE, RobotArrays
 
 __all__ = ["forward_kinematics", "frame_poses", "motion_subspace", "body_velocities", "point_jacobian",
            "angular_jacobian", "spatial_inertias", "mass_matrix", "inverse_dynamics", "bias_forces",
@@ -189,6 +189,9 @@ def forward_kinematics(arrays, q):
         elif kind == JOINT_FLOATING:
             rotation[i] = _mat_mul(Rj, _quat_matrix(q[s + 3], q[s + 4], q[s + 5], q[s + 6]))
             position[i] = xj + _mat_vec(Rj, q[s:s + 3])
+        elif kind == JOINT_BALL:  # turned about the joint frame's origin (the ball's centre)
+            rotation[i] = _mat_mul(Rj, _quat_matrix(q[s], q[s + 1], q[s + 2], q[s + 3]))
+            position[i] = xj
         else:
             rotation[i] = Rj
             position[i] = xj
@@ -215,7 +218,8 @@ def motion_subspace(arrays, rotation, position):
     """Every dof's motion vector ``S_d = (ω, v_O)`` (world axes, about the world origin; MuJoCo's ``cdof``): the
     spatial velocity of its body per unit of ``qd[d]`` with every other velocity zero.  Revolute: ``(a, x × a)``
     with ``a`` the world axis and ``x`` the body origin (on the axis); prismatic: ``(0, a)``; planar: ``(0, u)``,
-    ``(0, v)``, ``(a, x × a)``; floating: ``(0, e_k)`` and ``(e_k, x × e_k)``.
+    ``(0, v)``, ``(a, x × a)``; floating: ``(0, e_k)`` and ``(e_k, x × e_k)``; ball: ``(a_k, x × a_k)`` with
+    ``a_k`` the joint frame's k-th axis in the world (three revolute columns through the ball's centre ``x``).
 
     Returns S (n_dofs, 6)."""
     arrays = RobotArrays(*arrays)
@@ -244,6 +248,14 @@ def motion_subspace(arrays, rotation, position):
                 e[k] = 1.0
                 S[d + 3 + k, 0:3] = e
                 S[d + 3 + k, 3:6] = _cross(x, e)
+        elif kind == JOINT_BALL:
+            Rj, _ = _joint_frame(arrays, rotation, position, i)
+            for k in range(3):
+                a = np.empty(3)
+                for r in range(3):
+                    a[r] = Rj[r, k]
+                S[d + k, 0:3] = a
+                S[d + k, 3:6] = _cross(x, a)
     return S
 
 
@@ -376,14 +388,17 @@ def mass_matrix(arrays, q):
 @njit
 def _joint_bias(arrays, i, S, qd, V, parent_velocity):
     """``Ṡ qd`` of body ``i``'s joint (6,): the acceleration its subspace's own motion adds.  A column fixed in a
-    body moving with spatial velocity ``W`` changes as ``W ×ₘ S``: revolute, prismatic and the planar
-    translations are fixed in the parent, the planar rotation in the child; the floating root's rotation columns
-    move with its origin (``W = (0, v)``), giving ``(0, v × ω)``."""
+    body moving with spatial velocity ``W`` changes as ``W ×ₘ S``: revolute, prismatic, ball (its columns are the
+    joint frame's axes, fixed in the parent) and the planar translations are fixed in the parent, the planar
+    rotation in the child; the floating root's rotation columns move with its origin (``W = (0, v)``), giving
+    ``(0, v × ω)``."""
     kind = arrays.joint_type[i]
     d = arrays.dof_start[i]
     out = np.zeros(6)
     if kind == JOINT_REVOLUTE or kind == JOINT_PRISMATIC:
         out = _motion_cross(parent_velocity, S[d] * qd[d])
+    elif kind == JOINT_BALL:
+        out = _motion_cross(parent_velocity, S[d] * qd[d] + S[d + 1] * qd[d + 1] + S[d + 2] * qd[d + 2])
     elif kind == JOINT_PLANAR:
         out = _motion_cross(parent_velocity, S[d] * qd[d] + S[d + 1] * qd[d + 1])
         out += _motion_cross(V[i], S[d + 2] * qd[d + 2])
@@ -573,7 +588,9 @@ def forward_dynamics(arrays, q, qd, tau, gravity):
 def integrate_positions(arrays, q, qd, h):
     """``q_new`` (n_q,) after moving with ``qd`` for ``h`` [s]: ``q + h qd`` for revolute, prismatic and planar
     coordinates; a floating root's position ``x + h v`` and its orientation ``exp(h ω) ⊗ quat`` (world-frame ω
-    multiplies on the left; exponential map of :mod:`cgp_core.rotation`), normalized."""
+    multiplies on the left; exponential map of :mod:`cgp_core.rotation`), normalized; a ball joint's quaternion
+    likewise, ``exp(h ω) ⊗ quat`` with ω in its joint frame (the frame the quaternion is relative to).  A
+    quaternion is kept unit, not sign-unwrapped: q and −q are the same rotation and nothing here reads its sign."""
     arrays = RobotArrays(*arrays)
     out = q.copy()
     for i in range(len(arrays.parent)):
@@ -586,6 +603,11 @@ def integrate_positions(arrays, q, qd, h):
             x, y, z, w = quat_multiply_scalar(dx, dy, dz, dw, q[s + 3], q[s + 4], q[s + 5], q[s + 6])
             norm = math.sqrt(x * x + y * y + z * z + w * w)
             out[s + 3], out[s + 4], out[s + 5], out[s + 6] = x / norm, y / norm, z / norm, w / norm
+        elif arrays.joint_type[i] == JOINT_BALL:
+            dx, dy, dz, dw = rotvec_to_quat_scalar(h * qd[d], h * qd[d + 1], h * qd[d + 2])
+            x, y, z, w = quat_multiply_scalar(dx, dy, dz, dw, q[s], q[s + 1], q[s + 2], q[s + 3])
+            norm = math.sqrt(x * x + y * y + z * z + w * w)
+            out[s], out[s + 1], out[s + 2], out[s + 3] = x / norm, y / norm, z / norm, w / norm
         else:
             for k in range(arrays.q_count[i]):
                 out[s + k] = q[s + k] + h * qd[d + k]

@@ -15,14 +15,19 @@ How the trees are built (:func:`build_articulations`):
   joint (6 dof: the body's COM position and orientation);
 - a model body's frame is the scene body's axes at the scene's initial pose with its origin at the anchor of its
   tree joint (the root of a floating tree: at its COM): a revolute joint turns the body about the axis through
-  the anchor, a prismatic one moves it along the axis, a ``fixed`` one welds it (a 0-dof joint).  Every joint's
-  coordinate is 0 at the scene's initial poses; ``limits`` are relative to them.  Mass, COM and inertia are the
+  the anchor, a prismatic one moves it along the axis, a ``ball`` one turns it about the anchor (a spherical joint:
+  3 dofs, the angular velocity in the joint frame's axes, which are the child's axes at the scene's initial pose
+  carried by the parent; its position a quaternion, see :mod:`~cgp_core.robots.model`), a ``fixed`` one welds it
+  (a 0-dof joint).  Every joint's coordinate is 0 (a ball's quaternion the identity) at the scene's initial poses;
+  ``limits`` are relative to them.  Mass, COM and inertia are the
   body's (:class:`~cgp_core.scene.specs.BodySpec`);
 - a joint whose child already has a tree joint **closes a loop** (a four-bar's fourth pin): it must join bodies
   of one model (or the world and a grounded tree) and is three equality rows of the joint solver, the anchor
   points of its two bodies made to coincide: J = J_point(a) − J_point(b), C = p_a − p_b, re-linearised every
-  sub-step (:meth:`LoopClosure.rows`).  Only the point is constrained (a revolute loop joint whose axis is
-  parallel to the others' — a planar mechanism — needs no more); its limits and drives are refused.
+  sub-step (:meth:`LoopClosure.rows`).  Only the point is constrained: exactly a ball joint's constraint, and a
+  revolute loop joint's when its axis is parallel to the others' (a planar mechanism needs no more; the two
+  rotational rows a revolute loop joint would add out of the plane are not there); its limits and drives are
+  refused.
 - the initial joint velocities are the least-squares fit of the bodies' scene velocities (exact when they are
   consistent with the joints, e.g. all zero).
 """
@@ -36,6 +41,8 @@ import numpy as np
 from ..rotation import quat_to_matrix
 from . import algorithms
 from .model import (
+    JOINT_BALL,
+    JOINT_DOFS,
     JOINT_FIXED_ROOT,
     JOINT_FLOATING,
     JOINT_PRISMATIC,
@@ -45,7 +52,8 @@ from .model import (
 )
 
 #: the scene's joint types and the model's joint type each becomes
-JOINT_TYPES = {"revolute": JOINT_REVOLUTE, "prismatic": JOINT_PRISMATIC, "fixed": JOINT_FIXED_ROOT}
+JOINT_TYPES = {"revolute": JOINT_REVOLUTE, "prismatic": JOINT_PRISMATIC, "fixed": JOINT_FIXED_ROOT,
+               "ball": JOINT_BALL}
 #: a loop-closure row whose Jacobian is this small next to its triple's largest is zeroed (a planar
 #: mechanism's out-of-plane row is round-off: solving it would divide by ~1e-34)
 DEGENERATE_ROW = 1e-9
@@ -251,7 +259,14 @@ def _build_one(root_top, names, joints, tree_joint, loops, by_name, grounded_par
         com[i] = R.T @ (x - j.anchor)
         joint_rotation[i] = frame_R[p].T @ R
         joint_position[i] = frame_R[p].T @ (j.anchor - frame_o[p])
-        if joint_type[i] != JOINT_FIXED_ROOT:
+        if joint_type[i] == JOINT_BALL:  # 3 dofs, no limits, drive or friction (refused by the scene's parser)
+            dof_names += [f"{j.name}/{c}" for c in ("wx", "wy", "wz")]
+            lower += [-np.inf] * 3
+            upper += [np.inf] * 3
+            effort += [np.inf] * 3
+            damping += [j.damping] * 3  # viscous: τ = −c ω, the same for every axis
+            friction += [0.0] * 3
+        elif joint_type[i] != JOINT_FIXED_ROOT:
             joint_axis[i] = R.T @ j.axis
             dof_names.append(j.name)
             lo, hi = j.limits if j.limits is not None else (-np.inf, np.inf)
@@ -262,8 +277,8 @@ def _build_one(root_top, names, joints, tree_joint, loops, by_name, grounded_par
             friction.append(j.friction)
             if j.drive:
                 drives[j.name] = dict(j.drive)
-    dof_count = np.array([{JOINT_FLOATING: 6, JOINT_FIXED_ROOT: 0}.get(int(t), 1) for t in joint_type], np.int64)
-    q_count = np.array([{JOINT_FLOATING: 7, JOINT_FIXED_ROOT: 0}.get(int(t), 1) for t in joint_type], np.int64)
+    dof_count = np.array([JOINT_DOFS[int(t)][0] for t in joint_type], np.int64)
+    q_count = np.array([JOINT_DOFS[int(t)][1] for t in joint_type], np.int64)
     dof_start = np.concatenate([[0], np.cumsum(dof_count)[:-1]]).astype(np.int64)
     q_start = np.concatenate([[0], np.cumsum(q_count)[:-1]]).astype(np.int64)
     if not grounded:  # the floating root's joint frame is the world's

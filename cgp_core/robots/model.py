@@ -25,6 +25,13 @@ moved by the joint:
   velocity, both **in world coordinates** [m/s, rad/s] (Pinocchio's free flyer uses the body frame's
   coordinates for both: ``v_world = R v_local``, ``ω_world = R ω_local``); generalized forces ``tau`` are their
   conjugates: the world force [N] at the root origin and the world torque [N m] about it;
+- ``JOINT_BALL`` (a spherical joint; scene ``joints:`` of type ``ball``, URDF has none): ``q = (qx, qy, qz,
+  qw)``, the body frame's orientation in its joint frame as a unit quaternion (ROS order; the body frame's origin
+  stays at the joint frame's, the ball's centre).  **Velocity convention**: ``qd = ω`` (3), the angular velocity
+  of the body relative to its parent in the **joint frame's axes** (a frame fixed in the parent), so a ball is
+  three revolute columns about parent-fixed axes through its centre; Pinocchio's ``JointModelSpherical`` uses the
+  child frame's axes instead: ``ω_joint = R(q) ω_local``.  Integrated like the floating root's orientation,
+  ``q ← exp(h ω) ⊗ q`` (ω in the joint frame multiplies on the left), normalized;
 - ``JOINT_FIXED_ROOT``: the root welded to the world at its joint frame, no coordinates.
 
 Mimic joints (``<mimic>``) are kept as data: ``q[f] = multiplier q[l] + offset`` for the dof pairs listed; the
@@ -40,7 +47,7 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = ["JOINT_FIXED_ROOT", "JOINT_FLOATING", "JOINT_REVOLUTE", "JOINT_PRISMATIC", "JOINT_PLANAR",
-           "JOINT_DOFS", "Geometry", "RobotModel", "RobotArrays", "robot_arrays", "neutral_positions",
+           "JOINT_BALL", "JOINT_DOFS", "Geometry", "RobotModel", "RobotArrays", "robot_arrays", "neutral_positions",
            "plane_basis"]
 
 JOINT_FIXED_ROOT = 0   # the root body welded to the world (fixed base): 0 dof
@@ -48,9 +55,10 @@ JOINT_FLOATING = 1     # 6 dof (root only)
 JOINT_REVOLUTE = 2     # 1 dof about joint_axis (URDF revolute and continuous)
 JOINT_PRISMATIC = 3    # 1 dof along joint_axis
 JOINT_PLANAR = 4       # 3 dof: translation in the plane normal to joint_axis + rotation about it
+JOINT_BALL = 5         # 3 dof: rotation about the joint frame's origin (q: a unit quaternion, 4 coordinates)
 
 #: (dofs, position coordinates) of each joint type, indexed by the constants above
-JOINT_DOFS = ((0, 0), (6, 7), (1, 1), (1, 1), (3, 3))
+JOINT_DOFS = ((0, 0), (6, 7), (1, 1), (1, 1), (3, 3), (3, 4))
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,16 +96,17 @@ class RobotModel:
         joint_type: (n,) int64, one of the JOINT_* constants.
         joint_rotation (n, 3, 3), joint_position (n, 3) [m]: the joint frame in the parent body's frame (the
             world's for the root), at q = 0.
-        joint_axis: (n, 3) unit axis in the joint frame (zeros for fixed and floating).
+        joint_axis: (n, 3) unit axis in the joint frame (zeros for fixed, floating and ball).
         dof_start, dof_count: (n,) int64 — the body's velocities are ``qd[dof_start : dof_start + dof_count]``.
-        q_start, q_count: (n,) int64 — its positions (floating root: 7, position + quaternion xyzw).
+        q_start, q_count: (n,) int64 — its positions (floating root: 7, position + quaternion xyzw; ball: 4, the
+            quaternion xyzw).
         mass: (n,) [kg], merged.
         com: (n, 3) [m], the centre of mass in the body frame.
         inertia: (n, 3, 3) [kg m²], about the COM, in the body frame's axes (URDF inertial rpy applied: R I Rᵀ).
     Per dof:
         dof_names: (n_dofs,) the joint's name (planar: suffixed ``/x``, ``/y``, ``/theta``; floating: ``/x``,
-            ``/y``, ``/z``, ``/wx``, ``/wy``, ``/wz``).
-        lower, upper: (n_dofs,) position limits [rad or m]; -inf / +inf for continuous, planar, floating.
+            ``/y``, ``/z``, ``/wx``, ``/wy``, ``/wz``; ball: ``/wx``, ``/wy``, ``/wz``).
+        lower, upper: (n_dofs,) position limits [rad or m]; -inf / +inf for continuous, planar, floating, ball.
         effort_limit, velocity_limit: (n_dofs,) [N m or N], [rad/s or m/s]; +inf where the URDF gives none, and
             where it gives 0 (URDF files write 0 for "not given"; a joint that may exert no effort is not meant).
         damping: (n_dofs,) URDF ``<dynamics damping>``, viscous [N m s/rad or N s/m].
@@ -235,9 +244,11 @@ def robot_arrays(model: RobotModel) -> RobotArrays:
 
 def neutral_positions(model: RobotModel) -> np.ndarray:
     """``q`` (n_q,) at the neutral configuration: zeros, with the identity quaternion (0, 0, 0, 1) for a floating
-    root."""
+    root and a ball joint."""
     q = np.zeros(model.n_q)
     for i in range(model.n_bodies):
         if model.joint_type[i] == JOINT_FLOATING:
             q[model.q_start[i] + 6] = 1.0
+        elif model.joint_type[i] == JOINT_BALL:
+            q[model.q_start[i] + 3] = 1.0
     return q

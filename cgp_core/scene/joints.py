@@ -3,14 +3,16 @@
 
     joints:
       - name: hinge                  # ROS-safe, unique among bodies, flocks, robots and joints
-        type: revolute               # revolute | prismatic | fixed  (ball: not yet)
+        type: revolute               # revolute | prismatic | ball | fixed
         parent: frame_body           # a body, or world (a fixed body is the world for its joints)
         child: door                  # a free (not fixed) body
         anchor: [0.5, 0, 1]          # the joint's point in the world at the scene's initial poses [m]
         axis: [0, 0, 1]              # revolute: turned about it (right hand); prismatic: moved along it
-        limits: [-1.5, 1.5]          # [rad or m], relative to the initial poses (where the coordinate is 0)
-        damping: 0.0                 # viscous [N m s/rad or N s/m]
-        friction: 0.0                # Coulomb [N m or N]
+                                     # (ball, fixed: no axis)
+        limits: [-1.5, 1.5]          # [rad or m], relative to the initial poses (where the coordinate is 0);
+                                     # none for a ball (no cone limit)
+        damping: 0.0                 # viscous [N m s/rad or N s/m]; a ball: on each of its 3 angular velocities
+        friction: 0.0                # Coulomb [N m or N]; none for a ball
         drive: {mode: position, target: 0.5, stiffness: 100, damping: 10, effort_limit: 50}
                                      # position | velocity | effort; implicit, bounded by effort_limit
 
@@ -29,7 +31,7 @@ from .validation import COORDINATES, Validator, kind_of, short_repr
 
 JOINT_KEYS = {"name", "type", "parent", "child", "anchor", "axis", "limits", "damping", "friction", "drive"}
 DRIVE_KEYS = {"mode", "target", "stiffness", "damping", "effort_limit"}
-JOINT_TYPES = ("revolute", "prismatic", "fixed")
+JOINT_TYPES = ("revolute", "prismatic", "ball", "fixed")
 DRIVE_MODES = ("position", "velocity", "effort")
 #: the most joints a scene holds (their trees are dense joint-space systems: cgp_core.limits.MAX_ROBOT_DOFS per tree)
 MAX_JOINTS = 200
@@ -75,14 +77,24 @@ def parse_joints(v: Validator, raw: Any, bodies: list, seen: set[str]) -> tuple[
     except ArticulationError as exc:
         v.fail(exc.key, exc.reason)
         return [], []
+    from ..limits import MAX_ROBOT_DOFS
+
+    for a in articulations:  # each tree is one dense joint-space system (World would refuse it: say so here)
+        if a.model.n_dofs > MAX_ROBOT_DOFS:
+            tops = [b for b in a.model.body_names if not b.endswith("/world")]
+            v.fail("joints", f"the tree of bodies jointed from {tops[0]} has {a.model.n_dofs} joint velocities; "
+                             f"a tree has at most {MAX_ROBOT_DOFS} (cgp_core.limits.MAX_ROBOT_DOFS): split it, or "
+                             f"make some of its joints fixed")
+    if len(v.problems) > before:
+        return [], []
     for a in articulations:
         loops = {loop.name for loop in a.loops}
         for k, j in enumerate(specs):
             if j.name not in loops:
                 continue
-            if j.type != "revolute":
+            if j.type not in ("revolute", "ball"):
                 v.fail(f"joints[{k}].type", f"{j.name} closes a loop ({j.child} already hangs from another joint): "
-                                            f"a loop-closing joint must be revolute (a point coincidence); "
+                                            f"a loop-closing joint must be revolute or ball (a point coincidence); "
                                             f"{j.type} loop closures are not there yet")
             if j.limits is not None or j.drive is not None:
                 v.fail(f"joints[{k}]", f"{j.name} closes a loop ({j.child} already hangs from another joint): it "
@@ -102,12 +114,7 @@ def parse_joint(v: Validator, raw: Any, key: str, bodies: dict, seen: set[str]) 
     if len(v.problems) > before:
         return None
     name = v.name(d["name"], f"{key}.name", seen)
-    kind = d["type"]
-    if kind == "ball":
-        v.fail(f"{key}.type", "ball joints are not there yet (a 3-dof spherical joint needs a joint type of its "
-                              "own in the robot model); use revolute, prismatic or fixed")
-        return None
-    kind = v.choice(kind, f"{key}.type", list(JOINT_TYPES), "revolute")
+    kind = v.choice(d["type"], f"{key}.type", list(JOINT_TYPES), "revolute")
     parent = v.string(d["parent"], f"{key}.parent")
     child = v.string(d["child"], f"{key}.child")
     known = ", ".join(sorted(bodies)) or "none"
@@ -124,7 +131,15 @@ def parse_joint(v: Validator, raw: Any, key: str, bodies: dict, seen: set[str]) 
         v.fail(f"{key}.child", f"{child} cannot be jointed to itself")
     anchor = v.vector(d["anchor"], f"{key}.anchor", 3, within=COORDINATES, unit="m")
     axis = np.zeros(3)
-    if kind != "fixed":
+    if kind == "ball":
+        # a cone (swing) or twist limit is not implemented: refused rather than silently ignored
+        for refused, why in (("axis", "it turns about every axis through its anchor"),
+                             ("limits", "a cone or twist limit for a ball joint is not implemented"),
+                             ("friction", "a Coulomb friction per axis would not be isotropic; use damping"),
+                             ("drive", "a drive for a ball joint's 3 dofs is not implemented")):
+            if refused in d:
+                v.fail(f"{key}.{refused}", f"a ball joint takes no {refused}: {why}")
+    elif kind != "fixed":
         if "axis" not in d:
             v.fail(f"{key}.axis", f"missing (a {kind} joint needs its axis)")
         else:
@@ -137,7 +152,7 @@ def parse_joint(v: Validator, raw: Any, key: str, bodies: dict, seen: set[str]) 
     elif "axis" in d or "limits" in d or "drive" in d:
         v.fail(key, "a fixed joint takes no axis, limits or drive")
     limits = None
-    if "limits" in d:
+    if "limits" in d and kind != "ball":
         lim = v.vector(d["limits"], f"{key}.limits", 2, within=(-1e4, 1e4), unit="rad or m")
         if lim[0] > lim[1]:
             v.fail(f"{key}.limits", f"lower {lim[0]:g} is above upper {lim[1]:g}")
@@ -148,7 +163,7 @@ def parse_joint(v: Validator, raw: Any, key: str, bodies: dict, seen: set[str]) 
     damping = v.number(d.get("damping", 0.0), f"{key}.damping", minimum=0.0, maximum=1e9)
     friction = v.number(d.get("friction", 0.0), f"{key}.friction", minimum=0.0, maximum=1e9)
     drive = None
-    if "drive" in d:
+    if "drive" in d and kind != "ball":
         dd = v.mapping(d["drive"], f"{key}.drive")
         v.no_unknown_keys(dd, DRIVE_KEYS, f"{key}.drive")
         mode = v.choice(dd.get("mode", "position"), f"{key}.drive.mode", list(DRIVE_MODES), "position")
