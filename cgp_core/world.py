@@ -53,6 +53,7 @@ from .bodies import tensor_times, world_tensor
 from .boids import Flock, Obstacles
 from .boids.predators import Predators
 from .dynamics import Ground, step_bodies
+from .entities import EntityInfo, body_frame_bounds, box_corners, check_info, default_body_info, tags_match
 from .editing import (
     EditError,
     EntityState,
@@ -82,6 +83,7 @@ from .scene import (
     ROS_SAFE_NAME,
     Scene,
     SceneError,
+    WorldSpec,
     body_reach,
     load_scene,
     spawn_entry,
@@ -187,13 +189,20 @@ class World:
     events:       list of :class:`WorldEvent` not yet collected (see :meth:`take_events`).
     spawned:      names of the bodies and flocks spawned at run time (not from the scene), in spawn order.
     model_version: counts the replacements of ``body_model`` / ``flocks`` (spawn, delete, reset of spawned
-                  entities): whoever keeps per-body or per-flock things (publishers, serializers) rebuilds
-                  them when it changes.
+                  entities, a scene loaded): whoever keeps per-body or per-flock things (publishers,
+                  serializers) rebuilds them when it changes.
+    loaded:       False after :meth:`unload`; :meth:`load` puts another scene into this very object.
     """
 
     def __init__(self, scene: Scene, *, dt: float = 1.0 / 60.0, substeps: int | None = None,
                  seed: int | None = None):
         self.scene = scene
+        #: the caller's sub-steps and seed, kept for the scenes :meth:`load` builds later
+        self._substeps_arg, self._seed = substeps, seed
+        #: False after :meth:`unload` (an empty world that still steps: time keeps running)
+        self.loaded = True
+        #: what :meth:`set_entity_info` was told, by entity name (the others have :meth:`entity_info`'s default)
+        self._info: dict[str, EntityInfo] = {}
         self.set_dt(dt)
         self.substeps = int(substeps if substeps is not None else scene.world.substeps)
         if self.substeps < 1:
@@ -579,8 +588,34 @@ class World:
             self._bodies_changed()
             self._report_notes(prepared)
         self.spawned.append(prepared.name)
+        self._info.pop(prepared.name, None)
         self.model_version += 1
         return prepared.kind
+
+    def add_spawned_all(self, batch: list[PreparedSpawn]) -> list[str]:
+        """Add every entity of ``batch`` or none (``simulation_interfaces``' SpawnEntities): the names are checked
+        against the world and each other first; if one is refused while adding (a limit), those already added are
+        removed again and the :class:`EditError` names the entry (``entry <k> (<name>): ...``).  Returns the
+        kinds."""
+        names = [p.name for p in batch]
+        for k, prepared in enumerate(batch):
+            try:
+                self.check_new_name(prepared.name)
+                if prepared.name in names[:k]:
+                    raise EditError("name_taken", f"name {prepared.name!r} is also entry {names.index(prepared.name)}'s")
+            except EditError as exc:
+                raise EditError(exc.kind, f"entry {k} ({prepared.name}): {exc}") from None
+        added: list[str] = []
+        kinds = []
+        for k, prepared in enumerate(batch):
+            try:
+                kinds.append(self.add_spawned(prepared))
+            except EditError as exc:
+                if added:  # all or nothing: the batch's entities added so far go again
+                    self._remove(added)
+                raise EditError(exc.kind, f"entry {k} ({prepared.name}): {exc}") from None
+            added.append(prepared.name)
+        return kinds
 
     def delete(self, name: str) -> str:
         """Remove a body, a flock or a robot (from the scene or spawned); returns its kind.  A body's wrench
@@ -592,6 +627,111 @@ class World:
             self._refuse_link(name, "deleted")
         self._remove([name])
         return kind
+
+    # ---- worlds: another scene into this running world ------------------------------------------------------
+
+    def load(self, scene: str | Scene) -> None:
+        """Replace everything in the world by ``scene`` (a scene file, a built-in name or a parsed :class:`Scene`):
+        its bodies, flocks, robots, settings (gravity, integrator, ...) and named poses, its entities at their
+        initial state; spawned entities and entity info go, wrench commands are dropped.  Time keeps running
+        (``time_ns`` and ``ticks`` go on: clocks and recordings never go backwards); ``dt``, the caller's
+        sub-steps and seed stay.  This very object changes (whoever holds the world keeps holding it), and
+        ``model_version`` moves on.  Raises :class:`~cgp_core.scene.SceneError` (the scene's problems, or the
+        sub-steps it would need) with the world unchanged: the new world is built completely before it
+        replaces the old one."""
+        scene = scene if isinstance(scene, Scene) else load_scene(scene)
+        self._adopt(World(scene, dt=self.dt, substeps=self._substeps_arg, seed=self._seed))
+        self.loaded = True
+
+    def unload(self) -> None:
+        """An empty world (no bodies, flocks, robots or named poses; default settings, with the ground plane) that
+        goes on stepping, so time keeps running; :attr:`loaded` is False until :meth:`load`."""
+        self._adopt(World(Scene("<no world>", WorldSpec(), [], []), dt=self.dt, substeps=self._substeps_arg,
+                          seed=self._seed))
+        self.loaded = False
+
+    def _adopt(self, other: World) -> None:
+        """Become ``other`` (a world built from another scene) but keep the clock, the counters and the
+        caller's settings of this one."""
+        kept = {"dt": self.dt, "dt_ns": self.dt_ns, "time_ns": self.time_ns, "ticks": self.ticks,
+                "model_version": self.model_version + 1, "report_contacts": self.report_contacts}
+        events = self.events + [WorldEvent(self.time, e.level, e.text) for e in other.events]
+        self.__dict__.update(other.__dict__)
+        self.__dict__.update(kept, events=events)
+        self.remember_tick_start()
+
+    @property
+    def named_poses(self) -> list:
+        """The scene's named poses (:class:`cgp_core.scene.named_poses.NamedPoseSpec`), in file order."""
+        return list(self.scene.named_poses)
+
+    def named_pose(self, name: str):
+        """The named pose ``name``; :class:`EditError` ``unknown`` (naming those there are) if none."""
+        for pose in self.scene.named_poses:
+            if pose.name == name:
+                return pose
+        known = [p.name for p in self.scene.named_poses]
+        raise EditError("unknown", f"no named pose {name!r} (named poses: "
+                        f"{', '.join(known[:20]) + (' ...' if len(known) > 20 else '') or 'none in this scene'})")
+
+    # ---- what an entity is: info and bounds --------------------------------------------------------------------
+
+    def entity_info(self, name: str) -> EntityInfo:
+        """Its category, description and tags: what :meth:`set_entity_info` was told, else what it is (a robot
+        and its links ``robot``, a flock ``dynamic_object``, a fixed body ``static_object``, any other body
+        ``object``).  :class:`EditError` ``unknown`` if there is no such entity."""
+        kind = self.kind_of(name)
+        if name in self._info:
+            return self._info[name]
+        if kind == "robot":
+            return EntityInfo("robot", f"robot, {len(self._robot_links(name))} links with collision geometry")
+        if kind == "flock":
+            return EntityInfo("dynamic_object", f"flock of {len(self._flock(name).positions)} boids")
+        i = self.body_model.names.index(name)
+        robot = name.split("/", 1)[0] if "/" in name and name.split("/", 1)[0] in self.robot_names() else None
+        return default_body_info(self.body_model, i, robot)
+
+    def set_entity_info(self, name: str, category: str, description: str = "", tags=()) -> None:
+        """Replace entity ``name``'s info (kept until it is deleted, or a spawned one is reset away, or another
+        world is loaded).  :class:`EditError` ``unknown`` / ``invalid_info``; nothing changes then."""
+        self.kind_of(name)
+        self._info[name] = check_info(category, description, tags)
+
+    def entities_with_info(self, names: list[str], categories=(), tags=(), match_all: bool = False) -> list[str]:
+        """Those of ``names`` whose category is one of ``categories`` (none given: any) and whose tags pass
+        ``tags`` (:func:`cgp_core.entities.tags_match`)."""
+        kept = []
+        for name in names:
+            info = self.entity_info(name)
+            if (not categories or info.category in categories) and tags_match(info.tags, tags, match_all):
+                kept.append(name)
+        return kept
+
+    def entity_bounds(self, name: str) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(lower, upper)`` (3,) each: the axis-aligned box that holds the entity, in the frame its
+        :meth:`entity_state` gives (REP-103's canonical link): a body's own frame (its COM, its axes: from its
+        shape, :func:`cgp_core.entities.body_frame_bounds`); a robot's root link frame, holding every link's
+        box at the current joint positions; a flock's centroid with world axes, holding its boids.  None for a
+        robot without collision geometry.  :class:`EditError` ``unknown`` if there is no such entity."""
+        kind = self.kind_of(name)
+        if kind == "flock":
+            flock = self._flock(name)
+            offsets = flock.positions - flock.centroid()
+            half = 0.5 * flock.params.boid_size
+            return offsets.min(axis=0) - half, offsets.max(axis=0) + half
+        if kind == "body":
+            return body_frame_bounds(self.body_model, self.body_model.names.index(name))
+        links = [self.body_model.names.index(n) for n in self._robot_links(name)]
+        if not links:
+            return None
+        R0, p0 = self._robot_root(name)[:2]
+        R = self.body_state.rotation_matrices()
+        corners = []
+        for i in links:  # each link's box, its corners into the world and then into the root link's frame
+            world = self.body_state.position[i] + box_corners(*body_frame_bounds(self.body_model, i)) @ R[i].T
+            corners.append((world - p0) @ R0)
+        points = np.concatenate(corners)
+        return points.min(axis=0), points.max(axis=0)
 
     # ---- robots as entities ---------------------------------------------------------------------------------
 
@@ -816,6 +956,7 @@ class World:
         self.flocks = [f for f, _ in kept]
         self._flock_mean_velocity_start = [v for _, v in kept]
         self.spawned = [n for n in self.spawned if n not in gone]
+        self._info = {n: info for n, info in self._info.items() if n not in gone}
         self.model_version += 1
 
     def _scene_names(self) -> list[str]:
@@ -831,6 +972,8 @@ class World:
         self.body_model, self._initial_body_state = self._scene_bodies()
         self.body_state = self._initial_body_state.copy()
         self.flocks = [Flock(p) for p in self._scene_flock_params]
+        names, spawned = set(self.entity_names()), set(self.spawned)  # a scene entity keeps what it was told
+        self._info = {n: info for n, info in self._info.items() if n in names and n not in spawned}
         self.spawned = []
         self.wrenches.clear()
         self.remember_tick_start()

@@ -23,6 +23,7 @@ from ..user_input import SceneLoader, UserInputError, load_yaml, read_user_text
 from .bodies import parse_bodies, parse_body
 from .flocks import parse_flock, parse_flocks
 from .joints import parse_joints
+from .named_poses import parse_named_poses
 from .robots import articulation_spec, parse_robot, parse_robots
 from .specs import Scene, WorldSpec
 from .validation import SceneError, Validator, kind_of
@@ -103,17 +104,20 @@ def scene_from_dict(data: Any, source: str = "<dict>") -> Scene:
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise SceneError(source, [f"top level must be a mapping with keys world/bodies/flocks/robots/joints, got "
-                                  f"{kind_of(data)}"])
-    v.no_unknown_keys(data, {"world", "bodies", "flocks", "robots", "joints", "description"}, "")
+        raise SceneError(source, [f"top level must be a mapping with keys world/bodies/flocks/robots/joints/"
+                                  f"named_poses, got {kind_of(data)}"])
+    v.no_unknown_keys(data, {"world", "bodies", "flocks", "robots", "joints", "named_poses", "description"}, "")
     world = parse_world(v, data.get("world", {}))
     bodies = parse_bodies(v, data.get("bodies", []))
     flocks = parse_flocks(v, data.get("flocks", []), reserved={b.name for b in bodies})
     seen = {b.name for b in bodies} | {f.name for f in flocks}
     robots = parse_robots(v, data.get("robots", []), seen)
     joints, articulations = parse_joints(v, data.get("joints", []), bodies, seen | {r.name for r in robots})
+    named_poses = parse_named_poses(v, data.get("named_poses"))
+    description = v.string(data.get("description", ""), "description")
     scene = Scene(source=source, world=world, bodies=bodies, flocks=flocks, robots=robots, joints=joints,
-                  articulations=[articulation_spec(a) for a in articulations])
+                  articulations=[articulation_spec(a) for a in articulations], named_poses=named_poses,
+                  description=" ".join(description.split()))
     refusal = rigid_work_refusal(*scene.rigid_work(), world.substeps)
     if refusal:
         v.fail("world.substeps", refusal)

@@ -65,6 +65,9 @@ class Scene:
     joints: list[Any] = field(default_factory=list)  # cgp_core.scene.joints.JointSpec (issue 35)
     #: the articulations the joints make, as robots whose links are the scene's bodies (RobotSpec)
     articulations: list[Any] = field(default_factory=list)
+    #: the poses the scene names (cgp_core.scene.named_poses.NamedPoseSpec), and its ``description:`` text
+    named_poses: list[Any] = field(default_factory=list)
+    description: str = ""
 
     def rigid_work(self) -> tuple[int, int]:
         """``(shapes, particles)`` of the bodies, the counts a tick's work is bounded by
