@@ -53,7 +53,6 @@ from .bodies import tensor_times, world_tensor
 from .boids import Flock, Obstacles
 from .boids.predators import Predators
 from .dynamics import Ground, step_bodies
-from .entities import EntityInfo, body_frame_bounds, box_corners, check_info, default_body_info, tags_match
 from .editing import (
     EditError,
     EntityState,
@@ -64,6 +63,7 @@ from .editing import (
     name_filter,
     select_bodies,
 )
+from .entities import EntityInfo, body_frame_bounds, box_corners, check_info, default_body_info, tags_match
 from .integrators import make_integrator
 from .limits import (
     BLOWUP_SPEED,
@@ -602,7 +602,8 @@ class World:
             try:
                 self.check_new_name(prepared.name)
                 if prepared.name in names[:k]:
-                    raise EditError("name_taken", f"name {prepared.name!r} is also entry {names.index(prepared.name)}'s")
+                    first = names.index(prepared.name)
+                    raise EditError("name_taken", f"name {prepared.name!r} is also entry {first}'s")
             except EditError as exc:
                 raise EditError(exc.kind, f"entry {k} ({prepared.name}): {exc}") from None
         added: list[str] = []

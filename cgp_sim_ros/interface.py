@@ -193,6 +193,18 @@ SERVICE_RESET_SIMULATION = "~/reset_simulation"
 SERVICE_GET_SIMULATION_STATE = "~/get_simulation_state"
 SERVICE_SET_SIMULATION_STATE = "~/set_simulation_state"
 SERVICE_STEP_SIMULATION = "~/step_simulation"
+# the rest of simulation_interfaces 1.5 (issue 36): worlds, the spawnables, batches, entity info and bounds, named poses
+SERVICE_GET_AVAILABLE_WORLDS = "~/get_available_worlds"
+SERVICE_LOAD_WORLD = "~/load_world"
+SERVICE_UNLOAD_WORLD = "~/unload_world"
+SERVICE_GET_CURRENT_WORLD = "~/get_current_world"
+SERVICE_GET_SPAWNABLES = "~/get_spawnables"
+SERVICE_SPAWN_ENTITIES = "~/spawn_entities"
+SERVICE_GET_ENTITY_INFO = "~/get_entity_info"
+SERVICE_SET_ENTITY_INFO = "~/set_entity_info"
+SERVICE_GET_ENTITY_BOUNDS = "~/get_entity_bounds"
+SERVICE_GET_NAMED_POSES = "~/get_named_poses"
+SERVICE_GET_NAMED_POSE_BOUNDS = "~/get_named_pose_bounds"
 ACTION_SIMULATE_STEPS = "~/simulate_steps"
 
 

@@ -105,6 +105,22 @@ def prepare(request: SpawnRequest) -> Spawned | Refusal:
     return Spawned(prepared, drawings)
 
 
+def prepare_batch(requests: list[SpawnRequest]) -> list[Spawned | Refusal]:
+    """``spawn_entities``' job: :func:`prepare` for each request in order, each seeing the names the earlier
+    ones took (``allow_renaming`` picks past them; a name taken twice is refused as taken).  Every request is
+    answered, also after a refusal, so that the reply names every entry that was wrong."""
+    from dataclasses import replace
+
+    taken = set(requests[0].taken) if requests else set()
+    answers = []
+    for request in requests:
+        answer = prepare(replace(request, taken=frozenset(taken)))
+        if isinstance(answer, Spawned):
+            taken.add(answer.prepared.name)
+        answers.append(answer)
+    return answers
+
+
 class Refused(Exception):
     """A :class:`Refusal` raised (by :func:`read_uri`)."""
 

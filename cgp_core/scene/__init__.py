@@ -90,7 +90,9 @@ from .flocks import flock_crowding
 from .loading import (
     MAX_SCENE_BYTES,
     SPAWN_KINDS,
+    Gallery,
     _SceneLoader,
+    available_scenes,
     builtin_scene_dir,
     builtin_scene_names,
     load_scene,
@@ -99,16 +101,20 @@ from .loading import (
     resolve_scene,
     scene_description,
     scene_from_dict,
+    scene_identity,
     spawn_entry,
+    spawnable_files,
 )
 from .mesh_files import builtin_mesh_dir
+from .named_poses import NamedPoseBounds, NamedPoseSpec
 from .shapes import compound_half_extents
 from .specs import BodySpec, Scene, WorldSpec
 from .validation import COORDINATES, GROUND_NAME, LENGTHS, MAX_REPORTED_PROBLEMS, ROS_SAFE_NAME, SceneError, Validator
 
 __all__ = [
     "COORDINATES", "GROUND_NAME", "LENGTHS", "MAX_REPORTED_PROBLEMS", "MAX_SCENE_BYTES", "ROS_SAFE_NAME",
-    "SPAWN_KINDS", "BodySpec", "Scene", "SceneError", "Validator", "WorldSpec", "body_reach", "builtin_mesh_dir",
+    "SPAWN_KINDS", "BodySpec", "Gallery", "NamedPoseBounds", "NamedPoseSpec", "available_scenes", "scene_identity",
+    "spawnable_files", "Scene", "SceneError", "Validator", "WorldSpec", "body_reach", "builtin_mesh_dir",
     "builtin_scene_dir", "builtin_scene_names", "compound_half_extents", "flock_crowding", "load_scene",
     "parse_scene", "parse_yaml", "resolve_scene", "scene_description", "scene_from_dict", "spawn_entry", "_SceneLoader",
 ]

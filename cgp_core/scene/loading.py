@@ -4,7 +4,7 @@ validating every section (``world`` here; ``bodies`` in :mod:`.bodies`, ``flocks
 
 from __future__ import annotations
 
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -40,6 +40,53 @@ def builtin_scene_dir() -> Path:
 
 def builtin_scene_names() -> list[str]:
     return sorted(p.stem for p in builtin_scene_dir().glob("*.yaml"))
+
+
+@dataclass(frozen=True)
+class Gallery:
+    """An entry of the built-in galleries (:func:`available_scenes`, :func:`spawnable_files`): what to pass as
+    ``name`` (a scene name or a spawn ``uri``), what it is (``kind``: ``scene``, ``robot``, ``mesh``) and its
+    description."""
+
+    name: str
+    kind: str
+    description: str
+
+
+def available_scenes() -> list[Gallery]:
+    """The built-in scenes (``msgs_config/scenes``), each with its ``description:``; a scene whose description
+    cannot be read is listed without one (loading it names the problem)."""
+    scenes = []
+    for name in builtin_scene_names():
+        try:
+            description = scene_description(name)
+        except SceneError:
+            description = ""
+        scenes.append(Gallery(name, "scene", description))
+    return scenes
+
+
+def spawnable_files() -> list[Gallery]:
+    """What a spawn request may name by a bare file name: the built-in robots (``msgs_config/robots``, URDF) and
+    meshes (``msgs_config/meshes``, STL / OBJ: a convex body, the mesh's hull)."""
+    from .mesh_files import builtin_mesh_dir
+    from .robots import builtin_robot_dir
+
+    robots = [Gallery(p.name, "robot", f"robot {p.stem} (URDF)") for p in sorted(builtin_robot_dir().glob("*.urdf"))]
+    meshes = [Gallery(p.name, "mesh", f"convex body, the hull of mesh {p.name}")
+              for p in sorted(builtin_mesh_dir().iterdir()) if p.suffix.lower() in (".stl", ".obj")]
+    return robots + meshes
+
+
+def scene_identity(source: str) -> tuple[str, str]:
+    """``(name, uri)`` of a loaded scene by its ``Scene.source``: a built-in scene is its name twice (``default``
+    loads it again); a file its stem and its path; a scene given as text (``resource_string``) that source."""
+    path = Path(source)
+    if path.suffix in (".yaml", ".yml"):
+        if path.parent.resolve() == builtin_scene_dir().resolve():
+            return path.stem, path.stem
+        return path.stem, source
+    return source, ""
 
 
 def scene_description(name_or_path: str | Path) -> str:

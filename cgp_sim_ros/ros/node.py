@@ -251,6 +251,30 @@ class SimNode(Node):
         self.world.add_spawned(prepared)
         self.world_edited()
 
+    def add_spawned_all(self, batch, drawings=()) -> None:
+        """:meth:`add_spawned` for ``spawn_entities``' batch: all or none
+        (:meth:`cgp_core.world.World.add_spawned_all`); raises :class:`cgp_core.editing.EditError` naming the
+        entry, nothing changed."""
+        self.outputs.drawings.add(drawings)
+        self.world.add_spawned_all(batch)
+        self.world_edited()
+
+    def load_world(self, scene=None, drawings=()) -> None:
+        """Put another scene into the running world between two ticks (``load_world``; ``scene`` a validated
+        :class:`cgp_core.scene.Scene`, None for ``unload_world``'s empty world): :meth:`cgp_core.world.World.load`
+        (time keeps running), the pending commands dropped with the old entities, every marker redrawn, the
+        per-entity endpoints following (:meth:`world_edited`: publishers of the new entities made, of the gone
+        ones destroyed).  Raises :class:`cgp_core.scene.SceneError` with nothing changed."""
+        if scene is None:
+            self.world.unload()
+        else:
+            self.world.load(scene)
+        self.commands.clear_pending()
+        self.commands.clear_joint_commands()
+        self.outputs.scene_changed(drawings)
+        self.world_edited()
+        self._place_threads()
+
     def report_rejection(self, source: str, error, count: int = 1) -> None:
         """Count ``count`` rejected commands from ``source`` (a ``cgp_core.wrenches.WrenchError`` says which
         field and why): logged at once the first time, then summarized every REPORT_PERIOD_S."""

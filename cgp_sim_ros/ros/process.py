@@ -14,6 +14,7 @@ import sys
 import threading
 from collections.abc import Callable
 from concurrent.futures import Future
+from types import SimpleNamespace
 
 from cgp_core.bodies import Shape
 from cgp_core.jit import ThreadPlacement, runs_on_pool
@@ -157,6 +158,13 @@ class ConvexKernels:
             convex.add_done_callback(joined)
             return both
         return self._convex()
+
+    def before_loading(self, loaded) -> Future | None:
+        """:meth:`before_adding` for a whole scene about to be loaded (a :class:`cgp_sim_ros.worlds.LoadedScene`):
+        its robots' and its hulls' and meshes' kernels."""
+        scene = loaded.scene
+        kind = "robot" if scene.robots or scene.articulations else "scene"
+        return self.before_adding(SimpleNamespace(kind=kind, model=SimpleNamespace(shape=loaded.shapes)))
 
     @staticmethod
     def _load_robots(future: Future) -> None:

@@ -124,6 +124,15 @@ class TickPublisher:
         self.pub_joint_states = [self._joint_states[n] for n in robots]
         return added
 
+    def scene_changed(self, drawings=()) -> None:
+        """Another scene was loaded into the world (``load_world``, ``unload_world``): its hulls' and meshes'
+        drawings (``(shape, drawing)`` pairs made by the worker; the others are made on first use) are the
+        scene's now, the old scene's are dropped at the next :meth:`rebuild`, and the next marker array starts
+        with a DELETEALL."""
+        self.drawings.add(drawings)
+        self._scene_shapes = [shape for _, shape in model_shapes(self.world.body_model)]
+        self.redraw_all_markers()
+
     def rebuild(self) -> None:
         """New per-tick serializers for the world's bodies and flocks now (the plan is set again by the
         caller: :meth:`set_plan`); the drawings of shapes neither the world nor its scene holds are dropped."""

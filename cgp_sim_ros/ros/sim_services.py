@@ -35,31 +35,60 @@ import traceback
 from dataclasses import dataclass, field
 
 import numpy as np
+from geometry_msgs.msg import Vector3
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.task import Future
 from simulation_interfaces.action import SimulateSteps
-from simulation_interfaces.msg import Bounds, EntityState, Result, SimulationState, SimulatorFeatures
+from simulation_interfaces.msg import (
+    Bounds,
+    EntityCategory,
+    EntityInfo,
+    EntityState,
+    NamedPose,
+    Resource,
+    Result,
+    SimulationState,
+    SimulatorFeatures,
+    Spawnable,
+    SpawnResult,
+    TagsFilter,
+    WorldResource,
+)
 from simulation_interfaces.srv import (
     DeleteEntity,
+    GetAvailableWorlds,
+    GetCurrentWorld,
     GetEntities,
     GetEntitiesStates,
+    GetEntityBounds,
+    GetEntityInfo,
     GetEntityState,
+    GetNamedPoseBounds,
+    GetNamedPoses,
     GetSimulationState,
     GetSimulatorFeatures,
+    GetSpawnables,
+    LoadWorld,
     ResetSimulation,
+    SetEntityInfo,
     SetEntityState,
     SetSimulationState,
+    SpawnEntities,
     SpawnEntity,
     StepSimulation,
+    UnloadWorld,
 )
 
 from cgp_core.editing import WORLD_FRAMES, EditError
+from cgp_core.entities import CATEGORIES, tags_match
 from cgp_core.limits import MAX_YAML_BYTES
+from cgp_core.scene import SceneError, available_scenes, scene_identity, spawnable_files
 
 from .. import interface as itf
-from ..spawning import SPAWN_FORMATS, Refusal, SpawnRequest, brief, prepare, warm_up
+from ..spawning import SPAWN_FORMATS, Refusal, Spawned, SpawnRequest, brief, prepare, prepare_batch, warm_up
 from ..workers import JobFailed, WorkerProcess
+from ..worlds import WorldRequest, prepare_world
 
 OK = Result.RESULT_OK
 NOT_FOUND = Result.RESULT_NOT_FOUND
@@ -69,6 +98,8 @@ FAILED = Result.RESULT_OPERATION_FAILED
 
 #: spawn requests waiting for the spawn worker (one is prepared at a time); more are refused as busy
 MAX_WAITING_SPAWNS = 8
+#: the most entries one spawn_entities batch holds (each is a spawn request, prepared in one job)
+MAX_BATCH_SPAWNS = 64
 
 #: after set_simulation_state QUITTING, the node answers for this long (wall seconds) before shutting down,
 #: so the reply reaches the caller before the service goes away
@@ -83,6 +114,12 @@ FEATURES = (
     SimulatorFeatures.SIMULATION_STATE_SETTING, SimulatorFeatures.SIMULATION_STATE_PAUSE,
     SimulatorFeatures.STEP_SIMULATION_SINGLE, SimulatorFeatures.STEP_SIMULATION_MULTIPLE,
     SimulatorFeatures.STEP_SIMULATION_ACTION,
+    # issue 36: the rest of simulation_interfaces 1.5
+    SimulatorFeatures.WORLD_LOADING, SimulatorFeatures.WORLD_RESOURCE_STRING, SimulatorFeatures.WORLD_UNLOADING,
+    SimulatorFeatures.WORLD_INFO_GETTING, SimulatorFeatures.AVAILABLE_WORLDS, SimulatorFeatures.SPAWNABLES,
+    SimulatorFeatures.SPAWNING_ENTITIES, SimulatorFeatures.ENTITY_INFO_GETTING, SimulatorFeatures.ENTITY_INFO_SETTING,
+    SimulatorFeatures.ENTITY_CATEGORIES, SimulatorFeatures.ENTITY_TAGS, SimulatorFeatures.ENTITY_BOUNDS,
+    SimulatorFeatures.NAMED_POSES, SimulatorFeatures.POSE_BOUNDS,
 )
 CUSTOM_INFO = (
     "cgp_sim: spawn_entity takes YAML (resource_string, or a .yaml file as uri: a path or file:// URI) with "
@@ -96,7 +133,12 @@ CUSTOM_INFO = (
     "root link frame's pose and twist, set only for a floating base. "
     "Entity states: a body's COM pose, twist in world axes, last tick's acceleration; a flock's centroid and "
     "mean velocity (set moves it rigidly). Reset scopes STATE, SPAWNED, ALL; time keeps running (no "
-    "SCOPE_TIME). get_entities filters: POSIX ERE on names, TYPE_SPHERE bounds. See docs/simulation-interfaces.md."
+    "SCOPE_TIME). get_entities filters: POSIX ERE on names, categories, tags, TYPE_SPHERE bounds. "
+    "Worlds: cgp_sim's YAML scenes (load_world uri: a built-in name from get_available_worlds, a .yaml path or "
+    "file:// URI; resource_string: scene YAML); loading replaces every entity between two ticks, time keeps "
+    "running, the world is left STOPPED; unload_world leaves no world (STATE_NO_WORLD) until the next load. "
+    "spawn_entities: all or nothing. Entity bounds: TYPE_BOX in the entity's frame (points[0] upper, points[1] "
+    "lower corner). Named poses: the scene's named_poses section. See docs/simulation-interfaces.md."
 )
 
 _STATE_NAMES = {SimulationState.STATE_STOPPED: "STOPPED", SimulationState.STATE_PLAYING: "PLAYING",
@@ -105,6 +147,9 @@ _STATE_NAMES = {SimulationState.STATE_STOPPED: "STOPPED", SimulationState.STATE_
 _SCOPE_TIME, _SCOPE_STATE, _SCOPE_SPAWNED = (ResetSimulation.Request.SCOPE_TIME, ResetSimulation.Request.SCOPE_STATE,
                                              ResetSimulation.Request.SCOPE_SPAWNED)
 _SCOPE_ALL = (ResetSimulation.Request.SCOPE_DEFAULT, ResetSimulation.Request.SCOPE_ALL)
+#: the standard's category numbers (EntityCategory) <-> cgp_core's names (cgp_core.entities.CATEGORIES)
+_CATEGORY_NAMES = {number: name for name, number in CATEGORIES.items()}
+assert all(getattr(EntityCategory, f"CATEGORY_{name.upper()}") == number for name, number in CATEGORIES.items())
 
 
 def _code_names(*interfaces) -> dict[int, str]:
@@ -148,6 +193,8 @@ class SimulationInterfaces:
         self.spawn_worker = WorkerProcess("cgp-sim-spawn", warm_up=warm_up)
         self._spawn_running = False
         self._spawns_waiting = 0
+        #: a load_world request is being prepared (STATE_LOADING_WORLD; the old world runs meanwhile)
+        self.loading = False
         services = (
             (GetSimulatorFeatures, itf.SERVICE_GET_SIMULATOR_FEATURES, self._get_simulator_features),
             (SpawnEntity, itf.SERVICE_SPAWN_ENTITY, self._spawn_entity),
@@ -160,16 +207,27 @@ class SimulationInterfaces:
             (GetSimulationState, itf.SERVICE_GET_SIMULATION_STATE, self._get_simulation_state),
             (SetSimulationState, itf.SERVICE_SET_SIMULATION_STATE, self._set_simulation_state),
             (StepSimulation, itf.SERVICE_STEP_SIMULATION, self._step_simulation),
+            (GetAvailableWorlds, itf.SERVICE_GET_AVAILABLE_WORLDS, self._get_available_worlds),
+            (LoadWorld, itf.SERVICE_LOAD_WORLD, self._load_world),
+            (UnloadWorld, itf.SERVICE_UNLOAD_WORLD, self._unload_world),
+            (GetCurrentWorld, itf.SERVICE_GET_CURRENT_WORLD, self._get_current_world),
+            (GetSpawnables, itf.SERVICE_GET_SPAWNABLES, self._get_spawnables),
+            (SpawnEntities, itf.SERVICE_SPAWN_ENTITIES, self._spawn_entities),
+            (GetEntityInfo, itf.SERVICE_GET_ENTITY_INFO, self._get_entity_info),
+            (SetEntityInfo, itf.SERVICE_SET_ENTITY_INFO, self._set_entity_info),
+            (GetEntityBounds, itf.SERVICE_GET_ENTITY_BOUNDS, self._get_entity_bounds),
+            (GetNamedPoses, itf.SERVICE_GET_NAMED_POSES, self._get_named_poses),
+            (GetNamedPoseBounds, itf.SERVICE_GET_NAMED_POSE_BOUNDS, self._get_named_pose_bounds),
         )
         # The stepping coroutines wait for the node's timer, which is in the node's default (mutually exclusive)
         # callback group: a coroutine in that group would hold it until it returns, and the timer would never
         # tick.  Their own reentrant group lets the timer run meanwhile (still one thread: no locks needed), and
         # lets a second stepping request be answered (refused) at once instead of queueing.
         stepping_group = ReentrantCallbackGroup()
-        # spawn_entity is a coroutine too (it waits for the spawn worker)
+        # spawn_entity, spawn_entities and load_world are coroutines too (they wait for the spawn worker)
+        waiting = (StepSimulation, SpawnEntity, SpawnEntities, LoadWorld)
         self.services = [node.create_service(srv_type, name, self._guarded(name, callback),
-                                             callback_group=stepping_group if srv_type in (StepSimulation, SpawnEntity)
-                                             else None)
+                                             callback_group=stepping_group if srv_type in waiting else None)
                          for srv_type, name, callback in services]
         self.action_server = ActionServer(node, SimulateSteps, itf.ACTION_SIMULATE_STEPS, self._simulate_steps,
                                           callback_group=stepping_group,
@@ -218,6 +276,10 @@ class SimulationInterfaces:
     def state(self) -> int:
         if self.quitting:
             return SimulationState.STATE_QUITTING
+        if self.loading:
+            return SimulationState.STATE_LOADING_WORLD
+        if not self.node.world.loaded:
+            return SimulationState.STATE_NO_WORLD
         if not self.node.paused:
             return SimulationState.STATE_PLAYING
         return SimulationState.STATE_STOPPED if self.stopped else SimulationState.STATE_PAUSED
@@ -261,6 +323,8 @@ class SimulationInterfaces:
         """A stepping job, or the refusal (code, message)."""
         if self.quitting:
             return INCORRECT_STATE, "the simulator is quitting"
+        if not self.node.world.loaded:
+            return INCORRECT_STATE, "no world is loaded (load_world first)"
         if not self.node.paused:
             return FAILED, "the simulation is playing: steps are taken while paused (set_simulation_state " \
                            "STATE_PAUSED first)"
@@ -302,17 +366,22 @@ class SimulationInterfaces:
         return msg
 
     def _filtered_names(self, filters) -> tuple[int, str, list[str]]:
-        """Names passing ``simulation_interfaces/msg/EntityFilters``: the name regex and TYPE_SPHERE bounds are
-        supported; categories and tags are not (FEATURE_UNSUPPORTED when given)."""
+        """Names passing ``simulation_interfaces/msg/EntityFilters``: the name regex, categories, tags (any / all)
+        and TYPE_SPHERE bounds are supported; other bounds are FEATURE_UNSUPPORTED."""
         world = self.node.world
-        if filters.categories:
-            return UNSUPPORTED, "filters.categories: entity categories are not supported", []
-        if filters.tags.tags:
-            return UNSUPPORTED, "filters.tags: entity tags are not supported", []
+        categories = []
+        for k, category in enumerate(filters.categories):
+            if category.category not in _CATEGORY_NAMES:
+                return FAILED, f"filters.categories[{k}]: {category.category} is no category (valid: " \
+                               f"{', '.join(f'{n} {c.upper()}' for c, n in CATEGORIES.items())})", []
+            categories.append(_CATEGORY_NAMES[category.category])
         try:
             names = world.entity_names(filters.filter)
         except ValueError as exc:
             return FAILED, f"filters.filter: {exc}", []
+        if categories or filters.tags.tags:
+            names = world.entities_with_info(names, categories, list(filters.tags.tags),
+                                             filters.tags.filter_mode == TagsFilter.FILTER_MODE_ALL)
         bounds = filters.bounds
         if bounds.type == Bounds.TYPE_EMPTY:
             return OK, "", names
@@ -353,76 +422,320 @@ class SimulationInterfaces:
         for them; then the entity is added here, between two ticks.  One spawn is prepared at a time; at most
         MAX_WAITING_SPAWNS wait."""
         R = SpawnEntity.Response
+        refusal = self._check_spawn(request)
+        if refusal is not None:
+            return (*refusal, "")
+        if self._spawns_waiting >= MAX_WAITING_SPAWNS:
+            return FAILED, self._busy(), ""
+        async with _WorkerTurn(self):
+            outcome = await self._run_job(prepare, self._spawn_request(request))
+            if isinstance(outcome, tuple):
+                return (*outcome, "")
+            if isinstance(outcome, Refusal):
+                return _REFUSAL_CODES.get(outcome.kind, FAILED), outcome.message, ""
+            refusal = await self._kernels_for(self.node.convex_kernels.before_adding(outcome.prepared))
+            if refusal is not None:
+                return (*refusal, "")
+            try:
+                self.node.add_spawned(outcome.prepared, outcome.drawings)
+            except EditError as exc:
+                code = {"name_taken": R.NAME_NOT_UNIQUE, "name_invalid": R.NAME_INVALID,
+                        "invalid_pose": R.INVALID_POSE}.get(exc.kind, FAILED)
+                return code, str(exc), ""
+        return OK, "", outcome.prepared.name
+
+    def _check_spawn(self, request) -> tuple[int, str] | None:
+        """The refusal of a spawn request that needs nothing read (code, message), or None."""
+        R = SpawnEntity.Response
         if request.uri:
-            source = request.uri
+            pass
         elif request.resource_string:
             size = len(request.resource_string)
             if size > MAX_YAML_BYTES:  # refused before anything reads it (a character is at least one byte)
                 return R.RESOURCE_PARSE_ERROR, (f"resource_string: {size} characters; at most {MAX_YAML_BYTES} "
-                                                "bytes of YAML are parsed"), ""
-            source = "resource_string"
+                                                "bytes of YAML are parsed")
         else:
-            return R.NO_RESOURCE, ("uri and resource_string are both empty: give the entity as YAML (or a robot as "
-                                   "URDF)"), ""
+            return R.NO_RESOURCE, "uri and resource_string are both empty: give the entity as YAML (or a robot as URDF)"
         if request.entity_namespace:
             return UNSUPPORTED, (f"entity_namespace {brief(request.entity_namespace)}: not supported; an entity's "
-                                 "topics are the node's (~/bodies/<name>/...)"), ""
+                                 "topics are the node's (~/bodies/<name>/...)")
         frame = request.initial_pose.header.frame_id
         if self.node.frames.to_core(frame) not in WORLD_FRAMES:
             return R.INVALID_POSE, (f"initial_pose.header.frame_id {brief(frame)}: poses are given in "
-                                    f"{self.node.frames.world!r} (or '')"), ""
+                                    f"{self.node.frames.world!r} (or '')")
         if not request.name and not request.allow_renaming:
-            return R.NAME_INVALID, "name is empty (and allow_renaming is false)", ""
+            return R.NAME_INVALID, "name is empty (and allow_renaming is false)"
         if not request.allow_renaming:  # a name already taken is refused before anything is read
             try:
                 self.node.world.check_new_name(request.name)
             except EditError as exc:
-                return (R.NAME_NOT_UNIQUE if exc.kind == "name_taken" else R.NAME_INVALID), str(exc), ""
-        if self._spawns_waiting >= MAX_WAITING_SPAWNS:
-            return FAILED, f"busy: {self._spawns_waiting} spawn requests are waiting (at most " \
-                           f"{MAX_WAITING_SPAWNS}); try again", ""
-        self._spawns_waiting += 1
+                return (R.NAME_NOT_UNIQUE if exc.kind == "name_taken" else R.NAME_INVALID), str(exc)
+        if self.quitting:
+            return INCORRECT_STATE, "the simulator is quitting"
+        return None
+
+    def _spawn_request(self, request) -> SpawnRequest:
+        """What the spawn worker needs of ``request`` (a SpawnEntity request) and of the world now."""
+        pose = request.initial_pose.pose
+        return SpawnRequest(
+            uri=request.uri, resource=request.resource_string if not request.uri else "",
+            source=request.uri if request.uri else "resource_string",
+            name=request.name, allow_renaming=request.allow_renaming,
+            taken=frozenset(self.node.world.entity_names()),
+            position=(pose.position.x, pose.position.y, pose.position.z),
+            orientation=(pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w),
+            world=self.node.world.scene.world)
+
+    def _busy(self) -> str:
+        return f"busy: {self._spawns_waiting} spawn or load requests are waiting (at most {MAX_WAITING_SPAWNS}); " \
+               "try again"
+
+    async def _run_job(self, function, argument):
+        """``function(argument)`` in the spawn worker process, at most ``spawn_timeout`` seconds, awaited (the
+        executor goes on meanwhile): its answer, or the refusal (code, message) of a job that gave none."""
+        timeout = float(self.node.params["spawn_timeout"])
+        job = self.spawn_worker.submit(function, argument, timeout=timeout)
+        while not job.done():
+            await _NextTurn()
+        if self.quitting:
+            return INCORRECT_STATE, "the simulator is quitting"
         try:
-            while self._spawn_running:
-                await _NextTurn()
-            self._spawn_running = True
-            try:
-                pose = request.initial_pose.pose
-                timeout = float(self.node.params["spawn_timeout"])
-                job = self.spawn_worker.submit(prepare, SpawnRequest(
-                    uri=request.uri, resource=request.resource_string if not request.uri else "", source=source,
-                    name=request.name, allow_renaming=request.allow_renaming,
-                    taken=frozenset(self.node.world.entity_names()),
-                    position=(pose.position.x, pose.position.y, pose.position.z),
-                    orientation=(pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w),
-                    world=self.node.world.scene.world), timeout=timeout)
-                while not job.done():
-                    await _NextTurn()
-                if self.quitting:
-                    return INCORRECT_STATE, "the simulator is quitting", ""
-                try:
-                    outcome = job.result()
-                except JobFailed as failure:
-                    return FAILED, self._job_failure(failure, timeout), ""
+            return job.result()
+        except JobFailed as failure:
+            return FAILED, self._job_failure(failure, timeout)
+
+    async def _kernels_for(self, loading) -> tuple[int, str] | None:
+        """Wait for ``loading`` (a future of :class:`~cgp_sim_ros.ros.process.ConvexKernels`, or None): the
+        kernels an entity or a scene needs, loaded off the tick's thread before it is added."""
+        while loading is not None and not loading.done():
+            await _NextTurn()
+        if self.quitting:
+            return INCORRECT_STATE, "the simulator is quitting"
+        return None
+
+    async def _spawn_entities(self, request, response):
+        code, message, results = await self._spawn_batch(list(request.spawn_requests))
+        response.results = results
+        names = [r.entity_name for r in results if r.result.result == OK]
+        return self._reply(response, "spawn_entities", code, message, (SpawnEntities.Response,),
+                           count=len(request.spawn_requests), **({"entities": names} if names else {}))
+
+    async def _spawn_batch(self, entries) -> tuple[int, str, list]:
+        """``spawn_entities``: every entry checked (here, then in one job of the spawn worker,
+        :func:`cgp_sim_ros.spawning.prepare_batch`) and added between two ticks, all of them or none
+        (:meth:`cgp_core.world.World.add_spawned_all`).  Returns (code, message, SpawnResults)."""
+        if not entries:
+            return FAILED, "spawn_requests is empty: nothing to spawn", []
+        if len(entries) > MAX_BATCH_SPAWNS:
+            return FAILED, f"{len(entries)} spawn requests; a batch holds at most {MAX_BATCH_SPAWNS}", []
+        refusals = {}
+        names: dict[str, int] = {}
+        for k, entry in enumerate(entries):
+            refusal = self._check_spawn(entry)
+            if refusal is None and not entry.allow_renaming and entry.name in names:
+                refusal = (SpawnEntity.Response.NAME_NOT_UNIQUE, f"name {entry.name!r} is also entry "
+                                                                 f"{names[entry.name]}'s")
+            names.setdefault(entry.name, k)
+            if refusal is not None:
+                refusals[k] = refusal
+        if not refusals and self._spawns_waiting >= MAX_WAITING_SPAWNS:
+            return FAILED, self._busy(), []
+        if not refusals:
+            async with _WorkerTurn(self):
+                requests = [self._spawn_request(entry) for entry in entries]
+                answers = await self._run_job(prepare_batch, requests)
+                if isinstance(answers, tuple):
+                    return (*answers, [SpawnResult(result=Result(result=answers[0], error_message=answers[1]))
+                                       for _ in entries])
+                refusals = {k: (_REFUSAL_CODES.get(a.kind, FAILED), a.message) for k, a in enumerate(answers)
+                            if isinstance(a, Refusal)}
+                if not refusals:
+                    added = await self._add_batch([a for a in answers if isinstance(a, Spawned)])
+                    if isinstance(added, tuple):
+                        code, message, k = added
+                        refusals = {k: (code, message)}
+                    else:
+                        return OK, "", [SpawnResult(result=Result(result=OK), entity_name=name) for name in added]
+        which = ", ".join(f"{k} ({entries[k].name or 'unnamed'})" for k in sorted(refusals))
+        message = (f"{len(refusals)} of {len(entries)} entries refused: {which}; nothing was spawned (all or "
+                   "nothing); each entry's result says why")
+        results = [SpawnResult(result=Result(result=refusals[k][0], error_message=refusals[k][1])) if k in refusals
+                   else SpawnResult(result=Result(result=FAILED, error_message=f"not spawned: {message}"))
+                   for k in range(len(entries))]
+        return SpawnEntities.Response.ENTITIES_SPAWN_FAILED, message, results
+
+    async def _add_batch(self, spawned: list) -> list[str] | tuple[int, str, int]:
+        """Add the batch's prepared entities (after their kernels are loaded): their names, or the refusal
+        (code, message, entry) of the one the world refused — and then none is added."""
+        for outcome in spawned:
+            refusal = await self._kernels_for(self.node.convex_kernels.before_adding(outcome.prepared))
+            if refusal is not None:
+                return (*refusal, 0)
+        try:
+            self.node.add_spawned_all([s.prepared for s in spawned], [d for s in spawned for d in s.drawings])
+        except EditError as exc:
+            R = SpawnEntity.Response
+            code = {"name_taken": R.NAME_NOT_UNIQUE, "name_invalid": R.NAME_INVALID,
+                    "invalid_pose": R.INVALID_POSE}.get(exc.kind, FAILED)
+            entry = int(str(exc).split(" ", 2)[1]) if str(exc).startswith("entry ") else 0
+            return code, str(exc), entry
+        return [s.prepared.name for s in spawned]
+
+    # ---- worlds -------------------------------------------------------------------------------------------------
+
+    def _world_resource(self) -> WorldResource:
+        world = self.node.world
+        name, uri = scene_identity(world.scene.source)
+        return WorldResource(name=name, world_resource=Resource(uri=uri), description=world.scene.description)
+
+    def _get_available_worlds(self, request, response):
+        if request.additional_sources:
+            return self._reply(response, "get_available_worlds", UNSUPPORTED,
+                               f"additional_sources {list(request.additional_sources)[:5]}: not searched; the built-in "
+                               "scenes are listed, and load_world loads any scene file by its path")
+        if request.filter.tags:
+            return self._reply(response, "get_available_worlds", UNSUPPORTED,
+                               "filter.tags: worlds have no tags here (no WORLD_TAGS)")
+        response.worlds = [WorldResource(name=s.name, world_resource=Resource(uri=s.name), description=s.description)
+                           for s in available_scenes()]
+        return self._reply(response, "get_available_worlds", OK, count=len(response.worlds))
+
+    def _get_current_world(self, request, response):
+        if not self.node.world.loaded:
+            return self._reply(response, "get_current_world", GetCurrentWorld.Response.NO_WORLD_LOADED,
+                               "no world is loaded (unload_world was called; load_world loads one)",
+                               (GetCurrentWorld.Response,))
+        response.world = self._world_resource()
+        return self._reply(response, "get_current_world", OK, world=response.world.name)
+
+    async def _load_world(self, request, response):
+        code, message = await self._load(request)
+        if code == OK:
+            response.world = self._world_resource()
+        return self._reply(response, "load_world", code, message, (LoadWorld.Response,),
+                           uri=request.uri or ("resource_string" if request.resource_string else ""),
+                           **({"world": response.world.name} if code == OK else {}))
+
+    async def _load(self, request) -> tuple[int, str]:
+        """``load_world``: the scene found, read, validated and drawn in the spawn worker process (taking turns
+        with the spawns: :func:`cgp_sim_ros.worlds.prepare_world`), its kernels loaded off the tick's thread,
+        then the world replaced between two ticks (:meth:`SimNode.load_world`) and left STOPPED, as the standard
+        says.  The old world keeps running until then, and stays if anything is refused."""
+        R = LoadWorld.Response
+        if not request.uri and not request.resource_string:
+            return R.NO_RESOURCE, "uri and resource_string are both empty: name a world (get_available_worlds)"
+        if not request.uri and len(request.resource_string) > MAX_YAML_BYTES:
+            return R.RESOURCE_PARSE_ERROR, (f"resource_string: {len(request.resource_string)} characters; at most "
+                                            f"{MAX_YAML_BYTES} bytes of YAML are parsed")
+        if request.ignore_missing_or_unsupported_assets:
+            return UNSUPPORTED, ("ignore_missing_or_unsupported_assets: not supported; a scene is loaded whole or "
+                                 "not at all (a missing mesh or URDF is refused, naming it)")
+        if self.quitting:
+            return INCORRECT_STATE, "the simulator is quitting"
+        if self._spawns_waiting >= MAX_WAITING_SPAWNS:
+            return FAILED, self._busy()
+        self.loading = True
+        try:
+            async with _WorkerTurn(self):
+                outcome = await self._run_job(prepare_world, WorldRequest(uri=request.uri,
+                                                                          resource=request.resource_string))
+                if isinstance(outcome, tuple):
+                    return outcome
                 if isinstance(outcome, Refusal):
-                    return _REFUSAL_CODES.get(outcome.kind, FAILED), outcome.message, ""
-                loading = self.node.convex_kernels.before_adding(outcome.prepared)
-                while loading is not None and not loading.done():
-                    await _NextTurn()
-                if self.quitting:
-                    return INCORRECT_STATE, "the simulator is quitting", ""
+                    return _WORLD_REFUSAL_CODES.get(outcome.kind, FAILED), outcome.message
+                refusal = await self._kernels_for(self.node.convex_kernels.before_loading(outcome))
+                if refusal is not None:
+                    return refusal
                 try:
-                    self.node.add_spawned(outcome.prepared, outcome.drawings)
-                except EditError as exc:
-                    code = {"name_taken": R.NAME_NOT_UNIQUE, "name_invalid": R.NAME_INVALID,
-                            "invalid_pose": R.INVALID_POSE}.get(exc.kind, FAILED)
-                    return code, str(exc), ""
-                prepared = outcome.prepared
-            finally:
-                self._spawn_running = False
+                    self.node.load_world(outcome.scene, outcome.drawings)
+                except SceneError as exc:  # e.g. the node's substeps with this scene's shapes
+                    return R.RESOURCE_PARSE_ERROR, str(exc)
         finally:
-            self._spawns_waiting -= 1
-        return OK, "", prepared.name
+            self.loading = False
+        self._abort_job("interrupted: another world was loaded")
+        self.node.paused = True
+        self.stopped = True
+        return OK, ""
+
+    def _unload_world(self, request, response):
+        if not self.node.world.loaded:
+            return self._reply(response, "unload_world", UnloadWorld.Response.NO_WORLD_LOADED,
+                               "no world is loaded", (UnloadWorld.Response,))
+        if self.loading:
+            return self._reply(response, "unload_world", INCORRECT_STATE, "a world is loading; try again when it is "
+                               "loaded")
+        self._abort_job("interrupted: the world was unloaded")
+        self.node.load_world(None)
+        self.node.paused = True
+        self.stopped = False
+        return self._reply(response, "unload_world", OK)
+
+    # ---- what the simulator can spawn ---------------------------------------------------------------------------
+
+    def _get_spawnables(self, request, response):
+        response.spawnables = [Spawnable(uri=f.name, description=f.description) for f in spawnable_files()] + [
+            Spawnable(uri="", description=f"resource_string (YAML): {text}") for text in _ENTRY_TEMPLATES]
+        message = (f"sources {list(request.sources)[:5]}: not recognized (the built-in robots and meshes are "
+                   "listed; spawn_entity takes any .urdf/.xacro/.yaml/.stl/.obj file by its path)"
+                   if request.sources else "")
+        return self._reply(response, "get_spawnables", OK, message, count=len(response.spawnables))
+
+    # ---- entity info and bounds -----------------------------------------------------------------------------
+
+    def _get_entity_info(self, request, response):
+        try:
+            info = self.node.world.entity_info(request.entity)
+        except EditError as exc:
+            return self._reply(response, "get_entity_info", NOT_FOUND, str(exc), entity=request.entity)
+        response.info = EntityInfo(category=EntityCategory(category=CATEGORIES[info.category]),
+                                   description=info.description, tags=list(info.tags))
+        return self._reply(response, "get_entity_info", OK, entity=request.entity)
+
+    def _set_entity_info(self, request, response):
+        info = request.info
+        category = _CATEGORY_NAMES.get(info.category.category)
+        if category is None:
+            return self._reply(response, "set_entity_info", FAILED,
+                               f"info.category {info.category.category}: not one of "
+                               f"{', '.join(f'{n} {c.upper()}' for c, n in CATEGORIES.items())}",
+                               entity=request.entity)
+        try:
+            self.node.world.set_entity_info(request.entity, category, info.description, list(info.tags))
+        except EditError as exc:
+            return self._reply(response, "set_entity_info", NOT_FOUND if exc.kind == "unknown" else FAILED,
+                               str(exc), entity=request.entity)
+        return self._reply(response, "set_entity_info", OK, entity=request.entity, category=category)
+
+    def _get_entity_bounds(self, request, response):
+        try:
+            bounds = self.node.world.entity_bounds(request.entity)
+        except EditError as exc:
+            return self._reply(response, "get_entity_bounds", NOT_FOUND, str(exc), entity=request.entity)
+        response.bounds = Bounds(type=Bounds.TYPE_EMPTY) if bounds is None else _box(*bounds)
+        return self._reply(response, "get_entity_bounds", OK, entity=request.entity)
+
+    # ---- named poses ------------------------------------------------------------------------------------------
+
+    def _get_named_poses(self, request, response):
+        tags, match_all = list(request.tags.tags), request.tags.filter_mode == TagsFilter.FILTER_MODE_ALL
+        poses = [p for p in self.node.world.named_poses if tags_match(p.tags, tags, match_all)]
+        response.poses = [_named_pose(p) for p in poses]
+        return self._reply(response, "get_named_poses", OK, count=len(poses))
+
+    def _get_named_pose_bounds(self, request, response):
+        try:
+            pose = self.node.world.named_pose(request.name)
+        except EditError as exc:
+            return self._reply(response, "get_named_pose_bounds", NOT_FOUND, str(exc), name=request.name)
+        bounds = pose.bounds
+        if bounds is None:
+            response.bounds = Bounds(type=Bounds.TYPE_EMPTY)
+        elif bounds.radius is not None:
+            response.bounds = Bounds(type=Bounds.TYPE_SPHERE, points=[_vector(pose.position),
+                                                                      Vector3(x=float(bounds.radius))])
+        else:
+            response.bounds = _box(pose.position + bounds.lower, pose.position + bounds.upper)
+        return self._reply(response, "get_named_pose_bounds", OK, name=request.name)
 
     def _job_failure(self, failure: JobFailed, timeout: float) -> str:
         """The refusal's message for a spawn job that gave no answer (and the log line, with the details)."""
@@ -531,12 +844,17 @@ class SimulationInterfaces:
         S = SimulationState
         current = self.state
         if target in (S.STATE_NO_WORLD, S.STATE_LOADING_WORLD):
-            return UNSUPPORTED, f"{_STATE_NAMES[target]}: loading and unloading worlds is not supported"
+            return R.INCORRECT_TRANSITION, (f"{_STATE_NAMES[target]}: not a state to set; load_world and "
+                                            "unload_world load and unload worlds")
         if target not in (S.STATE_STOPPED, S.STATE_PLAYING, S.STATE_PAUSED, S.STATE_QUITTING):
             return R.INCORRECT_TRANSITION, f"unknown state {target} (valid: 0 STOPPED, 1 PLAYING, 2 PAUSED, " \
                                            "3 QUITTING)"
         if current == S.STATE_QUITTING:
             return R.INCORRECT_TRANSITION, "the simulator is quitting"
+        if current in (S.STATE_NO_WORLD, S.STATE_LOADING_WORLD) and target != S.STATE_QUITTING:
+            return R.INCORRECT_TRANSITION, (f"{_STATE_NAMES[current]}: no world to start, stop or pause "
+                                            "(load_world first)" if current == S.STATE_NO_WORLD
+                                            else "LOADING_WORLD: a world is loading; try again when it is loaded")
         if target == current:
             return R.ALREADY_IN_TARGET_STATE, f"already {_STATE_NAMES[current]}"
         if target == S.STATE_PLAYING:
@@ -609,6 +927,61 @@ _REFUSAL_CODES = {"unsupported_format": SpawnEntity.Response.UNSUPPORTED_FORMAT,
                   "name_invalid": SpawnEntity.Response.NAME_INVALID,
                   "invalid_pose": SpawnEntity.Response.INVALID_POSE,
                   "not_possible": FAILED}
+
+
+#: a load_world job's refusal kind (cgp_sim_ros.worlds) -> LoadWorld's result code
+_WORLD_REFUSAL_CODES = {"not_found": NOT_FOUND, "unsupported_format": LoadWorld.Response.UNSUPPORTED_FORMAT,
+                        "parse_error": LoadWorld.Response.RESOURCE_PARSE_ERROR}
+
+#: what get_spawnables lists besides the files: the scene entries spawn_entity takes as YAML
+_ENTRY_TEMPLATES = (
+    "{body: {shape: sphere, radius: 0.3, mass: 2.0}}",
+    "{body: {shape: box, size: [0.4, 0.4, 0.4], mass: 2.0}}",
+    "{body: {shape: capsule, radius: 0.2, length: 1.0, mass: 3.0}}",
+    "{body: {shape: particles, radius: 0.15, particles: [[0, 0, 0, 1], [0.3, 0, 0, 1]]}}",
+    "{body: {shape: convex, mesh: rock.stl}} (or points: [[x, y, z], ...])",
+    "{body: {shape: compound, parts: [{shape: box, size: [1, 1, 1]}, ...]}}",
+    "{body: {shape: mesh, mesh: terrain.obj, fixed: true}}",
+    "{flock: {count: 100}}",
+    "{robot: {urdf: arm.urdf}}",
+)
+
+
+def _vector(values) -> Vector3:
+    return Vector3(x=float(values[0]), y=float(values[1]), z=float(values[2]))
+
+
+def _box(lower, upper) -> Bounds:
+    """TYPE_BOX bounds: the standard's order, "upper right and lower left corners" (points[0] the upper)."""
+    return Bounds(type=Bounds.TYPE_BOX, points=[_vector(upper), _vector(lower)])
+
+
+def _named_pose(spec) -> NamedPose:
+    msg = NamedPose(name=spec.name, description=spec.description, tags=list(spec.tags))
+    p, q = msg.pose.position, msg.pose.orientation
+    p.x, p.y, p.z = map(float, spec.position)
+    q.x, q.y, q.z, q.w = map(float, spec.orientation)
+    return msg
+
+
+class _WorkerTurn:
+    """``async with _WorkerTurn(sim):`` the spawn worker for one request (spawns and world loads take turns, in
+    the order they came); counted as waiting (MAX_WAITING_SPAWNS) until it is done."""
+
+    def __init__(self, sim: SimulationInterfaces):
+        self.sim = sim
+
+    async def __aenter__(self):
+        self.sim._spawns_waiting += 1
+        while self.sim._spawn_running:
+            await _NextTurn()
+        self.sim._spawn_running = True
+        return self
+
+    async def __aexit__(self, *exc_info):
+        self.sim._spawn_running = False
+        self.sim._spawns_waiting -= 1
+        return False
 
 
 class _NextTurn:
