@@ -10,16 +10,27 @@ from __future__ import annotations
 from simulation_interfaces.msg import Result, SimulationState
 from simulation_interfaces.srv import (
     DeleteEntity,
+    GetAvailableWorlds,
+    GetCurrentWorld,
     GetEntities,
     GetEntitiesStates,
+    GetEntityBounds,
+    GetEntityInfo,
     GetEntityState,
+    GetNamedPoseBounds,
+    GetNamedPoses,
     GetSimulationState,
     GetSimulatorFeatures,
+    GetSpawnables,
+    LoadWorld,
     ResetSimulation,
+    SetEntityInfo,
     SetEntityState,
     SetSimulationState,
+    SpawnEntities,
     SpawnEntity,
     StepSimulation,
+    UnloadWorld,
 )
 
 NODE = "/cgp_sim"
@@ -33,13 +44,19 @@ HARMLESS = {
     StepSimulation: lambda: StepSimulation.Request(steps=0),  # steps must be at least 1
     SetSimulationState: lambda: SetSimulationState.Request(state=SimulationState(state=200)),  # unknown state
     ResetSimulation: lambda: ResetSimulation.Request(scope=8),  # unknown scope bit
+    LoadWorld: lambda: LoadWorld.Request(),  # no resource: NO_RESOURCE
+    SpawnEntities: lambda: SpawnEntities.Request(),  # an empty batch: OPERATION_FAILED
+    SetEntityInfo: lambda: SetEntityInfo.Request(entity="no such entity"),  # NOT_FOUND
 }
 SERVICE_NAMES = {
     GetSimulatorFeatures: "get_simulator_features", SpawnEntity: "spawn_entity", DeleteEntity: "delete_entity",
     GetEntities: "get_entities", GetEntitiesStates: "get_entities_states", GetEntityState: "get_entity_state",
     SetEntityState: "set_entity_state", ResetSimulation: "reset_simulation",
     GetSimulationState: "get_simulation_state", SetSimulationState: "set_simulation_state",
-    StepSimulation: "step_simulation",
+    StepSimulation: "step_simulation", GetAvailableWorlds: "get_available_worlds", LoadWorld: "load_world",
+    UnloadWorld: "unload_world", GetCurrentWorld: "get_current_world", GetSpawnables: "get_spawnables",
+    SpawnEntities: "spawn_entities", GetEntityInfo: "get_entity_info", SetEntityInfo: "set_entity_info",
+    GetEntityBounds: "get_entity_bounds", GetNamedPoses: "get_named_poses", GetNamedPoseBounds: "get_named_pose_bounds",
 }
 
 
