@@ -17,11 +17,13 @@ from simulation_interfaces.msg import (
     Bounds,
     EntityCategory,
     EntityInfo,
+    Resource,
     Result,
     SimulationState,
     SimulatorFeatures,
     TagsFilter,
 )
+from simulation_interfaces.msg import SpawnEntity as SpawnEntityEntry
 from simulation_interfaces.srv import (
     GetAvailableWorlds,
     GetCurrentWorld,
@@ -61,8 +63,9 @@ def load(sim, uri: str = "", resource: str = ""):
     return sim.call(LoadWorld, LoadWorld.Request(uri=uri, resource_string=resource), timeout=60.0)
 
 
-def entry(name: str, resource: str, position=(0.0, 0.0, 0.0), allow_renaming: bool = False):
-    request = SpawnEntity.Request(name=name, resource_string=resource, allow_renaming=allow_renaming)
+def entry(name: str, resource: str, position=(0.0, 0.0, 0.0), allow_renaming: bool = False) -> SpawnEntityEntry:
+    request = SpawnEntityEntry(name=name, entity_resource=Resource(resource_string=resource),
+                               allow_renaming=allow_renaming)
     p = request.initial_pose.pose.position
     p.x, p.y, p.z = map(float, position)
     return request
@@ -173,7 +176,10 @@ def test_load_world_switches_scenes_with_clients_connected(start_node, probe, tm
     assert sim.names() == DEFAULT and sim.simulation_state() == S.STATE_STOPPED
     probe.spin_for(0.2)
     loads = [json.loads(m.data) for m in events.messages if json.loads(m.data).get("name") == "load_world"]
-    assert [e["result"] for e in loads][:2] == ["OK", "OK"] and "NOT_FOUND" in [e["result"] for e in loads]
+    # (the first: sim_client's warm-up request, refused as NO_RESOURCE) every call is a line on ~/events
+    assert [(e["uri"], e["result"]) for e in loads[:3]] == [("", "NO_RESOURCE"), ("arm", "OK"), ("default", "OK")]
+    assert [e["result"] for e in loads[3:6]] == ["NOT_FOUND", "NOT_FOUND", "UNSUPPORTED_FORMAT"]
+    assert loads[1]["world"] == "arm"
 
 
 def test_spawn_entities_info_bounds_named_poses(start_node, probe):

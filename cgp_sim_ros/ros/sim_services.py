@@ -514,7 +514,12 @@ class SimulationInterfaces:
         return None
 
     async def _spawn_entities(self, request, response):
-        code, message, results = await self._spawn_batch(list(request.spawn_requests))
+        # each entry (msg/SpawnEntity: the resource in entity_resource) as the SpawnEntity request it stands for
+        entries = [SpawnEntity.Request(name=e.name, allow_renaming=e.allow_renaming, uri=e.entity_resource.uri,
+                                       resource_string=e.entity_resource.resource_string,
+                                       entity_namespace=e.entity_namespace, initial_pose=e.initial_pose)
+                   for e in request.spawn_requests]
+        code, message, results = await self._spawn_batch(entries)
         response.results = results
         names = [r.entity_name for r in results if r.result.result == OK]
         return self._reply(response, "spawn_entities", code, message, (SpawnEntities.Response,),
