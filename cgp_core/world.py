@@ -167,6 +167,13 @@ def unique_name(base: str, taken: set[str]) -> str:
     return f"{base}_{k}"
 
 
+def _entry_error(exc: EditError, entry: int, name: str) -> EditError:
+    """``exc`` about entry ``entry`` of a spawn batch: the message names it, ``.entry`` holds it."""
+    error = EditError(exc.kind, f"entry {entry} ({name}): {exc}")
+    error.entry = entry
+    return error
+
+
 @dataclass
 class WorldEvent:
     """Something the world did on its own that a user should hear about (the node logs these)."""
@@ -595,8 +602,8 @@ class World:
     def add_spawned_all(self, batch: list[PreparedSpawn]) -> list[str]:
         """Add every entity of ``batch`` or none (``simulation_interfaces``' SpawnEntities): the names are checked
         against the world and each other first; if one is refused while adding (a limit), those already added are
-        removed again and the :class:`EditError` names the entry (``entry <k> (<name>): ...``).  Returns the
-        kinds."""
+        removed again and the :class:`EditError` names the entry (``entry <k> (<name>): ...``; its ``entry``
+        attribute is ``k``).  Returns the kinds."""
         names = [p.name for p in batch]
         for k, prepared in enumerate(batch):
             try:
@@ -605,7 +612,7 @@ class World:
                     first = names.index(prepared.name)
                     raise EditError("name_taken", f"name {prepared.name!r} is also entry {first}'s")
             except EditError as exc:
-                raise EditError(exc.kind, f"entry {k} ({prepared.name}): {exc}") from None
+                raise _entry_error(exc, k, prepared.name) from None
         added: list[str] = []
         kinds = []
         for k, prepared in enumerate(batch):
@@ -614,7 +621,7 @@ class World:
             except EditError as exc:
                 if added:  # all or nothing: the batch's entities added so far go again
                     self._remove(added)
-                raise EditError(exc.kind, f"entry {k} ({prepared.name}): {exc}") from None
+                raise _entry_error(exc, k, prepared.name) from None
             added.append(prepared.name)
         return kinds
 

@@ -236,9 +236,27 @@ def test_a_batch_is_added_whole_or_not_at_all():
     names, version = world.entity_names(), world.model_version
     with pytest.raises(EditError, match=r"entry 1 \(one\): name 'one' is also entry 0's"):
         world.add_spawned_all([one, again])
-    with pytest.raises(EditError, match=r"entry 1 \(crate\): name 'crate' is taken by a body"):
+    with pytest.raises(EditError, match=r"entry 1 \(crate\): name 'crate' is taken by a body") as caught:
         world.add_spawned_all([one, crate])
+    assert caught.value.entry == 1 and caught.value.kind == "name_taken"
     assert world.entity_names() == names and world.model_version == version
     two = world.prepare_spawn({"flock": {"count": 5}}, name="two", taken=taken, position=[0, 0, 5])
     assert world.add_spawned_all([one, two]) == ["body", "flock"]
     assert world.entity_names() == names[:-1] + ["one", "fish", "two"] and world.spawned == ["one", "two"]
+
+
+def test_a_batch_refused_while_adding_takes_back_what_it_added():
+    """The limit on boids is checked as each entity is added: the second flock passes it, so the first one, already
+    added, goes again."""
+    world = fresh("default")
+    names, boids = world.entity_names(), sum(len(f.positions) for f in world.flocks)
+    big = {"flock": {"count": 100_000, "spawn": {"extent": [100, 100, 100]},
+                     "bounds": {"min": [-60, -60, -60], "max": [60, 60, 60]}}}
+    first = world.prepare_spawn(big, name="first", taken=set(names), position=[0, 0, 0])
+    second = world.prepare_spawn(big, name="second", taken=set(names), position=[0, 0, 0])
+    with pytest.raises(EditError, match=r"entry 1 \(second\): the world has 100300 boids") as caught:
+        world.add_spawned_all([first, second])
+    assert caught.value.entry == 1 and caught.value.kind == "not_possible"
+    assert world.entity_names() == names and world.spawned == []
+    assert sum(len(f.positions) for f in world.flocks) == boids
+    world.step()  # and it still steps

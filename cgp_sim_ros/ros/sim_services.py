@@ -582,8 +582,7 @@ class SimulationInterfaces:
             R = SpawnEntity.Response
             code = {"name_taken": R.NAME_NOT_UNIQUE, "name_invalid": R.NAME_INVALID,
                     "invalid_pose": R.INVALID_POSE}.get(exc.kind, FAILED)
-            entry = int(str(exc).split(" ", 2)[1]) if str(exc).startswith("entry ") else 0
-            return code, str(exc), entry
+            return code, str(exc), getattr(exc, "entry", 0)
         return [s.prepared.name for s in spawned]
 
     # ---- worlds -------------------------------------------------------------------------------------------------
