@@ -20,10 +20,20 @@ an edit the node makes its per-body endpoints follow (:meth:`SimNode.world_edite
   shared (issue 38); a job that takes longer than the ``spawn_timeout`` parameter is ended and refused, and the
   requests behind it go on.  The entity is added between two ticks (issue 27: one request must never stop the
   world).  User regexes are matched in linear time (:func:`cgp_core.editing.name_filter`).
+- ``load_world`` (issue 36) is such a coroutine too: the scene is found, read, validated and drawn in the same
+  worker process (:func:`cgp_sim_ros.worlds.prepare_world`; loads and spawns take turns there, in the order they
+  came), and the world is rebuilt from it between two ticks (:meth:`SimNode.load_world`,
+  :meth:`cgp_core.world.World.load`); ``spawn_entities`` prepares its whole batch in one job
+  (:func:`cgp_sim_ros.spawning.prepare_batch`) and adds it all or nothing
+  (:meth:`cgp_core.world.World.add_spawned_all`).  Entity info, bounds and named poses are the world's
+  (:meth:`~cgp_core.world.World.entity_info`, :meth:`~cgp_core.world.World.entity_bounds`,
+  :attr:`~cgp_core.world.World.named_poses`): the handlers only translate.
 
 Simulation states (``SimulationState``): PLAYING (ticking), PAUSED (time stopped), STOPPED (paused and reset
-to the scene as loaded; the state a paused world is in until it ticks or is set PAUSED / PLAYING), QUITTING
-(the reply is sent, then the node shuts down cleanly: the bag is finished).  Time never goes backwards: a
+to the scene as loaded; the state a paused world is in until it ticks or is set PAUSED / PLAYING; a world just
+loaded), QUITTING (the reply is sent, then the node shuts down cleanly: the bag is finished), LOADING_WORLD (a
+load_world is being prepared; the old world runs meanwhile), NO_WORLD (after unload_world: paused, nothing to
+play).  Time never goes backwards: a
 reset or STOPPED keeps the clock running (no ``SCOPE_TIME``), so TF buffers and bags stay consistent.
 """
 
