@@ -646,26 +646,33 @@ class World:
         sub-steps and seed stay.  This very object changes (whoever holds the world keeps holding it), and
         ``model_version`` moves on.  Raises :class:`~cgp_core.scene.SceneError` (the scene's problems, or the
         sub-steps it would need) with the world unchanged: the new world is built completely before it
-        replaces the old one."""
+        replaces the old one.
+
+        It is :meth:`prepare_load` (building the new world: the costly part, which may run on another thread
+        while this world steps) followed by :meth:`adopt`."""
+        self.adopt(self.prepare_load(scene))
+
+    def prepare_load(self, scene: str | Scene) -> World:
+        """A new world of ``scene`` with this world's ``dt``, sub-steps and seed, for :meth:`adopt`; reads nothing
+        else of this world (another thread may build it while this one steps).  Raises as :meth:`load` does."""
         scene = scene if isinstance(scene, Scene) else load_scene(scene)
-        self._adopt(World(scene, dt=self.dt, substeps=self._substeps_arg, seed=self._seed))
-        self.loaded = True
+        return World(scene, dt=self.dt, substeps=self._substeps_arg, seed=self._seed)
 
     def unload(self) -> None:
         """An empty world (no bodies, flocks, robots or named poses; default settings, with the ground plane) that
         goes on stepping, so time keeps running; :attr:`loaded` is False until :meth:`load`."""
-        self._adopt(World(Scene("<no world>", WorldSpec(), [], []), dt=self.dt, substeps=self._substeps_arg,
-                          seed=self._seed))
+        self.adopt(self.prepare_load(Scene("<no world>", WorldSpec(), [], [])))
         self.loaded = False
 
-    def _adopt(self, other: World) -> None:
-        """Become ``other`` (a world built from another scene) but keep the clock, the counters and the
-        caller's settings of this one."""
+    def adopt(self, other: World) -> None:
+        """Become ``other`` (:meth:`prepare_load`'s world, not stepped since) but keep the clock, the counters and
+        the caller's settings of this one (see :meth:`load`)."""
         kept = {"dt": self.dt, "dt_ns": self.dt_ns, "time_ns": self.time_ns, "ticks": self.ticks,
                 "model_version": self.model_version + 1, "report_contacts": self.report_contacts}
         events = self.events + [WorldEvent(self.time, e.level, e.text) for e in other.events]
         self.__dict__.update(other.__dict__)
         self.__dict__.update(kept, events=events)
+        self.loaded = True
         self.remember_tick_start()
 
     @property

@@ -259,16 +259,16 @@ class SimNode(Node):
         self.world.add_spawned_all(batch)
         self.world_edited()
 
-    def load_world(self, scene=None, drawings=()) -> None:
-        """Put another scene into the running world between two ticks (``load_world``; ``scene`` a validated
-        :class:`cgp_core.scene.Scene`, None for ``unload_world``'s empty world): :meth:`cgp_core.world.World.load`
-        (time keeps running), the pending commands dropped with the old entities, every marker redrawn, the
-        per-entity endpoints following (:meth:`world_edited`: publishers of the new entities made, of the gone
-        ones destroyed).  Raises :class:`cgp_core.scene.SceneError` with nothing changed."""
-        if scene is None:
+    def load_world(self, new=None, drawings=()) -> None:
+        """Put another scene into the running world between two ticks (``load_world``; ``new`` the world built from
+        it, :meth:`cgp_core.world.World.prepare_load` (:func:`process.build_world`), None for ``unload_world``'s
+        empty world): :meth:`cgp_core.world.World.adopt` (time keeps running), the pending commands dropped with
+        the old entities, every marker redrawn, the per-entity endpoints following (:meth:`world_edited`:
+        publishers of the new entities made, of the gone ones destroyed)."""
+        if new is None:
             self.world.unload()
         else:
-            self.world.load(scene)
+            self.world.adopt(new)
         self.commands.clear_pending()
         self.commands.clear_joint_commands()
         self.outputs.scene_changed(drawings)

@@ -51,6 +51,46 @@ def load_kernels(world, build_tick: Callable, log_debug: Callable[[str], None]) 
         log_debug(f"loading the kernels before the first tick: {exc!r}")
 
 
+def build_world(world, scene, build_tick: Callable) -> Future:
+    """``load_world``'s new world, built on a helper thread while the node ticks (issue 36): a future of
+    ``world.prepare_load(scene)`` (:meth:`cgp_core.world.World.prepare_load`; or the
+    :class:`~cgp_core.scene.SceneError` it raised), after a throwaway copy of it took two ticks there — one with
+    the contact report, one without, ``build_tick(copy)`` building its messages after each — so that the kernels
+    its first ticks run (a flock's, where the old world had none: a 183 ms first tick when it loaded them
+    itself) are loaded before it replaces the old one, as :func:`load_kernels` does at start-up.  The copy's
+    Python takes turns with the tick's on the GIL (1 ms switch interval); the loading is mostly in llvmlite's C
+    calls, which release it."""
+    from ..drawing.bodies import model_shapes
+
+    future: Future = Future()
+
+    def run() -> None:
+        from cgp_core.scene import SceneError
+
+        try:
+            new = world.prepare_load(scene)
+        except SceneError as exc:
+            future.set_result(exc)
+            return
+        except Exception as exc:  # noqa: BLE001 - answered as the load's failure, not a dead thread
+            future.set_result(exc)
+            return
+        try:
+            throwaway = copy.deepcopy(new, {id(shape): shape for _, shape in model_shapes(new.body_model)})
+            for report in (True, False):
+                throwaway.report_contacts = report
+                throwaway.step()
+                build_tick(throwaway)  # (with and without the contacts)
+            for flock in throwaway.flocks:
+                flock.order()
+        except Exception:  # noqa: BLE001 - the real first tick loads (and reports) whatever failed here
+            pass
+        future.set_result(new)
+
+    threading.Thread(target=run, name="cgp-sim-world", daemon=True).start()
+    return future
+
+
 def freeze_startup_objects() -> None:
     """Everything built so far — the imported modules (rclpy, numpy, scipy, numba and its compiled kernels),
     the scene, the world — lives as long as the node: move it out of the cyclic garbage collector's sight

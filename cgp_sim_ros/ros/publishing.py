@@ -28,6 +28,7 @@ from rclpy.serialization import serialize_message
 from std_msgs.msg import String
 
 from .. import interface as itf
+from ..drawing import detail as lod
 from ..drawing.bodies import Drawings, model_shapes
 from ..wire import cdr
 from .messages import TickMessages, robot_names
@@ -277,6 +278,28 @@ class TickPublisher:
         # every tick: ground, bodies and one part of each flock's marker (a flock is redrawn every
         # markers_every ticks, part by part: cgp_sim_ros/ros/messages.py)
         yield self.pub_markers, messages.markers(t, delete_all_first=delete_all_markers, tick=world.ticks), True
+
+    def build_for_another(self, world) -> None:
+        """Build (and drop) what a tick of ``world`` — a copy of a world about to replace the node's
+        (``load_world``), stepped on a helper thread — publishes, with drawings and a level-of-detail plan of
+        its own: the serializers' and the fish drawing's kernels are loaded before its first real tick, and
+        nothing of the node's (its drawings, plan, publishers) is touched from that thread."""
+        params, frames = self._node.params, self._node.frames
+        messages = TickMessages(world, frames, contact_force_scale=self._force_scale, drawings=Drawings())
+        messages.set_plan(lod.plan([f.params for f in world.flocks], params["rate_hz"],
+                                   fish_detail=params["fish_detail"], markers_every=params["markers_every"],
+                                   flock_poses_every=params["bag_flock_poses_every"], body_bytes=messages.body_bytes()))
+        t = world.time_ns
+        for build in (messages.clock, messages.body_poses, messages.body_odometry, messages.flock_poses,
+                      messages.flock_stats, messages.joint_states):
+            build(t)
+        if world.report_contacts:
+            messages.contacts(t)
+        tf = BodyTransforms(world, frames)
+        tf.dynamic(t)
+        tf.static_if_changed(t)
+        messages.markers(t, delete_all_first=True, tick=world.ticks)
+        messages.static_markers(t)
 
     def build_throwaway(self, world) -> None:
         """Build (and drop: nothing is published) everything a tick of ``world`` — a copy of the node's —

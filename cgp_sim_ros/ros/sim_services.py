@@ -99,6 +99,7 @@ from .. import interface as itf
 from ..spawning import SPAWN_FORMATS, Refusal, Spawned, SpawnRequest, brief, prepare, prepare_batch, warm_up
 from ..workers import JobFailed, WorkerProcess
 from ..worlds import WorldRequest, prepare_world
+from . import process
 
 OK = Result.RESULT_OK
 NOT_FOUND = Result.RESULT_NOT_FOUND
@@ -660,10 +661,17 @@ class SimulationInterfaces:
                 refusal = await self._kernels_for(self.node.convex_kernels.before_loading(outcome))
                 if refusal is not None:
                     return refusal
-                try:
-                    self.node.load_world(outcome.scene, outcome.drawings)
-                except SceneError as exc:  # e.g. the node's substeps with this scene's shapes
-                    return R.RESOURCE_PARSE_ERROR, str(exc)
+                building = process.build_world(self.node.world, outcome.scene, self.node.outputs.build_for_another)
+                refusal = await self._kernels_for(building)
+                if refusal is not None:
+                    return refusal
+                new = building.result()
+                if isinstance(new, SceneError):  # e.g. the node's substeps with this scene's shapes
+                    return R.RESOURCE_PARSE_ERROR, str(new)
+                if isinstance(new, Exception):
+                    self.node.get_logger().error(f"load_world: building the world failed: {new!r}")
+                    return FAILED, f"internal error building the world: {new!r}"
+                self.node.load_world(new, outcome.drawings)
         finally:
             self.loading = False
         self._abort_job("interrupted: another world was loaded")
