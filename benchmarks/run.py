@@ -48,7 +48,7 @@ BENCHMARKS = {"tick": "bench_tick.py", "realtime": "bench_realtime.py", "rigid":
               "mesh": "bench_mesh.py", "robots": "bench_robots.py"}
 EXTRAS = {"bag": "bench_bag.py", "integrators": "bench_integrators.py", "scenes": "bench_scenes.py",
           "render": "bench_render.py", "flock_stats": "bench_flock_stats.py", "recording": "bench_recording.py",
-          "fresh_clone": "bench_fresh_clone.py"}
+          "fresh_clone": "bench_fresh_clone.py", "load_world": "bench_load_world.py"}
 
 #: issue 12's figures measured by the scripts above, in the issue's order: (id, benchmark, the issue's wording).
 #: Figures other scripts mark ``issue12`` (the rigid-body ones) follow them in the table.

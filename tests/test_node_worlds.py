@@ -149,6 +149,7 @@ def test_load_world_switches_scenes_with_clients_connected(start_node, probe, tm
             (dict(uri="/x/world.sdf"), LoadWorld.Response.UNSUPPORTED_FORMAT, ".sdf file"),
             (dict(uri="https://example.com/w.yaml"), LoadWorld.Response.UNSUPPORTED_FORMAT, "local files"),
             (dict(uri=str(broken)), LoadWorld.Response.RESOURCE_PARSE_ERROR, "size[1]: must be > 0"),
+            (dict(uri="/dev/zero"), LoadWorld.Response.RESOURCE_PARSE_ERROR, "not a regular file"),
             (dict(resource="bodies: {a: 1"), LoadWorld.Response.RESOURCE_PARSE_ERROR, "resource_string"),
             (dict(), LoadWorld.Response.NO_RESOURCE, "both empty")):
         refused = load(sim, **request)
