@@ -695,16 +695,29 @@ class World:
         """Its category, description and tags: what :meth:`set_entity_info` was told, else what it is (a robot
         and its links ``robot``, a flock ``dynamic_object``, a fixed body ``static_object``, any other body
         ``object``).  :class:`EditError` ``unknown`` if there is no such entity."""
-        kind = self.kind_of(name)
+        self.kind_of(name)
         if name in self._info:
             return self._info[name]
-        if kind == "robot":
-            return EntityInfo("robot", f"robot, {len(self._robot_links(name))} links with collision geometry")
-        if kind == "flock":
-            return EntityInfo("dynamic_object", f"flock of {len(self._flock(name).positions)} boids")
-        i = self.body_model.names.index(name)
-        robot = name.split("/", 1)[0] if "/" in name and name.split("/", 1)[0] in self.robot_names() else None
-        return default_body_info(self.body_model, i, robot)
+        return self._default_info([name])[name]
+
+    def _default_info(self, names) -> dict[str, EntityInfo]:
+        """What each of ``names`` (existing entities) is before anyone says otherwise, in one pass over the
+        world (a filter over 10,000 bodies must not look each one up in the model's list)."""
+        wanted, found = set(names), {}
+        robots = self.robot_names()
+        for robot in robots:
+            if robot in wanted:
+                found[robot] = EntityInfo("robot", f"robot, {len(self._robot_links(robot))} links with collision "
+                                                   "geometry")
+        for flock in self.flocks:
+            if flock.params.name in wanted:
+                found[flock.params.name] = EntityInfo("dynamic_object", f"flock of {len(flock.positions)} boids")
+        robots = set(robots)
+        for i, name in enumerate(self.body_model.names):
+            if name in wanted:
+                owner = name.split("/", 1)[0] if "/" in name else None
+                found[name] = default_body_info(self.body_model, i, owner if owner in robots else None)
+        return found
 
     def set_entity_info(self, name: str, category: str, description: str = "", tags=()) -> None:
         """Replace entity ``name``'s info (kept until it is deleted, or a spawned one is reset away, or another
@@ -715,9 +728,12 @@ class World:
     def entities_with_info(self, names: list[str], categories=(), tags=(), match_all: bool = False) -> list[str]:
         """Those of ``names`` whose category is one of ``categories`` (none given: any) and whose tags pass
         ``tags`` (:func:`cgp_core.entities.tags_match`)."""
+        if not categories and not tags:
+            return list(names)
+        defaults = self._default_info([n for n in names if n not in self._info])
         kept = []
         for name in names:
-            info = self.entity_info(name)
+            info = self._info.get(name) or defaults[name]
             if (not categories or info.category in categories) and tags_match(info.tags, tags, match_all):
                 kept.append(name)
         return kept
