@@ -51,7 +51,7 @@ KEYS = st.sampled_from(["name", "shape", "radius", "size", "length", "particles"
                         "orientation", "linear_velocity", "angular_velocity", "friction", "restitution", "fixed",
                         "count", "spawn", "center", "extent", "bounds", "min", "max", "mode", "weights", "rules",
                         "couzin", "neighbors", "k", "neighbor_search", "goal", "model", "world", "bodies",
-                        "flocks", "gravity", "substeps", "ground", "x"])
+                        "flocks", "gravity", "substeps", "ground", "x", "named_poses", "tags", "description"])
 TREES = st.recursive(SCALARS, lambda inner: st.one_of(st.lists(inner, max_size=5),
                                                         st.dictionaries(KEYS, inner, max_size=6)), max_leaves=30)
 
@@ -137,6 +137,35 @@ def test_any_yaml_tree_is_a_scene_or_a_scene_error(data):
     except SceneError as exc:
         assert exc.problems and "internal error" not in str(exc)
         event("refused")
+
+
+NAMED_POSES = st.lists(st.fixed_dictionaries(
+    {"name": st.one_of(st.sampled_from(["a", "b", "ground", "1x"]), SCALARS)},
+    optional={"position": st.one_of(vector(3), TREES), "orientation": st.one_of(vector(4), TREES),
+              "tags": st.one_of(st.lists(SCALARS, max_size=4), SCALARS), "description": SCALARS,
+              "bounds": st.one_of(st.fixed_dictionaries({}, optional={"min": vector(3), "max": vector(3),
+                                                                      "radius": EDGE_FLOATS}), TREES)}), max_size=4)
+
+
+@given(st.one_of(NAMED_POSES, TREES))
+def test_any_named_poses_are_poses_or_a_scene_error(poses):
+    """Issue 36's ``named_poses`` section: what passes is finite, normalized and bounded as the services send it."""
+    try:
+        scene = parse_scene(dump({"named_poses": poses}), "fuzz.yaml")
+    except SceneError as exc:
+        assert exc.problems and "internal error" not in str(exc)
+        event("refused")
+        return
+    event("poses")
+    names = [p.name for p in scene.named_poses]
+    assert len(names) == len(set(names))
+    for pose in scene.named_poses:
+        assert np.all(np.isfinite(pose.position)) and np.all(np.abs(pose.position) <= limits.MAX_COORDINATE)
+        assert abs(np.linalg.norm(pose.orientation) - 1.0) < 1e-12
+        assert all(isinstance(t, str) for t in pose.tags) and isinstance(pose.description, str)
+        if pose.bounds is not None:
+            assert (pose.bounds.radius is not None and pose.bounds.radius > 0) or \
+                bool(np.all(pose.bounds.lower < pose.bounds.upper))
 
 
 @given(st.text(max_size=400), st.integers(0, 12_000))
