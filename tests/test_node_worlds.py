@@ -59,8 +59,9 @@ def clock_ns(msg) -> int:
     return msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
 
 
-def load(sim, uri: str = "", resource: str = ""):
-    return sim.call(LoadWorld, LoadWorld.Request(uri=uri, resource_string=resource), timeout=60.0)
+def load(sim, uri: str = "", resource: str = "", ignore: bool = False):
+    return sim.call(LoadWorld, LoadWorld.Request(uri=uri, resource_string=resource,
+                                                 ignore_missing_or_unsupported_assets=ignore), timeout=60.0)
 
 
 def entry(name: str, resource: str, position=(0.0, 0.0, 0.0), allow_renaming: bool = False) -> SpawnEntityEntry:
@@ -151,7 +152,8 @@ def test_load_world_switches_scenes_with_clients_connected(start_node, probe, tm
             (dict(uri=str(broken)), LoadWorld.Response.RESOURCE_PARSE_ERROR, "size[1]: must be > 0"),
             (dict(uri="/dev/zero"), LoadWorld.Response.RESOURCE_PARSE_ERROR, "not a regular file"),
             (dict(resource="bodies: {a: 1"), LoadWorld.Response.RESOURCE_PARSE_ERROR, "resource_string"),
-            (dict(), LoadWorld.Response.NO_RESOURCE, "both empty")):
+            (dict(), LoadWorld.Response.NO_RESOURCE, "both empty"),
+            (dict(uri="arm", ignore=True), Result.RESULT_FEATURE_UNSUPPORTED, "loaded whole or not at all")):
         refused = load(sim, **request)
         assert refused.result.result == code and words in refused.result.error_message, (request, refused.result)
     assert sim.names() == DEFAULT and sim.call(GetCurrentWorld).world.name == "default"
@@ -173,6 +175,8 @@ def test_load_world_switches_scenes_with_clients_connected(start_node, probe, tm
     assert refused.result.result == SetSimulationState.Response.INCORRECT_TRANSITION, refused.result
     again = sim.call(UnloadWorld)
     assert again.result.result == UnloadWorld.Response.NO_WORLD_LOADED, again.result
+    nowhere = sim.spawn("b1", BOX)
+    assert nowhere.result.result == Result.RESULT_INCORRECT_STATE and "no world" in nowhere.result.error_message
     assert load(sim, uri="default").result.result == OK
     assert sim.names() == DEFAULT and sim.simulation_state() == S.STATE_STOPPED
     probe.spin_for(0.2)
@@ -203,6 +207,8 @@ def test_spawn_entities_info_bounds_named_poses(start_node, probe):
     assert taken.results[1].result.result == SpawnEntity.Response.NAME_NOT_UNIQUE and sim.names() == DEFAULT
     empty = sim.call(SpawnEntities, SpawnEntities.Request())
     assert empty.result.result == FAILED and "empty" in empty.result.error_message
+    many = sim.call(SpawnEntities, SpawnEntities.Request(spawn_requests=[entry(f"m{k}", BOX) for k in range(65)]))
+    assert many.result.result == FAILED and "at most 64" in many.result.error_message and sim.names() == DEFAULT
 
     good = sim.call(SpawnEntities, SpawnEntities.Request(spawn_requests=[
         entry("b1", BOX, (3, -3, 1)), entry("", "body: {shape: sphere, radius: 0.25}", (5, -3, 1), True)]))

@@ -483,6 +483,8 @@ class SimulationInterfaces:
                 return (R.NAME_NOT_UNIQUE if exc.kind == "name_taken" else R.NAME_INVALID), str(exc)
         if self.quitting:
             return INCORRECT_STATE, "the simulator is quitting"
+        if not self.node.world.loaded:
+            return INCORRECT_STATE, "no world is loaded: nothing to spawn into (load_world first)"
         return None
 
     def _spawn_request(self, request) -> SpawnRequest:
