@@ -85,11 +85,11 @@ def test_features_say_exactly_what_is_supported(start_node, probe):
         F.SIMULATION_RESET, F.SIMULATION_RESET_STATE, F.SIMULATION_RESET_SPAWNED, F.SIMULATION_STATE_GETTING,
         F.SIMULATION_STATE_SETTING, F.SIMULATION_STATE_PAUSE, F.STEP_SIMULATION_SINGLE, F.STEP_SIMULATION_MULTIPLE,
         F.STEP_SIMULATION_ACTION, F.WORLD_LOADING, F.WORLD_RESOURCE_STRING, F.WORLD_UNLOADING, F.WORLD_INFO_GETTING,
+        F.WORLD_TAGS,
         F.AVAILABLE_WORLDS, F.SPAWNABLES, F.SPAWNING_ENTITIES, F.ENTITY_INFO_GETTING, F.ENTITY_INFO_SETTING,
         F.ENTITY_CATEGORIES, F.ENTITY_TAGS, F.ENTITY_BOUNDS, F.NAMED_POSES, F.POSE_BOUNDS}
-    # not claimed: SIMULATION_RESET_TIME (time never goes back), WORLD_TAGS, ENTITY_BOUNDS_BOX / _CONVEX filters
-    assert not {F.SIMULATION_RESET_TIME, F.WORLD_TAGS, F.ENTITY_BOUNDS_BOX, F.ENTITY_BOUNDS_CONVEX} & \
-        set(features.features)
+    # not claimed: SIMULATION_RESET_TIME (time never goes back), ENTITY_BOUNDS_BOX / _CONVEX filters
+    assert not {F.SIMULATION_RESET_TIME, F.ENTITY_BOUNDS_BOX, F.ENTITY_BOUNDS_CONVEX} & set(features.features)
 
 
 def test_load_world_switches_scenes_with_clients_connected(start_node, probe, tmp_path):
@@ -106,11 +106,16 @@ def test_load_world_switches_scenes_with_clients_connected(start_node, probe, tm
     worlds = sim.call(GetAvailableWorlds)
     assert worlds.result.result == OK, worlds.result
     assert [w.name for w in worlds.worlds] == builtin_scene_names()
-    assert all(w.world_resource.uri == w.name and w.description for w in worlds.worlds)
+    assert all(w.world_resource.uri == w.name and w.description and w.tags for w in worlds.worlds)
+    robots = sim.call(GetAvailableWorlds, GetAvailableWorlds.Request(filter=TagsFilter(tags=["robot"])))
+    assert [w.name for w in robots.worlds] == ["arm"] and list(robots.worlds[0].tags) == ["robot", "urdf", "contacts"]
+    both = TagsFilter(tags=["flock", "couzin"], filter_mode=TagsFilter.FILTER_MODE_ALL)
+    assert [w.name for w in sim.call(GetAvailableWorlds, GetAvailableWorlds.Request(filter=both)).worlds] == \
+        ["couzin_torus", "predator"]
     current = sim.call(GetCurrentWorld)
     assert current.result.result == OK and current.world.name == "default" and current.world.world_resource.uri \
         == "default"
-    assert "fish" in current.world.description
+    assert "fish" in current.world.description and list(current.world.tags) == ["flock", "rigid_bodies"]
     assert sim.names() == DEFAULT
     probe.spin_until(lambda: len(fish_poses.messages) > 0, 20, "the fish school's poses")
     probe.spin_until(lambda: len(clock.messages) > 10, 20, "the default scene ticking")

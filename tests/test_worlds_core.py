@@ -4,13 +4,15 @@ entity info, entity bounds against the shapes' closed forms, the ``named_poses``
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
 from cgp_core import EditError, SceneError, World
 from cgp_core.entities import body_frame_bounds, box_corners
 from cgp_core.rotation import quat_to_matrix
-from cgp_core.scene import parse_scene
+from cgp_core.scene import available_scenes, builtin_scene_names, load_scene, parse_scene
 
 
 def fresh(name: str) -> World:
@@ -192,6 +194,22 @@ def test_named_poses_are_parsed():
     assert world.named_pose("perch") is perch
     with pytest.raises(EditError, match="no named pose 'nowhere' .*dock, perch, goal"):
         world.named_pose("nowhere")
+
+
+def test_scene_tags_and_the_gallery():
+    assert parse_scene("tags: [indoor, robot]\n").tags == ("indoor", "robot")
+    assert parse_scene("bodies: []\n").tags == ()
+    for text, problem in (("tags: indoor", "tags: must be a list of strings"),
+                          ("tags: [1]", "tags[0]: must be a string"),
+                          (f"tags: {list(map(str, range(33)))}", "tags: 33 tags; at most 32")):
+        with pytest.raises(SceneError, match=re.escape(problem)):
+            parse_scene(text + "\n")
+    gallery = {g.name: g for g in available_scenes()}
+    assert sorted(gallery) == builtin_scene_names()
+    for name, entry in gallery.items():  # what the gallery reads without validating is what loading gives
+        scene = load_scene(name)
+        assert (entry.tags, entry.description) == (scene.tags, scene.description), name
+        assert entry.tags and len(entry.description) > 80
 
 
 @pytest.mark.parametrize("entries, problems", [

@@ -23,7 +23,8 @@ def _vec(values) -> str:
 def pyramid(base: int = 6, size: float = 0.5, gap: float = 0.02) -> str:
     """Box2D's pyramid benchmark in 3D: a wall of ``base`` boxes, one fewer in each row above, each box
     centred over the gap between the two below it; boxes touch vertically, ``gap`` apart sideways."""
-    lines = [HEADER, "description: >\n",
+    lines = [HEADER, "tags: [rigid_bodies, contacts, stacking]  # get_available_worlds' world tags\n",
+             "description: >\n",
              f"  Contacts: a pyramid of {base * (base + 1) // 2} boxes ({size:g} m, 5 kg) in {base} rows, each box "
              "resting on the two below\n  it (Box2D's pyramid). It stands: sequential impulses with warm "
              "starting and box-on-box manifolds\n  solved as blocks keep every box in place until the bodies sleep "
@@ -56,7 +57,8 @@ def sphere_pile(count: int = 1000, radius: float = 0.1, box: float = 5.0, seed: 
     pos[:, :2] += rng.uniform(-0.04, 0.04, size=(count, 2))
     hue = (pos[:, 2] - pos[:, 2].min()) / np.ptp(pos[:, 2])  # colour by starting height: watch them mix
     colors = np.column_stack((0.25 + 0.7 * hue, 0.45 + 0.2 * np.sin(np.pi * hue), 0.9 - 0.7 * hue))
-    lines = [HEADER, "description: >\n",
+    lines = [HEADER, "tags: [rigid_bodies, contacts]  # get_available_worlds' world tags\n",
+             "description: >\n",
              f"  Contacts at scale: {count:,} spheres (r = {radius:g} m, 1 kg, mu 0.5, e 0.3) dropped from a jittered "
              f"lattice\n  into a {box:g} x {box:g} m box of fixed walls. A uniform-grid broad phase, "
              "graph-coloured sequential impulses\n  and speculative contacts: none tunnels, the pile settles with "
@@ -87,7 +89,8 @@ def random_hull_points(rng, count: int, across: float) -> np.ndarray:
 def convex_pile(rocks: int = 6, hulls: int = 10, seed: int = 25) -> str:
     """Rocks from rock.stl (some scaled) and random hulls dropped onto the terrain mesh, on a jittered grid."""
     rng = np.random.default_rng(seed)
-    lines = [HEADER, "description: >\n",
+    lines = [HEADER, "tags: [rigid_bodies, convex, mesh]  # get_available_worlds' world tags\n",
+             "description: >\n",
              f"  Convex shapes and a triangle-mesh world (issue 25): {rocks} rocks read from rock.stl (their convex "
              f"hulls) and\n  {hulls} random convex hulls (16-24 points each) dropped onto terrain.obj, a static "
              "mesh of 1,152\n  triangles with a BVH. GJK/EPA with face clipping give each hull a manifold of up "
@@ -127,7 +130,8 @@ def bullet() -> str:
     """A fast ball and a fast hull at a thin (5 mm) convex wall, and at a one-triangle mesh wall.  The lanes are
     6 m apart: a body passing another within its speculative margin (h · 300 m/s: 2.5 m at 30 Hz) feels a
     "ghost" contact (see cgp_core.collision.detector), which has nothing to do with what this scene shows."""
-    lines = [HEADER, "description: >\n",
+    lines = [HEADER, "tags: [rigid_bodies, continuous_collision, convex]  # get_available_worlds' world tags\n",
+             "description: >\n",
              f"  Continuous collision (issue 25): a 2 cm ball and a 4 cm convex hull shot at {BULLET_SPEED:g} m/s "
              "(5 m per 60 Hz tick)\n  at a 5 mm thick convex wall, and another pair at a wall made of a single "
              "mesh triangle\n  (triangle.obj). None of them gets through, at 30, 60 or 240 Hz: speculative "
@@ -165,7 +169,8 @@ def chain() -> str:
     d = np.array([np.sin(CHAIN_ANGLE), 0.0, -np.cos(CHAIN_ANGLE)])
     top = np.array([0.0, 0.0, CHAIN_TOP])
     half = np.sin((np.pi - CHAIN_ANGLE) / 2), np.cos((np.pi - CHAIN_ANGLE) / 2)  # capsule z along the chain
-    lines = [HEADER, "description: >\n",
+    lines = [HEADER, "tags: [rigid_bodies, joints]  # get_available_worlds' world tags\n",
+             "description: >\n",
              "  Joints between free bodies (issue 35): a 5 kg ball on a chain of 30 capsule links (0.1 kg each)\n"
              "  hanging from a block 1,000 times heavier on a pin, released at 1 rad, sweeps through a wall of\n"
              "  boxes. The joints form a tree, simulated in reduced coordinates like a robot: no link ever\n"

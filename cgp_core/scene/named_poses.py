@@ -96,18 +96,22 @@ def parse_named_pose(v: Validator, raw: Any, key: str, seen: set[str]) -> NamedP
         v.fail(f"{key}.orientation", "zero quaternion (x, y, z, w); identity is [0, 0, 0, 1]")
         q = np.array([0, 0, 0, 1.0])
     description = _text(v, raw.get("description", ""), f"{key}.description")
-    tags = raw.get("tags", [])
-    if not isinstance(tags, list):
-        v.fail(f"{key}.tags", f"must be a list of strings, got {kind_of(tags)}")
-        tags = []
-    elif len(tags) > MAX_TAGS:
-        v.fail(f"{key}.tags", f"{len(tags)} tags; at most {MAX_TAGS}")
-        tags = []
-    tags = tuple(_text(v, t, f"{key}.tags[{i}]") for i, t in enumerate(tags))
+    tags = parse_tags(v, raw.get("tags", []), f"{key}.tags")
     bounds = _bounds(v, raw["bounds"], f"{key}.bounds") if "bounds" in raw else None
     if len(v.problems) > before:
         return None
     return NamedPoseSpec(raw["name"], position, quat_normalize(q), description, tags, bounds)
+
+
+def parse_tags(v: Validator, raw: Any, key: str) -> tuple[str, ...]:
+    """A list of at most MAX_TAGS strings (a named pose's, a scene's ``tags:``)."""
+    if not isinstance(raw, list):
+        v.fail(key, f"must be a list of strings, got {kind_of(raw)}")
+        return ()
+    if len(raw) > MAX_TAGS:
+        v.fail(key, f"{len(raw)} tags; at most {MAX_TAGS}")
+        return ()
+    return tuple(_text(v, t, f"{key}[{i}]") for i, t in enumerate(raw))
 
 
 def _text(v: Validator, value: Any, key: str) -> str:

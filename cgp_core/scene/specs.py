@@ -68,6 +68,8 @@ class Scene:
     #: the poses the scene names (cgp_core.scene.named_poses.NamedPoseSpec), and its ``description:`` text
     named_poses: list[Any] = field(default_factory=list)
     description: str = ""
+    #: the scene's ``tags:`` (simulation_interfaces' world tags: get_available_worlds filters on them)
+    tags: tuple[str, ...] = ()
 
     def rigid_work(self) -> tuple[int, int]:
         """``(shapes, particles)`` of the bodies, the counts a tick's work is bounded by
