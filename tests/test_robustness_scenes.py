@@ -35,7 +35,8 @@ BAD_SCENES = {
     "top level a list": ("- ball\n- crate\n", "top level", "must be a mapping"),
     # unknown keys (typos), with the valid ones listed
     "unknown top-level key": ("bodys: []\n", "bodys",
-                              "unknown key (valid: bodies, description, flocks, joints, named_poses, robots, tags, world)"),
+                              "unknown key (valid: bodies, description, flocks, joints, named_poses, robots, tags, "
+                              "world)"),
     "unknown world key": ("world: {gravty: [0, 0, 0]}\n", "world.gravty", "unknown key (valid: angular_damping, "),
     "unknown body key": ("bodies: [{name: a, shape: sphere, radius: 1, mass: 1, colour: [1, 0, 0, 1]}]",
                          "bodies[0].colour", "unknown key"),

@@ -38,6 +38,11 @@ def test_load_replaces_everything_and_keeps_the_clock():
     assert world.entity_info("crate").description == "box body, 0.5 kg"  # the old world's info went with it
     world.step()
     assert world.time_ns == time_ns + world.dt_ns and world.ticks == ticks + 1
+    world.spawn({"body": {"shape": "sphere", "radius": 0.1}}, name="extra", position=[1, 1, 1])
+    world.delete("block")
+    world.reset()  # back to the loaded scene, not the first one
+    assert world.entity_names() == arm.entity_names()
+    np.testing.assert_array_equal(world.body_state.position, arm.body_state.position)
 
     world.load("default")
     default = fresh("default")
