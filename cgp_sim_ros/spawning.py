@@ -68,6 +68,7 @@ def prepare(request: SpawnRequest) -> Spawned | Refusal:
     from cgp_core.world import prepare_spawn, unique_name
 
     from .drawing.bodies import model_drawings
+    from .drawing.robots import visual_drawings
 
     try:
         mesh = mesh_uri(request.uri) if request.uri else None
@@ -102,6 +103,8 @@ def prepare(request: SpawnRequest) -> Spawned | Refusal:
         return Refusal(exc.kind if exc.kind in ("name_taken", "name_invalid", "invalid_pose") else "not_possible",
                        str(exc))
     drawings = model_drawings(prepared.model) if prepared.model is not None else []
+    if prepared.robot is not None and prepared.robot.model is not None:  # its URDF visuals (mesh files read here)
+        drawings += visual_drawings(prepared.robot.model)
     return Spawned(prepared, drawings)
 
 
@@ -198,6 +201,7 @@ def _prepare_entry(entry: dict, world) -> None:
     from cgp_core.world import prepare_spawn
 
     from .drawing.bodies import model_drawings
+    from .drawing.robots import visual_drawings
 
     try:
         prepared = prepare_spawn(entry, world, name="warm_up", taken=set(), position=(0.0, 0.0, 10.0),
@@ -206,3 +210,5 @@ def _prepare_entry(entry: dict, world) -> None:
         return
     if prepared.model is not None:
         model_drawings(prepared.model)
+    if prepared.robot is not None:
+        visual_drawings(prepared.robot.model)

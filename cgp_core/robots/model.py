@@ -84,6 +84,11 @@ class Geometry:
     rgba: np.ndarray | None
     link: str
 
+    def __deepcopy__(self, memo):
+        # immutable (frozen, its arrays never written): a deep copy of a world (the node's warm-up) shares it, so
+        # that what is keyed by its identity (its drawing, cgp_sim_ros/drawing/robots.py) is not made again
+        return self
+
 
 @dataclass(frozen=True, eq=False, repr=False)
 class RobotModel:

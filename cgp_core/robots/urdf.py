@@ -425,6 +425,12 @@ def _tree(robot_el, label: str) -> _Tree:
                                                         f"material '{el.get('name')}' rgba"), 0.0, 1.0)
         if len(links) > MAX_URDF_LINKS:
             raise UrdfError(f"{label}: more than {MAX_URDF_LINKS} links")
+    # a material named and coloured inside a link's <visual> can be used by name elsewhere, as urdfdom reads it
+    # (the top-level definition wins)
+    for el in robot_el.iterfind("link/visual/material"):
+        name, color = el.get("name"), el.find("color")
+        if name and color is not None and name not in materials:
+            materials[name] = np.clip(_floats(color.get("rgba"), 4, f"material '{name}' rgba"), 0.0, 1.0)
     if not links:
         raise UrdfError(f"{label}: no <link>")
     joints, names, parent_of = [], set(), {}

@@ -971,6 +971,30 @@ class Robots:
         p = position[m.frame_body] + np.einsum("kij,kj->ki", rotation[m.frame_body], m.frame_position)
         return m.frame_names, R, p
 
+    def visuals(self, name: str) -> tuple:
+        """Every ``<visual>`` of robot ``name`` as a :class:`~cgp_core.robots.model.Geometry` (its pose in the
+        frame of the robot body it is on), in model order: bodies parent before child, each body's visuals in
+        URDF order (a merged link's after its body's own).  Empty for a scene articulation (no URDF)."""
+        return tuple(g for per_body in self.robot(name).model.visuals for g in per_body)
+
+    def visual_poses(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """Where every visual of robot ``name`` (:meth:`visuals`' order) is in the world now: ``(rotation
+        (v, 3, 3), position (v, 3) [m])``, the pose of the body it is on (forward kinematics at the current q)
+        composed with the visual's origin: R = R_b R_v, p = p_b + R_b p_v."""
+        r = self.robot(name)
+        k = self.robots.index(r)
+        rotation, position = self._poses[k] if hasattr(self, "_poses") else algorithms.forward_kinematics(
+            r.arrays, self.q[r.q_slice])
+        m = r.model
+        if m.__dict__.get("_visual_frames") is None:  # (v,) body, (v, 3, 3) and (v, 3) origin: made once
+            body = np.array([b for b, per_body in enumerate(m.visuals) for _ in per_body], np.int64)
+            local_R = np.array([g.rotation for g in self.visuals(name)], float).reshape(len(body), 3, 3)
+            local_p = np.array([g.position for g in self.visuals(name)], float).reshape(len(body), 3)
+            object.__setattr__(m, "_visual_frames", (body, local_R, local_p))
+        body, local_R, local_p = m.__dict__["_visual_frames"]
+        R_b, p_b = rotation[body], position[body]
+        return R_b @ local_R, p_b + np.einsum("kij,kj->ki", R_b, local_p)
+
     # ---- the facade the node uses (cgp_sim_ros: joint_states, joint_commands, robot_description, TF) ---------
 
     def description(self, name: str) -> str:

@@ -146,9 +146,10 @@ def model_drawings(model) -> list[tuple[object, object]]:
 
 
 class Drawings:
-    """The drawings of the shapes a world holds, by shape object (a hull or mesh object is shared by the
-    model, its copies and resets: its drawing is made once).  A shape without one gets it made on first use
-    (on the calling thread: the scene's bodies at start-up); spawned bodies bring theirs from the worker."""
+    """The drawings of the shapes a world holds, by shape object (a hull or mesh object — or a robot's visual
+    geometry — is shared by the model, its copies and resets: its drawing is made once).  A shape without one
+    gets it made on first use (on the calling thread: the scene's bodies at start-up); spawned bodies bring
+    theirs from the worker."""
 
     def __init__(self):
         self._by_id: dict[int, tuple[object, object]] = {}  # id(shape) -> (shape: kept alive, drawing)
@@ -167,6 +168,16 @@ class Drawings:
         entry = self._by_id.get(id(mesh))
         if entry is None:
             entry = self._by_id[id(mesh)] = (mesh, mesh_drawing(mesh))
+        return entry[1]
+
+    def visual(self, geometry):
+        """A robot visual's :class:`~cgp_sim_ros.drawing.robots.VisualDrawing` (its mesh file read here if it was
+        not drawn before: the scene's robots at start-up; spawned ones bring theirs from the worker)."""
+        entry = self._by_id.get(id(geometry))
+        if entry is None:
+            from .robots import visual_drawing
+
+            entry = self._by_id[id(geometry)] = (geometry, visual_drawing(geometry))
         return entry[1]
 
     def keep(self, shapes) -> None:

@@ -22,6 +22,13 @@ Markers (``~/markers``, frame ``world``), with stable namespaces and ids:
   tick (tick mod K): every boid is redrawn every K ticks, with the same bytes on every tick (the whole flock
   every K-th tick was a burst the bag writer's compression then spent the next tick's second core on).
   K = 1: one marker, id 0, every tick.
+- ``robots/<robot>`` / 0 … v−1: a robot's URDF ``<visual>`` elements (:mod:`cgp_sim_ros.drawing.robots`), one
+  marker each in the order of :meth:`cgp_core.robots.world.Robots.visuals`, in ``world`` at the link's pose
+  composed with the visual's origin: CUBE, SPHERE, CYLINDER, TRIANGLE_LIST (an STL / OBJ mesh, the URDF's scale
+  in its points) or MESH_RESOURCE (another mesh format, a ``file://`` URI), in the URDF's colours.  A robot with
+  visuals is drawn only by them: its link bodies (``bodies/<robot>/<link>``, their collision shapes) are not
+  drawn; a robot without visuals keeps its link bodies' markers.  Robots count as bodies for the level of detail
+  (each robot one more entry after the bodies, redrawn in the part its bytes fall in);
 - ``contacts/points`` / 0 and ``contacts/forces`` / 0 … k−1 (parameter ``contact_markers``): a SPHERE_LIST of the
   tick's contact points and one ARROW per contact from its point along the contact force on entity_b (normal +
   friction, ``contact_force_scale`` m/N); the arrows of contacts gone since the last tick are DELETEd in the same
@@ -55,6 +62,7 @@ from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
 from cgp_core.bodies import Shape
+from cgp_core.robots.links import link_name
 from cgp_core.rotation import matrix_to_quat, quat_multiply, quat_rotate
 
 from ..drawing.bodies import Drawings
@@ -111,7 +119,13 @@ class TickMessages:
         #: how hulls are drawn ('full' | 'low') and the parts B the bodies' markers are split into (set_plan)
         self.hull_detail = "full"
         self.body_parts = 1
-        self._body_part = np.zeros(world.body_model.count, dtype=np.int64)  # (n,) each body's part
+        robots = world.robots
+        #: the robots drawn by their URDF visuals (robot_names order; the others are drawn by their link bodies)
+        self.visual_robots = [name for name in robot_names(world) if robots.visuals(name)]
+        #: (n,) bool: a body not drawn as a body (a link of a robot drawn by its visuals)
+        self._hidden = self._hidden_links(world)
+        #: (n + r,) the part each body's markers, then each visual robot's, are drawn in (set_plan)
+        self._body_part = np.zeros(world.body_model.count + len(self.visual_robots), dtype=np.int64)
         #: contacts in the last ~/contacts message and in the tick's report (the cap: MAX_CONTACTS_PER_MESSAGE)
         self.contacts_sent = self.contacts_of = 0
         self.frame_id = frame_id = frames.world
@@ -126,7 +140,6 @@ class TickMessages:
         self._flock_stats = [cdr.FlockStatsSerializer(frame_id) for _ in world.flocks]
         #: every robot's ~/robots/<robot>/joint_states, in the order of robot_names(world) (its joints do not
         #: change while the robot exists: laid out once)
-        robots = world.robots
         self._joint_states = [(name, cdr.JointStateSerializer(robots.joint_state(name)[0]))
                               for name in robot_names(world)]
         #: the fish drawing per flock name ('full' | 'low') and the parts K each flock's marker is split into
@@ -150,14 +163,35 @@ class TickMessages:
         self.body_parts = max(1, int(plan.body_markers_every))
         self._body_part = body_parts(self.body_marker_bytes(self.hull_detail), self.body_parts)
 
+    @staticmethod
+    def _hidden_links(world) -> np.ndarray:
+        """(n,) bool: the link bodies of the robots that have URDF visuals (drawn by those instead)."""
+        model = world.body_model
+        hidden = np.zeros(model.count, dtype=bool)
+        row = {name: i for i, name in enumerate(model.names)}
+        robots = world.robots
+        for name in robot_names(world):
+            if robots.visuals(name):
+                for body in robots.robot(name).model.body_names:
+                    i = row.get(link_name(name, body))
+                    if i is not None:
+                        hidden[i] = True
+        return hidden
+
     def body_marker_bytes(self, detail: str) -> np.ndarray:
-        """(n,) the payload of each body's markers drawn once with hulls in ``detail`` [bytes] (about: the points
-        and :data:`MARKER_OVERHEAD_BYTES` per marker; 0 for a static mesh, which is not on ``~/markers``)."""
+        """(n + r,) the payload of each body's markers, then of each visual robot's (:attr:`visual_robots`),
+        drawn once with hulls and visual meshes in ``detail`` [bytes] (about: the points and
+        :data:`MARKER_OVERHEAD_BYTES` per marker; 0 for a static mesh, which is not on ``~/markers``, and for a
+        link body drawn by its robot's visuals)."""
         model = self.world.body_model
-        out = np.zeros(model.count, dtype=np.int64)
+        out = np.zeros(model.count + len(self.visual_robots), dtype=np.int64)
+        for j, name in enumerate(self.visual_robots):
+            drawings = [self.drawings.visual(g) for g in self.world.robots.visuals(name)]
+            out[model.count + j] = sum(MARKER_OVERHEAD_BYTES + len(d.uri) + _POINT_BYTES * len(d.points(detail))
+                                       for d in drawings if d.kind != "none")
         for i in range(model.count):
             shape = int(model.shape[i])
-            if shape == Shape.MESH:
+            if shape == Shape.MESH or self._hidden[i]:
                 continue
             if shape == Shape.COMPOUND:
                 parts = model.parts[i]
@@ -192,8 +226,11 @@ class TickMessages:
         model = self.world.body_model
         ids = {f"bodies/{name}": ({0, 1, 2} if int(shape) == int(Shape.CAPSULE) else
                                   part_marker_ids(parts) if int(shape) == int(Shape.COMPOUND) else {0})
-               for name, shape, parts in zip(model.names, model.shape, model.parts)
-               if int(shape) != int(Shape.MESH)}  # (static meshes: on ~/static_markers)
+               for name, shape, parts, hidden in zip(model.names, model.shape, model.parts, self._hidden)
+               if int(shape) != int(Shape.MESH) and not hidden}  # (static meshes: on ~/static_markers)
+        for name in self.visual_robots:
+            ids[f"robots/{name}"] = {k for k, g in enumerate(self.world.robots.visuals(name))
+                                     if self.drawings.visual(g).kind != "none"}
         ids.update({f"flocks/{f.params.name}": set(range(self.flock_parts(f))) for f in self.world.flocks})
         return ids
 
@@ -289,7 +326,9 @@ class TickMessages:
             out.append(cdr.marker(cdr.MarkerFields(
                 marker_type=cdr.CUBE, ns="ground", id=0, position=(0.0, 0.0, -0.025),
                 scale=(GROUND_SIZE, GROUND_SIZE, 0.05), color=GROUND_COLOR, **common)))
-        out.extend(self._body_markers(common, None if delete_all_first else tick % self.body_parts))
+        part = None if delete_all_first else tick % self.body_parts
+        out.extend(self._body_markers(common, part))
+        out.extend(self._robot_markers(common, part))
         for index, flock in enumerate(self.world.flocks):
             parts = self.flock_parts(flock)
             for part in (range(parts) if delete_all_first else (tick % parts,)):
@@ -332,9 +371,11 @@ class TickMessages:
         positions, orientations = state.position.tolist(), state.orientation.tolist()
         stamp, frame_id = common["stamp_ns"], common["frame_id"]
         drawn = range(model.count) if part is None or self.body_parts == 1 else \
-            np.flatnonzero(self._body_part == part).tolist()
+            np.flatnonzero(self._body_part[:model.count] == part).tolist()
         out = []
         for i in drawn:
+            if self._hidden[i]:
+                continue
             shape = int(model.shape[i])
             if shape == Shape.COMPOUND:
                 out.extend(self._part_markers(i, stamp, frame_id))
@@ -347,6 +388,44 @@ class TickMessages:
                     out.append(self._body_marker(i, part, frame_id).serialize(stamp, position.tolist(),
                                                                               orientations[i]))
         return out
+
+    def _robot_markers(self, common: dict, part: int | None = None) -> list[bytes]:
+        """The visual markers of the robots of ``part`` (None: every robot) at the visuals' poses now (forward
+        kinematics composed with the visual origins: ``Robots.visual_poses``), from templates laid out once."""
+        robots, first = self.world.robots, self.world.body_model.count
+        stamp, frame_id = common["stamp_ns"], common["frame_id"]
+        out = []
+        for j, name in enumerate(self.visual_robots):
+            if part is not None and self.body_parts > 1 and self._body_part[first + j] != part:
+                continue
+            rotation, position = robots.visual_poses(name)
+            orientation = matrix_to_quat(rotation).tolist()  # (v, 4) x y z w, one batched call
+            position = position.tolist()
+            for k, geometry in enumerate(robots.visuals(name)):
+                serializer = self._visual_marker(name, k, geometry, frame_id)
+                if serializer is not None:
+                    out.append(serializer.serialize(stamp, position[k], orientation[k]))
+        return out
+
+    def _visual_marker(self, robot: str, k: int, geometry, frame_id: str) -> cdr.MarkerPoseSerializer | None:
+        """Robot visual k's marker template (None: not drawn), laid out once per detail."""
+        key = ("robot", robot, k, frame_id)
+        if key in self._body_templates:
+            return self._body_templates[key]
+        d = self.drawings.visual(geometry)
+        fields = {"ns": f"robots/{robot}", "id": k, "color": d.color, "frame_id": frame_id, "scale": d.scale}
+        if d.kind == "none":
+            serializer = None
+        else:
+            if d.kind == "triangles":
+                fields.update(marker_type=cdr.TRIANGLE_LIST, points=d.points(self.hull_detail))
+            elif d.kind == "mesh_resource":
+                fields.update(marker_type=cdr.MESH_RESOURCE, mesh_resource=d.uri)
+            else:
+                fields.update(marker_type={"box": cdr.CUBE, "sphere": cdr.SPHERE, "cylinder": cdr.CYLINDER}[d.kind])
+            serializer = cdr.MarkerPoseSerializer(**fields)
+        self._body_templates[key] = serializer
+        return serializer
 
     def _part_markers(self, i: int, stamp: int, frame_id: str) -> list[bytes]:
         """Compound body i's parts at their poses now: position x + R oₖ, orientation q ⊗ qₖ (capsule caps at the

@@ -248,6 +248,9 @@ class SimNode(Node):
         drawings (``(shape, drawing)`` pairs, :mod:`cgp_sim_ros.drawing.bodies`), then make everything follow
         (:meth:`world_edited`).  Raises :class:`cgp_core.editing.EditError` (nothing changed)."""
         self.outputs.drawings.add(drawings)
+        for _, drawing in drawings:
+            if getattr(drawing, "problem", ""):  # a robot visual that is not drawn
+                self.outputs.report_visual_problem(drawing)
         self.world.add_spawned(prepared)
         self.world_edited()
 

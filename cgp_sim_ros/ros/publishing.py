@@ -30,6 +30,7 @@ from std_msgs.msg import String
 from .. import interface as itf
 from ..drawing import detail as lod
 from ..drawing.bodies import Drawings, model_shapes
+from ..drawing.robots import robot_geometries
 from ..wire import cdr
 from .messages import TickMessages, robot_names
 from .qos import CLOCK_QOS, EVENTS_QOS, LATCHED_QOS, STATE_QOS, TF_QOS, TF_STATIC_QOS
@@ -56,7 +57,10 @@ class TickPublisher:
         self.drawings = Drawings()
         for kind, shape in model_shapes(self.world.body_model):
             self.drawings.hull(shape) if kind == "hull" else self.drawings.mesh(shape)
-        self._scene_shapes = [shape for _, shape in model_shapes(self.world.body_model)]
+        visuals = robot_geometries(self.world.robots)  # the robots' URDF visuals (their mesh files read here)
+        for geometry in visuals:
+            self.report_visual_problem(self.drawings.visual(geometry))
+        self._scene_shapes = [shape for _, shape in model_shapes(self.world.body_model)] + visuals
         #: what ~/static_markers last sent (TickMessages.static_signature), None before the first
         self._static_sent: tuple | None = None
         #: ticks whose contacts were more than ~/contacts carries since the last report, and the most of them
@@ -137,9 +141,15 @@ class TickPublisher:
     def rebuild(self) -> None:
         """New per-tick serializers for the world's bodies and flocks now (the plan is set again by the
         caller: :meth:`set_plan`); the drawings of shapes neither the world nor its scene holds are dropped."""
-        self.drawings.keep([*self._scene_shapes, *(shape for _, shape in model_shapes(self.world.body_model))])
+        self.drawings.keep([*self._scene_shapes, *(shape for _, shape in model_shapes(self.world.body_model)),
+                            *robot_geometries(self.world.robots)])
         self.messages = TickMessages(self.world, self._node.frames, contact_force_scale=self._force_scale,
                                      drawings=self.drawings)
+
+    def report_visual_problem(self, drawing) -> None:
+        """Log a robot visual that is not drawn (a mesh file that cannot be read; the robot itself is simulated)."""
+        if drawing.problem:
+            self._node.get_logger().warning(f"robot visual: {drawing.problem}")
 
     def set_plan(self, plan) -> None:
         """Draw as the level-of-detail ``plan`` (:class:`~cgp_sim_ros.drawing.detail.DetailPlan`) says (what is
