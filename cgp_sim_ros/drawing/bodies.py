@@ -170,14 +170,13 @@ class Drawings:
             entry = self._by_id[id(mesh)] = (mesh, mesh_drawing(mesh))
         return entry[1]
 
-    def visual(self, geometry):
-        """A robot visual's :class:`~cgp_sim_ros.drawing.robots.VisualDrawing` (its mesh file read here if it was
-        not drawn before: the scene's robots at start-up; spawned ones bring theirs from the worker)."""
-        entry = self._by_id.get(id(geometry))
+    def of(self, shape, make):
+        """The drawing of any other shape object — a robot's visual geometry, ``make`` =
+        :func:`cgp_sim_ros.drawing.robots.visual_drawing` —, made by ``make(shape)`` on first use (a visual's mesh
+        file read then: the scene's robots at start-up; spawned ones bring theirs from the worker)."""
+        entry = self._by_id.get(id(shape))
         if entry is None:
-            from .robots import visual_drawing
-
-            entry = self._by_id[id(geometry)] = (geometry, visual_drawing(geometry))
+            entry = self._by_id[id(shape)] = (shape, make(shape))
         return entry[1]
 
     def keep(self, shapes) -> None:

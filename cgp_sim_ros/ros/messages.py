@@ -67,6 +67,7 @@ from cgp_core.rotation import matrix_to_quat, quat_multiply, quat_rotate
 
 from ..drawing.bodies import Drawings
 from ..drawing.detail import DetailPlan
+from ..drawing.robots import visual_drawing
 from ..drawing.shapes import FISH_DETAILS, fish_triangles, quantized_points
 from ..interface import MAX_CONTACTS_PER_MESSAGE, UNPREFIXED, Frames
 from ..wire import cdr
@@ -186,7 +187,7 @@ class TickMessages:
         model = self.world.body_model
         out = np.zeros(model.count + len(self.visual_robots), dtype=np.int64)
         for j, name in enumerate(self.visual_robots):
-            drawings = [self.drawings.visual(g) for g in self.world.robots.visuals(name)]
+            drawings = [self.drawings.of(g, visual_drawing) for g in self.world.robots.visuals(name)]
             out[model.count + j] = sum(MARKER_OVERHEAD_BYTES + len(d.uri) + _POINT_BYTES * len(d.points(detail))
                                        for d in drawings if d.kind != "none")
         for i in range(model.count):
@@ -230,7 +231,7 @@ class TickMessages:
                if int(shape) != int(Shape.MESH) and not hidden}  # (static meshes: on ~/static_markers)
         for name in self.visual_robots:
             ids[f"robots/{name}"] = {k for k, g in enumerate(self.world.robots.visuals(name))
-                                     if self.drawings.visual(g).kind != "none"}
+                                     if self.drawings.of(g, visual_drawing).kind != "none"}
         ids.update({f"flocks/{f.params.name}": set(range(self.flock_parts(f))) for f in self.world.flocks})
         return ids
 
@@ -412,7 +413,7 @@ class TickMessages:
         key = ("robot", robot, k, frame_id)
         if key in self._body_templates:
             return self._body_templates[key]
-        d = self.drawings.visual(geometry)
+        d = self.drawings.of(geometry, visual_drawing)
         fields = {"ns": f"robots/{robot}", "id": k, "color": d.color, "frame_id": frame_id, "scale": d.scale}
         if d.kind == "none":
             serializer = None

@@ -30,7 +30,7 @@ from std_msgs.msg import String
 from .. import interface as itf
 from ..drawing import detail as lod
 from ..drawing.bodies import Drawings, model_shapes
-from ..drawing.robots import robot_geometries
+from ..drawing.robots import robot_geometries, visual_drawing
 from ..wire import cdr
 from .messages import TickMessages, robot_names
 from .qos import CLOCK_QOS, EVENTS_QOS, LATCHED_QOS, STATE_QOS, TF_QOS, TF_STATIC_QOS
@@ -59,7 +59,7 @@ class TickPublisher:
             self.drawings.hull(shape) if kind == "hull" else self.drawings.mesh(shape)
         visuals = robot_geometries(self.world.robots)  # the robots' URDF visuals (their mesh files read here)
         for geometry in visuals:
-            self.report_visual_problem(self.drawings.visual(geometry))
+            self.report_visual_problem(self.drawings.of(geometry, visual_drawing))
         self._scene_shapes = [shape for _, shape in model_shapes(self.world.body_model)] + visuals
         #: what ~/static_markers last sent (TickMessages.static_signature), None before the first
         self._static_sent: tuple | None = None
