@@ -282,3 +282,27 @@ def test_a_big_visual_mesh_is_clustered_to_its_cap(tmp_path):
     assert 0 < len(drawing.low) < len(drawing.full)
     # a view of the same sheet: its points stay on it
     assert np.all((drawing.full >= -1e-9) & (drawing.full <= 1 + 1e-9))
+
+
+def test_visual_robots_count_in_the_level_of_detail_and_their_markers_go_with_them(tmp_path):
+    world = World.from_scene("arm")
+    world.spawn({"robot": {"urdf": str(mesh_robot(tmp_path))}}, name="meshy")
+    world.step()
+    messages = TickMessages(world)
+    model = world.body_model
+    full, low = messages.body_marker_bytes("full"), messages.body_marker_bytes("low")
+    # one entry per body, then one per robot drawn by its visuals (arm, meshy); their link bodies count nothing
+    assert len(full) == model.count + 2 and messages.visual_robots == ["arm", "meshy"]
+    links = [i for i, name in enumerate(model.names) if name.startswith(("arm/", "meshy/"))]
+    assert links and not full[links].any()
+    # the arm: 7 primitives; meshy: a 4-triangle mesh (12 points of 24 bytes), a sphere and a cylinder
+    overhead = 200  # messages.MARKER_OVERHEAD_BYTES
+    assert full[model.count] == 7 * overhead
+    assert full[model.count + 1] == low[model.count + 1] == 3 * overhead + 12 * 24
+    # deleted: its namespace leaves the ids drawn (the node DELETEs them: TickPublisher.retire_markers)
+    assert messages.marker_ids()["robots/meshy"] == {0, 1, 2}
+    world.delete("meshy")
+    world.step()
+    after = TickMessages(world)
+    assert "robots/meshy" not in after.marker_ids() and after.marker_ids()["robots/arm"] == set(range(7))
+    assert not [m for m in markers_of(world) if m.ns.startswith(("robots/meshy", "bodies/meshy/"))]
