@@ -30,17 +30,24 @@ Rules, for the parameters' automatic values (``fish_detail: auto``, ``markers_ev
 3. in the bag, ``~/flocks/<flock>/poses`` is recorded every M-th tick, the smallest M that fits the poses
    budget (all flocks together; every message is still published).
 
-The bodies have a budget of their own, :data:`BODY_MARKER_BYTES_PER_S` (issue 38: 300 convex bodies with
-1,000-vertex hulls made ``~/markers`` 43 MB per tick, and the node ran at 13.6 Hz):
+The bodies' shapes do not change while they exist, so every body with a TF frame of its own is drawn once, in
+that frame (``frame_locked``: a viewer moves it with ``/tf``), on the latched ``~/static_markers``, sent again only
+when the set changes (a spawn, a delete, another hull detail); ``~/markers`` carries no body a TF frame places
+(issue 37: a 100-hull pile's 140 kB per tick, sent again every tick, were most of the node's own cost per body).
+Only a robot's links, whose TF frames are the URDF link frames rather than their body frames, are drawn at their
+poses on ``~/markers`` every tick.  Two bounds:
 
-4. hulls (convex bodies, compound parts) are drawn ``full`` (their triangles) if every body's markers at full
-   detail fit the body budget on every tick; otherwise ``low``: the hull of their extreme vertices in 26
-   directions, at most 48 triangles (:mod:`cgp_sim_ros.drawing.bodies`);
-5. the bodies' markers are redrawn every B-th tick, the smallest B that fits the body budget — in B parts of
-   about equal bytes (consecutive bodies), one part per tick, as the flocks' are.
+4. hulls (convex bodies, compound parts) are drawn ``full`` (their triangles) if the bodies' set on
+   ``~/static_markers`` fits :data:`BODY_SET_BYTES` in full and the robots' links on ``~/markers`` fit the body
+   budget :data:`BODY_MARKER_BYTES_PER_S` on every tick; otherwise ``low``: the hull of their extreme vertices in
+   26 directions, at most 48 triangles (:mod:`cgp_sim_ros.drawing.bodies`) — issue 38's 300 bodies with 1,000-vertex
+   hulls, 43 MB in full, are then ~1 MB, sent once.  Past the cap in low detail too (thousands of compound bodies
+   of hull parts) the set is still sent whole, once per change: the limits on bodies and parts
+   (:mod:`cgp_core.limits`) bound it, and a viewer needs every body;
+5. the robots' link markers on ``~/markers`` are redrawn every B-th tick, the smallest B that fits the body budget
+   — in B parts of about equal bytes (consecutive bodies), one part per tick, as the flocks' are.
 
-Static meshes are not on ``~/markers`` at all: they go on ``~/static_markers``, latched (transient local, as
-``/tf_static``), once when they change, each with at most
+Static meshes go on ``~/static_markers`` too, in frame ``world`` at their poses, each with at most
 :data:`~cgp_sim_ros.drawing.bodies.STATIC_MESH_TRIANGLES` triangles.  ``~/contacts`` (and the contact markers)
 carry at most :data:`~cgp_sim_ros.interface.MAX_CONTACTS_PER_MESSAGE` contacts, the strongest.
 
@@ -60,8 +67,12 @@ from .shapes import FISH_DETAILS
 MARKER_BYTES_PER_S = 32e6
 #: flock PoseArray payload per simulated second the bag keeps to [bytes]
 BAG_POSES_BYTES_PER_S = 32e6
-#: body marker payload per simulated second the automatic choices keep to [bytes] (rules 4 and 5)
+#: per-tick body marker payload (a robot's links on ~/markers) per simulated second the automatic choices keep to
+#: [bytes] (rules 4 and 5)
 BODY_MARKER_BYTES_PER_S = 16e6
+#: the bodies' markers on the latched ~/static_markers, sent whole when the set changes: hulls in full up to this
+#: [bytes] (rule 4)
+BODY_SET_BYTES = 8e6
 
 _POINT_BYTES = 24  # geometry_msgs/Point: 3 float64
 _POSE_BYTES = 56  # geometry_msgs/Pose: 7 float64
@@ -80,8 +91,9 @@ class DetailPlan:
     rate_hz:            the tick rate the plan was made for.
     lines:              the choices in words, with their reasons (what the node logs).
     hull_detail:        ``"full"`` | ``"low"``: how hulls are drawn (rule 4).
-    body_markers_every: the bodies' markers redrawn every B ticks, in B parts (rule 5).
-    body_marker_bytes:  payload of every body's markers drawn once, at the chosen detail [bytes].
+    body_markers_every: the per-tick bodies' markers (a robot's links) redrawn every B ticks, in B parts (rule 5).
+    body_marker_bytes:  payload of the per-tick bodies' markers drawn once, at the chosen detail [bytes].
+    body_set_bytes:     payload of the bodies' markers on ``~/static_markers``, at the chosen detail [bytes].
     """
 
     fish_detail: dict
@@ -94,6 +106,7 @@ class DetailPlan:
     hull_detail: str = "full"
     body_markers_every: int = 1
     body_marker_bytes: int = 0
+    body_set_bytes: int = 0
 
     def custom_data(self, flock_topics: dict[str, str], marker_topic: str) -> dict[str, str]:
         """The plan for the bag's ``custom_data`` (str → str): per recorded topic that is not in the bag on
@@ -140,10 +153,12 @@ def _per_tick(every: int, rate_hz: float) -> str:
 
 
 def plan(flocks, rate_hz: float, fish_detail: str = "auto", markers_every: int = 0,
-         flock_poses_every: int = 0, body_bytes: tuple[int, int] = (0, 0)) -> DetailPlan:
-    """The level of detail for ``flocks`` (their :class:`~cgp_core.boids.FlockParams`) and bodies whose markers,
-    all drawn once, are ``body_bytes`` = (at full hull detail, at low) bytes, at ``rate_hz``; the parameters as
-    the node has them (``"auto"`` / 0 = follow the rules of the module docstring)."""
+         flock_poses_every: int = 0, body_bytes: tuple[int, int] = (0, 0),
+         body_set_bytes: tuple[int, int] = (0, 0)) -> DetailPlan:
+    """The level of detail for ``flocks`` (their :class:`~cgp_core.boids.FlockParams`) and bodies whose per-tick
+    markers (a robot's links), all drawn once, are ``body_bytes`` = (at full hull detail, at low) bytes and whose
+    markers on ``~/static_markers`` are ``body_set_bytes`` (likewise), at ``rate_hz``; the parameters as the node
+    has them (``"auto"`` / 0 = follow the rules of the module docstring)."""
     if fish_detail not in FISH_DETAIL_CHOICES:
         raise ValueError(f"fish_detail must be one of {', '.join(FISH_DETAIL_CHOICES)}, got {fish_detail!r}")
     fish = [p for p in flocks if p.model == "fish"]
@@ -199,27 +214,40 @@ def plan(flocks, rate_hz: float, fish_detail: str = "auto", markers_every: int =
     else:
         lines.append(f"bag: ~/flocks/*/poses recorded {_per_tick(flock_poses_every, rate_hz)} "
                      "(bag_flock_poses_every parameter; published every tick).")
-    hull_detail, body_every, body_payload = _body_plan(body_bytes, rate_hz, lines)
+    hull_detail, body_every, body_payload = _body_plan(body_bytes, body_set_bytes, rate_hz, lines)
     return DetailPlan(fish_detail={p.name: detail for p in fish}, markers_every=markers_every,
                       flock_poses_every=flock_poses_every, marker_bytes=payload, pose_bytes=poses, rate_hz=rate_hz,
                       lines=lines, hull_detail=hull_detail, body_markers_every=body_every,
-                      body_marker_bytes=body_payload)
+                      body_marker_bytes=body_payload,
+                      body_set_bytes=body_set_bytes[1] if hull_detail == "low" else body_set_bytes[0])
 
 
-def _body_plan(body_bytes: tuple[int, int], rate_hz: float, lines: list) -> tuple[str, int, int]:
-    """Rules 4 and 5: (hull detail, every how many ticks the bodies are redrawn, their payload at that detail)."""
+def _body_plan(body_bytes: tuple[int, int], set_bytes: tuple[int, int], rate_hz: float,
+               lines: list) -> tuple[str, int, int]:
+    """Rules 4 and 5: (hull detail, every how many ticks the per-tick bodies are redrawn, their payload at that
+    detail)."""
     full, low = body_bytes
+    set_full, set_low = set_bytes
     budget = BODY_MARKER_BYTES_PER_S
-    if full * rate_hz <= budget:
-        return "full", 1, full
-    detail = "low" if low < full else "full"
+    over_rate, over_set = full * rate_hz > budget, set_full > BODY_SET_BYTES
+    detail = "low" if (over_rate or over_set) and (low < full or set_low < set_full) else "full"
     payload = low if detail == "low" else full
     every = _every(payload, rate_hz, budget)
     if detail == "low":
-        lines.append(f"hulls drawn with low detail (at most 48 triangles each): in full the bodies' markers would be "
-                     f"{_megabytes(full)} per tick, {_megabytes(full * rate_hz)}/s at {rate_hz:g} Hz, over the "
-                     f"{_megabytes(budget)}/s body marker budget.")
-    lines.append(f"body markers redrawn {_per_tick(every, rate_hz)}"
-                 + ("" if every == 1 else f", in {every} parts, one per tick")
-                 + f": {_megabytes(payload)} for every body.")
+        reasons = []
+        if over_set:
+            reasons.append(f"the bodies on ~/static_markers would be {_megabytes(set_full)}, over its "
+                           f"{_megabytes(BODY_SET_BYTES)} cap")
+        if over_rate:
+            reasons.append(f"the robots' links on ~/markers would be {_megabytes(full)} per tick, "
+                           f"{_megabytes(full * rate_hz)}/s at {rate_hz:g} Hz, over the {_megabytes(budget)}/s body "
+                           "marker budget")
+        lines.append("hulls drawn with low detail (at most 48 triangles each): in full " + "; ".join(reasons) + ".")
+    if set_full:
+        lines.append(f"bodies drawn once, in their own TF frames, on ~/static_markers "
+                     f"({_megabytes(set_low if detail == 'low' else set_full)}; sent again when the set changes).")
+    if every > 1 or (full and detail == "low"):
+        lines.append(f"robot link markers redrawn {_per_tick(every, rate_hz)}"
+                     + ("" if every == 1 else f", in {every} parts, one per tick")
+                     + f": {_megabytes(payload)} for every link.")
     return detail, every, payload

@@ -28,6 +28,8 @@ from cgp_core.user_input import UserInputError, load_yaml, open_user_file, read_
 MARKER_ARRAY_SCHEMA = "visualization_msgs/msg/MarkerArray"
 #: the topic the node publishes its markers on (``~/markers`` of a node named cgp_sim)
 DEFAULT_MARKER_TOPIC = "/cgp_sim/markers"
+#: the TF topics read beside the markers (as tf2 names them)
+TF_TOPICS = ("/tf_static", "/tf")
 _SPLIT_INDEX = re.compile(r"_(\d+)\.mcap$")
 #: a rosbag2 metadata.yaml's bytes (the node's are a few kB; one per topic and file)
 MAX_METADATA_BYTES = 4 * 1024 * 1024
@@ -51,6 +53,9 @@ class MarkerStream:
     #: the latched companion of ``topic`` in this bag (``~/static_markers`` beside ``~/markers``: the static
     #: meshes, sent when they change), or None; drawn together with ``topic``
     static_topic: str | None = None
+    #: the bag's TF topics (``/tf``, ``/tf_static``) with messages: they place the markers drawn in TF frames
+    #: (the node's bodies, ``frame_locked`` in their own frames on the static topic)
+    tf_topics: tuple = ()
 
     def messages(self, start_ns: int | None = None, end_ns: int | None = None,
                  topic: str | None = None) -> Iterator[tuple[int, bytes]]:
@@ -188,6 +193,7 @@ def open_marker_stream(bag: str | Path, topic: str | None = None) -> MarkerStrea
     stream = MarkerStream(files, topic, candidates[topic], start, end, damaged)
     if topic.endswith("/markers") and candidates.get(topic[:-len("markers")] + "static_markers"):
         stream.static_topic = topic[:-len("markers")] + "static_markers"
+    stream.tf_topics = tuple(t for t in TF_TOPICS if next(stream.messages(topic=t), None) is not None)
     # time 0 is the first picture there is: the first marker message (a bag may start with other topics, e.g. a
     # cgp-sim bag's start-up event on ~/events at t = 0, one tick before the first markers)
     stream.start_ns = next(stream.messages())[0]

@@ -11,8 +11,9 @@ format: ``.mp4`` (H.264 through the ffmpeg that the ``imageio-ffmpeg`` wheel shi
 palette for the whole animation, looping), ``.png`` (one picture at ``--from``; a name with a printf pattern
 such as ``%04d`` writes one numbered picture per frame).
 
-The static meshes, which the node sends on the latched ``~/static_markers`` when they change (not on every
-tick), are drawn with the ``~/markers`` of the same instant (``--topic T`` draws ``T`` and, beside a ``.../markers``
+The bodies and static meshes, which the node sends on the latched ``~/static_markers`` when they change (not on
+every tick; the bodies in their own TF frames, placed by the bag's ``/tf`` and ``/tf_static`` as a viewer places
+them), are drawn with the ``~/markers`` of the same instant (``--topic T`` draws ``T`` and, beside a ``.../markers``
 topic, its ``.../static_markers``).
 
 Time: ``--from`` / ``--to`` are seconds from the first marker message of the bag (for a cgp-sim bag that is the
@@ -42,7 +43,7 @@ from cgp_core.user_input import UserInputError, regular_file
 from ..progress import ProgressLine, bar, format_duration
 from ..wire import cdr
 from .bagread import BagError, MarkerStream, open_marker_stream
-from .primitives import MarkerSet, extent_points, primitives
+from .primitives import MarkerSet, Transforms, extent_points, primitives
 from .raster import Camera, Rasterizer
 
 FORMATS = (".mp4", ".gif", ".png")
@@ -190,21 +191,49 @@ class _TopicReplay:
             self._pending = None
 
 
+class _TransformReplay:
+    """One TF topic's messages applied to :class:`Transforms` up to increasing times (undecodable ones skipped)."""
+
+    def __init__(self, messages, transforms: Transforms) -> None:
+        self._messages = messages
+        self._pending: tuple[int, bytes] | None = None
+        self.transforms = transforms
+
+    def at(self, time_ns: int) -> Transforms:
+        while True:
+            if self._pending is None:
+                self._pending = next(self._messages, None)
+                if self._pending is None:
+                    return self.transforms
+            stamp, data = self._pending
+            if stamp > time_ns:
+                return self.transforms
+            try:
+                self.transforms.apply(cdr.read_tf_message(data))
+            except cdr.CdrError:
+                pass
+            self._pending = None
+
+
 class FrameSource:
     """Marker sets at increasing times, from one pass over the bag: the marker topic's and, beside it, its
     latched static markers' (each topic's DELETEALL clears that topic's markers only, as a viewer's display per
-    topic does)."""
+    topic does), placed by the bag's TF (:class:`~cgp_sim_ros.render.primitives.Transforms`)."""
 
     def __init__(self, stream: MarkerStream, undecodable: Undecodable | None = None) -> None:
         self.undecodable = undecodable or Undecodable()
         self._topics = [_TopicReplay(stream.messages(), self.undecodable)]
         if stream.static_topic:
             self._topics.insert(0, _TopicReplay(stream.messages(topic=stream.static_topic), self.undecodable))
+        self.transforms = Transforms()
+        self._tf = [_TransformReplay(stream.messages(topic=t), self.transforms) for t in stream.tf_topics]
 
     def at(self, time_ns: int) -> list:
         """The markers on display at ``time_ns``: every message logged at or before it applied (times must not
         decrease between calls)."""
-        return [m for replay in self._topics for m in replay.at(time_ns).markers.values()]
+        for replay in self._tf:
+            replay.at(time_ns)
+        return self.transforms.place([m for replay in self._topics for m in replay.at(time_ns).markers.values()])
 
 
 def default_camera(stream: MarkerStream, times: np.ndarray, aspect: float, args,
@@ -215,15 +244,22 @@ def default_camera(stream: MarkerStream, times: np.ndarray, aspect: float, args,
     points = []
     static = _TopicReplay(stream.messages(topic=stream.static_topic), undecodable or Undecodable()) \
         if stream.static_topic else None  # (few messages: read from the start)
+    # TF: /tf_static from the start (few messages), /tf from the lookback window before each sample
+    static_tf = [_TransformReplay(stream.messages(topic=t), Transforms()) for t in stream.tf_topics if "static" in t]
     for t in samples:
+        transforms = Transforms()
+        for replay in static_tf:
+            transforms.apply(list(replay.at(int(t)).frames.values()))
+        for topic in (name for name in stream.tf_topics if "static" not in name):
+            _TransformReplay(stream.messages(int(t) - FRAMING_LOOKBACK_NS, int(t), topic=topic), transforms).at(int(t))
         markers = MarkerSet()
         for _stamp, data in stream.messages(int(t) - FRAMING_LOOKBACK_NS, int(t)):
             decoded = (undecodable or Undecodable()).decode(data)
             if decoded is not None:
                 markers.apply(decoded)
-        points.append(extent_points(markers))
+        points.append(extent_points(transforms.place(markers.markers.values())))
         if static is not None:
-            points.append(extent_points(static.at(int(t))))
+            points.append(extent_points(transforms.place(static.at(int(t)).markers.values())))
     return Camera.framing(np.concatenate(points), aspect, azimuth_deg=args.azimuth,
                           elevation_deg=args.elevation, fov_deg=args.fov)
 

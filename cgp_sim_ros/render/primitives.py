@@ -2,9 +2,12 @@
 
 :class:`MarkerSet` keeps the markers a viewer would show at a given time (RViz's rules: a marker is keyed by
 ``(ns, id)``; ADD/MODIFY replace it, DELETE removes it, DELETEALL removes every marker — or those of its
-``ns`` when given, as ``visualization_msgs/Marker`` documents).  Every marker is taken to be in one fixed
-frame (the node publishes everything in ``world``); ``lifetime`` is not applied (the node's markers never
-expire).
+``ns`` when given, as ``visualization_msgs/Marker`` documents); ``lifetime`` is not applied (the node's markers
+never expire).  :class:`Transforms` holds the bag's TF (``/tf``, ``/tf_static``) as a viewer's TF buffer would, and
+:meth:`Transforms.place` puts a marker whose frame is a TF child frame — the node draws every body once, in its own
+frame, ``frame_locked`` (issue 37) — into the root frame (``world``) with the latest transform, as RViz and Foxglove
+do for frame-locked markers; a marker in a frame TF has not given yet is not drawn (a viewer cannot place it
+either); the others are taken to be in the root frame.
 
 :func:`primitives` turns the set into :class:`Primitives`:
 
@@ -26,11 +29,11 @@ A marker with alpha 0 is invisible; other alphas are drawn opaque.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from cgp_core.rotation import quat_to_matrix
+from cgp_core.rotation import quat_multiply, quat_rotate, quat_to_matrix
 
 from ..wire import cdr
 
@@ -70,6 +73,45 @@ class MarkerSet:
 
     def __len__(self) -> int:
         return len(self.markers)
+
+
+class Transforms:
+    """The latest transform of every TF child frame (``child -> cdr.TransformData``), from TFMessages applied in
+    log-time order."""
+
+    #: the longest chain of parent frames followed (a cycle in a damaged bag ends there)
+    MAX_DEPTH = 64
+
+    def __init__(self) -> None:
+        self.frames: dict[str, cdr.TransformData] = {}
+
+    def apply(self, transforms: list[cdr.TransformData]) -> None:
+        for t in transforms:
+            self.frames[t.child] = t
+
+    def place(self, markers) -> list[cdr.MarkerData]:
+        """``markers`` with those in a TF child frame moved into its root frame; those in a frame TF has not given
+        (frame_locked ones: the node's bodies before their first transform) left out."""
+        out = []
+        for m in markers:
+            if m.frame_id not in self.frames:
+                if not m.frame_locked:
+                    out.append(m)
+                continue
+            position, orientation = np.asarray(m.position, dtype=float), np.asarray(m.orientation, dtype=float)
+            if not np.any(orientation):
+                orientation = np.array([0.0, 0.0, 0.0, 1.0])
+            frame = m.frame_id
+            for _ in range(self.MAX_DEPTH):
+                t = self.frames.get(frame)
+                if t is None:
+                    break
+                q = t.rotation / (np.linalg.norm(t.rotation) or 1.0)
+                position = quat_rotate(q, position) + t.translation
+                orientation = quat_multiply(q, orientation)
+                frame = t.parent
+            out.append(replace(m, frame_id=frame, position=position, orientation=orientation))
+        return out
 
 
 @dataclass

@@ -1,7 +1,14 @@
 """What the node publishes each tick, serialized once as CDR bytes (:mod:`cgp_sim_ros.wire.cdr`, numpy-built and
 proven equal to rclpy's serialization in tests/test_cdr.py) — the same bytes are published and recorded.
 
-Markers (``~/markers``, frame ``world``), with stable namespaces and ids:
+Markers, with stable namespaces and ids.  Every body with a TF frame of its own (a movable body on ``/tf``, a fixed
+one on ``/tf_static``) is drawn **once**, in that frame, on the latched ``~/static_markers`` (below): its marker is
+``frame_locked`` with its pose fixed in the body frame, and a viewer moves it with ``/tf`` (RViz and Foxglove
+re-transform frame-locked markers with the latest transform on every frame).  A body's shape does not change while
+it exists, so re-sending its geometry every tick sent the same bytes again and again — a 100-hull pile's markers
+were 140 kB per tick (8.4 MB/s), and serializing and publishing them was most of the node's own cost per body
+(issue 37; ``benchmarks/bench_node_cost.py``).  Only a robot's link bodies, whose TF frames are the URDF link
+frames rather than their body frames, are drawn on ``~/markers`` at their poses (frame ``world``) every tick:
 
 - ``ground`` / 0: a thin grey CUBE under z = 0 (only when the scene has a ground plane);
 - ``bodies/<body>`` / 0: the body's shape — SPHERE, CUBE (box), CYLINDER (capsule shaft; ids 1 and 2 are the
@@ -35,11 +42,14 @@ Markers (``~/markers``, frame ``world``), with stable namespaces and ids:
   array (ids k … before the arrays' new ones).
 After a reset the first marker of the array is a DELETEALL, then the full set (every part).
 
-``~/static_markers`` (latched: transient local, keep last 1): the static meshes, ``bodies/<body>`` / 0, a
-TRIANGLE_LIST in the body's frame at the body's pose (at most
-:data:`~cgp_sim_ros.drawing.bodies.STATIC_MESH_TRIANGLES` triangles), after a DELETEALL: the whole set, sent on
-the first tick and whenever a static mesh is spawned, deleted or moved (issue 38: a 500,000-triangle mesh, 36 MB,
-was re-sent every second on ``~/markers``).
+``~/static_markers`` (latched: transient local, keep last 1), after a DELETEALL, the whole set: the static meshes,
+``bodies/<body>`` / 0, a TRIANGLE_LIST in frame ``world`` at the body's pose (at most
+:data:`~cgp_sim_ros.drawing.bodies.STATIC_MESH_TRIANGLES` triangles; issue 38: a 500,000-triangle mesh, 36 MB, was
+re-sent every second on ``~/markers``), then every other body but a robot's links, with the namespaces and ids
+above, in its own frame, ``frame_locked`` (:meth:`TickMessages.framed_markers`).  Sent on the first tick and
+whenever that set changes — a body spawned or deleted, a static mesh moved, the hulls' level of detail changed —
+so that a subscriber that joins late (and the bag, and a viewer seeking in it) gets every body's geometry, and
+``/tf`` / ``/tf_static`` place it.  A sleeping pile's ``~/markers`` then carries the ground alone.
 
 ``~/contacts`` (``cgp_sim_msgs/Contacts``): the world's :class:`~cgp_core.solver.report.ContactReport` of the tick,
 by :class:`cgp_sim_ros.wire.cdr.ContactsSerializer` (rclpy's message building took 7-10 ms for a 100-box pile's
@@ -90,6 +100,15 @@ def robot_names(world) -> list[str]:
     return [] if getattr(world, "robots", None) is None else list(world.robots.names())
 
 
+def robot_link_rows(world) -> np.ndarray:
+    """(n_bodies,) bool: the world bodies that are a robot's links (named ``<robot>/<link>``)."""
+    names = world.body_model.names
+    prefixes = tuple(f"{robot}/" for robot in robot_names(world))
+    if not prefixes:
+        return np.zeros(len(names), dtype=bool)
+    return np.array([name.startswith(prefixes) for name in names], dtype=bool)
+
+
 def part_marker_ids(parts) -> set[int]:
     """The marker ids of a compound body's parts: 3k for part k, 3k + 1 and 3k + 2 for a capsule part's caps."""
     ids = set()
@@ -130,7 +149,17 @@ class TickMessages:
         #: contacts in the last ~/contacts message and in the tick's report (the cap: MAX_CONTACTS_PER_MESSAGE)
         self.contacts_sent = self.contacts_of = 0
         self.frame_id = frame_id = frames.world
+        self.frames = frames
         model = world.body_model
+        # Which body is drawn where (see the module docstring): in its own TF frame on ~/static_markers, sent
+        # when the set changes (every body with a frame on /tf or /tf_static), or at its pose on ~/markers every
+        # tick (a robot's link bodies: their TF frames are the URDF link frames, not the body frames)
+        links = robot_link_rows(world)
+        drawn = np.asarray(model.shape, dtype=np.int64) != int(Shape.MESH)
+        #: (k,) the bodies drawn on ~/markers on every tick (at their poses, frame world)
+        self.per_tick_bodies = np.flatnonzero(drawn & links & ~self._hidden)
+        #: (m,) the bodies drawn once in their own frame (frame_locked) on ~/static_markers
+        self.framed_bodies = np.flatnonzero(drawn & ~links)
         self._contacts = cdr.ContactsSerializer(frame_id, model.names)
         #: metres per newton of the contact force arrows; None: no contact markers
         self.contact_force_scale = contact_force_scale
@@ -179,11 +208,11 @@ class TickMessages:
                         hidden[i] = True
         return hidden
 
-    def body_marker_bytes(self, detail: str) -> np.ndarray:
+    def _marker_bytes(self, detail: str) -> np.ndarray:
         """(n + r,) the payload of each body's markers, then of each visual robot's (:attr:`visual_robots`),
         drawn once with hulls and visual meshes in ``detail`` [bytes] (about: the points and
-        :data:`MARKER_OVERHEAD_BYTES` per marker; 0 for a static mesh, which is not on ``~/markers``, and for a
-        link body drawn by its robot's visuals)."""
+        :data:`MARKER_OVERHEAD_BYTES` per marker; 0 for a static mesh, drawn at most STATIC_MESH_TRIANGLES, and
+        for a link body drawn by its robot's visuals)."""
         model = self.world.body_model
         out = np.zeros(model.count + len(self.visual_robots), dtype=np.int64)
         for j, name in enumerate(self.visual_robots):
@@ -207,10 +236,26 @@ class TickMessages:
             out[i] = markers * MARKER_OVERHEAD_BYTES + points * _POINT_BYTES
         return out
 
+    def body_marker_bytes(self, detail: str) -> np.ndarray:
+        """(n + r,) the payload of each body's markers on ``~/markers``, then of each visual robot's, drawn once
+        with hulls in ``detail`` [bytes] (0 for the bodies drawn on ``~/static_markers`` instead)."""
+        every = self._marker_bytes(detail)
+        n = self.world.body_model.count
+        out = np.zeros(len(every), dtype=np.int64)
+        out[self.per_tick_bodies] = every[self.per_tick_bodies]
+        out[n:] = every[n:]
+        return out
+
     def body_bytes(self) -> tuple[int, int]:
-        """(full, low): the payload of every body's markers drawn once with hulls in full and in low detail
-        [bytes], for the level-of-detail plan."""
+        """(full, low): the payload of the per-tick bodies' markers (``~/markers``) drawn once with hulls in full
+        and in low detail [bytes], for the level-of-detail plan."""
         return int(self.body_marker_bytes("full").sum()), int(self.body_marker_bytes("low").sum())
+
+    def body_set_bytes(self) -> tuple[int, int]:
+        """(full, low): the payload of the bodies' markers on ``~/static_markers`` (every body but a robot's links
+        and the static meshes), with hulls in full and in low detail [bytes], for the level-of-detail plan."""
+        rows = self.framed_bodies
+        return int(self._marker_bytes("full")[rows].sum()), int(self._marker_bytes("low")[rows].sum())
 
     def flock_parts(self, flock) -> int:
         """How many parts (marker ids 0 .. parts − 1) ``flock``'s marker is split into: at least one boid each."""
@@ -224,11 +269,11 @@ class TickMessages:
     def marker_ids(self) -> dict[str, set[int]]:
         """Marker namespace -> the ids :meth:`markers` draws (over its ticks): a body's shape (0) and a capsule's
         end caps (1, 2); every part of a flock's marker."""
-        model = self.world.body_model
-        ids = {f"bodies/{name}": ({0, 1, 2} if int(shape) == int(Shape.CAPSULE) else
-                                  part_marker_ids(parts) if int(shape) == int(Shape.COMPOUND) else {0})
-               for name, shape, parts, hidden in zip(model.names, model.shape, model.parts, self._hidden)
-               if int(shape) != int(Shape.MESH) and not hidden}  # (static meshes: on ~/static_markers)
+        model = self.world.body_model  # (the other bodies: on ~/static_markers, replaced as a whole)
+        shapes = [int(model.shape[i]) for i in self.per_tick_bodies.tolist()]
+        ids = {f"bodies/{model.names[i]}": ({0, 1, 2} if shape == int(Shape.CAPSULE) else
+                                            part_marker_ids(model.parts[i]) if shape == int(Shape.COMPOUND) else {0})
+               for i, shape in zip(self.per_tick_bodies.tolist(), shapes)}
         for name in self.visual_robots:
             ids[f"robots/{name}"] = {k for k, g in enumerate(self.world.robots.visuals(name))
                                      if self.drawings.of(g, visual_drawing).kind != "none"}
@@ -339,16 +384,25 @@ class TickMessages:
         return cdr.marker_array(out)
 
     def static_signature(self) -> tuple:
-        """What ``~/static_markers`` shows: (name, mesh object, position, orientation) of every static mesh (it is
-        sent again when this changes)."""
+        """What ``~/static_markers`` shows: (name, mesh object, position, orientation) of every static mesh, then
+        the hull detail and (name, shape, shape objects, colour) of every body drawn in its own frame (it is sent
+        again when this changes: a spawn, a delete, a moved static mesh, another hull detail)."""
         model, state = self.world.body_model, self.world.body_state
-        return tuple((model.names[i], id(model.meshes[i]), tuple(state.position[i].tolist()),
-                      tuple(state.orientation[i].tolist()))
-                     for i in range(model.count) if int(model.shape[i]) == Shape.MESH)
+        meshes = tuple((model.names[i], id(model.meshes[i]), tuple(state.position[i].tolist()),
+                        tuple(state.orientation[i].tolist()))
+                       for i in range(model.count) if int(model.shape[i]) == Shape.MESH)
+        if not len(self.framed_bodies):
+            return meshes
+        bodies = tuple((model.names[i], int(model.shape[i]), id(model.hulls[i]), id(model.parts[i]),
+                        id(model.particles[i]), float(model.radius[i]),
+                        tuple(np.asarray(model.half_extents[i]).tolist()), tuple(np.asarray(model.color[i]).tolist()))
+                       for i in self.framed_bodies.tolist())
+        return (*meshes, (self.hull_detail, self.frames.prefix, bodies))
 
     def static_markers(self, stamp_ns: int) -> bytes:
         """``~/static_markers``: a DELETEALL, then every static mesh at its pose (its drawing: at most
-        STATIC_MESH_TRIANGLES triangles)."""
+        STATIC_MESH_TRIANGLES triangles), then every other body's shape in the body's own TF frame, frame_locked
+        (:meth:`framed_markers`)."""
         model, state = self.world.body_model, self.world.body_state
         out = [cdr.marker_deleteall(stamp_ns, self.frame_id)]
         for i in range(model.count):
@@ -358,21 +412,61 @@ class TickMessages:
                 marker_type=cdr.TRIANGLE_LIST, stamp_ns=stamp_ns, frame_id=self.frame_id, ns=f"bodies/{model.names[i]}",
                 id=0, position=state.position[i].tolist(), orientation=state.orientation[i].tolist(),
                 color=model.color[i], points=self.drawings.mesh(model.meshes[i]).points)))
+        for i in self.framed_bodies.tolist():
+            out.extend(self.framed_markers(i, stamp_ns))
         return cdr.marker_array(out)
 
+    def framed_markers(self, i: int, stamp_ns: int) -> list[bytes]:
+        """Body i's markers in its own TF frame (``frame_prefix`` + its name: the frame ``/tf`` or ``/tf_static``
+        carries), ``frame_locked``: their poses are fixed in the body frame — identity for the shape, the caps of a
+        capsule at ±half its length along z, a compound's parts at their relative poses — and a viewer moves them
+        with the frame's transform (RViz re-transforms frame-locked markers every frame, Foxglove likewise).  The
+        namespaces and ids are those of ``~/markers`` (module docstring)."""
+        model = self.world.body_model
+        name = model.names[i]
+        common = {"stamp_ns": stamp_ns, "frame_id": self.frames.body(name), "ns": f"bodies/{name}",
+                  "color": model.color[i], "frame_locked": True}
+        shape = Shape(int(model.shape[i]))
+        if shape == Shape.PARTICLES:  # in the body frame already
+            r = model.radius[i]
+            return [cdr.marker(cdr.MarkerFields(marker_type=cdr.SPHERE_LIST, id=0, scale=(2 * r, 2 * r, 2 * r),
+                                                points=model.particles[i][:, :3], **common))]
+        if shape == Shape.COMPOUND:
+            parts = model.parts[i]
+            pieces = [(Shape(int(parts.shape[k])), parts.radius[k], parts.half_extents[k], parts.hulls[k],
+                       parts.position[k], matrix_to_quat(parts.rotation[k]), 3 * k) for k in range(parts.count)]
+        else:
+            pieces = [(shape, model.radius[i], model.half_extents[i], model.hulls[i], np.zeros(3),
+                       np.array([0.0, 0.0, 0.0, 1.0]), 0)]
+        out = []
+        for kind, radius, half_extents, hull, position, orientation, first_id in pieces:
+            points = None if hull is None else self.drawings.hull(hull).points(self.hull_detail)
+            for piece in ((0, 1, 2) if kind == Shape.CAPSULE else (0,)):
+                where = np.asarray(position, dtype=float)
+                if piece:
+                    half_axis = quat_rotate(orientation, np.array([0.0, 0.0, half_extents[2]]))
+                    where = where + (half_axis if piece == 1 else -half_axis)
+                out.append(cdr.marker(cdr.MarkerFields(
+                    id=first_id + piece, position=where.tolist(), orientation=np.asarray(orientation).tolist(),
+                    **_shape_fields(kind, radius, half_extents, points, piece), **common)))
+        return out
+
     def _body_markers(self, common: dict, part: int | None = None) -> list[bytes]:
-        """The markers of the bodies of ``part`` (None: every body) at their current poses (from templates laid
-        out on first use: only the stamp and the pose change from tick to tick); static meshes are not among
-        them (:meth:`static_markers`)."""
+        """The markers of the per-tick bodies (a robot's links: :attr:`per_tick_bodies`) of ``part`` (None: every
+        one) at their current poses (from templates laid out on first use: only the stamp and the pose change from
+        tick to tick); the other bodies are on ``~/static_markers`` (:meth:`static_markers`)."""
         model, state = self.world.body_model, self.world.body_state
-        capsules = np.flatnonzero(model.shape == Shape.CAPSULE)
+        rows = self.per_tick_bodies
+        if not len(rows):
+            return []
+        capsules = rows[model.shape[rows] == Shape.CAPSULE]
         # capsules' end caps: the body position ± the half-length along the body z axis (all capsules at once)
         half_axes = quat_rotate(state.orientation[capsules], model.half_extents[capsules, 2:3] * [[0.0, 0.0, 1.0]])
         caps = {int(i): (state.position[i] + a, state.position[i] - a) for i, a in zip(capsules, half_axes)}
         positions, orientations = state.position.tolist(), state.orientation.tolist()
         stamp, frame_id = common["stamp_ns"], common["frame_id"]
-        drawn = range(model.count) if part is None or self.body_parts == 1 else \
-            np.flatnonzero(self._body_part[:model.count] == part).tolist()
+        drawn = rows.tolist() if part is None or self.body_parts == 1 else \
+            rows[self._body_part[rows] == part].tolist()
         out = []
         for i in drawn:
             if self._hidden[i]:

@@ -331,7 +331,8 @@ class SimNode(Node):
         self.detail = lod.plan([f.params for f in self.world.flocks], self.params["rate_hz"],
                                fish_detail=self.params["fish_detail"], markers_every=self.params["markers_every"],
                                flock_poses_every=self.params["bag_flock_poses_every"],
-                               body_bytes=self.outputs.messages.body_bytes())
+                               body_bytes=self.outputs.messages.body_bytes(),
+                               body_set_bytes=self.outputs.messages.body_set_bytes())
         self.outputs.set_plan(self.detail)
 
     def _replan_detail(self) -> None:
@@ -343,6 +344,7 @@ class SimNode(Node):
             return
         self.get_logger().info("level of detail changed: " + " ".join(self.detail.lines))
         self.outputs.retire_markers()  # fewer parts: the flock's last ones are no longer drawn
+        self.outputs.publish_static_markers()  # the bodies' set in the new hull detail (if it changed)
         if self.recorder is not None:
             self.recorder.set_custom_data(self._detail_custom_data())
         self.emit_event(self.detail.event())

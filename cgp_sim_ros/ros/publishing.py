@@ -7,10 +7,11 @@ What a tick publishes, in order (:meth:`TickPublisher.tick_messages`; the bytes 
 ``~/bodies/poses``, every body's ``~/bodies/<body>/odom``, every flock's ``~/flocks/<flock>/poses`` (recorded
 on the ticks the level-of-detail plan says) and ``~/flocks/<flock>/stats``, every robot's
 ``~/robots/<robot>/joint_states``, ``~/contacts`` (parameter ``contacts``), ``/tf``, the first ``/tf_static``,
-``~/markers``, then the first ``~/static_markers`` (if the world has static meshes) and every robot's first
+``~/markers``, then the first ``~/static_markers`` (the bodies' shapes in their TF frames and the static meshes:
+sent once, not every tick — issue 37, :mod:`cgp_sim_ros.ros.messages`) and every robot's first
 ``~/robots/<robot>/robot_description`` (latched).  Besides the ticks: ``~/events`` (:meth:`TickPublisher.event`),
-``/tf_static``, ``~/static_markers`` and ``robot_description`` again when the fixed bodies / the static meshes /
-the robots change, DELETE markers for what is no longer drawn.
+``/tf_static``, ``~/static_markers`` and ``robot_description`` again when the fixed bodies / the bodies and static
+meshes / the robots change, DELETE markers for what is no longer drawn on ``~/markers``.
 
 The per-body and per-flock publishers follow the world's entities (:meth:`TickPublisher.follow_entities`).
 They are made without rclpy's default QoS-event handlers (the "incompatible QoS / type" warnings).  Each
@@ -174,8 +175,10 @@ class TickPublisher:
         self._marker_ids = drawn
 
     def publish_static_markers(self) -> None:
-        """``~/static_markers`` if the static meshes changed (spawned, deleted, moved) since it was last sent (the
-        first time: on the first tick, if there are any).  Not before the first tick, as ``/tf_static``."""
+        """``~/static_markers`` if what it shows changed since it was last sent — static meshes spawned, deleted or
+        moved; bodies spawned or deleted; another hull detail (:meth:`TickMessages.static_signature`) — the first
+        time on the first tick, if there is anything to show.  Not before the first tick, as ``/tf_static``: the
+        bodies' markers are in their TF frames, which ``/tf`` and ``/tf_static`` carry from the first tick."""
         if self.world.ticks == 0:
             return
         signature = self.messages.static_signature()

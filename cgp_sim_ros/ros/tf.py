@@ -35,16 +35,7 @@ from tf2_msgs.msg import TFMessage
 
 from .. import interface as itf
 from ..wire.cdr import TFMessageSerializer, split_stamp
-from .messages import robot_names
-
-
-def robot_link_rows(world) -> np.ndarray:
-    """(n_bodies,) bool: the world bodies that are a robot's links (named ``<robot>/<link>``)."""
-    names = world.body_model.names
-    prefixes = tuple(f"{robot}/" for robot in robot_names(world))
-    if not prefixes:
-        return np.zeros(len(names), dtype=bool)
-    return np.array([name.startswith(prefixes) for name in names], dtype=bool)
+from .messages import robot_link_rows, robot_names
 
 
 class BodyTransforms:

@@ -1040,3 +1040,32 @@ def read_marker_array(data) -> list[MarkerData]:
     if count > len(r.body) // 100:  # a Marker is at least ~150 bytes: a count like this is garbage
         raise CdrError(f"MarkerArray claims {count} markers in {len(r.body)} bytes")
     return [_read_marker(r) for _ in range(count)]
+
+
+@dataclass
+class TransformData:
+    """A decoded ``geometry_msgs/TransformStamped``: ``parent`` (header.frame_id) → ``child`` (child_frame_id),
+    ``translation`` (3,) and ``rotation`` (4,) x y z w."""
+
+    stamp_ns: int
+    parent: str
+    child: str
+    translation: np.ndarray
+    rotation: np.ndarray
+
+
+def read_tf_message(data) -> list[TransformData]:
+    """Decode a serialized ``tf2_msgs/TFMessage`` (``/tf``, ``/tf_static``, as :class:`TFMessageSerializer` or any
+    little-endian CDR writer writes it); raises :class:`CdrError` for bytes that are not one."""
+    r = _Reader(data)
+    count = r.u32()
+    if count > len(r.body) // 72:  # a TransformStamped is at least 8 + 4 + 4 + 56 bytes
+        raise CdrError(f"TFMessage claims {count} transforms in {len(r.body)} bytes")
+    out = []
+    for _ in range(count):
+        sec, nanosec = _STAMP.unpack(r.take(8, 4))
+        parent = r.string()
+        child = r.string()
+        values = np.frombuffer(r.take(56, 8), dtype="<f8")
+        out.append(TransformData(sec * _NS_PER_S + nanosec, parent, child, values[:3].copy(), values[3:].copy()))
+    return out

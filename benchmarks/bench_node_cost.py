@@ -1,0 +1,261 @@
+"""Issue 37: the node's own cost per body — what the node adds to ``World.step`` per tick, with 100 convex bodies
+(``bench_convex_pile``'s pile) and with the default scene, recording on, with and without a subscriber to
+``~/markers`` in another process.
+
+Each configuration runs in a child process that builds the node as ``cgp-sim`` does (``SimNode`` with the scene, a
+bag, ``realtime: false``) and calls ``node.tick()`` back to back; ``World.step`` is timed inside the tick, and the
+node's cost is the tick minus the step (commands, serializing, publishing, recording).  The pile: ticks 10–180
+while it falls and piles up (0–3 s), then ticks 300–420 (5–7 s) when it is asleep; the default scene: ticks 10–300.
+The subscriber (``--subscriber``, its own process) takes ``~/markers`` and ``~/static_markers`` raw and counts
+their bytes; the node's side counts the bytes it hands to each topic per tick.
+
+``--before PATH`` also runs every configuration with the code of another checkout (``PYTHONPATH=PATH``: e.g. the
+main branch before a change), interleaved with this one — before, after, before, after — so that both see the same
+phases of the shared machine.  The speed probe (``common.speed_probe``) is taken before and after each child.
+
+    .venv/bin/python benchmarks/bench_node_cost.py [--quick] [--before /work/main]
+
+Writes ``benchmarks/results/node_cost.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+
+if "CGP_SIM_BENCH_DOMAIN" not in os.environ:
+    os.environ["CGP_SIM_BENCH_DOMAIN"] = str(random.Random(os.getpid() ^ time.time_ns()).randint(1, 101))
+os.environ["ROS_DOMAIN_ID"] = os.environ["CGP_SIM_BENCH_DOMAIN"]
+
+PILE_WINDOWS = {"piling": (10, 180), "at rest": (300, 420)}
+PILE_WINDOWS_QUICK = {"piling": (10, 150), "at rest": (270, 330)}
+DEFAULT_WINDOWS = {"running": (10, 300)}
+DEFAULT_WINDOWS_QUICK = {"running": (10, 150)}
+MARKER_TOPICS = ("/cgp_sim/markers", "/cgp_sim/static_markers")
+
+
+def pile_scene(path: Path) -> Path:
+    """bench_convex_pile's 100 hulls as a scene file (sleeping on, as by default)."""
+    sys.path.insert(1, str(HERE))
+    from bench_convex_pile import FRICTION, SUBSTEPS, pile_hulls
+
+    points, positions, orientations = pile_hulls()
+    lines = [f"world: {{substeps: {SUBSTEPS}, ground_friction: {FRICTION}, ground_restitution: 0.0}}", "bodies:"]
+    for n, (p, x, q) in enumerate(zip(points, positions, orientations)):
+        pts = ", ".join(f"[{a:.6f}, {b:.6f}, {c:.6f}]" for a, b, c in p)
+        lines.append(f"  - {{name: h{n}, shape: convex, mass: 1.0, friction: {FRICTION}, restitution: 0.0, "
+                     f"position: [{x[0]}, {x[1]}, {x[2]}], orientation: {q.tolist()}, points: [{pts}]}}")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+# ---- the subscriber (its own process) ------------------------------------------------------------------------
+
+def subscriber(out_path: str) -> int:
+    """Take the marker topics raw until SIGTERM; write what arrived (messages, bytes) to ``out_path``."""
+    import rclpy
+    from rclpy.node import Node
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from visualization_msgs.msg import MarkerArray
+
+    rclpy.init()
+    node = Node("bench_node_cost_subscriber")
+    got = {topic: [] for topic in MARKER_TOPICS}
+    for topic in MARKER_TOPICS:
+        durability = DurabilityPolicy.TRANSIENT_LOCAL if "static" in topic else DurabilityPolicy.VOLATILE
+        node.create_subscription(MarkerArray, topic, lambda m, t=topic: got[t].append(len(m)),
+                                 QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=durability),
+                                 raw=True)
+    stop = []
+    signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
+    while not stop:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    Path(out_path).write_text(json.dumps(got))
+    return 0
+
+
+# ---- the child: one node, one configuration ------------------------------------------------------------------
+
+def child(args) -> int:
+    sys.path.insert(0, str(Path(args.root).resolve()))
+    sys.path.insert(1, str(HERE))
+    import rclpy
+    from common import speed_probe
+    from rclpy.parameter import Parameter
+
+    import cgp_sim_ros
+    from cgp_sim_ros.ros.node import SimNode
+
+    if Path(cgp_sim_ros.__file__).resolve().parents[1] != Path(args.root).resolve():
+        raise SystemExit(f"imported {cgp_sim_ros.__file__}, not the code of {args.root}")
+    windows = json.loads(args.windows)
+    rclpy.init()
+    root = Path(tempfile.mkdtemp(prefix="bench_node_cost_", dir=os.environ.get("BENCH_BAG_DIR")))
+    node = SimNode(parameter_overrides=[Parameter("scene", value=args.scene), Parameter("bag", value=str(root / "bag")),
+                                        Parameter("realtime", value=False)])
+    sub = None
+    if args.with_subscriber:
+        sub_out = root / "subscriber.json"
+        sub = subprocess.Popen([sys.executable, __file__, "--subscriber", str(sub_out)])
+        deadline = time.monotonic() + 60
+        while any(node.outputs.pub_markers.get_subscription_count() == 0 for _ in (0,)):
+            if time.monotonic() > deadline:
+                raise SystemExit("the subscriber never matched ~/markers")
+            time.sleep(0.05)
+    probe_before = speed_probe()
+    world, outputs = node.world, node.outputs
+    step, publish = world.step, outputs.publish
+    step_s: list[float] = []
+    sent: dict[str, int] = {}
+
+    def timed_step():
+        t0 = time.perf_counter()
+        step()
+        step_s.append(time.perf_counter() - t0)
+
+    def counted_publish(publisher, data, stamp_ns, record=True):
+        sent[publisher.topic_name] = sent.get(publisher.topic_name, 0) + len(data)
+        publish(publisher, data, stamp_ns, record)
+
+    world.step, outputs.publish = timed_step, counted_publish
+    last = max(end for _, end in windows.values())
+    tick_s, marker_bytes = [], []
+    for _ in range(last):
+        sent.clear()
+        t0 = time.perf_counter()
+        node.tick()
+        tick_s.append(time.perf_counter() - t0)
+        marker_bytes.append(sent.get("/cgp_sim/markers", 0) + sent.get("/cgp_sim/static_markers", 0))
+    probe_after = speed_probe()
+    asleep = bool(world.bodies_asleep)
+    received = None
+    if sub is not None:
+        sub.send_signal(signal.SIGTERM)
+        sub.wait(30)
+        received = json.loads(sub_out.read_text())
+    node.close()
+    node.destroy_node()
+    rclpy.shutdown()
+    tick_ms, step_ms = np.array(tick_s) * 1e3, np.array(step_s) * 1e3
+    out = {"bodies": int(world.body_model.count), "asleep_at_end": asleep, "probe_before": probe_before,
+           "probe_after": probe_after, "windows": {}}
+    for name, (first, end) in windows.items():
+        cost = tick_ms[first:end] - step_ms[first:end]
+        out["windows"][name] = {
+            "ticks": end - first,
+            "tick_ms": {"median": float(np.median(tick_ms[first:end])), "p99": float(np.percentile(tick_ms[first:end], 99))},
+            "step_ms": {"median": float(np.median(step_ms[first:end]))},
+            "node_ms": {"median": float(np.median(cost)), "p99": float(np.percentile(cost, 99))},
+            "marker_bytes_per_tick": {"median": float(np.median(marker_bytes[first:end])),
+                                      "max": int(max(marker_bytes[first:end]))}}
+    if received is not None:
+        out["received"] = {topic: {"messages": len(sizes), "bytes": int(sum(sizes)),
+                                   "median_bytes": float(np.median(sizes)) if sizes else 0.0}
+                           for topic, sizes in received.items()}
+    Path(args.child).write_text(json.dumps(out))
+    return 0
+
+
+# ---- the parent ----------------------------------------------------------------------------------------------
+
+def run_child(code_root: Path, scene: str, windows: dict, with_subscriber: bool, workdir: Path, label: str) -> dict:
+    out = workdir / f"{label}.json"
+    command = [sys.executable, str(Path(__file__).resolve()), "--child", str(out), "--root", str(code_root),
+               "--scene", scene, "--windows", json.dumps(windows)] + (["--with-subscriber"] if with_subscriber else [])
+    env = dict(os.environ, PYTHONPATH=str(code_root), PYTHONUNBUFFERED="1")
+    result = subprocess.run(command, cwd=workdir, env=env, capture_output=True, text=True, timeout=900)
+    if result.returncode != 0 or not out.exists():
+        raise RuntimeError(f"child {label} failed ({result.returncode}):\n{(result.stdout + result.stderr)[-3000:]}")
+    return json.loads(out.read_text())
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="shorter windows")
+    parser.add_argument("--before", type=Path, default=None,
+                        help="another checkout whose code is run interleaved with this one (before a change)")
+    parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--subscriber", default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--root", default=str(ROOT), help=argparse.SUPPRESS)
+    parser.add_argument("--scene", default="default", help=argparse.SUPPRESS)
+    parser.add_argument("--windows", default="{}", help=argparse.SUPPRESS)
+    parser.add_argument("--with-subscriber", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.subscriber:
+        return subscriber(args.subscriber)
+    if args.child:
+        return child(args)
+    sys.path.insert(0, str(HERE))
+    from common import Results, speed_probe
+
+    out = Results("node_cost", options={"quick": args.quick, "before": str(args.before) if args.before else None})
+    workdir = Path(tempfile.mkdtemp(prefix="bench_node_cost_"))
+    scene = str(pile_scene(workdir / "convex_pile.yaml"))
+    versions = [("after", ROOT)] + ([("before", args.before.resolve())] if args.before else [])
+    versions.reverse()  # before, then after, in each configuration
+    configs = [("pile", scene, PILE_WINDOWS_QUICK if args.quick else PILE_WINDOWS),
+               ("default", "default", DEFAULT_WINDOWS_QUICK if args.quick else DEFAULT_WINDOWS)]
+    rows = []
+    print(f"speed probe before: {speed_probe()}", flush=True)
+    for name, scene_arg, windows in configs:
+        for with_subscriber in (False, True):
+            for version, code_root in versions:
+                label = f"{name}_{'sub' if with_subscriber else 'nosub'}_{version}"
+                result = run_child(code_root, scene_arg, windows, with_subscriber, workdir, label)
+                for window, w in result["windows"].items():
+                    row = {"scene": name, "bodies": result["bodies"], "window": window, "subscriber": with_subscriber,
+                           "version": version, **w, "probe_before": result["probe_before"],
+                           "probe_after": result["probe_after"], "received": result.get("received")}
+                    rows.append(row)
+                    print(f"{label:22s} {window:8s} tick {w['tick_ms']['median']:6.2f} / {w['tick_ms']['p99']:6.2f}  "
+                          f"step {w['step_ms']['median']:6.2f}  node {w['node_ms']['median']:5.2f} / "
+                          f"{w['node_ms']['p99']:5.2f} ms  markers {w['marker_bytes_per_tick']['median'] / 1e3:7.1f} kB"
+                          f"/tick  probe python {result['probe_before']['python_ms']:.0f} -> "
+                          f"{result['probe_after']['python_ms']:.0f} ms", flush=True)
+    print("\nThe node's own cost (tick - World.step), ms per tick, median / p99; recording on:")
+    print(f"  {'scene':8s} {'window':8s} {'subscriber':10s} " + " ".join(f"{v:>18s}" for v, _ in versions)
+          + "  markers kB/tick " + " / ".join(v for v, _ in versions))
+    for name, _, windows in configs:
+        for window in windows:
+            for with_subscriber in (False, True):
+                cells = [r for r in rows if r["scene"] == name and r["window"] == window
+                         and r["subscriber"] == with_subscriber]
+                by_version = {r["version"]: r for r in cells}
+                print(f"  {name:8s} {window:8s} {'yes' if with_subscriber else 'no':10s} "
+                      + " ".join(f"{by_version[v]['node_ms']['median']:8.2f} / {by_version[v]['node_ms']['p99']:6.2f}"
+                                 for v, _ in versions)
+                      + "  " + " / ".join(f"{by_version[v]['marker_bytes_per_tick']['median'] / 1e3:.1f}"
+                                         for v, _ in versions))
+    for version, _ in versions:
+        for with_subscriber in (False, True):
+            for window in configs[0][2]:
+                r = next(r for r in rows if r["scene"] == "pile" and r["window"] == window
+                         and r["subscriber"] == with_subscriber and r["version"] == version)
+                per_100 = r["node_ms"]["median"] * 100 / r["bodies"]
+                out.figure(f"node_cost_pile_{window.replace(' ', '_')}_{'sub' if with_subscriber else 'nosub'}_{version}",
+                           f"node's own cost per 100 convex bodies ({window}, recording, "
+                           f"{'a' if with_subscriber else 'no'} ~/markers subscriber; {version})",
+                           per_100, "ms", "(reference)", None, p99_ms=r["node_ms"]["p99"],
+                           marker_kb_per_tick=r["marker_bytes_per_tick"]["median"] / 1e3,
+                           probe_python_ms=r["probe_before"]["python_ms"])
+    out.data["rows"] = rows
+    print(f"speed probe after: {speed_probe()}")
+    print(f"wrote {out.write()}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
