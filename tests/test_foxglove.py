@@ -546,4 +546,5 @@ def test_a_late_client_gets_the_latched_topics(live, probe):
     client.wait(lambda: client.messages[static] and client.messages[tf_static], 20, "the latched messages")
     (_, data), = client.received(static)
     markers = deserialize_message(data, MarkerArray).markers
-    assert [m.ns for m in markers] == ["", "bodies/land"] and len(markers[1].points) == 3 * 1152
+    assert [m.ns for m in markers[:2]] == ["", "bodies/land"] and len(markers[1].points) == 3 * 1152
+    assert {m.ns for m in markers[2:]} == {"bodies/box", "bodies/spinner"}  # the scene's bodies (issue 37)

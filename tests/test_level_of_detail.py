@@ -363,6 +363,18 @@ def test_the_body_budget_picks_low_hulls_then_parts():
     assert custom["cgp_sim.body_markers_redrawn_every_n_ticks"] == str(big.body_markers_every)
 
 
+def test_the_bodies_set_sent_once_has_a_cap_past_which_hulls_are_low():
+    """Issue 37: the bodies are drawn once, in their own frames, on ~/static_markers; the set's bytes, not a rate,
+    decide the hull detail, and nothing is split into parts (~/markers carries no body without robots)."""
+    pile = detail.plan([], 60.0, body_set_bytes=(275_000, 120_000))  # bench_convex_pile's 100 hulls
+    assert (pile.hull_detail, pile.body_markers_every, pile.body_set_bytes) == ("full", 1, 275_000)
+    assert "bodies drawn once, in their own TF frames" in " ".join(pile.lines)
+    big = detail.plan([], 60.0, body_set_bytes=(43_000_000, 1_100_000))  # 300 hulls of 1,000 vertices
+    assert (big.hull_detail, big.body_markers_every, big.body_set_bytes) == ("low", 1, 1_100_000)
+    assert big.body_set_bytes <= detail.BODY_SET_BYTES < 43_000_000
+    assert "over its 8.0 MB cap" in " ".join(big.lines)
+
+
 def test_body_parts_have_about_equal_bytes_and_keep_the_bodies_in_order():
     from cgp_sim_ros.ros.messages import body_parts
 

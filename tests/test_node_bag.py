@@ -29,7 +29,7 @@ PUBLISHED = {
     "/cgp_sim/flocks/birds/stats": "cgp_sim_msgs/msg/FlockStats",
     "/cgp_sim/contacts": "cgp_sim_msgs/msg/Contacts",
     "/cgp_sim/markers": "visualization_msgs/msg/MarkerArray",
-    "/cgp_sim/static_markers": "visualization_msgs/msg/MarkerArray",  # (no static mesh in zero_g: no message)
+    "/cgp_sim/static_markers": "visualization_msgs/msg/MarkerArray",  # the bodies' shapes, once (issue 37)
     "/cgp_sim/events": "std_msgs/msg/String",
     "/tf": "tf2_msgs/msg/TFMessage",
     "/tf_static": "tf2_msgs/msg/TFMessage",

@@ -74,30 +74,34 @@ def test_spawning_the_new_shapes_and_what_the_node_publishes_of_them(start_node,
     state = sim.state("pyramid").state
     assert vec(state.pose.position)[2] < 5.0 + 0.3 and state.twist.linear.z < 0.0
 
-    # markers
+    # markers: every body drawn once, in its own TF frame (frame_locked: a viewer moves it with /tf), on the latched
+    # ~/static_markers, so a subscriber that comes after the spawns gets the whole set (a DELETEALL, then every
+    # body); ~/markers carries none (issue 37); the static mesh at its pose in frame world (issue 38: it was
+    # re-sent every second on ~/markers)
     probe.spin_until(lambda: len(markers.messages) >= 1, 20, "a marker array")
-    last = {(m.ns, m.id): m for m in deserialize_message(markers.messages[-1], MarkerArray).markers}
+    assert not [m for raw in markers.messages for m in deserialize_message(raw, MarkerArray).markers
+                if m.ns.startswith("bodies/")]
+    static = probe.subscribe("/cgp_sim/static_markers", MarkerArray, qos=LATCHED)
+    (array,) = probe.wait_for_messages("/cgp_sim/static_markers", 1)
+    assert array.markers[0].action == Marker.DELETEALL
+    assert all(m.action == Marker.ADD for m in array.markers[1:])
+    last = {(m.ns, m.id): m for m in array.markers[1:]}
+    assert {ns for ns, _ in last} >= {f"bodies/{name}" for name in ("pyramid", "rock", "table", "land")}
     pyramid = last[("bodies/pyramid", 0)]
     assert pyramid.type == Marker.TRIANGLE_LIST and len(pyramid.points) == 3 * 6  # 5 corners: 6 triangles
-    assert pyramid.pose.position.z < 5.3 and pyramid.header.frame_id == "world"
+    assert pyramid.header.frame_id == "pyramid" and pyramid.frame_locked
+    assert list(vec(pyramid.pose.position)) == [0.0, 0.0, 0.0] and pyramid.pose.orientation.w == 1.0
     assert last[("bodies/rock", 0)].type == Marker.TRIANGLE_LIST and len(last[("bodies/rock", 0)].points) == 3 * 60
     parts = sorted(i for ns, i in last if ns == "bodies/table")
     assert parts == [0, 3, 4, 5, 6, 9]  # box, capsule + its two caps, sphere, hull
     assert [last[("bodies/table", i)].type for i in parts] == [Marker.CUBE, Marker.CYLINDER, Marker.SPHERE,
                                                               Marker.SPHERE, Marker.SPHERE, Marker.TRIANGLE_LIST]
+    assert all(last[("bodies/table", i)].header.frame_id == "table" for i in parts)
     top, foot = last[("bodies/table", 0)], last[("bodies/table", 6)]
     assert np.allclose([top.scale.x, top.scale.y, top.scale.z], [0.6, 0.6, 0.04])
-    assert top.pose.position.z - foot.pose.position.z == np.float64(0.35).round(9) or \
-        abs(top.pose.position.z - foot.pose.position.z - 0.35) < 1e-6
-    # the static mesh: never on ~/markers (issue 38: re-sent every second there); latched on ~/static_markers,
-    # so a subscriber that comes after the spawn gets it (a DELETEALL, then the whole set)
-    assert not [m for raw in markers.messages for m in deserialize_message(raw, MarkerArray).markers
-                if m.ns == "bodies/land"]
-    static = probe.subscribe("/cgp_sim/static_markers", MarkerArray, qos=LATCHED)
-    (array,) = probe.wait_for_messages("/cgp_sim/static_markers", 1)
-    assert [m.action for m in array.markers] == [Marker.DELETEALL, Marker.ADD]
-    land = array.markers[1]
-    assert land.ns == "bodies/land" and land.type == Marker.TRIANGLE_LIST and len(land.points) == 3 * 1152
+    assert abs(top.pose.position.z - foot.pose.position.z - 0.35) < 1e-6  # the parts' poses in the body frame
+    land = last[("bodies/land", 0)]
+    assert land.header.frame_id == "world" and land.type == Marker.TRIANGLE_LIST and len(land.points) == 3 * 1152
     probe.spin_for(0.5)
     assert len(static.messages) == 1  # sent once, not every tick
 

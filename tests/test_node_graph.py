@@ -14,11 +14,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from geometry_msgs.msg import PoseArray
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from ros_probe import pause
 from visualization_msgs.msg import Marker, MarkerArray
 
 VENV = Path(sys.prefix)
+LATCHED_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def _stamp(msg) -> float:
@@ -34,6 +36,7 @@ def test_default_scene_is_live_on_the_graph(start_node, probe):
     # per tick would make this observer, not the node, the bottleneck.
     fish = probe.subscribe("/cgp_sim/flocks/fish/poses", PoseArray, raw=True)
     markers = probe.subscribe("/cgp_sim/markers", MarkerArray, raw=True)
+    static = probe.subscribe("/cgp_sim/static_markers", MarkerArray, qos=LATCHED_QOS)
     probe.wait_until_matched("/cgp_sim/bodies/poses", "/cgp_sim/flocks/fish/poses", "/cgp_sim/markers")
     resumed = time.monotonic()  # before the request: the node cannot start ticking earlier than this
     pause(probe, False)
@@ -81,16 +84,23 @@ def test_default_scene_is_live_on_the_graph(start_node, probe):
     assert len(p0) == 300
     assert speed.min() > 0.5 * 0.99 and speed.max() < 2.0 * 1.01, (speed.min(), speed.max())
 
-    # Markers: the fish are drawn as one TRIANGLE_LIST (30 vertices per fish), the bodies as their shapes.
+    # Markers: the fish are drawn as one TRIANGLE_LIST (30 vertices per fish) on ~/markers every tick, the bodies
+    # as their shapes, once, each in its own TF frame, on the latched ~/static_markers (issue 37)
     last = deserialize_message(markers.messages[-1], MarkerArray)
     by_ns = {(m.ns, m.id): m for m in last.markers}
     assert by_ns[("flocks/fish", 0)].type == Marker.TRIANGLE_LIST
     assert len(by_ns[("flocks/fish", 0)].points) == 300 * 30
+    assert all(m.header.frame_id == "world" for m in last.markers)
+    assert not [key for key in by_ns if key[0].startswith("bodies/")]
+    probe.wait_for_messages("/cgp_sim/static_markers", 1, timeout=30)
+    (shapes,) = static.messages  # sent once: the set did not change
+    by_ns = {(m.ns, m.id): m for m in shapes.markers[1:]}
+    assert shapes.markers[0].action == Marker.DELETEALL
     assert by_ns[("bodies/ball", 0)].type == Marker.SPHERE
     assert by_ns[("bodies/crate", 0)].type == Marker.CUBE
     assert by_ns[("bodies/capsule", 0)].type == Marker.CYLINDER
     assert by_ns[("bodies/tetromino", 0)].type == Marker.SPHERE_LIST
-    assert all(m.header.frame_id == "world" for m in last.markers)
+    assert all(m.header.frame_id == ns.split("/")[1] and m.frame_locked for (ns, _), m in by_ns.items())
 
 
 def test_ament_index_resolves_sim_node_and_it_runs(start_node, probe):

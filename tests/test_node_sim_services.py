@@ -32,6 +32,8 @@ from simulation_interfaces.srv import (
 from std_msgs.msg import String
 from visualization_msgs.msg import Marker, MarkerArray
 
+from cgp_sim_ros.ros.qos import LATCHED_QOS
+
 G = 9.81
 DT = round(1e9 / 60) * 1e-9  # the tick: 1/60 s rounded to whole nanoseconds, as the node steps
 S = SimulationState
@@ -228,6 +230,8 @@ def test_spawn_watch_it_fall_teleport_and_delete(start_node, probe):
     poses = probe.subscribe("/cgp_sim/bodies/poses", PoseArray)
     odom = probe.subscribe("/cgp_sim/bodies/box1/odom", Odometry)
     markers = probe.subscribe("/cgp_sim/markers", MarkerArray, raw=True)
+    # the bodies' shapes: once per change of the set, in their own TF frames (issue 37)
+    static = probe.subscribe("/cgp_sim/static_markers", MarkerArray, raw=True, qos=LATCHED_QOS)
     node, sim = start_paused(start_node, probe, "default")
     assert sim.names() == ["ball", "crate", "capsule", "tetromino", "pillar", "fish"]
     assert sim.step(120).result.result == OK  # the scene's bodies land; the crate rests where it tumbled to
@@ -256,9 +260,10 @@ def test_spawn_watch_it_fall_teleport_and_delete(start_node, probe):
     assert tick_odom.child_frame_id == "box1" and len(tick_poses.poses) == 6
     assert tick_odom.pose.pose.position.z == state.state.pose.position.z
     assert tick_poses.poses[5].position.z == state.state.pose.position.z
-    probe.spin_until(lambda: markers.messages, 10, "markers")
-    drawn = deserialize_message(markers.messages[-1], MarkerArray)
-    assert any(m.ns == "bodies/box1" and m.type == Marker.CUBE for m in drawn.markers)
+    probe.spin_until(lambda: markers.messages and static.messages, 10, "markers")
+    drawn = deserialize_message(static.messages[-1], MarkerArray)
+    assert any(m.ns == "bodies/box1" and m.type == Marker.CUBE and m.header.frame_id == "box1" and m.frame_locked
+               for m in drawn.markers)
 
     # it lands on the crate: crate top (0.25 + 0.25) + its own half size 0.2
     assert sim.step(84).result.result == OK
@@ -297,9 +302,10 @@ def test_spawn_watch_it_fall_teleport_and_delete(start_node, probe):
     probe.spin_until(lambda: probe.node.count_publishers("/cgp_sim/bodies/box1/odom") == 0
                      and probe.node.count_subscribers("/cgp_sim/bodies/box1/wrench") == 0, 20,
                      "box1's endpoints to go")
-    probe.spin_until(lambda: any(m.ns == "bodies/box1" and m.action == Marker.DELETE
-                                 for raw in markers.messages for m in deserialize_message(raw, MarkerArray).markers),
-                     10, "a DELETE marker for box1")
+    probe.spin_until(lambda: static.messages and not any(
+        m.ns == "bodies/box1" for m in deserialize_message(static.messages[-1], MarkerArray).markers), 10,
+        "the bodies' markers again, without box1 (after their DELETEALL)")
+    assert deserialize_message(static.messages[-1], MarkerArray).markers[0].action == Marker.DELETEALL
     assert sim.step(1).result.result == OK
     probe.spin_until(lambda: poses.messages and len(poses.messages[-1].poses) == 5, 10, "5 bodies in the poses")
     assert sim.names() == ["ball", "crate", "capsule", "tetromino", "pillar", "fish"]
