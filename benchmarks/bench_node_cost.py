@@ -156,7 +156,8 @@ def child(args) -> int:
         cost = tick_ms[first:end] - step_ms[first:end]
         out["windows"][name] = {
             "ticks": end - first,
-            "tick_ms": {"median": float(np.median(tick_ms[first:end])), "p99": float(np.percentile(tick_ms[first:end], 99))},
+            "tick_ms": {"median": float(np.median(tick_ms[first:end])),
+                        "p99": float(np.percentile(tick_ms[first:end], 99))},
             "step_ms": {"median": float(np.median(step_ms[first:end]))},
             "node_ms": {"median": float(np.median(cost)), "p99": float(np.percentile(cost, 99))},
             "marker_bytes_per_tick": {"median": float(np.median(marker_bytes[first:end])),
@@ -245,7 +246,8 @@ def main(argv=None) -> int:
                 r = next(r for r in rows if r["scene"] == "pile" and r["window"] == window
                          and r["subscriber"] == with_subscriber and r["version"] == version)
                 per_100 = r["node_ms"]["median"] * 100 / r["bodies"]
-                out.figure(f"node_cost_pile_{window.replace(' ', '_')}_{'sub' if with_subscriber else 'nosub'}_{version}",
+                heard = "sub" if with_subscriber else "nosub"
+                out.figure(f"node_cost_pile_{window.replace(' ', '_')}_{heard}_{version}",
                            f"node's own cost per 100 convex bodies ({window}, recording, "
                            f"{'a' if with_subscriber else 'no'} ~/markers subscriber; {version})",
                            per_100, "ms", "(reference)", None, p99_ms=r["node_ms"]["p99"],
