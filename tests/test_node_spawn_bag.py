@@ -72,7 +72,7 @@ def test_spawned_topics_are_recorded_and_counted(start_node, probe, tmp_path):
     # the bodies' shapes are recorded once per change of the set (issue 37): with box1 after the spawn, without it
     # (after a DELETEALL) after the delete; none on ~/markers
     sets = [{m.ns for m in a.markers} for _, a in messages["/cgp_sim/static_markers"]]
-    assert any("bodies/box1" in s for s in sets) and "bodies/box1" not in sets[-1] and "bodies/crate" in sets[-1]
+    assert any("bodies/box1" in s for s in sets) and "bodies/box1" not in sets[-1] and "bodies/box" in sets[-1]
     assert not [m for _, a in messages["/cgp_sim/markers"] for m in a.markers if m.ns.startswith("bodies/")]
 
     (mcap_file,) = sorted(bag.glob("*.mcap"))
