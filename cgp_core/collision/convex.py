@@ -156,35 +156,45 @@ def convex_hull(points, *, what: str = "points") -> ConvexPolyhedron:
 
 
 def _merge_coplanar(vertices, triangles, normals, offsets, size, what):
-    """Group edge-adjacent triangles with the same plane (union-find) and trace each group's boundary loop."""
+    """Group edge-adjacent triangles with the same plane and trace each group's boundary loop.
+
+    Every directed edge (u, v) finds its twin (v, u) — the neighbouring triangle — by a sorted search of the
+    edges' keys; coplanar neighbours are joined, the groups are the connected components of that graph (scipy's,
+    numbered in the order of their lowest triangle, as the faces are), and each group's boundary — its directed
+    edges whose twin is not in the group — is followed from its lowest vertex.  (Issue 38: the per-edge Python
+    loop and union-find this replaces took ~0.1 s for a 1,000-vertex hull; the result is the same, array for array,
+    checked on random and coplanar-rich point sets.)
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     t = len(triangles)
-    parent = np.arange(t)
-
-    def find(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    edge_owner = {}
-    for i in range(t):
-        for k in range(3):
-            edge_owner[(triangles[i, k], triangles[i, (k + 1) % 3])] = i
-    for (u, v), i in edge_owner.items():
-        j = edge_owner.get((v, u))
-        if j is None:
-            raise HullError(f"{what}: qhull returned an open surface (internal error)")
-        if i < j and np.abs(normals[i] - normals[j]).max() <= COPLANAR_TOLERANCE \
-                and abs(offsets[i] - offsets[j]) <= COPLANAR_TOLERANCE * size:
-            ri, rj = find(i), find(j)
-            if ri != rj:
-                parent[max(ri, rj)] = min(ri, rj)
-    roots = np.array([find(i) for i in range(t)])
+    k = len(vertices)
+    u = triangles.reshape(-1)
+    v = triangles[:, [1, 2, 0]].reshape(-1)
+    owner = np.repeat(np.arange(t), 3)
+    key = u * k + v
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    twin_key = v * k + u
+    at = np.minimum(np.searchsorted(sorted_key, twin_key), len(sorted_key) - 1)
+    if not np.array_equal(sorted_key[at], twin_key):
+        raise HullError(f"{what}: qhull returned an open surface (internal error)")
+    i, j = owner, owner[order[at]]
+    same = ((i < j) & (np.abs(normals[i] - normals[j]).max(axis=1) <= COPLANAR_TOLERANCE)
+            & (np.abs(offsets[i] - offsets[j]) <= COPLANAR_TOLERANCE * size))
+    graph = coo_matrix((np.ones(int(same.sum())), (i[same], j[same])), shape=(t, t))
+    count, label = connected_components(graph, directed=False)
+    members = np.argsort(label, kind="stable")
+    bounds = np.searchsorted(label[members], np.arange(count + 1))
+    tri = triangles.tolist()
+    corner0, corner1, corner2 = (vertices[triangles[:, m]] for m in range(3))
+    area_normals = np.cross(corner1 - corner0, corner2 - corner0)  # (t, 3): twice each triangle's area, outward
     planes, starts, loop_vertices = [], [0], []
-    for root in np.unique(roots):
-        group = np.flatnonzero(roots == root)
-        directed = {(triangles[i, k], triangles[i, (k + 1) % 3]) for i in group for k in range(3)}
-        boundary = {u: v for (u, v) in directed if (v, u) not in directed}
+    for g in range(count):
+        group = members[bounds[g]:bounds[g + 1]]
+        directed = {(tri[f][m], tri[f][(m + 1) % 3]) for f in group.tolist() for m in range(3)}
+        boundary = {a: b for (a, b) in directed if (b, a) not in directed}
         start = min(boundary)
         loop = [start]
         while boundary[loop[-1]] != start:
@@ -193,9 +203,7 @@ def _merge_coplanar(vertices, triangles, normals, offsets, size, what):
                 raise HullError(f"{what}: a merged face has no simple boundary (internal error)")
         if len(loop) > MAX_FACE_VERTICES:
             raise HullError(f"{what}: a face has {len(loop)} vertices, more than the {MAX_FACE_VERTICES} allowed")
-        # the group's plane: area-weighted normal, offset through the loop's vertices
-        a, b, c = (vertices[triangles[group, k]] for k in range(3))
-        n = np.cross(b - a, c - a).sum(axis=0)
+        n = area_normals[group].sum(axis=0)
         n /= np.linalg.norm(n)
         planes.append((*n, float(np.mean(vertices[loop] @ n))))
         loop_vertices.extend(loop)
