@@ -45,7 +45,8 @@ BENCHMARKS = {"tick": "bench_tick.py", "realtime": "bench_realtime.py", "rigid":
               "foxglove": "bench_foxglove.py", "spawn": "bench_spawn.py", "spawn_rows": "bench_spawn_rows.py",
               "sweep": "bench_sweep.py", "convex_pile": "bench_convex_pile.py", "gjk": "bench_gjk.py",
               "contact_report": "bench_contact_report.py", "work_bounds": "bench_work_bounds.py",
-              "mesh": "bench_mesh.py", "robots": "bench_robots.py", "node_cost": "bench_node_cost.py"}
+              "mesh": "bench_mesh.py", "robots": "bench_robots.py", "node_cost": "bench_node_cost.py",
+              "robot_node": "bench_robot_node.py"}
 EXTRAS = {"bag": "bench_bag.py", "integrators": "bench_integrators.py", "scenes": "bench_scenes.py",
           "render": "bench_render.py", "flock_stats": "bench_flock_stats.py", "recording": "bench_recording.py",
           "fresh_clone": "bench_fresh_clone.py", "load_world": "bench_load_world.py"}

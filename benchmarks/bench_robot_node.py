@@ -1,0 +1,168 @@
+"""Issue 36's figures: the ``arm`` scene through the node, as ``make run ARGS="--scene arm"`` runs it.
+
+**Real time.**  ``bench_realtime``'s child (``cgp-sim --scene arm --bag <dir>``: timer-driven at 60 Hz, real time,
+recording; the tick and the timer callback timed) from the first tick: the achieved rate, the tick's median, p99 and
+max, the tick period's p99, the "falling behind" warnings.  The real-time factor is the achieved rate over the
+scene's 60 Hz (the node publishes one ``/clock`` per tick of 1/60 s).
+
+**Command latency.**  A second ``cgp-sim --scene arm --bag <dir>`` runs, and this process — another node, as a
+controller is — publishes ``~/robots/arm/joint_commands`` the way topic_based_ros2_control does and reads
+``~/robots/arm/joint_states``.  Each trial commands an effort on ``shoulder_pan`` (the vertical base joint: gravity
+exerts no torque about it, so a small effort only turns the arm slowly) alternating +/- ``EFFORT`` N·m, and finds
+the first ``joint_states`` whose reported effort of that joint is within half the command of the commanded one (the
+joint reports what acts on it — the command less its URDF damping, a few per cent here — so the sign flip of +/-
+``EFFORT`` is unmistakable).  Latency in ticks = (that message's stamp − the stamp of the newest ``joint_states``
+received before the command was published) / the tick; it is >= 1 by construction (the tick after the last one
+seen).  The wall-clock latency (published → received) is reported beside it.  Discovery is waited on with a
+deadline, never a sleep.
+
+Writes ``benchmarks/results/robot_node.json``.  Run alone: ``.venv/bin/python benchmarks/bench_robot_node.py``
+(``--quick``: 10 s of real time instead of 30, 20 latency trials instead of 60).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+
+from bench_realtime import TARGET_RATE_HZ, run_realtime  # noqa: E402
+from common import Results, format_figures  # noqa: E402
+
+ROBOT = "arm"
+JOINT = "shoulder_pan"
+EFFORT = 0.02  # N·m: turns the arm's base a few degrees over a trial
+TICK_S = 1.0 / 60.0
+JOINT_STATES = f"/cgp_sim/robots/{ROBOT}/joint_states"
+JOINT_COMMANDS = f"/cgp_sim/robots/{ROBOT}/joint_commands"
+DISCOVERY_DEADLINE_S = 60.0
+TRIAL_DEADLINE_S = 5.0
+
+
+def command_latency(trials: int, workdir: Path) -> dict:
+    """Start the arm scene's node and measure ``trials`` effort commands' latency (module docstring)."""
+    import rclpy
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import JointState
+
+    domain = int(os.environ.get("CGP_SIM_BENCH_DOMAIN") or random.Random(os.getpid() ^ time.time_ns()).randint(1, 101))
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED="1")
+    executable = str(Path(sys.executable).with_name("cgp-sim"))
+    log = open(workdir / "latency_node.log", "w")
+    process = subprocess.Popen([executable, "--scene", ROBOT, "--bag", str(workdir / "bag_latency")], env=env,
+                               stdout=log, stderr=subprocess.STDOUT)
+    rclpy.init(domain_id=domain)
+    node = rclpy.create_node("bench_robot_latency")
+    received: list[tuple[float, int, float | None]] = []  # (wall receive time, stamp ns, effort of JOINT)
+
+    def on_state(msg):
+        effort = None
+        if JOINT in msg.name and len(msg.effort) == len(msg.name):
+            effort = float(msg.effort[list(msg.name).index(JOINT)])
+        received.append((time.perf_counter(), msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec, effort))
+
+    node.create_subscription(JointState, JOINT_STATES, on_state, qos_profile_sensor_data)
+    publisher = node.create_publisher(JointState, JOINT_COMMANDS, 10)
+    ticks, walls_ms = [], []
+    try:
+        deadline = time.monotonic() + DISCOVERY_DEADLINE_S
+        while (not received or publisher.get_subscription_count() == 0) and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        if not received or publisher.get_subscription_count() == 0:
+            raise RuntimeError(f"the arm node was not discovered within {DISCOVERY_DEADLINE_S:g} s "
+                               f"(log: {workdir / 'latency_node.log'})")
+        for trial in range(trials):
+            value = EFFORT if trial % 2 == 0 else -EFFORT
+            for _ in range(20):  # drain what has arrived: the newest stamp before the command
+                rclpy.spin_once(node, timeout_sec=0.0)
+            last_stamp = received[-1][1]
+            seen = len(received)
+            msg = JointState(name=[JOINT], effort=[value])
+            published = time.perf_counter()
+            publisher.publish(msg)
+            deadline = time.monotonic() + TRIAL_DEADLINE_S
+            hit = None
+            while hit is None and time.monotonic() < deadline:
+                rclpy.spin_once(node, timeout_sec=0.05)
+                for wall, stamp, effort in received[seen:]:
+                    if effort is not None and abs(effort - value) <= 0.5 * EFFORT:
+                        hit = (wall, stamp)
+                        break
+            if hit is None:
+                raise RuntimeError(f"trial {trial}: no joint_states with effort {value} on {JOINT} within "
+                                   f"{TRIAL_DEADLINE_S:g} s")
+            ticks.append((hit[1] - last_stamp) * 1e-9 / TICK_S)
+            walls_ms.append((hit[0] - published) * 1e3)
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+        process.send_signal(signal.SIGINT)
+        try:
+            process.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            process.kill()
+        log.close()
+    ticks_a, walls = np.round(np.array(ticks), 3), np.array(walls_ms)
+    return {"trials": trials, "latency_ticks": ticks_a.tolist(), "latency_wall_ms": walls.tolist(),
+            "ticks_median": float(np.median(ticks_a)), "ticks_max": float(ticks_a.max()),
+            "wall_ms_median": float(np.median(walls)), "wall_ms_p99": float(np.percentile(walls, 99))}
+
+
+def run(quick: bool = False) -> dict:
+    seconds, trials = (10.0, 20) if quick else (30.0, 60)
+    out = Results("robot_node", options={"quick": quick, "seconds": seconds, "trials": trials})
+    workdir = Path(tempfile.mkdtemp(prefix="bench_robot_node_", dir=os.environ.get("BENCH_BAG_DIR")))
+    try:
+        print(f"arm scene: 60 Hz real time, recording, {seconds:g} s from the first tick ...", flush=True)
+        os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid()).randint(1, 101)))
+        realtime = run_realtime("arm_realtime", seconds, False, workdir, ROBOT)
+        print(f"  achieved {realtime['achieved_hz']:.2f} Hz; tick median {realtime['tick_ms']['median']:.2f} ms, "
+              f"p99 {realtime['tick_ms']['p99']:.2f}, max {realtime['tick_ms']['max']:.1f}; "
+              f"{realtime['falling_behind_warnings']} 'falling behind' warnings", flush=True)
+        print(f"command latency: {trials} effort commands on {JOINT} ...", flush=True)
+        latency = command_latency(trials, workdir)
+        print(f"  {latency['ticks_median']:g} ticks median (max {latency['ticks_max']:g}); wall "
+              f"{latency['wall_ms_median']:.1f} ms median, p99 {latency['wall_ms_p99']:.1f}", flush=True)
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)
+    out.data.update({"realtime": realtime, "latency": latency})
+    out.figure("arm_realtime_hz", f"arm scene, real time + recording: achieved rate over {seconds:g} s",
+               realtime["achieved_hz"], "Hz", f">= {TARGET_RATE_HZ}", realtime["achieved_hz"] >= TARGET_RATE_HZ,
+               rtf=realtime["achieved_hz"] * TICK_S, falling_behind_warnings=realtime["falling_behind_warnings"])
+    out.figure("arm_tick_p99", "  tick duration p99 (median in the JSON)", realtime["tick_ms"]["p99"], "ms",
+               "<= 16.7", realtime["tick_ms"]["p99"] <= 1e3 / 60, median=realtime["tick_ms"]["median"])
+    out.figure("arm_command_latency_ticks", "  joint_commands -> joint_states effect: ticks (median)",
+               latency["ticks_median"], "ticks", "(reference: 1)", None, max=latency["ticks_max"])
+    out.figure("arm_command_latency_ms", "  the same in wall time, published -> received (median)",
+               latency["wall_ms_median"], "ms", "(reference)", None, p99=latency["wall_ms_p99"])
+    path = out.write()
+    print()
+    print(format_figures(out.data["figures"]))
+    print(f"speed probe (ms, before / after): {out.data['speed_probe']}")
+    print(f"\nwrote {path.relative_to(ROOT)}")
+    return out.data
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="10 s of real time, 20 latency trials")
+    args = parser.parse_args(argv)
+    run(quick=args.quick)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
