@@ -38,6 +38,8 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from cgp_core.rotation import quat_to_matrix
+
 REPO = Path(__file__).resolve().parents[1]
 SCENE = REPO / "msgs_config" / "scenes" / "arm.yaml"
 ROBOT = "arm"
@@ -219,6 +221,57 @@ def test_tf_has_every_link_with_fixed_frames_on_tf_static(arm, probe, urdf):
     last = subs["tf"].messages[-1]
     assert len({stamp_ns(t.header) for t in last.transforms}) == 1
     assert all(np.isfinite([t.transform.translation.x, t.transform.rotation.w]).all() for t in last.transforms)
+
+
+def test_tf_of_every_link_is_pinocchios_forward_kinematics_at_the_published_joint_positions(arm, probe, urdf):
+    """Issue 36: each link's world pose, composed from ``/tf`` and ``/tf_static`` as a TF listener composes it, is
+    Pinocchio's forward kinematics (its own URDF parser) at the positions ``joint_states`` published for the same
+    tick, to <= 1e-6 m and rad."""
+    pin = pytest.importorskip("pinocchio")
+    node, subs, _ = arm
+    static = probe.subscribe("/tf_static", TFMessage, TF_STATIC_LISTENER)
+    probe.spin_until(lambda: static.messages, 30, "/tf_static (transient local)")
+    # the arm moving (a position step on every commanded joint), so that the check is not of the initial pose
+    latest = latest_state(probe, subs["sensor"])
+    targets = urdf.targets(urdf.of(latest, urdf.commanded), 0.4)
+    commands = probe.node.create_publisher(JointState, JOINT_COMMANDS, 10)
+    probe.spin_until(lambda: commands.get_subscription_count() > 0, 30, "the node's joint_commands reader")
+    commands.publish(JointState(name=urdf.commanded, position=targets.tolist()))
+    latest_state(probe, subs["sensor"], count=20)
+    # a tick whose joint_states and /tf both arrived
+    tf_by_stamp = {stamp_ns(m.transforms[0].header): m for m in subs["tf"].messages if m.transforms}
+    state = next(m for m in reversed(subs["sensor"].messages) if stamp_ns(m.header) in tf_by_stamp)
+    edges = {t.child_frame_id: t for m in (*static.messages, tf_by_stamp[stamp_ns(state.header)])
+             for t in m.transforms}
+
+    def world_pose(frame: str) -> tuple[np.ndarray, np.ndarray]:
+        if frame == "world":
+            return np.eye(3), np.zeros(3)
+        t = edges[frame]
+        R_parent, p_parent = world_pose(t.header.frame_id)
+        r, x = t.transform.rotation, t.transform.translation
+        return (R_parent @ quat_to_matrix(np.array([r.x, r.y, r.z, r.w])),
+                p_parent + R_parent @ np.array([x.x, x.y, x.z]))
+
+    model = pin.buildModelFromUrdf(str(robot_file()))
+    data = model.createData()
+    q = pin.neutral(model)
+    published = dict(zip(state.name, state.position))
+    for j in range(1, model.njoints):
+        q[model.joints[j].idx_q] = published[model.names[j]]
+    pin.framesForwardKinematics(model, data, q)
+    prefix = f"{ROBOT}/"
+    R_root, p_root = world_pose(prefix + urdf.root)  # where the scene put the root link
+    for link in urdf.links:
+        frame = model.getFrameId(link, pin.BODY)
+        placement = data.oMf[frame]
+        R_expected = R_root @ np.array(placement.rotation)
+        p_expected = p_root + R_root @ np.array(placement.translation)
+        R, p = world_pose(prefix + link)
+        assert np.abs(p - p_expected).max() <= 1e-6, (link, p, p_expected)
+        assert np.abs(R - R_expected).max() <= 1e-6, link
+    moved = np.abs(np.array([published[j] for j in urdf.commanded]) - urdf.of(latest, urdf.commanded)).max()
+    assert moved > 0.05, moved  # the check was at a pose the drive moved to, not the initial one
 
 
 # ---- joint_commands --------------------------------------------------------------------------------------------
