@@ -238,14 +238,14 @@ def test_a_mirrored_mesh_keeps_its_front_outside(tmp_path):
 
 
 def test_other_mesh_formats_unreadable_meshes_and_robots_without_visuals(tmp_path):
-    # a COLLADA mesh: a MESH_RESOURCE naming the file (RViz, Foxglove's desktop app)
-    (tmp_path / "part.dae").write_text("<COLLADA/>")
-    urdf = mesh_robot(tmp_path, mesh="part.dae")
+    # a mesh format nobody here reads (3D Studio): a MESH_RESOURCE naming the file (RViz, Foxglove's desktop app)
+    (tmp_path / "part.3ds").write_bytes(b"MM\x00\x00")
+    urdf = mesh_robot(tmp_path, mesh="part.3ds")
     world = World.from_scene("arm")
     world.spawn({"robot": {"urdf": str(urdf)}}, name="meshy")
     world.step()
     (mesh,) = [m for m in markers_of(world, "robots/meshy") if m.id == 0]
-    assert mesh.type == cdr.MESH_RESOURCE and mesh.mesh_resource == (tmp_path / "part.dae").resolve().as_uri()
+    assert mesh.type == cdr.MESH_RESOURCE and mesh.mesh_resource == (tmp_path / "part.3ds").resolve().as_uri()
     np.testing.assert_array_equal(mesh.scale, [2, 1, 0.5])
     # a mesh file that cannot be read (here: malformed) is not drawn, and the drawing says why
     (tmp_path / "bad.obj").write_text("v 0 0 nonsense\n")
@@ -263,6 +263,47 @@ def test_other_mesh_formats_unreadable_meshes_and_robots_without_visuals(tmp_pat
     world.step()
     names = {m.ns for m in markers_of(world)}
     assert "robots/bare" not in names and {"bodies/bare/base", "bodies/bare/arm1"} <= names
+
+
+@pytest.mark.parametrize("suffix", [".dae", ".glb"])
+def test_collada_and_gltf_visuals_are_drawn_as_their_triangles(tmp_path, suffix):
+    """The visual meshes of most ROS robot packages are COLLADA: drawn as TRIANGLE_LIST like STL / OBJ, so that a
+    browser's Foxglove, the bag and cgp-sim-render show them (not a file:// MESH_RESOURCE only RViz reads)."""
+    trimesh = pytest.importorskip("trimesh")
+    if suffix == ".dae":
+        pytest.importorskip("collada")
+    lines = [line.split() for line in TETRAHEDRON.splitlines()]
+    v = np.array([[float(x) for x in line[1:]] for line in lines if line and line[0] == "v"])
+    f = np.array([[int(i) - 1 for i in line[1:]] for line in lines if line and line[0] == "f"])
+    trimesh.Trimesh(v, f, process=False).export(tmp_path / f"tetra{suffix}")
+    world = World.from_scene("arm")
+    world.spawn({"robot": {"urdf": str(mesh_robot(tmp_path, mesh=f"tetra{suffix}"))}}, name="meshy")
+    world.step()
+    (mesh,) = [m for m in markers_of(world, "robots/meshy") if m.id == 0]
+    assert mesh.type == cdr.TRIANGLE_LIST
+    np.testing.assert_array_equal(mesh.scale, [1, 1, 1])
+    # the OBJ's triangles, scaled (the exporter may renumber vertices and start a triangle elsewhere: compared as
+    # sets of corners, float32 in the file)
+    drawn = {tuple(sorted(map(tuple, t.round(5)))) for t in mesh.points.reshape(-1, 3, 3)}
+    expected = {tuple(sorted(map(tuple, t.round(5)))) for t in obj_triangles([2, 1, 0.5]).reshape(-1, 3, 3)}
+    assert drawn == expected
+
+
+def test_a_collada_file_with_a_doctype_is_refused_unparsed(tmp_path):
+    """XXE: a COLLADA file is XML from wherever a URDF pointed; an external entity must never pull a file in."""
+    secret = tmp_path / "secret.txt"
+    secret.write_text("TOP-SECRET-42")
+    (tmp_path / "evil.dae").write_text(
+        f'<?xml version="1.0"?><!DOCTYPE c [<!ENTITY x SYSTEM "{secret.as_uri()}">]>'
+        '<COLLADA xmlns="http://www.collada.org/2005/11/COLLADASchema" version="1.4.1"><asset>'
+        '<contributor><author>&x;</author></contributor></asset></COLLADA>')
+    world = World.from_scene("arm")
+    world.spawn({"robot": {"urdf": str(mesh_robot(tmp_path, mesh="evil.dae"))}}, name="meshy")
+    geometry = world.robots.visuals("meshy")[0]
+    drawing = visual_drawing(geometry)
+    assert drawing.kind == "none" and "DOCTYPE" in drawing.problem and "evil.dae" in drawing.problem
+    assert "TOP-SECRET" not in drawing.problem
+    assert not [m for m in markers_of(world, "robots/meshy") if m.id == 0]
 
 
 def test_a_big_visual_mesh_is_clustered_to_its_cap(tmp_path):

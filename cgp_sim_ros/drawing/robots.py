@@ -14,9 +14,14 @@ composed with the visual's ``<origin>``, :meth:`~cgp_core.robots.world.Robots.vi
   MESH_RESOURCE: RViz and Foxglove both draw it with no setup, it is in the bag (a recording replays anywhere,
   ``cgp-sim-render`` draws it), while a MESH_RESOURCE URI must be readable by the viewer (``file://`` only on
   the machine that has the file, and not by Foxglove in a browser);
-- ``mesh`` of another format (COLLADA ``.dae``, glTF ...): MESH_RESOURCE with the resolved file's ``file://``
-  URI and the URDF's ``scale`` (RViz reads it through assimp; Foxglove's desktop app reads ``file://``; a
-  browser and ``cgp-sim-render`` do not draw it);
+- ``mesh`` of a COLLADA ``.dae`` or binary glTF ``.glb`` file (the visual meshes of most ROS robot packages: UR,
+  Panda ...): TRIANGLE_LIST the same way, the file read bounded (:func:`cgp_core.user_input.read_user_file`) and
+  parsed by trimesh (pycollada for COLLADA), its scene graph's transforms applied, drawn in the URDF's colour
+  (the file's own materials are not used).  A COLLADA file is XML from wherever a URDF pointed: one with a
+  ``<!DOCTYPE`` or ``<!ENTITY`` is refused unparsed (COLLADA needs neither; lxml would resolve an external
+  entity — a ``file:///etc/shadow`` — into the document);
+- ``mesh`` of another format (``.3ds``, ``.gltf`` with external buffers ...): MESH_RESOURCE with the resolved file's ``file://`` URI and the URDF's ``scale`` (RViz reads it
+  through assimp; Foxglove's desktop app reads ``file://``; a browser and ``cgp-sim-render`` do not draw it);
 - a mesh file that cannot be read (missing, not a regular file, too big, malformed): nothing is drawn for that
   visual, and :attr:`VisualDrawing.problem` says why (the node logs it).
 
@@ -43,6 +48,8 @@ LOW_VISUAL_TRIANGLES = 500
 #: the kinds of :class:`VisualDrawing`
 KINDS = ("box", "sphere", "cylinder", "triangles", "mesh_resource", "none")
 _NO_POINTS = np.zeros((0, 3))
+#: the mesh formats read through trimesh (self-contained files only): suffix -> trimesh's file type
+TRIMESH_TYPES = {".dae": "dae", ".glb": "glb"}
 
 
 @dataclass
@@ -97,17 +104,60 @@ def visual_drawing(geometry) -> VisualDrawing:
     if path is None:
         return VisualDrawing("none", np.ones(3), color, _NO_POINTS, _NO_POINTS,
                              problem=f"link {geometry.link}: a mesh visual without a file")
-    if Path(path).suffix.lower() not in FILE_TYPES:
+    suffix = Path(path).suffix.lower()
+    if suffix not in FILE_TYPES and suffix not in TRIMESH_TYPES:
         return VisualDrawing("mesh_resource", scale.copy(), color, _NO_POINTS, _NO_POINTS,
                              uri=Path(path).absolute().as_uri())
     return _mesh_drawing(geometry.link, path, scale, color)
+
+
+def read_trimesh_file(path: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(vertices (V, 3), triangles (T, 3))`` of a COLLADA or binary glTF file (:data:`TRIMESH_TYPES`), every
+    geometry of its scene at its scene-graph pose.  Raises :class:`~cgp_core.collision.meshfile.MeshFileError`
+    naming the file and the reason: not a regular file, too big, a DTD or entity in a COLLADA file, a file
+    trimesh cannot parse, no triangles, too many."""
+    import io
+
+    from cgp_core.collision.meshfile import MeshFileError
+    from cgp_core.limits import MAX_MESH_FILE_BYTES, MAX_MESH_TRIANGLES, MAX_MESH_VERTICES
+    from cgp_core.user_input import UserInputError, read_user_file
+
+    file_type = TRIMESH_TYPES[Path(path).suffix.lower()]
+    try:
+        data = read_user_file(path, max_bytes=MAX_MESH_FILE_BYTES)
+    except UserInputError as exc:
+        raise MeshFileError(f"mesh file {path}: {exc}") from None
+    head = data.lower()
+    if file_type == "dae" and (b"<!doctype" in head or b"<!entity" in head):
+        raise MeshFileError(f"mesh file {path}: a COLLADA file with a <!DOCTYPE> or <!ENTITY> is refused "
+                            "(COLLADA needs neither; an entity could pull another file into the document)")
+    try:
+        import trimesh
+
+        mesh = trimesh.load(io.BytesIO(data), file_type=file_type, force="mesh", process=False)
+        vertices = np.asarray(mesh.vertices, dtype=float)
+        triangles = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    except Exception as exc:  # noqa: BLE001 - any parser failure is the file's: named, never raised on
+        raise MeshFileError(f"mesh file {path}: trimesh could not read it as {file_type} "
+                            f"({type(exc).__name__})") from None
+    if not len(triangles):
+        raise MeshFileError(f"mesh file {path}: no triangles")
+    if len(triangles) > MAX_MESH_TRIANGLES or len(vertices) > MAX_MESH_VERTICES:
+        raise MeshFileError(f"mesh file {path}: {len(triangles)} triangles and {len(vertices)} vertices, more "
+                            f"than the {MAX_MESH_TRIANGLES} / {MAX_MESH_VERTICES} allowed")
+    if not np.isfinite(vertices).all():
+        raise MeshFileError(f"mesh file {path}: vertices that are not finite numbers")
+    return vertices, triangles
 
 
 def _mesh_drawing(link: str, path: str, scale: np.ndarray, color: np.ndarray) -> VisualDrawing:
     from cgp_core.collision.meshfile import MeshFileError, load_mesh
 
     try:
-        vertices, triangles = load_mesh(path)  # a regular file only, read bounded (cgp_core.user_input)
+        if Path(path).suffix.lower() in TRIMESH_TYPES:
+            vertices, triangles = read_trimesh_file(path)
+        else:
+            vertices, triangles = load_mesh(path)  # a regular file only, read bounded (cgp_core.user_input)
     except MeshFileError as exc:
         return VisualDrawing("none", np.ones(3), color, _NO_POINTS, _NO_POINTS,
                              problem=f"link {link}: visual not drawn: {exc}")
