@@ -53,7 +53,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 
-from common import GcWatch, Results, format_figures  # noqa: E402
+from common import GcWatch, Results, format_figures, stop_node  # noqa: E402
 
 TARGET_RATE_HZ = 59.5
 TARGET_WARM_S = 5.0
@@ -195,11 +195,7 @@ def run_startup(label: str, workdir: Path, domain: int, cold: bool) -> dict:
         stamp = msg.clock.sec + 1e-9 * msg.clock.nanosec
         first_tick = arrival - stamp  # real time: /clock = t is published t after the first tick
     finally:
-        process.send_signal(signal.SIGINT)
-        try:
-            process.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            process.kill()
+        stop_node(process)
         node.destroy_node()
     return {"label": label, "cold": cold, "numba_cache_files_removed": removed,
             "start_to_first_clock_s": first_tick - started, "first_clock_received_after_s": arrival - started,

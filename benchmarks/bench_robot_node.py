@@ -26,7 +26,6 @@ import argparse
 import os
 import random
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -40,7 +39,7 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 
 from bench_realtime import TARGET_RATE_HZ, run_realtime  # noqa: E402
-from common import Results, format_figures  # noqa: E402
+from common import Results, format_figures, stop_node  # noqa: E402
 
 ROBOT = "arm"
 JOINT = "shoulder_pan"
@@ -109,11 +108,7 @@ def command_latency(trials: int, workdir: Path) -> dict:
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
-        process.send_signal(signal.SIGINT)
-        try:
-            process.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            process.kill()
+        stop_node(process)
         log.close()
     ticks_a, walls = np.round(np.array(ticks), 3), np.array(walls_ms)
     return {"trials": trials, "latency_ticks": ticks_a.tolist(), "latency_wall_ms": walls.tolist(),

@@ -219,3 +219,17 @@ class GcWatch:
 
     def as_dict(self) -> dict:
         return {"count": list(self.count), "longest_ms": self.longest_ms, "total_ms": self.total_ms}
+
+
+def stop_node(process, timeout: float = 60.0) -> int | None:
+    """Stop a ``cgp-sim`` child as Ctrl-C does (SIGINT: the node finishes its bag), killed if it takes longer than
+    ``timeout`` s; its exit status (None: killed)."""
+    import signal
+    import subprocess
+
+    process.send_signal(signal.SIGINT)
+    try:
+        return process.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        return None
