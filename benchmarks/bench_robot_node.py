@@ -16,6 +16,12 @@ received before the command was published) / the tick; it is >= 1 by constructio
 seen).  The wall-clock latency (published → received) is reported beside it.  Discovery is waited on with a
 deadline, never a sleep.
 
+**Spawning a robot while the default scene runs.**  ``cgp-sim --scene default --bag <dir>`` (60 Hz real time,
+recording, 5 bodies and 300 fish), and this process, as a client, counts ``/clock`` (one per tick) while it spawns
+the arm from its file (``uri``), then from its URDF text (``resource_string``), deletes the first and spawns it again
+under another name, each request after the previous reply: the tick rate from the first request to the last reply,
+the slowest 1-s window, each request's latency (the first spawn starts the node's spawn worker).
+
 Writes ``benchmarks/results/robot_node.json``.  Run alone: ``.venv/bin/python benchmarks/bench_robot_node.py``
 (``--quick``: 10 s of real time instead of 30, 20 latency trials instead of 60).
 """
@@ -116,6 +122,79 @@ def command_latency(trials: int, workdir: Path) -> dict:
             "wall_ms_median": float(np.median(walls)), "wall_ms_p99": float(np.percentile(walls, 99))}
 
 
+def spawn_while_running(workdir: Path) -> dict:
+    """The arm spawned, spawned again from text, deleted and spawned under another name while the default scene
+    runs (module docstring): the tick rate over the requests, the slowest second, the latencies."""
+    import rclpy
+    from rosgraph_msgs.msg import Clock
+    from simulation_interfaces.msg import Result
+    from simulation_interfaces.srv import DeleteEntity, SpawnEntity
+
+    urdf = ROOT / "msgs_config" / "robots" / "arm.urdf"
+    domain = int(os.environ.get("CGP_SIM_BENCH_DOMAIN") or random.Random(os.getpid() ^ time.time_ns()).randint(1, 101))
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED="1")
+    log = open(workdir / "spawn_node.log", "w")
+    process = subprocess.Popen([str(Path(sys.executable).with_name("cgp-sim")), "--scene", "default", "--bag",
+                                str(workdir / "bag_spawn")], env=env, stdout=log, stderr=subprocess.STDOUT)
+    rclpy.init(domain_id=domain)
+    node = rclpy.create_node("bench_robot_spawn")
+    ticks: list[float] = []
+    node.create_subscription(Clock, "/clock", lambda _msg: ticks.append(time.perf_counter()), 10)
+    spawn = node.create_client(SpawnEntity, "/cgp_sim/spawn_entity")
+    delete = node.create_client(DeleteEntity, "/cgp_sim/delete_entity")
+
+    def call(client, request, what: str):
+        started = time.perf_counter()
+        future = client.call_async(request)
+        deadline = time.monotonic() + 120.0
+        while not future.done() and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        if not future.done():
+            raise RuntimeError(f"{what}: no reply within 120 s")
+        answer = future.result()
+        if answer.result.result != Result.RESULT_OK:
+            raise RuntimeError(f"{what}: {answer.result.error_message}")
+        return time.perf_counter() - started
+
+    def spawn_request(name: str, **source) -> SpawnEntity.Request:
+        request = SpawnEntity.Request(name=name, **source)
+        request.initial_pose.pose.position.x = -8.0
+        request.initial_pose.pose.position.y = {"arm_file": -8.0, "arm_text": 8.0}.get(name, 0.0)
+        request.initial_pose.pose.orientation.w = 1.0
+        return request
+
+    try:
+        deadline = time.monotonic() + DISCOVERY_DEADLINE_S
+        while (len(ticks) < 60 or not spawn.service_is_ready() or not delete.service_is_ready()) \
+                and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        if len(ticks) < 60 or not spawn.service_is_ready():
+            raise RuntimeError(f"the default scene's node was not discovered within {DISCOVERY_DEADLINE_S:g} s")
+        first = time.perf_counter()
+        latency = {
+            "spawn_file_s": call(spawn, spawn_request("arm_file", uri=f"file://{urdf}"), "spawn from the file"),
+            "spawn_text_s": call(spawn, spawn_request("arm_text", resource_string=urdf.read_text()),
+                                 "spawn from the text"),
+            "delete_s": call(delete, DeleteEntity.Request(entity="arm_file"), "delete"),
+            "spawn_again_s": call(spawn, spawn_request("arm_again", uri=str(urdf)), "spawn again"),
+        }
+        last = time.perf_counter()
+        end = time.monotonic() + 2.0
+        while time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.05)
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+        stop_node(process)
+        log.close()
+    stamps = np.array(ticks)
+    inside = stamps[(stamps >= first) & (stamps <= last)]
+    span = max(last - first, 1e-9)
+    windows = [int(((stamps >= t) & (stamps < t + 1.0)).sum()) for t in np.arange(first, max(last - 1.0, first) + 1e-9,
+                                                                                    0.1)]
+    return {"rate_hz": len(inside) / span, "span_s": span, "slowest_second_ticks": min(windows), **latency}
+
+
 def run(quick: bool = False) -> dict:
     seconds, trials = (10.0, 20) if quick else (30.0, 60)
     out = Results("robot_node", options={"quick": quick, "seconds": seconds, "trials": trials})
@@ -131,9 +210,15 @@ def run(quick: bool = False) -> dict:
         latency = command_latency(trials, workdir)
         print(f"  {latency['ticks_median']:g} ticks median (max {latency['ticks_max']:g}); wall "
               f"{latency['wall_ms_median']:.1f} ms median, p99 {latency['wall_ms_p99']:.1f}", flush=True)
+        print("spawning the arm (file, text, delete, again) while the default scene runs ...", flush=True)
+        spawned = spawn_while_running(workdir)
+        print(f"  {spawned['rate_hz']:.1f} Hz over {spawned['span_s']:.1f} s of requests, slowest second "
+              f"{spawned['slowest_second_ticks']} ticks; latency file {spawned['spawn_file_s']:.2f} s, text "
+              f"{spawned['spawn_text_s']:.2f} s, delete {spawned['delete_s']:.2f} s, again "
+              f"{spawned['spawn_again_s']:.2f} s", flush=True)
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
-    out.data.update({"realtime": realtime, "latency": latency})
+    out.data.update({"realtime": realtime, "latency": latency, "spawn": spawned})
     out.figure("arm_realtime_hz", f"arm scene, real time + recording: achieved rate over {seconds:g} s",
                realtime["achieved_hz"], "Hz", f">= {TARGET_RATE_HZ}", realtime["achieved_hz"] >= TARGET_RATE_HZ,
                rtf=realtime["achieved_hz"] * TICK_S, falling_behind_warnings=realtime["falling_behind_warnings"])
@@ -143,6 +228,12 @@ def run(quick: bool = False) -> dict:
                latency["ticks_median"], "ticks", "(reference: 1)", None, max=latency["ticks_max"])
     out.figure("arm_command_latency_ms", "  the same in wall time, published -> received (median)",
                latency["wall_ms_median"], "ms", "(reference)", None, p99=latency["wall_ms_p99"])
+    out.figure("arm_spawn_rate_hz", "default scene while the arm is spawned, re-spawned, deleted: tick rate",
+               spawned["rate_hz"], "Hz", ">= 55", spawned["rate_hz"] >= 55, span_s=spawned["span_s"],
+               slowest_second_ticks=spawned["slowest_second_ticks"])
+    out.figure("arm_spawn_latency_s", "  spawn from the file: request -> reply (the first starts the worker)",
+               spawned["spawn_file_s"], "s", "(reference)", None, text_s=spawned["spawn_text_s"],
+               again_s=spawned["spawn_again_s"], delete_s=spawned["delete_s"])
     path = out.write()
     print()
     print(format_figures(out.data["figures"]))
