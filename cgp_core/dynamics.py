@@ -91,6 +91,7 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
     #     mimic couplings and joint friction (cgp_core.robots.world); the free bodies they touch get their share
     #     of those impulses, and the remaining contacts go on to 3b
     if robots is not None and robots.n_dofs:
+        robots.active = active  # sleeping robots (their links asleep) are not stepped
         contacts = robots.solve(contacts, model, state, h, gravity, velocity, angular_velocity, inv_inertia)
 
     # 3b. solve contacts: impulses added to P and L as momentum changes at the start of the sub-step, so that

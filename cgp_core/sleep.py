@@ -5,14 +5,20 @@ Bodies at rest on each other cost a full contact solve per sub-step to stay wher
 (|v| + |ω| r, Box2D v3's measure and threshold); its rest timer counts how long.  An *island* is a connected
 component of the contact graph through movable bodies: two movable bodies touching (or within the speculative
 margin) in the last sub-step are in one island; fixed bodies and the ground do not connect islands (a pile on
-the ground is not one island with a ball rolling elsewhere on the same ground).  When every body of an island
+the ground is not one island with a ball rolling elsewhere on the same ground).  Bodies held together by joints
+(a robot's moving links, the bodies of a scene's ``joints:`` articulation: ``joined`` pairs of
+:meth:`Islands.update`, from :meth:`cgp_core.robots.world.Robots.joined_pairs`) are always in one island, touching
+or not: they fall asleep together and wake together (a body hanging on a hinge does not sleep while its partner
+moves; waking one wakes the other).  A sleeping robot or articulation is not stepped (its joint velocities zeroed,
+its joint positions kept: :meth:`cgp_core.robots.world.Robots.solve`).  When every body of an island
 has rested for :data:`SLEEP_TIME` [s], the island sleeps: its momenta are zeroed and its bodies are left out of
 the sub-steps (no forces, no contacts among themselves or with static bodies, no integration), so they stay
 exactly where they rest.
 
 An island wakes (all its bodies, their rest timers at zero) when
 
-- a wrench command acts on one of its bodies (:class:`cgp_core.world.World` checks before each tick),
+- a wrench command acts on one of its bodies (:class:`cgp_core.world.World` checks before each tick), or a joint
+  command on a robot or articulation of it (:meth:`cgp_core.robots.world.Robots.command`),
 - an awake body touches one of its bodies (the detector reports the contact, :func:`cgp_core.dynamics.step_bodies`
   wakes the island and detects again in the same sub-step),
 - the world is reset, or the caller says a body's state was edited (:meth:`Islands.wake`, e.g. after a
@@ -112,13 +118,17 @@ class Islands:
         return woken
 
     def update(self, state: BodyState, model: BodyModel, body_a: np.ndarray, body_b: np.ndarray,
-               speed: np.ndarray, spin: np.ndarray, dt: float) -> np.ndarray:
-        """After a tick: islands from the last sub-step's contacts ``body_a, body_b`` (awake bodies only), rest
-        timers from the speeds ``|v|``, ``|ω|`` (n,), and every island whose bodies have all rested
-        :data:`SLEEP_TIME` put to sleep with zero momenta.  Returns the bodies that fell asleep."""
+               speed: np.ndarray, spin: np.ndarray, dt: float, joined=None) -> np.ndarray:
+        """After a tick: islands from the last sub-step's contacts ``body_a, body_b`` (awake bodies only) and the
+        ``joined`` pairs ``(a (k,), b (k,))`` of bodies held together by joints (always one island), rest timers
+        from the speeds ``|v|``, ``|ω|`` (n,), and every island whose bodies have all rested :data:`SLEEP_TIME`
+        put to sleep with zero momenta.  Returns the bodies that fell asleep."""
         awake = self.awake
         if not awake.any():
             return np.zeros(0, np.intp)
+        if joined is not None and len(joined[0]):
+            body_a = np.concatenate((np.asarray(body_a, np.int64), np.asarray(joined[0], np.int64)))
+            body_b = np.concatenate((np.asarray(body_b, np.int64), np.asarray(joined[1], np.int64)))
         labels = island_labels(awake, np.ascontiguousarray(body_a, np.int64), np.ascontiguousarray(body_b, np.int64))
         self.island = np.where(awake, labels, self.island)
         resting = speed + spin * self.bounding_radius < SLEEP_SPEED

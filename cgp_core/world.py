@@ -236,8 +236,8 @@ class World:
         self._scene_flock_params = [p if seed is None else p.with_seed(seed + i) for i, p in enumerate(scene.flocks)]
         self.flocks = [Flock(p) for p in self._scene_flock_params]
         self.wrenches = WrenchSchedule()
-        # robots keep every body awake: sleep islands do not join jointed links yet (issue 35's note)
-        self.sleep_enabled = bool(scene.world.sleep) and self.robots is None
+        # a robot's links, and a scene's jointed bodies, are one sleep island each (Robots.joined_pairs)
+        self.sleep_enabled = bool(scene.world.sleep)
         self._islands: Islands | None = None  # per-island sleep state of body_model (see islands())
         self.time_ns = 0
         self.ticks = 0
@@ -271,6 +271,10 @@ class World:
         islands = self.islands()
         if islands is not None and self.wrenches.active:
             islands.wake(self.wrenches.body)  # a wrench wakes the island of the body it acts on
+        if islands is not None and self.robots is not None:
+            commanded = self.robots.take_commanded()  # a joint command wakes its robot's island
+            if commanded.size:
+                islands.wake(commanded)
         if (model.count or self.robots is not None) and not self.bodies_asleep:
             # An extreme (but accepted) force can overflow a body's state to inf / NaN within the sub-steps;
             # numpy's warnings about it would only repeat, on stderr, what _contain_blowups reports right
@@ -400,7 +404,11 @@ class World:
         islands = self.islands()
         if islands is None:
             return
-        islands.update(self.body_state, self.body_model, contacts.body_a, contacts.body_b, speed, spin, self.dt)
+        joined = None if self.robots is None else self.robots.joined_pairs()
+        islands.update(self.body_state, self.body_model, contacts.body_a, contacts.body_b, speed, spin, self.dt,
+                       joined)
+        if self.robots is not None:
+            self.robots.hold_sleeping(islands.awake)  # a sleeping robot's joint velocities zeroed with its momenta
 
     def wake(self, bodies=None) -> None:
         """Wake sleeping bodies: ``None`` = all; else the islands of ``bodies`` (indices or names).  A wrench
@@ -786,9 +794,9 @@ class World:
             raise EditError("not_possible", f"with robot {spec.name!r}: {exc}") from None
 
     def _set_robots(self, robots) -> None:
-        """Replace :attr:`robots` (a robot added or removed): bodies sleep only in a world without robots."""
+        """Replace :attr:`robots` (a robot added or removed): the islands start again, every body awake."""
         self.robots = robots
-        self.sleep_enabled = bool(self.scene.world.sleep) and robots is None
+        self.sleep_enabled = bool(self.scene.world.sleep)
         self._islands = None
 
     def _robot_links(self, name: str) -> list[str]:
@@ -825,6 +833,7 @@ class World:
         qd[3:6] = w
         self.robots.write_bodies(self.body_model, self.body_state)
         rows = [self.body_model.names.index(n) for n in self._robot_links(name)]
+        self.wake(rows)  # a sleeping robot would ignore the edit
         for start, now in zip(self._body_start, (self.body_state.linear_momentum, self.body_state.angular_momentum,
                                                  self.body_state.orientation)):
             start[rows] = now[rows]

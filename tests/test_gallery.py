@@ -21,8 +21,9 @@ from cgp_core.rotation import quat_rotate, quat_to_matrix
 from cgp_core.scene import builtin_scene_names, scene_description
 
 GALLERY = ["arm", "box_stack", "bullet", "chain", "contacts", "convex_pile", "couzin_torus", "default", "fish_school",
-           "predator", "pyramid", "ramp", "sphere_pile", "tennis_racket", "zero_g"]
-# (bullet and convex_pile are tested for their point in tests/test_convex_scenes.py)
+           "mechanism", "predator", "pyramid", "ramp", "sphere_pile", "tennis_racket", "zero_g"]
+# (bullet and convex_pile are tested for their point in tests/test_convex_scenes.py, chain and mechanism in
+# tests/test_body_joints.py)
 
 
 def test_the_gallery_is_built_in_and_every_scene_says_what_it_shows():

@@ -1,7 +1,8 @@
 """Write the built-in gallery scenes whose body lists are too long to type: ``pyramid``, ``sphere_pile``,
-``convex_pile``, ``bullet`` and ``chain``.
+``convex_pile``, ``bullet``, ``chain`` and ``mechanism``.
 
-    python tools/gallery_scenes.py   # rewrites msgs_config/scenes/{pyramid,sphere_pile,convex_pile,bullet,chain}.yaml
+    python tools/gallery_scenes.py   # rewrites msgs_config/scenes/{pyramid,sphere_pile,convex_pile,bullet,chain,
+                                     # mechanism}.yaml
 
 The files are committed; this script is how they were made (edit it, not the YAML, and run it again).
 """
@@ -200,9 +201,114 @@ def chain() -> str:
     return "".join(lines + ["joints:\n"] + joints)
 
 
+def _turn(axis, angle: float) -> np.ndarray:
+    """The quaternion (x, y, z, w) of a turn by ``angle`` [rad] about ``axis``."""
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    return np.array([*(np.sin(angle / 2) * axis), np.cos(angle / 2)])
+
+
+def _z_onto(u) -> np.ndarray:
+    """The quaternion that turns the z axis onto the direction ``u`` (a capsule's axis)."""
+    u = np.asarray(u, float) / np.linalg.norm(u)
+    axis = np.cross([0.0, 0.0, 1.0], u)
+    return _turn(axis, float(np.arccos(np.clip(u[2], -1.0, 1.0)))) if np.linalg.norm(axis) > 1e-12 \
+        else np.array([0.0, 0.0, 0.0, 1.0])
+
+
+#: the mechanism scene: the door's upper limit [rad] and its thrown angular velocity [rad/s]; the ball chain's
+#: start angle from the vertical [rad] and its swing plane's angle from the x axis [rad]; the slider's rail
+#: slope [rad] and travel [m]
+DOOR_LIMIT, DOOR_SPIN, PENDULUM_ANGLE, PENDULUM_PLANE, RAIL_SLOPE, RAIL_TRAVEL = 1.3, 3.0, 1.1, 0.25, 0.45, 1.3
+
+
+def mechanism() -> str:
+    """Issue 35's joints between free bodies, one of each at work, in four lanes along y: a door thrown shut on
+    a hinge with limits (y = 3), a pendulum of three capsules and a ball on ball joints swinging through a
+    stack of boxes (y = 0), a carriage sliding down a tilted rail on a prismatic joint onto its limit (y = −3)
+    and a four-bar linkage (a loop closure: its fourth pin) released from a bent pose (y = −6)."""
+    body, joint = [], []
+
+    def add_body(name, shape, position, orientation=None, **keys):
+        text = f"  - {{name: {name}, shape: {shape}, "
+        text += "".join(f"{k}: {_vec(v) if isinstance(v, (list, tuple, np.ndarray)) else v}, "
+                        for k, v in keys.items() if k != "color")
+        text += f"position: {_vec(position)}"
+        if orientation is not None:
+            text += f", orientation: {_vec(orientation)}"
+        body.append(text + f", color: {_vec(keys['color'])}}}\n")
+
+    def add_joint(name, kind, parent, child, anchor, **keys):
+        text = f"  - {{name: {name}, type: {kind}, parent: {parent}, child: {child}, anchor: {_vec(anchor)}"
+        text += "".join(f", {k}: {_vec(v) if isinstance(v, (list, tuple, np.ndarray)) else v}"
+                        for k, v in keys.items())
+        joint.append(text + "}\n")
+
+    grey, wood = (0.45, 0.45, 0.5, 1.0), (0.7, 0.5, 0.3, 1.0)
+    # the door: 15 kg, hinged on a fixed post, thrown at DOOR_SPIN about its vertical hinge; it turns until its
+    # upper limit stops it (an inelastic stop: it stays there)
+    add_body("door_post", "box", (-0.1, 3.0, 1.0), size=(0.1, 0.1, 2.0), fixed="true", color=grey)
+    add_body("door", "box", (0.5, 3.0, 1.0), size=(0.9, 0.04, 1.8), mass=15, color=wood,
+             angular_velocity=(0, 0, DOOR_SPIN), linear_velocity=(0, 0.5 * DOOR_SPIN, 0))  # ω × (COM − anchor)
+    add_joint("door_hinge", "revolute", "door_post", "door", (0.0, 3.0, 1.0), axis=(0, 0, 1),
+              limits=(-0.2, DOOR_LIMIT))
+    # the pendulum: three 0.5 kg capsules and a 4 kg ball on ball joints from a fixed beam, released at
+    # PENDULUM_ANGLE out of the vertical in a plane turned PENDULUM_PLANE off x: it swings in 3D through the boxes
+    top = np.array([0.0, 0.0, 2.0])
+    add_body("gallows", "box", top + (0, 0, 0.1), size=(0.4, 0.4, 0.2), fixed="true", color=grey)
+    d = np.array([np.sin(PENDULUM_ANGLE) * np.cos(PENDULUM_PLANE), np.sin(PENDULUM_ANGLE) * np.sin(PENDULUM_PLANE),
+                  -np.cos(PENDULUM_ANGLE)])
+    pitch, radius = 0.4, 0.04
+    for k in range(3):
+        add_body(f"rope_{k}", "capsule", top + (k + 0.5) * pitch * d, _z_onto(d), radius=radius,
+                 length=pitch - 2 * radius, mass=0.5, color=(0.75, 0.7, 0.5, 1.0))
+        add_joint(f"ball_{k}", "ball", "gallows" if k == 0 else f"rope_{k - 1}", f"rope_{k}", top + k * pitch * d,
+                  damping=0.2)
+    add_body("bob", "sphere", top + (3 * pitch + 0.15) * d, radius=0.15, mass=4, color=(0.2, 0.2, 0.22, 1.0))
+    add_joint("ball_bob", "ball", "rope_2", "bob", top + 3 * pitch * d, damping=0.2)
+    for i in range(3):  # a stack the bob sweeps through on its upswing
+        add_body(f"crate_{i}", "box", (-0.75, -0.2, 0.15 + 0.3 * i), size=(0.3, 0.3, 0.3), mass=1.0, friction=0.5,
+                 color=(0.85, 0.65, 0.3, 1.0))
+    # the slider: a 2 kg carriage on a rail tilted RAIL_SLOPE down towards +x, on a prismatic joint with a little
+    # Coulomb friction; it slides RAIL_TRAVEL down to its limit and stops there
+    tilt = _turn((0, 1, 0), RAIL_SLOPE)
+    along = np.array([np.cos(RAIL_SLOPE), 0.0, -np.sin(RAIL_SLOPE)])
+    normal = np.array([np.sin(RAIL_SLOPE), 0.0, np.cos(RAIL_SLOPE)])
+    rail = np.array([0.0, -3.0, 1.4])
+    add_body("rail", "box", rail, tilt, size=(2.2, 0.15, 0.08), fixed="true", color=grey)
+    carriage = rail - 0.8 * along + 0.14 * normal
+    add_body("carriage", "box", carriage, tilt, size=(0.3, 0.25, 0.2), mass=2, color=(0.3, 0.55, 0.8, 1.0))
+    add_joint("rail_slide", "prismatic", "rail", "carriage", carriage, axis=along, limits=(-0.05, RAIL_TRAVEL),
+              friction=1.0)
+    # the four-bar: pins 1 m apart under a fixed beam; a 0.5 m crank (held out level), a coupler and a 0.7 m
+    # rocker (hanging); the rocker's pin on the coupler closes the loop.  Grashof (0.5 + 1.0 ≤ 0.86 + 0.7): the
+    # crank may turn all the way round
+    o1, o2 = np.array([0.0, -6.0, 2.0]), np.array([1.0, -6.0, 2.0])
+    p1, p2 = o1 + (0.5, 0, 0), o2 + (0, 0, -0.7)
+    add_body("bar_base", "box", (o1 + o2) / 2 + (0, 0, 0.06), size=(1.3, 0.1, 0.1), fixed="true", color=grey)
+    coupler = p2 - p1
+    slope = float(np.arctan2(-coupler[2], coupler[0]))
+    add_body("crank", "box", (o1 + p1) / 2, size=(0.5, 0.05, 0.05), mass=1.0, color=(0.8, 0.3, 0.25, 1.0))
+    add_body("coupler", "box", (p1 + p2) / 2, _turn((0, 1, 0), slope), size=(float(np.linalg.norm(coupler)), 0.05,
+             0.05), mass=1.0, color=(0.3, 0.7, 0.35, 1.0))
+    add_body("rocker", "box", (o2 + p2) / 2, size=(0.05, 0.05, 0.7), mass=1.0, color=(0.35, 0.45, 0.8, 1.0))
+    add_joint("crank_pin", "revolute", "bar_base", "crank", o1, axis=(0, 1, 0), damping=0.3)
+    add_joint("coupler_pin", "revolute", "crank", "coupler", p1, axis=(0, 1, 0), damping=0.3)
+    add_joint("rocker_pin", "revolute", "bar_base", "rocker", o2, axis=(0, 1, 0), damping=0.3)
+    add_joint("loop_pin", "revolute", "rocker", "coupler", p2, axis=(0, 1, 0))
+    lines = [HEADER, "tags: [rigid_bodies, joints]  # get_available_worlds' world tags\n",
+             "description: >\n",
+             "  Joints between free bodies (issue 35), one of each at work: a door thrown shut on a hinge stops at\n"
+             "  its limit; a pendulum of capsules and a ball on ball joints swings in 3D through a stack of\n"
+             "  crates; a carriage slides down a tilted rail on a prismatic joint onto its limit; a four-bar\n"
+             "  linkage (its fourth pin closes the loop) swings from a bent pose. No joint separates, the loop\n"
+             "  stays closed, no energy is gained (tests/test_body_joints.py); at rest, they sleep.\n",
+             "world: {gravity: [0, 0, -9.81], ground: true, substeps: 4}\nbodies:\n"]
+    return "".join(lines + body + ["joints:\n"] + joint)
+
+
 def main() -> None:
     for name, text in (("pyramid", pyramid()), ("sphere_pile", sphere_pile()), ("convex_pile", convex_pile()),
-                       ("bullet", bullet()), ("chain", chain())):
+                       ("bullet", bullet()), ("chain", chain()), ("mechanism", mechanism())):
         path = SCENES / f"{name}.yaml"
         path.write_text(text)
         print(f"wrote {path} ({len(text):,} bytes)")

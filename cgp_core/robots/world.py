@@ -276,6 +276,12 @@ class Robots:
         self._looped = [k for k, r in enumerate(self.robots)
                         if r.spec.articulation is not None and r.spec.articulation.loops]
         self._profile = None
+        #: (n_bodies,) bool: the bodies being stepped this sub-step (None: all); set by the step before
+        #: :meth:`solve` (cgp_core.dynamics.step_bodies): a robot whose links all sleep is not stepped
+        self.active = None
+        self._sleeping = np.zeros(len(self.robots), bool)
+        self._commanded: set[int] = set()  # robots given a joint command since the last tick (they wake)
+        self._joined = (np.zeros(0, np.int64), np.zeros(0, np.int64))
         self.reset()
 
     _KERNEL_LISTS = ("_models", "_property_list", "_drive_list", "_memories")
@@ -410,6 +416,42 @@ class Robots:
             if self.robots else np.zeros((0, 3))
         self._all_inertia = np.ascontiguousarray(body_model.inertia_body[self._all_rows])
         self._all_mass_flat = np.ascontiguousarray(body_model.mass[self._all_rows], dtype=float)
+        # each robot's moving links joined to its first one: one sleep island (joined_pairs)
+        pairs = [(np.full(len(rows) - 1, rows[0], np.int64), rows[1:].astype(np.int64))
+                 for rows in self._robot_rows if len(rows) > 1]
+        self._joined = ((np.concatenate([a for a, _ in pairs]), np.concatenate([b for _, b in pairs])) if pairs
+                        else (np.zeros(0, np.int64), np.zeros(0, np.int64)))
+
+    # ---- sleeping (cgp_core.sleep): a robot's links are one island ----------------------------------------------
+
+    def joined_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(a (k,), b (k,))`` world body rows held together by joints — every moving link of a robot (or of a
+        scene's articulation) with its first one —, which :meth:`cgp_core.sleep.Islands.update` puts in one
+        island whether they touch or not."""
+        return self._joined
+
+    def take_commanded(self) -> np.ndarray:
+        """The moving link rows of the robots commanded (:meth:`command`) since the last call: their islands wake."""
+        commanded, self._commanded = self._commanded, set()
+        rows = [self._robot_rows[k] for k in sorted(commanded) if k < len(getattr(self, "_robot_rows", ()))]
+        return np.concatenate(rows).astype(np.int64) if rows else np.zeros(0, np.int64)
+
+    def _sleepers(self) -> np.ndarray:
+        """(robots,) bool: the robots whose moving links all sleep (``active`` False for every one)."""
+        active = self.active
+        if active is None or not hasattr(self, "_robot_rows"):
+            return np.zeros(len(self.robots), bool)
+        return np.array([rows.size > 0 and not active[rows].any() for rows in self._robot_rows], bool)
+
+    def hold_sleeping(self, awake: np.ndarray) -> None:
+        """After the islands' update: the robots whose links all fell asleep (``awake`` (n_bodies,) False) keep
+        their joint positions at zero joint velocity (their link momenta were zeroed with them)."""
+        self.active = awake
+        self._sleeping = self._sleepers()
+        for k in np.flatnonzero(self._sleeping):
+            r = self.robots[k]
+            self.qd[r.dof_slice] = 0.0
+            self._pseudo[r.dof_slice] = 0.0
 
     @staticmethod
     def _body_name(r: RobotInstance, link: str) -> str:
@@ -587,8 +629,13 @@ class Robots:
         else:
             root, groups = None, [[k] for k in range(len(self.robots))]
         self.islands = groups
+        self._sleeping = sleeping = self._sleepers()
+        for k in np.flatnonzero(sleeping):  # not stepped: q kept (no velocity, no position-stage push)
+            r = self.robots[k]
+            self.qd[r.dof_slice] = 0.0
+            self._pseudo[r.dof_slice] = 0.0
         lone = np.array([g[0] for g in groups if len(g) == 1 and (g[0] if root is None else int(root[g[0]]))
-                         not in owner], np.int64)
+                         not in owner and not sleeping[g[0]]], np.int64)
         if lone.size:
             from .joint_solver import JointSettings, step_lone_robots
 
@@ -602,7 +649,7 @@ class Robots:
         bodies = None
         for group in groups:
             if len(group) == 1 and (group[0] if root is None else int(root[group[0]])) not in owner:
-                continue  # stepped above
+                continue  # stepped above (or asleep)
             picked = owner.get(group[0] if root is None else int(root[group[0]]))
             if picked is not None and picked.size:
                 selected = contacts.select(picked)
@@ -869,6 +916,8 @@ class Robots:
         position stage corrects the error at the sub-step's start, but a step along the tangent leaves the
         curvature's ½ (h ω)² r; this removes it.  Velocities are not touched (no energy is added)."""
         for k in self._looped:
+            if self._sleeping[k]:
+                continue  # asleep: q kept as it is
             r = self.robots[k]
             q = self.q[r.q_slice]
             for _ in range(iterations):
@@ -947,7 +996,10 @@ class Robots:
     def end_tick(self) -> None:
         """The tick's mean joint efforts (what a joint torque sensor would read over the tick)."""
         if self._substeps:
-            self.effort = self._effort_sum / self._substeps
+            effort = self._effort_sum / self._substeps
+            for k in np.flatnonzero(self._sleeping):  # asleep: what its joints last held (a sensor's reading)
+                effort[self.robots[k].dof_slice] = self.effort[self.robots[k].dof_slice]
+            self.effort = effort
         self._effort_sum[:] = 0.0
         self._substeps = 0
 
@@ -1029,6 +1081,7 @@ class Robots:
         from .joint_solver import DRIVE_EFFORT, DRIVE_POSITION, DRIVE_VELOCITY
 
         r = self.robot(name)
+        self._commanded.add(self.robots.index(r))  # a command wakes the robot (World.step)
         movable = dict(self._movable(r))
         followers = set(self._mimic[0].tolist())
         problems = []

@@ -6,7 +6,7 @@ Sizes: ``n`` bodies; ``m`` contacts that can move something (sorted by body pair
 ground (and any contact's side with a body that cannot move acts like it), so every contact has two body rows and
 no branch.  The order of the stages is :func:`.sequential_impulse.solve_step`'s:
 
-    prepare_bodies → prepare_contacts → warm_start_contacts → solve_contacts → apply_restitution
+    prepare_bodies → prepare_contacts → warm_start_contacts → solve_contacts → bounce_time_shift
     → apply_impulses → store_impulses              (the velocity stage; after the integrator:)
     recover_penetration_kernel                       (the position stage, from the velocity stage's Handover)
 
@@ -81,7 +81,7 @@ class Targets(NamedTuple):
     approach: np.ndarray   # (m,) normal velocity J V before the sub-step's forces [m/s] (< 0: approaching)
     bounce: np.ndarray     # (m,) bool: the contact bounces (restitution) this sub-step
     toi_shift: np.ndarray  # (m,) the position stage's target for a bounce placed at its time of impact [m], NaN
-    # where none (see apply_restitution)
+    # where none (see bounce_time_shift)
 
 
 class WarmStart(NamedTuple):

@@ -27,7 +27,7 @@ solve, so a resting body gets exactly the impulse that cancels it — and the ro
   (velocity from the momentum alone) and whose gap closes within it asks instead for
   J V ≥ −e · (J V)_before (Box2D v2's velocity bias; the threshold keeps resting contacts from
   micro-bouncing).  A bounce off the static world from a speculative contact is also put at its time of
-  impact (see :func:`apply_restitution`).
+  impact (see :func:`bounce_time_shift`).
 
 The accumulated impulses are added to P and L at the start of the sub-step: ΔP = Σ J_linᵀ λ, ΔL = Σ J_angᵀ λ
 (= Σ r × impulse), equal and opposite on the two bodies at the same point, so momentum is conserved to
@@ -68,7 +68,7 @@ body-frame angular momentum stays the same), so the kinetic energy is unchanged 
    previous sub-step's, their rows J, M⁻¹Jᵀ and effective masses, the manifolds' blocks, the targets;
 3. :func:`warm_start_contacts` — the matched impulses applied;
 4. :func:`solve_contacts` — the sweeps;
-5. :func:`apply_restitution` — bounces off the static world placed at their time of impact;
+5. :func:`bounce_time_shift` — bounces off the static world placed at their time of impact;
 6. :func:`apply_impulses` — the accumulated impulses (and rolling resistance) added to P and L;
 7. :func:`store_impulses` — the warm-start memory for the next sub-step;
 
@@ -117,8 +117,9 @@ from .report import ContactReport, ContactTally, finish_report, tally_contacts
 IMPACT_SWEEPS = 16
 
 #: the stages of :attr:`SequentialImpulseSolver.profile`, in order (the velocity stage's, then the position stage)
-STAGES = ("prepare", "warm_start", "solve", "restitution", "apply_impulses", "store_impulses", "recover_penetration")
-PREPARE, WARM_START, SOLVE, RESTITUTION, APPLY_IMPULSES, STORE_IMPULSES, RECOVER = range(len(STAGES))
+STAGES = ("prepare", "warm_start", "solve", "bounce_time_shift", "apply_impulses", "store_impulses",
+          "recover_penetration")
+PREPARE, WARM_START, SOLVE, BOUNCE_TIME_SHIFT, APPLY_IMPULSES, STORE_IMPULSES, RECOVER = range(len(STAGES))
 
 
 class Tangents(NamedTuple):
@@ -565,19 +566,20 @@ def _push_normal_row(c, rows, lam, target, lower, V, a, b):
     return abs(delta) / rows.eff[c, 0]
 
 
-# ---- 5. restitution: bounces at their time of impact -------------------------------------------------------
+# ---- 5. bounce time shift: bounces off the static world placed at their time of impact -------------------------
 
 @njit
-def apply_restitution(manifolds, rows, targets, bodies, h):
-    """Restitution is a target of the sweeps (:func:`velocity_targets`); what is left after them — Box2D's place
-    for it — is *when* a bounce off the static world (ground, fixed bodies) happens.  A speculative contact (gap
-    s > 0) that bounced did so t* = s / |vₙ before| into the sub-step, not at its start.  The velocity is right
-    (e times the impact speed), but moving with it for the whole sub-step would leave the body
-    s (1 + vₙ after / |vₙ before|) too far from the surface, which the position stage takes back with a
-    two-sided row: writes that target into ``targets.toi_shift``.  This is what makes a dropped ball rebound to
-    e² of its height instead of bouncing early by up to one step of travel.  Not done between two moving bodies:
-    the shift is not an impulse, so it would spoil their total angular momentum; they bounce at the start of the
-    sub-step, as in Box2D."""
+def bounce_time_shift(manifolds, rows, targets, bodies, h):
+    """The position target that puts a bounce off the static world at its time of impact; it applies no
+    restitution (issue 35: it was misnamed ``apply_restitution``).  Restitution is a target of the sweeps
+    (:func:`velocity_targets`); what is left after them — Box2D's place for it — is *when* a bounce off the static
+    world (ground, fixed bodies) happens.  A speculative contact (gap s > 0) that bounced did so
+    t* = s / |vₙ before| into the sub-step, not at its start.  The velocity is right (e times the impact speed),
+    but moving with it for the whole sub-step would leave the body s (1 + vₙ after / |vₙ before|) too far from the
+    surface, which the position stage takes back with a two-sided row: writes that target into
+    ``targets.toi_shift``.  This is what makes a dropped ball rebound to e² of its height instead of bouncing
+    early by up to one step of travel.  Not done between two moving bodies: the shift is not an impulse, so it
+    would spoil their total angular momentum; they bounce at the start of the sub-step, as in Box2D."""
     a, b, separation, dynamic = manifolds.a, manifolds.b, manifolds.separation, bodies.dynamic
     for c in range(len(a)):
         if targets.bounce[c] and separation[c] > 0.0 and not (dynamic[a[c]] and dynamic[b[c]]):
@@ -707,8 +709,8 @@ def _velocity_stage(contacts, bodies, memory, settings, profile):
     start = lap(profile, WARM_START, start)
     sweeps = solve_contacts(manifolds, rows, targets, lam, solver_bodies, settings)
     start = lap(profile, SOLVE, start)
-    apply_restitution(manifolds, rows, targets, solver_bodies, settings.h)
-    start = lap(profile, RESTITUTION, start)
+    bounce_time_shift(manifolds, rows, targets, solver_bodies, settings.h)
+    start = lap(profile, BOUNCE_TIME_SHIFT, start)
     impulse = apply_impulses(manifolds, rows, lam, solver_bodies, bodies, settings.rolling_resistance)
     start = lap(profile, APPLY_IMPULSES, start)
     memory = store_impulses(manifolds, rows, lam)
