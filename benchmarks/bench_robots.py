@@ -65,7 +65,8 @@ def ours(count: int) -> tuple[World, callable]:
     joints = {f"lbr_iiwa_joint_{k + 1}": v for k, v in enumerate(POSE)}
     robots = [{"name": f"arm{i}", "urdf": urdf, "position": [x, y, 0.0], "joints": joints, "hold": True,
                "stiffness": KP, "damping": KD} for i, (x, y) in enumerate(grid(count))]
-    world = World(scene_from_dict({"world": {"substeps": SUBSTEPS, "ground": False}, "robots": robots},
+    # sleep off: the peers step every arm every tick; a holding arm would otherwise fall asleep (issue 35)
+    world = World(scene_from_dict({"world": {"substeps": SUBSTEPS, "ground": False, "sleep": False}, "robots": robots},
                                   "<bench_robots>"), dt=TICK)
     names = [f"arm{i}" for i in range(count)]
 

@@ -967,14 +967,19 @@ class Robots:
         from .joint_solver import JointSolverMemory
 
         bad = []
-        with np.errstate(over="ignore", invalid="ignore"):
+        rows_of = self._robot_rows if hasattr(self, "_robot_rows") else [np.zeros(0, np.int64)] * len(self.robots)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            # every body's speed and spin once (the world's I⁻¹ at its poses: once per tick, not once per robot)
+            absurd = None
+            if any(rows.size for rows in rows_of):
+                speed = np.linalg.norm(state.linear_momentum, axis=1) / body_model.mass
+                spin = np.linalg.norm(state.angular_velocity(body_model), axis=1)
+                absurd = ~((speed < BLOWUP_SPEED) & (spin < BLOWUP_SPIN))
             for k, r in enumerate(self.robots):
-                rows = self._robot_rows[k] if hasattr(self, "_robot_rows") else np.zeros(0, np.int64)
+                rows = rows_of[k]
                 finite = np.isfinite(self.q[r.q_slice]).all() and np.isfinite(self.qd[r.dof_slice]).all()
                 if finite and rows.size:
-                    speed = np.linalg.norm(state.linear_momentum[rows], axis=1) / body_model.mass[rows]
-                    spin = np.linalg.norm(state.angular_velocity(body_model)[rows], axis=1)
-                    finite = bool((speed < BLOWUP_SPEED).all() and (spin < BLOWUP_SPIN).all())
+                    finite = not bool(absurd[rows].any())
                 if not finite:
                     bad.append(k)
         if not bad:

@@ -20,8 +20,9 @@ composed with the visual's ``<origin>``, :meth:`~cgp_core.robots.world.Robots.vi
   (the file's own materials are not used).  A COLLADA file is XML from wherever a URDF pointed: one with a
   ``<!DOCTYPE`` or ``<!ENTITY`` is refused unparsed (COLLADA needs neither; lxml would resolve an external
   entity — a ``file:///etc/shadow`` — into the document);
-- ``mesh`` of another format (``.3ds``, ``.gltf`` with external buffers ...): MESH_RESOURCE with the resolved file's ``file://`` URI and the URDF's ``scale`` (RViz reads it
-  through assimp; Foxglove's desktop app reads ``file://``; a browser and ``cgp-sim-render`` do not draw it);
+- ``mesh`` of another format (``.3ds``, ``.gltf`` with external buffers ...): MESH_RESOURCE with the resolved
+  file's ``file://`` URI and the URDF's ``scale`` (RViz reads it through assimp; Foxglove's desktop app reads
+  ``file://``; a browser and ``cgp-sim-render`` do not draw it);
 - a mesh file that cannot be read (missing, not a regular file, too big, malformed): nothing is drawn for that
   visual, and :attr:`VisualDrawing.problem` says why (the node logs it).
 
