@@ -39,6 +39,7 @@ pin = pytest.importorskip("pinocchio")
 
 REPO = Path(__file__).resolve().parents[1]
 ARM3 = REPO / "msgs_config" / "robots" / "arm3.urdf"
+ARM7 = REPO / "msgs_config" / "robots" / "arm7.urdf"  # the `arm` scene's 7-DoF arm (tools/arm7_urdf.py)
 PENDULUM = REPO / "msgs_config" / "robots" / "pendulum.urdf"
 GRAVITY = np.array([0.0, 0.0, -9.81])
 
@@ -119,11 +120,12 @@ def _close(ours, theirs, rtol=1e-9):
     np.testing.assert_allclose(ours, theirs, rtol=0, atol=rtol * scale)
 
 
-CASES = [(PANDA, False), (UR5, False), (DOUBLE_PENDULUM, False), ("arm3", False), ("arm3", True), (PANDA, True)]
+CASES = [(PANDA, False), (UR5, False), (DOUBLE_PENDULUM, False), ("arm3", False), ("arm3", True), (PANDA, True),
+         ("arm7", False)]
 
 
 def _path(name):
-    return ARM3 if name == "arm3" else _erd(name)
+    return {"arm3": ARM3, "arm7": ARM7}.get(name) or _erd(name)
 
 
 @pytest.mark.parametrize(("robot", "floating"), CASES, ids=[f"{r.split('/')[-1]}-{'floating' if f else 'fixed'}"

@@ -359,3 +359,65 @@ def test_mangled_files_give_urdf_errors_only():
 
 def test_numbers_are_bounded():
     _refused(_robot(_link("a", mass=1e300)), "within")
+
+
+def test_arm7_is_its_generator_output_with_inertias_of_its_collision_primitives():
+    """msgs_config/robots/arm7.urdf (the ``arm`` scene's 7-DoF arm) is what tools/arm7_urdf.py writes, and every
+    link's <inertial> is that of its <collision> primitives at uniform density, recomputed here from the file's
+    own elements (cylinder: m (3 r² + L²) / 12 across, m r² / 2 along; box: m (b² + c²) / 12; the parts' masses by
+    volume, moved to the COM by the parallel-axis theorem) to the 6 digits printed; 7 revolute joints with
+    limits, effort, velocity and damping; the right finger mimics the left.  (Its dynamics against Pinocchio's:
+    tests/test_robot_model.py.)"""
+    import importlib.util
+    import xml.etree.ElementTree as ET
+
+    path = REPO / "msgs_config" / "robots" / "arm7.urdf"
+    spec = importlib.util.spec_from_file_location("arm7_urdf", REPO / "tools" / "arm7_urdf.py")
+    generator = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(generator)
+    assert generator.urdf() == path.read_text(), "arm7.urdf differs from tools/arm7_urdf.py's output: run it"
+
+    root = ET.parse(path).getroot()
+    for link in root.findall("link"):
+        inertial = link.find("inertial")
+        parts = link.findall("collision")
+        if inertial is None:
+            assert not parts, link.get("name")
+            continue
+        mass = float(inertial.find("mass").get("value"))
+        pieces = []
+        for c in parts:
+            origin = c.find("origin")
+            centre = np.array([float(v) for v in origin.get("xyz").split()])
+            R = rpy_matrix(np.array([float(v) for v in (origin.get("rpy") or "0 0 0").split()]))
+            shape = c.find("geometry")[0]
+            if shape.tag == "cylinder":
+                r, length = float(shape.get("radius")), float(shape.get("length"))
+                volume = math.pi * r * r * length
+                unit = np.diag([(3 * r * r + length * length) / 12] * 2 + [r * r / 2])
+            else:
+                a, b, cc = (float(v) for v in shape.get("size").split())
+                volume = a * b * cc
+                unit = np.diag([b * b + cc * cc, a * a + cc * cc, a * a + b * b]) / 12
+            pieces.append((volume, centre, R @ unit @ R.T))
+        total = sum(v for v, _, _ in pieces)
+        com = sum(v * c for v, c, _ in pieces) / total
+        inertia = np.zeros((3, 3))
+        for v, c, unit in pieces:
+            m, d = mass * v / total, c - com
+            inertia += m * unit + m * (d @ d * np.eye(3) - np.outer(d, d))
+        tensor = inertial.find("inertia")
+        given = np.array([[float(tensor.get(f"i{a}{b}" if f"i{a}{b}" in tensor.attrib else f"i{b}{a}"))
+                           for b in "xyz"] for a in "xyz"])
+        np.testing.assert_allclose(given, inertia, rtol=1e-5, atol=1e-12, err_msg=link.get("name"))
+        np.testing.assert_allclose([float(v) for v in inertial.find("origin").get("xyz").split()], com, atol=1e-5)
+    model = load_urdf(path)
+    revolute = [j for j in root.findall("joint") if j.get("type") == "revolute"]
+    assert len(revolute) == 7 and model.n_dofs == 9  # 7 arm joints and the two fingers (the right one a mimic)
+    for j in revolute:
+        limit, dynamics = j.find("limit"), j.find("dynamics")
+        assert float(limit.get("lower")) < 0 < float(limit.get("upper")), j.get("name")
+        assert float(limit.get("effort")) > 0 and float(limit.get("velocity")) > 0
+        assert float(dynamics.get("damping")) > 0
+    mimic = root.find("joint[@name='finger_right_joint']/mimic")
+    assert mimic is not None and mimic.get("joint") == "finger_left_joint"
