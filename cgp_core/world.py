@@ -76,6 +76,7 @@ from .limits import (
     MAX_SPIN,
     rigid_work_refusal,
 )
+from .robots.trajectory import Following
 from .robots.world import Robots
 from .rotation import matrix_to_quat, quat_conjugate, quat_rotate, quat_to_matrix
 from .scene import (
@@ -251,6 +252,10 @@ class World:
         #: the last reported tick's :class:`~cgp_core.solver.report.ContactReport` (with ``report_contacts``)
         self.contacts = ContactReport.empty()
         self._contacts_of = (None, -1)  # the body model `contacts` indexes and the tick it is of
+        #: the scene trajectories (``robots[].trajectory``) the robots follow, from time 0 (cgp_core/robots/
+        #: trajectory.py); a joint command stops a robot's (:meth:`stop_trajectory`)
+        self.trajectories = Following()
+        self.trajectories.start(self.robots, self.time_ns)
         self.remember_tick_start()
 
     def _report_notes(self, spec) -> None:
@@ -266,6 +271,9 @@ class World:
     def step(self) -> None:
         """Advance one tick (see the module docstring for the stages)."""
         h = self.dt / self.substeps
+        if self.trajectories.robots:  # the scene trajectories' targets for the end of this tick
+            for level, text in self.trajectories.command(self.robots, self.time_ns + self.dt_ns):
+                self.events.append(WorldEvent(self.time, level, text))
         self.remember_tick_start()
         model, state = self.body_model, self.body_state
         islands = self.islands()
@@ -458,6 +466,7 @@ class World:
             if self.robots is not None:
                 self.robots.reset()
                 self.robots.write_bodies(self.body_model, self.body_state)
+            self.trajectories.start(self.robots, self.time_ns)  # the scene trajectories from their start again
             for flock in self.flocks:
                 flock.reset()
             self.wrenches.clear()
@@ -597,6 +606,7 @@ class World:
             old_model = self.body_model
             if robots is not None:
                 self._set_robots(robots)
+                self.trajectories.start(robots, self.time_ns, names={prepared.name})  # its trajectory: from now
             self.body_model, self.body_state = concatenate_bodies(old_model, self.body_state, model, state)
             _, self._initial_body_state = concatenate_bodies(old_model, self._initial_body_state, model,
                                                              state.copy())
@@ -681,6 +691,7 @@ class World:
         self.__dict__.update(other.__dict__)
         self.__dict__.update(kept, events=events)
         self.loaded = True
+        self.trajectories.start(self.robots, self.time_ns)  # the new scene's trajectories start now
         self.remember_tick_start()
 
     @property
@@ -780,6 +791,14 @@ class World:
         if self.robots is None:
             return []
         return [r.name for r in self.robots.robots if r.spec.articulation is None]
+
+    def stop_trajectory(self, name: str) -> bool:
+        """Stop robot ``name``'s scene trajectory (``robots[].trajectory``): its position drives hold the targets
+        they were last given until a command comes.  The node calls it when a ``joint_commands`` or
+        ``joint_trajectory`` message for the robot is applied (a ROS command wins); a ``Robots.command`` from
+        Python between ticks stops it too (:class:`cgp_core.robots.trajectory.Following`).  A reset or a load
+        starts it again.  Returns whether the robot was following one."""
+        return self.trajectories.stop(name, self.robots)
 
     def _robots_with(self, spec):
         """The world's robots with ``spec``'s added (:meth:`Robots.with_robot`), or :class:`EditError`."""

@@ -69,8 +69,9 @@ with it and go when it is deleted), under ``~/robots/<robot>/``:
   commands' are.
 - ``joint_trajectory`` (trajectory_msgs/JointTrajectory, subscribed, ``COMMAND_QOS``): followed through the
   position drives with joint_trajectory_controller's interpolation (cubic between points with velocities, linear
-  without; :mod:`cgp_sim_ros.trajectory`), from ``header.stamp`` in simulation time (0: when taken); a new
-  trajectory replaces the robot's current one, a ``joint_commands`` message stops it.
+  without; :mod:`cgp_core.robots.trajectory`), from ``header.stamp`` in simulation time (0: when taken); a new
+  trajectory replaces the robot's current one, a ``joint_commands`` message stops it.  Either replaces the
+  robot's scene trajectory (a scene's ``robots[].trajectory``) until a reset or a load: the ROS command wins.
 
 Services (std_srvs): ``~/reset`` (Trigger), ``~/pause`` (SetBool), ``~/step`` (Trigger, one tick while paused),
 ``~/clear_wrenches`` (Trigger).

@@ -21,9 +21,14 @@ A robot entry::
         restitution: 0.0
         xacro_args: {}                 # arguments of a .xacro file
         package_paths: {}              # package name -> directory, for package:// URIs
+        trajectory:                    # a joint trajectory followed through the position drives from the start
+          loop: true                   # (the world's load or reset, the robot's spawn); loop: from the first
+          points:                      # point again after the last (which must equal the first)
+            - {time: 1.0, positions: {shoulder: 0.5}, velocities: {shoulder: 0.0}}   # velocities: optional
+            - {time: 3.0, positions: {shoulder: -0.5}, velocities: {shoulder: 0.0}}  #   (all points or none)
 
 The URDF is loaded while the scene is (:func:`cgp_core.robots.urdf.load_urdf`), so a bad URDF is a scene error
-naming the entry, like any other value.
+naming the entry, like any other value; so is a trajectory that cannot be followed (:func:`parse_trajectory`).
 """
 
 from __future__ import annotations
@@ -39,7 +44,14 @@ import numpy as np
 from .validation import COORDINATES, Validator, kind_of, short_repr
 
 ROBOT_KEYS = {"name", "urdf", "position", "orientation", "fixed_base", "joints", "hold", "stiffness", "damping",
-              "self_collision", "friction", "restitution", "xacro_args", "package_paths"}
+              "self_collision", "friction", "restitution", "xacro_args", "package_paths", "trajectory"}
+TRAJECTORY_KEYS = {"points", "loop"}
+POINT_KEYS = {"time", "positions", "velocities"}
+#: a scene trajectory's path is checked against the joints' limits and velocity limits at this many instants per
+#: segment (a cubic between two points within the limits may overshoot them)
+TRAJECTORY_CHECKS_PER_SEGMENT = 64
+#: a looping trajectory's last point equals its first to this [rad or m; rad/s or m/s]
+LOOP_TOLERANCE = 1e-9
 #: the most robots a scene holds (each a dense joint-space system of its own, solved on its own: the cost grows
 #: linearly with the robots; 64 arms are issue 35's benchmark)
 MAX_ROBOTS = 256
@@ -62,6 +74,8 @@ class RobotSpec:
     friction: float = 0.8
     restitution: float = 0.0
     notes: list = field(default_factory=list)
+    #: the joint trajectory it follows from the start (cgp_core.robots.trajectory.SceneTrajectory), or None
+    trajectory: Any = None
     #: the articulation of a scene's ``joints:`` this robot is (cgp_core.robots.articulations.Articulation): its
     #: links are the scene's own bodies (their names kept), its drives and initial velocities its joints'; None
     #: for a URDF robot
@@ -191,9 +205,156 @@ def parse_robot(v: Validator, raw: Any, key: str, seen: set[str], *, name: str |
                                                 f"[{model.lower[k]:g}, {model.upper[k]:g}]")
     if len(v.problems) > before:
         return None
+    trajectory = None
+    if "trajectory" in d:
+        trajectory = parse_trajectory(v, d["trajectory"], f"{key}.trajectory", model, joints, name)
+        if trajectory is None:
+            return None
     return RobotSpec(name=name, model=model, position=position, orientation=q / np.linalg.norm(q), joints=joints,
                      hold=hold, stiffness=stiffness, damping=damping, self_collision=self_collision,
-                     friction=friction, restitution=restitution, notes=notes)
+                     friction=friction, restitution=restitution, notes=notes, trajectory=trajectory)
+
+
+def parse_trajectory(v: Validator, raw: Any, key: str, model, initial: dict, robot: str):
+    """A robot entry's ``trajectory:`` (:class:`cgp_core.robots.trajectory.SceneTrajectory`), or None with the
+    problems recorded: every point names the same movable joints of the robot (not a mimic follower), times are
+    ≥ 0 and strictly increasing, positions inside the joints' limits, velocities at every point or at none; the
+    path (from ``initial``, the robot's initial positions, to the first point, then point to point, interpolated
+    as joint_trajectory_controller does) stays inside the position limits and under the velocity limits; a
+    looping one ends where it starts."""
+    from ..robots.trajectory import (
+        MAX_TRAJECTORY_POINTS,
+        SceneTrajectory,
+        TrajectoryError,
+        check_trajectory,
+        sample,
+        sample_velocity,
+    )
+
+    before = len(v.problems)
+    d = v.mapping(raw, key)
+    if not isinstance(raw, dict):
+        return None
+    v.no_unknown_keys(d, TRAJECTORY_KEYS, key)
+    loop = v.boolean(d.get("loop", False), f"{key}.loop", False)
+    points = d.get("points")
+    if not isinstance(points, list) or not points:
+        v.fail(f"{key}.points", f"must be a non-empty list of points ({{time, positions, velocities?}}), got "
+                                f"{kind_of(points)} {short_repr(points)}")
+        return None
+    if len(points) > MAX_TRAJECTORY_POINTS:
+        v.fail(f"{key}.points", f"{len(points)} points; a trajectory has at most {MAX_TRAJECTORY_POINTS}")
+        return None
+    followers = {model.dof_names[int(f)] for f in np.asarray(model.mimic_follower).reshape(-1)}
+    joints: list[str] | None = None
+    times, positions, velocities = [], [], []
+    for i, raw_point in enumerate(points):
+        where = f"{key}.points[{i}]"
+        point = v.mapping(raw_point, where)
+        if not isinstance(raw_point, dict):
+            continue
+        v.no_unknown_keys(point, POINT_KEYS, where)
+        if "time" not in point or "positions" not in point:
+            v.fail(where, "needs time (s from the start) and positions ({joint: value})")
+            continue
+        times.append(v.number(point["time"], f"{where}.time", minimum=0.0, maximum=1e6, unit="s"))
+        given = v.mapping(point["positions"], f"{where}.positions")
+        if joints is None:
+            joints = [str(j) for j in given]
+            if not joints:
+                v.fail(f"{where}.positions", "names no joint")
+                return None
+            for j in joints:
+                if j not in model.dof_names or j in followers:
+                    why = ("mimics another joint: give its leader" if j in followers else
+                           f"is not a movable joint of {robot}")
+                    v.fail(f"{where}.positions.{j}", f"{why} (its joints: "
+                                                     f"{', '.join(n for n in model.dof_names if n not in followers)})")
+            if len(v.problems) > before:
+                return None
+        if sorted(map(str, given)) != sorted(joints):
+            missing, extra = sorted(set(joints) - set(map(str, given))), sorted(set(map(str, given)) - set(joints))
+            v.fail(f"{where}.positions", "every point names the same joints as the first"
+                   + (f"; missing {', '.join(missing)}" if missing else "")
+                   + (f"; extra {', '.join(extra)}" if extra else ""))
+            continue
+        positions.append([v.number(given[j], f"{where}.positions.{j}", within=(-1e4, 1e4), unit="rad or m")
+                          for j in joints])
+        if "velocities" in point:
+            speeds = v.mapping(point["velocities"], f"{where}.velocities")
+            if sorted(map(str, speeds)) != sorted(joints):
+                v.fail(f"{where}.velocities", f"give one per joint of positions ({', '.join(joints)}), or none")
+                continue
+            velocities.append([v.number(speeds[j], f"{where}.velocities.{j}", within=(-1e4, 1e4),
+                                        unit="rad/s or m/s") for j in joints])
+        else:
+            velocities.append([])
+    if len(v.problems) > before:
+        return None
+    given_velocities = [len(row) > 0 for row in velocities]
+    if any(given_velocities) and not all(given_velocities):
+        v.fail(f"{key}.points[{given_velocities.index(not given_velocities[0])}].velocities",
+               "give velocities at every point (cubic interpolation) or at none (linear)")
+        return None
+    for i in range(1, len(times)):
+        if times[i] <= times[i - 1]:
+            v.fail(f"{key}.points[{i}].time", f"{times[i]:g} s is not after the point before's ({times[i - 1]:g} s): "
+                                              "times must increase")
+    index = [model.dof_names.index(j) for j in joints]
+    lower, upper = model.lower[index], model.upper[index]
+    speed_limit = model.velocity_limit[index]
+    for i, row in enumerate(positions):
+        for j, value, lo, hi in zip(joints, row, lower, upper):
+            if not lo <= value <= hi:
+                v.fail(f"{key}.points[{i}].positions.{j}", f"{value:g} is outside the joint's limits [{lo:g}, {hi:g}]")
+        for j, value, limit in zip(joints, velocities[i], speed_limit):
+            if abs(value) > limit:
+                v.fail(f"{key}.points[{i}].velocities.{j}", f"{value:g} is beyond the joint's velocity limit "
+                                                            f"±{limit:g}")
+    if len(v.problems) > before:
+        return None
+    try:
+        trajectory = check_trajectory(joints, 0, times, positions, velocities)
+    except TrajectoryError as exc:  # (what the checks above let through: none expected)
+        v.fail(f"{key}.points", exc.reason)
+        return None
+    start = np.array([initial.get(j, 0.0) for j in joints])
+    if times[0] == 0.0 and np.any(np.abs(trajectory.positions[0] - start) > LOOP_TOLERANCE):
+        v.fail(f"{key}.points[0].time", "0, but its positions are not the robot's initial ones (its entry's joints, "
+                                        "else 0): give it a time > 0 to get there, or start at the initial pose")
+        return None
+    if loop:
+        if len(times) < 2:
+            v.fail(f"{key}.loop", "a looping trajectory needs at least two points")
+            return None
+        last = len(times) - 1
+        for label, values in (("positions", trajectory.positions), ("velocities", trajectory.velocities)):
+            if values is not None and np.any(np.abs(values[-1] - values[0]) > LOOP_TOLERANCE):
+                v.fail(f"{key}.points[{last}].{label}", f"a looping trajectory ends where it starts: the last point's "
+                                                        f"{label} must equal the first's")
+        if len(v.problems) > before:
+            return None
+    # the path between the points (a cubic may overshoot): inside the limits, under the velocity limits
+    bounds = np.concatenate(([0.0], trajectory.times))
+    for i in range(len(bounds) - 1):
+        if bounds[i + 1] <= bounds[i]:
+            continue
+        for t in np.linspace(bounds[i], bounds[i + 1], TRAJECTORY_CHECKS_PER_SEGMENT + 1)[1:]:
+            q, qd = sample(trajectory, t, start), sample_velocity(trajectory, t - 1e-12, start)
+            segment = "from the initial positions to point 0" if i == 0 else f"from point {i - 1} to point {i}"
+            outside = np.flatnonzero((q < lower - 1e-9) | (q > upper + 1e-9))
+            if outside.size:
+                k = int(outside[0])
+                v.fail(key, f"the path {segment} takes joint {joints[k]} to {q[k]:.4g} at {t:.3g} s, outside its "
+                            f"limits [{lower[k]:g}, {upper[k]:g}] (interpolated as joint_trajectory_controller does)")
+                return None
+            fast = np.flatnonzero(np.abs(qd) > speed_limit * (1 + 1e-9))
+            if fast.size:
+                k = int(fast[0])
+                v.fail(key, f"the path {segment} moves joint {joints[k]} at {qd[k]:.4g} at {t:.3g} s, beyond its "
+                            f"velocity limit ±{speed_limit[k]:g}: give the points more time")
+                return None
+    return SceneTrajectory(trajectory, loop)
 
 
 def _string_map(v: Validator, raw: Any, key: str) -> dict[str, str]:

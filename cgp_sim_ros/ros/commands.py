@@ -274,13 +274,15 @@ class CommandInputs:
                 self._take_trajectory(world, c, known[c.robot])
                 continue
             self.following.pop(c.robot, None)  # a joint command stops the robot's trajectory
+            if any(name in known[c.robot] for name in c.names):
+                world.stop_trajectory(c.robot)  # and its scene trajectory: the ROS command wins
             problems = robots.command(c.robot, c.names, c.position, c.velocity, c.effort)
             for text in problems:
                 self.reject(f"robots/{c.robot}/joint_commands", joint_rejection(text, c.names, known[c.robot]))
 
     def _take_trajectory(self, world, command, joints: set) -> None:
-        """A new trajectory for a robot (replacing the one it follows): its joints must be the robot's; it starts
-        at its stamp, or now (a zero stamp), from the joints' current positions."""
+        """A new trajectory for a robot (replacing the one it follows, and its scene trajectory): its joints must
+        be the robot's; it starts at its stamp, or now (a zero stamp), from the joints' current positions."""
         trajectory = command.trajectory
         unknown = [j for j in trajectory.joints if j not in joints]
         if unknown:
@@ -293,6 +295,7 @@ class CommandInputs:
         start = np.array([position[index[j]] for j in trajectory.joints])
         start_ns = trajectory.start_ns if trajectory.start_ns is not None else world.time_ns
         self.following[command.robot] = FollowedTrajectory(trajectory, start_ns, start)
+        world.stop_trajectory(command.robot)  # it replaces the robot's scene trajectory (robots[].trajectory)
 
     def follow_trajectories(self, world) -> None:
         """Every followed trajectory's position targets for the end of this tick (through ``Robots.command``);
