@@ -1,11 +1,15 @@
-"""Issue 36's figures: the ``arm`` scene through the node, as ``make run ARGS="--scene arm"`` runs it.
+"""Issue 36's figures: the ``arm`` scene through the node, as ``make run ARGS="--scene arm"`` runs it (the 7-DoF
+arm sweeping the boxes off its table on its scene trajectory), and a controller's command latency on the
+``arm_teleop`` scene (the 4-joint arm holding its pose).
 
 **Real time.**  ``bench_realtime``'s child (``cgp-sim --scene arm --bag <dir>``: timer-driven at 60 Hz, real time,
 recording; the tick and the timer callback timed) from the first tick: the achieved rate, the tick's median, p99 and
 max, the tick period's p99, the "falling behind" warnings.  The real-time factor is the achieved rate over the
 scene's 60 Hz (the node publishes one ``/clock`` per tick of 1/60 s).
 
-**Command latency.**  A second ``cgp-sim --scene arm --bag <dir>`` runs, and this process — another node, as a
+**Command latency.**  ``cgp-sim --scene arm_teleop --bag <dir>`` runs (a robot at rest: the ``arm`` scene's
+trajectory would sweep ``shoulder_pan`` at up to 1.2 rad/s, and its damping's torque would hide the effort
+command's), and this process — another node, as a
 controller is — publishes ``~/robots/arm/joint_commands`` the way topic_based_ros2_control does and reads
 ``~/robots/arm/joint_states``.  Each trial commands an effort on ``shoulder_pan`` (the vertical base joint: gravity
 exerts no torque about it, so a small effort only turns the arm slowly) alternating +/- ``EFFORT`` N·m, and finds
@@ -47,7 +51,9 @@ sys.path.insert(0, str(HERE))
 from bench_realtime import TARGET_RATE_HZ, run_realtime  # noqa: E402
 from common import Results, format_figures, stop_node  # noqa: E402
 
-ROBOT = "arm"
+ROBOT = "arm"  # the robot's name in both scenes (its topics)
+SCENE = "arm"  # the real-time figure's scene
+LATENCY_SCENE = "arm_teleop"  # the command latency's scene
 JOINT = "shoulder_pan"
 EFFORT = 0.02  # N·m: turns the arm's base a few degrees over a trial
 TICK_S = 1.0 / 60.0
@@ -58,7 +64,7 @@ TRIAL_DEADLINE_S = 5.0
 
 
 def command_latency(trials: int, workdir: Path) -> dict:
-    """Start the arm scene's node and measure ``trials`` effort commands' latency (module docstring)."""
+    """Start the arm_teleop scene's node and measure ``trials`` effort commands' latency (module docstring)."""
     import rclpy
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import JointState
@@ -67,7 +73,7 @@ def command_latency(trials: int, workdir: Path) -> dict:
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED="1")
     executable = str(Path(sys.executable).with_name("cgp-sim"))
     log = open(workdir / "latency_node.log", "w")
-    process = subprocess.Popen([executable, "--scene", ROBOT, "--bag", str(workdir / "bag_latency")], env=env,
+    process = subprocess.Popen([executable, "--scene", LATENCY_SCENE, "--bag", str(workdir / "bag_latency")], env=env,
                                stdout=log, stderr=subprocess.STDOUT)
     rclpy.init(domain_id=domain)
     node = rclpy.create_node("bench_robot_latency")
@@ -202,11 +208,11 @@ def run(quick: bool = False) -> dict:
     try:
         print(f"arm scene: 60 Hz real time, recording, {seconds:g} s from the first tick ...", flush=True)
         os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid()).randint(1, 101)))
-        realtime = run_realtime("arm_realtime", seconds, False, workdir, ROBOT)
+        realtime = run_realtime("arm_realtime", seconds, False, workdir, SCENE)
         print(f"  achieved {realtime['achieved_hz']:.2f} Hz; tick median {realtime['tick_ms']['median']:.2f} ms, "
               f"p99 {realtime['tick_ms']['p99']:.2f}, max {realtime['tick_ms']['max']:.1f}; "
               f"{realtime['falling_behind_warnings']} 'falling behind' warnings", flush=True)
-        print(f"command latency: {trials} effort commands on {JOINT} ...", flush=True)
+        print(f"command latency ({LATENCY_SCENE} scene): {trials} effort commands on {JOINT} ...", flush=True)
         latency = command_latency(trials, workdir)
         print(f"  {latency['ticks_median']:g} ticks median (max {latency['ticks_max']:g}); wall "
               f"{latency['wall_ms_median']:.1f} ms median, p99 {latency['wall_ms_p99']:.1f}", flush=True)

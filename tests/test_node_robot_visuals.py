@@ -1,9 +1,10 @@
 """Issue 36 (markers) through the node: another process subscribes to ``~/markers`` and ``~/robots/arm/joint_states``
-of the ``arm`` scene (the node its own process, started paused so that both readers see it from its first tick)
-and sees one marker per URDF visual (ns ``robots/arm``) with the shape's marker type, the URDF's colour and the
-pose Pinocchio gives that visual at the joint positions of the joint_states message of the same tick (same stamp),
-to 1e-6 m — while the arm moves under a position command, so a marker a tick late would be off by far more.  The
-bag of a run holds the same markers (read back with mcap_ros2, not our reader)."""
+of the ``arm_teleop`` scene (the 4-joint arm.urdf, one visual per link; the node its own process, started paused
+so that both readers see it from its first tick) and sees one marker per URDF visual (ns ``robots/arm``) with the
+shape's marker type, the URDF's colour and the pose Pinocchio gives that visual at the joint positions of the
+joint_states message of the same tick (same stamp), to 1e-6 m — while the arm moves under a position command, so
+a marker a tick late would be off by far more.  The bag of a run holds the same markers (read back with
+mcap_ros2, not our reader)."""
 
 from __future__ import annotations
 
@@ -60,7 +61,7 @@ def check_visual_markers(markers: list, state: JointState, colors: dict) -> floa
 def test_markers_carry_every_visual_at_the_joint_states_of_the_same_tick(start_node, probe):
     markers = probe.subscribe(MARKERS, MarkerArray, KEEP_ALL)
     states = probe.subscribe(JOINT_STATES, JointState, KEEP_ALL)
-    start_node("--scene", "arm", "--start-paused", "true")
+    start_node("--scene", "arm_teleop", "--start-paused", "true")
     probe.wait_until_matched(MARKERS, JOINT_STATES, timeout=60)
     commands = probe.publisher(JOINT_COMMANDS, JointState)
     probe.wait_for_subscriber(commands, timeout=30)
@@ -96,7 +97,7 @@ def test_markers_carry_every_visual_at_the_joint_states_of_the_same_tick(start_n
 
 def test_the_bag_holds_the_visual_markers(start_node, tmp_path):
     bag = tmp_path / "bag"
-    node = start_node("--scene", "arm", "--bag", str(bag), "--duration", "0.5", "--realtime", "false")
+    node = start_node("--scene", "arm_teleop", "--bag", str(bag), "--duration", "0.5", "--realtime", "false")
     assert node.wait(120) == 0, node.log()[-3000:]
     arrays, states = [], {}
     for mcap_file in sorted(bag.glob("*.mcap")):

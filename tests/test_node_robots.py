@@ -1,6 +1,6 @@
-"""Issue 36 (topics): a robot on the ROS graph as another node sees it — the node runs the built-in ``arm`` scene
-as its own process and this process subscribes and commands over DDS, as robot_state_publisher,
-topic_based_ros2_control, RViz and a recorder would.
+"""Issue 36 (topics): a robot on the ROS graph as another node sees it — the node runs the built-in ``arm_teleop``
+scene (the 4-joint arm holding its pose until commanded) as its own process and this process subscribes and
+commands over DDS, as robot_state_publisher, topic_based_ros2_control, RViz and a recorder would.
 
 - ``~/robots/arm/joint_states`` (sensor_msgs/JointState) every tick, stamped in simulation time (the tick's
   ``/clock``), the URDF's movable joints in URDF order, finite values; it reaches a SensorDataQoS (best-effort)
@@ -17,6 +17,9 @@ topic_based_ros2_control, RViz and a recorder would.
   unknown joint is refused on ``~/events``.
 - Two robots from one URDF stay apart: topics by robot name, frames ``<frame_prefix><robot>/<link>``.
 - The bag holds JointState and the robot_description, decoded by mcap_ros2 (not our reader).
+- The ``arm`` scene (the 7-DoF arm following its scene trajectory): it moves on its own, and a ``joint_commands``
+  or a ``joint_trajectory`` message wins — the arm goes where the ROS command says (≤ 1e-3 rad) and stays there
+  for 2 s of simulated time, which its looping trajectory would not.
 """
 
 from __future__ import annotations
@@ -41,7 +44,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from cgp_core.rotation import quat_to_matrix
 
 REPO = Path(__file__).resolve().parents[1]
-SCENE = REPO / "msgs_config" / "scenes" / "arm.yaml"
+SCENE = REPO / "msgs_config" / "scenes" / "arm_teleop.yaml"  # the 4-joint arm holding its pose
 ROBOT = "arm"
 JOINT_STATES = f"/cgp_sim/robots/{ROBOT}/joint_states"
 JOINT_COMMANDS = f"/cgp_sim/robots/{ROBOT}/joint_commands"
@@ -140,7 +143,7 @@ def arm(start_node, probe):
         "tf": probe.subscribe("/tf", TFMessage),
         "events": probe.subscribe(EVENTS, String, EVENTS_READER),
     }
-    node = start_node("--scene", "arm", "--start-paused", "true")
+    node = start_node("--scene", "arm_teleop", "--start-paused", "true")
     probe.wait_until_matched(JOINT_STATES, "/clock", "/tf", EVENTS, timeout=60)
     # a reliable reader too (RViz's default); the probe keeps one subscription per topic, so a second probe node
     from ros_probe import Probe
@@ -407,7 +410,7 @@ def test_two_robots_from_one_urdf_stay_apart_with_a_frame_prefix(start_node, pro
 
 def test_bag_holds_joint_states_and_the_description(start_node, tmp_path, urdf):
     bag = tmp_path / "bag"
-    node = start_node("--scene", "arm", "--bag", str(bag), "--duration", "0.5", "--realtime", "false")
+    node = start_node("--scene", "arm_teleop", "--bag", str(bag), "--duration", "0.5", "--realtime", "false")
     assert node.wait(120) == 0, node.log()[-3000:]
     states, descriptions = [], []
     for mcap_file in sorted(bag.glob("*.mcap")):
@@ -420,3 +423,51 @@ def test_bag_holds_joint_states_and_the_description(start_node, tmp_path, urdf):
         assert list(m.ros_msg.name) == urdf.movable and np.all(np.isfinite(m.ros_msg.position))
         assert m.log_time_ns == stamp_ns(m.ros_msg.header)
     assert [m.ros_msg.data for m in descriptions] == [robot_file().read_text()]
+
+
+# ---- the `arm` scene: its own trajectory until a ROS command comes -----------------------------------------------
+
+#: the `arm` scene's initial pose (msgs_config/scenes/arm.yaml): the arm up over its pedestal, clear of the table
+ARM_HOME = {"shoulder_pan": 0.0, "shoulder_lift": 0.3, "upper_arm_roll": 0.0, "elbow": 0.6, "forearm_roll": 0.0,
+            "wrist": 0.6, "wrist_roll": 0.0}
+
+
+@pytest.mark.parametrize("how", ["joint_commands", "joint_trajectory"])
+def test_the_arm_scene_follows_its_trajectory_until_a_ros_command_wins(start_node, probe, how):
+    states = probe.subscribe(JOINT_STATES, JointState)
+    node = start_node("--scene", "arm", "--start-paused", "true")
+    probe.wait_until_matched(JOINT_STATES, timeout=60)
+    topic, msg_type = (JOINT_COMMANDS, JointState) if how == "joint_commands" else (JOINT_TRAJECTORY, JointTrajectory)
+    publisher = probe.publisher(topic, msg_type)
+    probe.wait_for_subscriber(publisher, timeout=30)
+    pause(probe, False)
+    joints = list(ARM_HOME)
+    target = np.array(list(ARM_HOME.values()))
+
+    def q_of(msg) -> np.ndarray:
+        index = {name: i for i, name in enumerate(msg.name)}
+        return np.array([msg.position[index[j]] for j in joints])
+
+    # on its own, the arm moves: its joints change by more than 0.3 rad within 1.5 s of simulated time
+    first = latest_state(probe, states, 3)
+    probe.spin_until(lambda: stamp_ns(states.messages[-1].header) >= stamp_ns(first.header) + 1_500_000_000, 60,
+                     "1.5 s of simulated time")
+    moved = np.abs(q_of(states.messages[-1]) - q_of(first)).max()
+    assert moved > 0.3, moved
+
+    if how == "joint_commands":
+        message = JointState(name=joints, position=target.tolist())
+    else:
+        point = JointTrajectoryPoint(positions=target.tolist())
+        point.time_from_start.sec, point.time_from_start.nanosec = 1, 500_000_000
+        message = JointTrajectory(joint_names=joints, points=[point])
+    sent_at = stamp_ns(states.messages[-1].header)
+    probe.publish_acked(publisher, message)
+    # reached within 3 s of simulated time, then held for 2 s: the scene's trajectory does not come back
+    probe.spin_until(lambda: stamp_ns(states.messages[-1].header) >= sent_at + 5_000_000_000, 120,
+                     "5 s of simulated time after the command")
+    after = [m for m in states.messages if sent_at + 3_000_000_000 <= stamp_ns(m.header) <= sent_at + 5_000_000_000]
+    assert len(after) >= 100, len(after)  # 2 s at 60 Hz (a reliable reader: none missed)
+    worst = max(np.abs(q_of(m) - target).max() for m in after)
+    assert worst <= 1e-3, worst
+    assert node.alive()

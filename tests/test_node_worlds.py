@@ -50,8 +50,11 @@ F = SimulatorFeatures
 NOT_FOUND = Result.RESULT_NOT_FOUND
 FAILED = Result.RESULT_OPERATION_FAILED
 DEFAULT = ["ball", "crate", "capsule", "tetromino", "pillar", "fish"]
-ARM = ["crate", "block", "ball", "arm/base_link", "arm/shoulder", "arm/upper_arm", "arm/forearm", "arm/hand",
-       "arm/finger_left", "arm/finger_right", "arm"]
+#: the `arm` scene's entities: its bodies, the 7-DoF arm's link bodies (the hand merged into the flange by its fixed
+#: joint), the robot
+ARM = ["pedestal", "table", "box_red", "box_green", "box_blue", "arm/base_link", "arm/shoulder_link",
+       "arm/upper_arm_link", "arm/upper_arm_roll_link", "arm/forearm_link", "arm/forearm_roll_link", "arm/wrist_link",
+       "arm/flange", "arm/finger_left", "arm/finger_right", "arm"]
 BOX = "body: {shape: box, size: [0.4, 0.4, 0.4], mass: 2.0}"
 
 
@@ -108,7 +111,8 @@ def test_load_world_switches_scenes_with_clients_connected(start_node, probe, tm
     assert [w.name for w in worlds.worlds] == builtin_scene_names()
     assert all(w.world_resource.uri == w.name and w.description and w.tags for w in worlds.worlds)
     robots = sim.call(GetAvailableWorlds, GetAvailableWorlds.Request(filter=TagsFilter(tags=["robot"])))
-    assert [w.name for w in robots.worlds] == ["arm"] and list(robots.worlds[0].tags) == ["robot", "urdf", "contacts"]
+    assert [w.name for w in robots.worlds] == ["arm", "arm_teleop"]
+    assert list(robots.worlds[0].tags) == ["robot", "urdf", "contacts", "trajectory"]
     both = TagsFilter(tags=["flock", "couzin"], filter_mode=TagsFilter.FILTER_MODE_ALL)
     assert [w.name for w in sim.call(GetAvailableWorlds, GetAvailableWorlds.Request(filter=both)).worlds] == \
         ["couzin_torus", "predator"]
@@ -129,7 +133,7 @@ def test_load_world_switches_scenes_with_clients_connected(start_node, probe, tm
     assert sim.names() == ARM
     assert sim.call(GetCurrentWorld).world.name == "arm"
     probe.spin_until(lambda: publishers(probe, "/cgp_sim/flocks/fish/poses") == 0, 20, "the fish publisher gone")
-    probe.spin_until(lambda: publishers(probe, "/cgp_sim/bodies/block/odom") == 1, 20, "block's odom publisher")
+    probe.spin_until(lambda: publishers(probe, "/cgp_sim/bodies/box_red/odom") == 1, 20, "box_red's odom publisher")
     assert sim.set_simulation_state(S.STATE_PLAYING).result.result == OK
     probe.spin_until(lambda: len(joint_states.messages) > 5, 30, "the arm's joint_states")
     assert list(joint_states.messages[-1].name)[:2] == ["shoulder_pan", "shoulder_lift"]

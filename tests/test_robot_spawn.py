@@ -35,7 +35,7 @@ def arm_xml() -> str:
 
 @pytest.mark.parametrize("source", ["file", "xml"])
 def test_a_spawned_arm_holds_its_pose_next_to_the_scene_arm(source):
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     run(world, 0.5)
     before = positions(world, "arm")
     q_arm = world.robots.q.copy()
@@ -71,7 +71,7 @@ def test_a_spawned_arm_holds_its_pose_next_to_the_scene_arm(source):
 
 
 def test_spawning_keeps_the_other_robots_commands_and_deleting_keeps_their_state_continuous():
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     assert world.robots.command("arm", ["shoulder_pan"], position=[0.4]) == []
     run(world, 0.3)
     world.spawn({"robot": ENTRY}, name="arm2", position=BESIDE)
@@ -102,8 +102,8 @@ def test_spawning_keeps_the_other_robots_commands_and_deleting_keeps_their_state
 
 
 def test_deleting_a_spawned_robot_leaves_the_other_as_if_it_had_never_been_there():
-    alone = World.from_scene("arm")
-    both = World.from_scene("arm")
+    alone = World.from_scene("arm_teleop")
+    both = World.from_scene("arm_teleop")
     both.spawn({"robot": ENTRY}, name="arm2", position=BESIDE)
     run(alone, 0.5)
     run(both, 0.5)
@@ -116,7 +116,7 @@ def test_deleting_a_spawned_robot_leaves_the_other_as_if_it_had_never_been_there
 
 
 def test_reset_removes_spawned_robots_and_restores_joint_states():
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     scene_names = world.entity_names()
     world.spawn({"robot": ENTRY}, name="arm2", position=BESIDE)
     world.robots.command("arm2", ["elbow"], position=[0.5])
@@ -153,7 +153,7 @@ def test_a_robot_spawned_into_a_world_without_robots_and_deleted_again():
 
 
 def test_a_floating_base_robot_is_teleported_and_a_fixed_base_is_refused():
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     world.spawn({"robot": dict(ENTRY, fixed_base=False)}, name="free", position=(0.0, 2.0, 1.0))
     world.set_body_state("free", (1.0, 2.0, 3.0), (0.0, 0.0, 0.0, 1.0), (0.0, 0.0, 1.0))
     state = world.entity_state("free")
@@ -182,16 +182,16 @@ def test_a_floating_base_robot_is_teleported_and_a_fixed_base_is_refused():
     ({"urdf": "arm.urdf", "joints": {"no_such_joint": 0.1}}, "no_such_joint"),
 ])
 def test_bad_robot_entries_are_refused_naming_the_key(entry, where):
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     with pytest.raises(SceneError, match=where):
         world.spawn({"robot": entry}, name="arm2", position=BESIDE)
-    assert world.entity_names() == World.from_scene("arm").entity_names()
+    assert world.entity_names() == World.from_scene("arm_teleop").entity_names()
 
 
 def test_xml_entities_are_refused_and_never_read(tmp_path):
     secret = tmp_path / "secret.txt"
     secret.write_text("TOP-SECRET-BYTES")
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     for xml in (f'<?xml version="1.0"?><!DOCTYPE r [<!ENTITY x SYSTEM "file://{secret}">]>'
                 '<robot name="r"><link name="a&x;"/></robot>',
                 '<!DOCTYPE r [<!ENTITY a "aaaaaaaaaa"><!ENTITY b "&a;&a;&a;&a;&a;&a;&a;&a;&a;&a;">]>'
@@ -205,7 +205,7 @@ def test_xml_entities_are_refused_and_never_read(tmp_path):
 
 
 def test_a_taken_name_is_refused():
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     for name in ("arm", "crate"):
         with pytest.raises(EditError) as refused:
             world.spawn({"robot": ENTRY}, name=name, position=BESIDE)
@@ -220,7 +220,7 @@ def test_prepared_robot_spawns_pickle():
     """The node prepares spawns in a worker process: a prepared robot travels back by pickle."""
     import pickle
 
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     prepared = world.prepare_spawn({"robot": ENTRY}, name="arm2", taken=set(world.entity_names()), position=BESIDE)
     world.add_spawned(pickle.loads(pickle.dumps(prepared)))
     run(world, 0.5)

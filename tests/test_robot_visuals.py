@@ -89,7 +89,7 @@ def urdf_colors(urdf: Path) -> dict[str, np.ndarray]:
 
 
 def test_arm_visual_markers_are_fk_composed_with_the_visual_origins_in_the_urdf_colours():
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     world.step()
     q = set_joints(world, "arm", JOINTS)
     robots = world.robots
@@ -127,7 +127,7 @@ def test_arm_visual_markers_are_fk_composed_with_the_visual_origins_in_the_urdf_
 
 
 def test_the_renderer_draws_every_arm_visual():
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     world.step()
     markers = markers_of(world, "robots/")
     drawn = primitives(markers)
@@ -189,7 +189,7 @@ def obj_triangles(scale) -> np.ndarray:
 
 
 def test_a_mesh_visual_is_the_files_triangles_at_the_visual_pose(tmp_path):
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     world.spawn({"robot": {"urdf": str(mesh_robot(tmp_path))}}, name="meshy", position=(1.0, -1.0, 0.0))
     world.step()
     set_joints(world, "meshy", {"hinge": 0.6})
@@ -225,7 +225,7 @@ def test_a_mesh_visual_is_the_files_triangles_at_the_visual_pose(tmp_path):
 
 
 def test_a_mirrored_mesh_keeps_its_front_outside(tmp_path):
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     world.spawn({"robot": {"urdf": str(mesh_robot(tmp_path, scale="-1 1 1"))}}, name="meshy")
     world.step()
     (mesh,) = [m for m in markers_of(world, "robots/meshy") if m.id == 0]
@@ -241,7 +241,7 @@ def test_other_mesh_formats_unreadable_meshes_and_robots_without_visuals(tmp_pat
     # a mesh format nobody here reads (3D Studio): a MESH_RESOURCE naming the file (RViz, Foxglove's desktop app)
     (tmp_path / "part.3ds").write_bytes(b"MM\x00\x00")
     urdf = mesh_robot(tmp_path, mesh="part.3ds")
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     world.spawn({"robot": {"urdf": str(urdf)}}, name="meshy")
     world.step()
     (mesh,) = [m for m in markers_of(world, "robots/meshy") if m.id == 0]
@@ -276,7 +276,7 @@ def test_collada_and_gltf_visuals_are_drawn_as_their_triangles(tmp_path, suffix)
     v = np.array([[float(x) for x in line[1:]] for line in lines if line and line[0] == "v"])
     f = np.array([[int(i) - 1 for i in line[1:]] for line in lines if line and line[0] == "f"])
     trimesh.Trimesh(v, f, process=False).export(tmp_path / f"tetra{suffix}")
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     world.spawn({"robot": {"urdf": str(mesh_robot(tmp_path, mesh=f"tetra{suffix}"))}}, name="meshy")
     world.step()
     (mesh,) = [m for m in markers_of(world, "robots/meshy") if m.id == 0]
@@ -297,7 +297,7 @@ def test_a_collada_file_with_a_doctype_is_refused_unparsed(tmp_path):
         f'<?xml version="1.0"?><!DOCTYPE c [<!ENTITY x SYSTEM "{secret.as_uri()}">]>'
         '<COLLADA xmlns="http://www.collada.org/2005/11/COLLADASchema" version="1.4.1"><asset>'
         '<contributor><author>&x;</author></contributor></asset></COLLADA>')
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     world.spawn({"robot": {"urdf": str(mesh_robot(tmp_path, mesh="evil.dae"))}}, name="meshy")
     geometry = world.robots.visuals("meshy")[0]
     drawing = visual_drawing(geometry)
@@ -318,7 +318,7 @@ def test_a_big_visual_mesh_is_clustered_to_its_cap(tmp_path):
                                                                            for a, b, c in faces)
     (tmp_path / "sheet.obj").write_text(text)
     urdf = mesh_robot(tmp_path, mesh="sheet.obj", scale="1 1 1")
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     world.spawn({"robot": {"urdf": str(urdf)}}, name="meshy")
     drawing = visual_drawing(world.robots.visuals("meshy")[0])
     assert drawing.of == len(faces) > VISUAL_MESH_TRIANGLES
@@ -329,7 +329,7 @@ def test_a_big_visual_mesh_is_clustered_to_its_cap(tmp_path):
 
 
 def test_visual_robots_count_in_the_level_of_detail_and_their_markers_go_with_them(tmp_path):
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     world.spawn({"robot": {"urdf": str(mesh_robot(tmp_path))}}, name="meshy")
     world.step()
     messages = TickMessages(world)

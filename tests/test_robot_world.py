@@ -1,5 +1,7 @@
-"""Robots in a World (issue 35): the `arm` scene's URDF robot in reduced coordinates, its drives, its mimic
-gripper, its links' contacts with the ground and free bodies, wrenches on links, and the scene's refusals.
+"""Robots in a World (issue 35): the `arm_teleop` scene's URDF robot (the 4-joint arm.urdf, holding its pose:
+the `arm` scene's 7-DoF arm follows a trajectory, tests/test_scene_trajectory.py) in reduced coordinates, its
+drives, its mimic gripper, its links' contacts with the ground and free bodies, wrenches on links, and the
+scene's refusals.
 Closed forms: a body resting on a link loads the joints by its weight's moment, a wrench on a link by Jᵀ F."""
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ def tool_position(world: World) -> np.ndarray:
 
 
 def test_the_arm_holds_its_pose_under_position_control():
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     start = positions(world)
     worst = 0.0
 
@@ -56,7 +58,7 @@ def test_the_arm_holds_its_pose_under_position_control():
 
 
 def test_the_mimic_finger_follows_its_leader_exactly():
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     assert world.robots.command("arm", ["finger_left_joint"], position=[0.028]) == []
     trace = []
     run(world, 1.5, lambda w: trace.append((positions(w)["finger_left_joint"], positions(w)["finger_right_joint"])))
@@ -181,7 +183,7 @@ def test_robot_entries_are_refused_by_name():
 
 
 def test_links_move_by_their_joints_only_and_reset_restores_the_pose():
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     with pytest.raises(EditError, match="arm/forearm is a link of robot arm"):
         world.delete("arm/forearm")
     with pytest.raises(EditError, match="arm/forearm is a link of robot arm"):
@@ -197,7 +199,7 @@ def test_links_move_by_their_joints_only_and_reset_restores_the_pose():
 
 
 def test_bad_joint_commands_are_named_and_the_rest_applies():
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     problems = world.robots.command("arm", ["knee", "elbow", "finger_right_joint", "wrist"],
                                     position=[0.0, float("nan"), 0.01, 5.0])
     assert any("no movable joint 'knee'" in p for p in problems)
@@ -209,7 +211,7 @@ def test_bad_joint_commands_are_named_and_the_rest_applies():
 
 
 def test_tf_reaches_every_link_at_the_forward_kinematics_poses():
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     world.robots.command("arm", ["shoulder_pan", "elbow"], position=[0.7, 0.4])
     run(world, 0.5)
     edges = world.robots.transforms("arm")
@@ -252,7 +254,7 @@ def test_a_copy_of_a_world_with_robots_steps_alike_and_is_commanded_alone():
     lists do not copy as they are, so the copy builds them again; its drives are its own."""
     import copy
 
-    world = World.from_scene("arm")
+    world = World.from_scene("arm_teleop")
     for _ in range(3):
         world.step()
     twin = copy.deepcopy(world)

@@ -35,11 +35,11 @@ def test_load_replaces_everything_and_keeps_the_clock():
     assert world.model_version > version and world.spawned == [] and world.wrenches.active == 0
     assert world.robots is not None and world.scene.source == arm.scene.source
     np.testing.assert_array_equal(world.body_state.position, arm.body_state.position)  # the arm's initial state
-    assert world.entity_info("crate").description == "box body, 0.5 kg"  # the old world's info went with it
+    assert "crate" not in world.entity_names() and world.entity_info("box_red").description == "box body, 0.5 kg"
     world.step()
     assert world.time_ns == time_ns + world.dt_ns and world.ticks == ticks + 1
     world.spawn({"body": {"shape": "sphere", "radius": 0.1}}, name="extra", position=[1, 1, 1])
-    world.delete("block")
+    world.delete("box_red")
     world.reset()  # back to the loaded scene, not the first one
     assert world.entity_names() == arm.entity_names()
     np.testing.assert_array_equal(world.body_state.position, arm.body_state.position)
@@ -86,33 +86,34 @@ def test_unload_leaves_an_empty_world_that_still_steps():
 def test_entity_info_defaults_set_and_lifetime():
     world = fresh("arm")
     assert world.entity_info("arm").category == "robot"
-    assert world.entity_info("arm/hand").category == "robot"
-    assert world.entity_info("arm/hand").description == "link hand of robot arm"
-    assert world.entity_info("crate").category == "object"
+    assert world.entity_info("arm/flange").category == "robot"
+    assert world.entity_info("arm/flange").description == "link flange of robot arm"
+    assert world.entity_info("box_red").category == "object"
+    assert world.entity_info("table").category == "static_object"
     world.spawn({"body": {"shape": "box", "size": [1, 1, 1], "fixed": True}}, name="wall", position=[5, 5, 0.5])
     assert world.entity_info("wall").category == "static_object"
     world.spawn({"flock": {"count": 10}}, name="birds", position=[0, 0, 5])
     assert world.entity_info("birds").category == "dynamic_object"
 
     world.set_entity_info("wall", "human", "not really", ["a", "b"])
-    world.set_entity_info("crate", "dynamic_object", "", ["b"])
+    world.set_entity_info("box_red", "dynamic_object", "", ["b"])
     assert world.entity_info("wall").tags == ("a", "b")
-    assert world.entities_with_info(world.entity_names(), ["human", "dynamic_object"]) == ["crate", "wall", "birds"]
+    assert world.entities_with_info(world.entity_names(), ["human", "dynamic_object"]) == ["box_red", "wall", "birds"]
     assert world.entities_with_info(world.entity_names(), tags=["a", "b"], match_all=True) == ["wall"]
-    assert world.entities_with_info(world.entity_names(), tags=["b"]) == ["crate", "wall"]
+    assert world.entities_with_info(world.entity_names(), tags=["b"]) == ["box_red", "wall"]
     for args, words in ((("wall", "vehicle"), "category 'vehicle'"), (("wall", "object", "", [""]), r"tags\[0\]"),
                         (("wall", "object", "x" * 1001), "description"), (("nobody", "object"), "nobody")):
         with pytest.raises(EditError, match=words):
             world.set_entity_info(*args)
     assert world.entity_info("wall").category == "human"  # a refusal changed nothing
 
-    world.reset()  # the spawned wall goes, and with it what it was told; the crate keeps its info
-    assert world.entity_info("crate").description == "" and world.entity_info("crate").tags == ("b",)
+    world.reset()  # the spawned wall goes, and with it what it was told; box_red keeps its info
+    assert world.entity_info("box_red").description == "" and world.entity_info("box_red").tags == ("b",)
     world.spawn({"body": {"shape": "sphere", "radius": 0.2}}, name="wall", position=[5, 5, 1])
     assert world.entity_info("wall").category == "object"  # a new entity of the same name starts afresh
-    world.delete("crate")
+    world.delete("box_red")
     world.reset()
-    assert world.entity_info("crate").category == "object"  # deleted, its info went; back from the scene afresh
+    assert world.entity_info("box_red").category == "object"  # deleted, its info went; back from the scene afresh
 
 
 BODIES = """
@@ -175,7 +176,7 @@ def test_a_robots_bounds_hold_every_link_in_its_root_frame():
     assert np.all(corners >= lower - 1e-9) and np.all(corners <= upper + 1e-9)
     np.testing.assert_allclose(corners.min(axis=0), lower, atol=1e-9)  # tight: every face touches a link's box
     np.testing.assert_allclose(corners.max(axis=0), upper, atol=1e-9)
-    assert upper[2] > 0.5  # the arm stands up from its base (the upper arm and forearm are 0.4 m and 0.35 m)
+    assert upper[2] > 0.5  # the arm stands up from its base (the upper arm and forearm are 0.4 m each)
 
 
 NAMED = """
