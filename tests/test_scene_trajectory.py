@@ -101,6 +101,11 @@ def test_a_looping_trajectory_goes_on_from_its_first_point(tmp_path):
 def test_a_command_wins_and_a_reset_a_load_and_a_spawn_start_the_trajectory(tmp_path):
     path = scene(tmp_path)
     world = World.from_scene(path)
+    world.robots.command("arm", ["shoulder_pan"], effort=[0.0])  # before the first tick: it wins too
+    world.step()
+    assert "arm" not in world.trajectories.robots
+    world.reset()  # the trajectory again
+    assert "arm" in world.trajectories.robots
     run(world, 0.5)
     # a joint command from Python between ticks: the robot stops following (an info event says so)
     assert world.robots.command("arm", ["elbow"], position=[1.5]) == []

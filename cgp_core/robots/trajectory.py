@@ -210,7 +210,12 @@ class Following:
             joint_names, position, _, _ = robots.joint_state(r.name)
             index = {name: i for i, name in enumerate(joint_names)}
             start = np.array([position[index[j]] for j in entry.trajectory.joints])
-            self.robots[r.name] = Followed(r.spec, entry.trajectory, entry.loop, int(now_ns), start)
+            # the drives as they are now: a command before the first tick is seen as one after it is
+            dofs = np.array([r.dof_slice.start + r.model.dof_names.index(j) for j in entry.trajectory.joints],
+                            np.int64)
+            d = robots.drives
+            now = (dofs, d.mode[dofs].copy(), d.target_position[dofs].copy(), d.target_velocity[dofs].copy())
+            self.robots[r.name] = Followed(r.spec, entry.trajectory, entry.loop, int(now_ns), start, now)
 
     def stop(self, robot: str, robots=None) -> bool:
         """Stop ``robot``'s scene trajectory: its position drives hold the targets they were last given, without
