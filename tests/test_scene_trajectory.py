@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from cgp_core import World
-from cgp_core.robots.trajectory import check_trajectory, loop_time, sample, sample_velocity
+from cgp_core.robots.trajectory import check_trajectory, loop_time, sample, sample_many, sample_velocity
 from cgp_core.scene import SceneError, load_scene
 
 #: the 4-joint arm.urdf (limits: shoulder_pan ±3.1, shoulder_lift ±2, elbow ±2.5, wrist ±2 rad; velocity limits
@@ -55,6 +55,10 @@ def test_sample_velocity_is_the_derivative_and_a_loop_repeats_its_cycle():
             slope = (sample(tr, t + h, start) - sample(tr, t - h, start)) / (2 * h)
             np.testing.assert_allclose(sample_velocity(tr, t, start), slope, atol=1e-6)
         np.testing.assert_array_equal(sample_velocity(tr, 4.0, start), [0.0, 0.0])
+        many = np.array([0.0, 0.3, 0.9, 1.0 + 1e-9, 1.4, 2.2, 3.1, 3.5 + 1e-9, 4.0])  # (off the points' own times)
+        positions, speeds = sample_many(tr, many, start)  # the scene's path check: vectorized, the same numbers
+        np.testing.assert_allclose(positions, [sample(tr, t, start) for t in many], atol=1e-12)
+        np.testing.assert_allclose(speeds, [sample_velocity(tr, t, start) for t in many], atol=1e-9)
         assert loop_time(tr, 3.0, True) == 3.0 and loop_time(tr, 4.0, False) == 4.0
         assert loop_time(tr, 3.5 + 0.7, True) == pytest.approx(1.0 + 0.7)  # the cycle [1, 3.5] s again
         assert loop_time(tr, 3.5 + 2.5 * 3 + 0.2, True) == pytest.approx(1.2)

@@ -151,6 +151,34 @@ def sample_velocity(trajectory: Trajectory, t: float, start_positions: np.ndarra
     return d00 * q0 + d10 * v0 + d01 * q1 + d11 * v1
 
 
+def sample_many(trajectory: Trajectory, t: np.ndarray, start_positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sample` and :func:`sample_velocity` at many times at once: ``(positions (n, k), velocities (n, k))``
+    (the velocity at a point's time is the segment's that ends there, as just before it)."""
+    times, q, v = trajectory.times, trajectory.positions, trajectory.velocities
+    t = np.asarray(t, float)
+    start = np.asarray(start_positions, float)[None]
+    i = np.searchsorted(times, t, side="left")  # the segment ending at times[i] (i = 0: the lead-in)
+    after = i >= len(times)
+    i = np.minimum(i, len(times) - 1)
+    t0 = np.concatenate(([0.0], times))[i]
+    t1 = times[i]
+    q0, q1 = np.concatenate((start, q))[i], q[i]
+    span = np.maximum(t1 - t0, 1e-300)[:, None]
+    s = np.clip((t - t0)[:, None] / span, 0.0, 1.0)
+    if v is None:
+        position = q0 + s * (q1 - q0)
+        velocity = np.broadcast_to((q1 - q0) / span, position.shape).copy()
+    else:
+        v0, v1 = np.concatenate((np.zeros_like(start), v))[i], v[i]
+        position = ((2 * s**3 - 3 * s**2 + 1) * q0 + (s**3 - 2 * s**2 + s) * span * v0
+                    + (-2 * s**3 + 3 * s**2) * q1 + (s**3 - s**2) * span * v1)
+        velocity = ((6 * s**2 - 6 * s) / span * q0 + (3 * s**2 - 4 * s + 1) * v0
+                    + (-6 * s**2 + 6 * s) / span * q1 + (3 * s**2 - 2 * s) * v1)
+    position[after] = q[-1]
+    velocity[after] = 0.0
+    return position, velocity
+
+
 def loop_time(trajectory: Trajectory, t: float, loop: bool) -> float:
     """The trajectory's own time at ``t`` seconds from its start: ``t`` itself, or for a looping trajectory past
     its last point, the same phase of the cycle from its first point to its last (the segment before the first
