@@ -126,6 +126,40 @@ def test_arm_visual_markers_are_fk_composed_with_the_visual_origins_in_the_urdf_
     assert TickMessages(world).marker_ids()["robots/arm"] == set(range(len(visuals)))
 
 
+def test_the_7dof_arms_visuals_several_per_link_are_pinocchios_while_it_follows_its_trajectory():
+    """The `arm` scene's arm7.urdf (14 visuals on 11 links: a link's column and its joint housing, the y-axis
+    housings turned by their <origin rpy>): after 2.5 s on its trajectory, each marker is Pinocchio's placement of
+    the same visual (its k-th of the link: Pinocchio's ``<link>_<k>``) to 1e-9, in the URDF's colour."""
+    pin = pytest.importorskip("pinocchio")
+    urdf = REPO / "msgs_config" / "robots" / "arm7.urdf"
+    world = World.from_scene("arm")
+    for _ in range(150):
+        world.step()
+    names, position, _, _ = world.robots.joint_state("arm")
+    model, _, geometry = pin.buildModelsFromUrdf(str(urdf))
+    data, gdata = model.createData(), pin.GeometryData(geometry)
+    q = pin.neutral(model)
+    for j in range(1, model.njoints):
+        q[model.joints[j].idx_q] = position[list(names).index(model.names[j])]
+    pin.updateGeometryPlacements(model, data, geometry, gdata, q)
+    placements = {g.name: (np.array(m.rotation), np.array(m.translation))
+                  for g, m in zip(geometry.geometryObjects, gdata.oMg)}
+    base = np.array([0.0, 0.0, 0.2])  # the scene puts the base on its pedestal
+    visuals = world.robots.visuals("arm")
+    markers = markers_of(world, "robots/")
+    colors = urdf_colors(urdf)
+    assert len(visuals) == len(markers) == len(placements) == 14
+    seen: dict[str, int] = {}
+    for m, g in zip(markers, visuals):
+        k = seen[g.link] = seen.get(g.link, -1) + 1
+        R, p = placements[f"{g.link}_{k}"]
+        assert np.abs(m.position - (p + base)).max() <= 1e-9, (g.link, k)
+        assert np.abs(quat_to_matrix(m.orientation) - R).max() <= 1e-9, (g.link, k)
+        assert m.type == SHAPE_TYPES[g.kind]
+        np.testing.assert_allclose(m.color, colors[g.link], atol=1e-7)
+    assert np.abs(position[:7]).max() > 0.5  # on its way: not the zero pose
+
+
 def test_the_renderer_draws_every_arm_visual():
     world = World.from_scene("arm_teleop")
     world.step()

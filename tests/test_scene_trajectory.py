@@ -190,3 +190,36 @@ def test_a_cubic_that_overshoots_a_limit_is_refused(tmp_path):
     with pytest.raises(SceneError, match=r"robots\[0\]\.trajectory: the path from point 0 to point 1 takes joint "
                                          r"elbow to 2\.5\d* at .* outside its limits \[-2\.5, 2\.5\]"):
         load_scene(scene(tmp_path, {**ENTRY, "trajectory": trajectory}))
+
+
+def test_any_trajectory_value_is_a_scene_or_a_named_refusal():
+    """Hypothesis: whatever a ``trajectory:`` holds (nesting, types, NaN, huge numbers, keys of every level in
+    the wrong place), the scene loads or is refused with a SceneError naming the key — nothing else."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from cgp_core.scene import scene_from_dict
+
+    keys = st.sampled_from(["points", "loop", "time", "positions", "velocities", "shoulder_pan", "elbow",
+                            "finger_right_joint", "knee", "x"])
+    leaves = (st.none() | st.booleans() | st.integers(-10, 10) | st.floats(allow_nan=True, allow_infinity=True)
+              | st.sampled_from(["elbow", "1.0", ""]))
+    values = st.recursive(leaves, lambda inner: st.lists(inner, max_size=4) | st.dictionaries(keys, inner,
+                                                                                              max_size=4),
+                          max_leaves=20)
+    point = st.fixed_dictionaries({"time": st.floats(-1, 5) | leaves,
+                                   "positions": st.dictionaries(keys, st.floats(-3, 3) | leaves, max_size=3)},
+                                  optional={"velocities": st.dictionaries(keys, st.floats(-3, 3), max_size=3)})
+    shaped = st.fixed_dictionaries({"points": st.lists(point, max_size=4)}, optional={"loop": st.booleans()})
+
+    @settings(max_examples=150, deadline=None)
+    @given(value=values | shaped)
+    def check(value):
+        try:
+            scene = scene_from_dict({"robots": [{**ENTRY, "trajectory": value}]}, "<fuzz>")
+        except SceneError as exc:
+            assert "robots[0].trajectory" in str(exc), str(exc)
+            return
+        assert (scene.robots[0].trajectory is None) == (value is None)  # (an empty `trajectory:` is none)
+
+    check()

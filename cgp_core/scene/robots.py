@@ -206,7 +206,7 @@ def parse_robot(v: Validator, raw: Any, key: str, seen: set[str], *, name: str |
     if len(v.problems) > before:
         return None
     trajectory = None
-    if "trajectory" in d:
+    if d.get("trajectory") is not None:  # (an empty `trajectory:` is none)
         trajectory = parse_trajectory(v, d["trajectory"], f"{key}.trajectory", model, joints, name)
         if trajectory is None:
             return None
@@ -249,9 +249,10 @@ def parse_trajectory(v: Validator, raw: Any, key: str, model, initial: dict, rob
     times, positions, velocities = [], [], []
     for i, raw_point in enumerate(points):
         where = f"{key}.points[{i}]"
-        point = v.mapping(raw_point, where)
         if not isinstance(raw_point, dict):
+            v.fail(where, f"must be a point {{time, positions, velocities?}}, got {kind_of(raw_point)}")
             continue
+        point = raw_point
         v.no_unknown_keys(point, POINT_KEYS, where)
         if "time" not in point or "positions" not in point:
             v.fail(where, "needs time (s from the start) and positions ({joint: value})")
