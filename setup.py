@@ -29,7 +29,7 @@ setup(
     python_requires=">=3.10",
     packages=find_packages(include=["cgp_core", "cgp_core.*", "cgp_sim_ros", "cgp_sim_ros.*", "msgs_config"]),
     package_data={"msgs_config": ["scenes/*.yaml", "params/*.yaml", "sweeps/*.yaml", "foxglove/*.json",
-                                  "meshes/*.stl", "meshes/*.obj"]},
+                                  "meshes/*.stl", "meshes/*.obj", "robots/*.urdf"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -38,6 +38,7 @@ setup(
         (f"share/{PACKAGE}/sweeps", sorted(glob("msgs_config/sweeps/*.yaml"))),
         (f"share/{PACKAGE}/foxglove", sorted(glob("msgs_config/foxglove/*.json"))),
         (f"share/{PACKAGE}/meshes", sorted(glob("msgs_config/meshes/*.stl") + glob("msgs_config/meshes/*.obj"))),
+        (f"share/{PACKAGE}/robots", sorted(glob("msgs_config/robots/*.urdf"))),
         (f"lib/{PACKAGE}", ["scripts/sim_node"]),
     ],
     # ROS packages (rclpy, *_msgs) are not listed: they come from apt on a ROS install and from

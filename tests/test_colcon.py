@@ -52,6 +52,10 @@ def test_colcon_build_of_a_workspace_holding_the_repo(tmp_path):
     node = install / "cgp_sim_ros" / "lib" / "cgp_sim_ros" / "sim_node"
     assert node.is_file() and os.access(node, os.X_OK)
     site = f"lib/python{sys.version_info.major}.{sys.version_info.minor}/site-packages"
+    # the shipped robots (the `arm` scene's arm7.urdf, ...) are in the package, as its scenes are
+    for urdf in ("arm.urdf", "arm7.urdf"):
+        assert (install / "cgp_sim_ros" / site / "msgs_config" / "robots" / urdf).is_file(), urdf
+        assert (install / "cgp_sim_ros" / "share" / "cgp_sim_ros" / "robots" / urdf).is_file(), urdf
     run_env = dict(env, AMENT_PREFIX_PATH=os.pathsep.join([str(install / "cgp_sim_ros"),
                                                          str(install / "cgp_sim_msgs"), str(VENV)]),
                    PYTHONPATH=os.pathsep.join([str(install / "cgp_sim_ros" / site),
