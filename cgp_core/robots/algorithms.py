@@ -57,11 +57,20 @@ import numpy as np
 
 from ..jit import njit
 from ..rotation import quat_multiply_scalar, rotvec_to_quat_scalar
-from .model import JOINT_BALL, JOINT_FLOATING, JOINT_PLANAR, JOINT_PRISMATIC, JOINT_REVOLUTE, RobotArrays
+from .model import (
+    JOINT_BALL,
+    JOINT_FLOATING,
+    JOINT_PLANAR,
+    JOINT_PRISMATIC,
+    JOINT_REVOLUTE,
+    RobotArrays,
+    RobotStarts,
+)
 
 __all__ = ["forward_kinematics", "frame_poses", "motion_subspace", "body_velocities", "point_jacobian",
            "angular_jacobian", "spatial_inertias", "mass_matrix", "inverse_dynamics", "bias_forces",
-           "forward_dynamics", "integrate_positions", "cholesky_solve", "joint_space_terms", "advance"]
+           "forward_dynamics", "integrate_positions", "cholesky_solve", "joint_space_terms", "advance", "robot_view",
+           "advance_all"]
 
 
 # ---- small 3-vector helpers (no allocation of temporaries beyond the result) -----------------------------------
@@ -148,14 +157,15 @@ def _force_cross(V, F):
 
 
 @njit
-def _joint_frame(arrays, rotation, position, i):
+def _joint_frame(parent, joint_rotation, joint_position, rotation, position, i):
     """Body ``i``'s joint frame in the world (rotation (3, 3), origin (3,)): its parent's pose times the joint
-    frame's pose in the parent (the world's for the root)."""
-    p = arrays.parent[i]
+    frame's pose in the parent (the world's for the root).  Takes the RobotArrays fields it reads, not the bundle:
+    a bundle handed to a compiled helper costs a reference-count update per array per call (~20 arrays: more than
+    this helper's arithmetic, measured)."""
+    p = parent[i]
     if p < 0:
-        return arrays.joint_rotation[i].copy(), arrays.joint_position[i].copy()
-    return (_mat_mul(rotation[p], arrays.joint_rotation[i]),
-            position[p] + _mat_vec(rotation[p], arrays.joint_position[i]))
+        return joint_rotation[i].copy(), joint_position[i].copy()
+    return (_mat_mul(rotation[p], joint_rotation[i]), position[p] + _mat_vec(rotation[p], joint_position[i]))
 
 
 # ---- kinematics ------------------------------------------------------------------------------------------------
@@ -174,7 +184,7 @@ def forward_kinematics(arrays, q):
     rotation = np.empty((n, 3, 3))
     position = np.empty((n, 3))
     for i in range(n):
-        Rj, xj = _joint_frame(arrays, rotation, position, i)
+        Rj, xj = _joint_frame(arrays.parent, arrays.joint_rotation, arrays.joint_position, rotation, position, i)
         kind = arrays.joint_type[i]
         s = arrays.q_start[i]
         if kind == JOINT_REVOLUTE:
@@ -235,7 +245,7 @@ def motion_subspace(arrays, rotation, position):
         elif kind == JOINT_PRISMATIC:
             S[d, 3:6] = _mat_vec(rotation[i], arrays.joint_axis[i])
         elif kind == JOINT_PLANAR:
-            Rj, _ = _joint_frame(arrays, rotation, position, i)
+            Rj, _ = _joint_frame(arrays.parent, arrays.joint_rotation, arrays.joint_position, rotation, position, i)
             S[d, 3:6] = _mat_vec(Rj, arrays.plane_u[i])
             S[d + 1, 3:6] = _mat_vec(Rj, arrays.plane_v[i])
             a = _mat_vec(rotation[i], arrays.joint_axis[i])
@@ -249,7 +259,7 @@ def motion_subspace(arrays, rotation, position):
                 S[d + 3 + k, 0:3] = e
                 S[d + 3 + k, 3:6] = _cross(x, e)
         elif kind == JOINT_BALL:
-            Rj, _ = _joint_frame(arrays, rotation, position, i)
+            Rj, _ = _joint_frame(arrays.parent, arrays.joint_rotation, arrays.joint_position, rotation, position, i)
             for k in range(3):
                 a = np.empty(3)
                 for r in range(3):
@@ -351,6 +361,28 @@ def spatial_inertias(arrays, rotation, position):
 
 
 @njit
+def _spatial_times(A, v):
+    """``A v`` (6,) of a 6 × 6 matrix and a 6-vector, as a plain loop (numba's ``@`` calls BLAS, whose call costs
+    more than these 36 products; and the sum order is the same compiled and in plain Python)."""
+    out = np.empty(6)
+    for r in range(6):
+        s = 0.0
+        for c in range(6):
+            s += A[r, c] * v[c]
+        out[r] = s
+    return out
+
+
+@njit
+def _dot6(a, b):
+    """``a · b`` of two 6-vectors (a plain loop: see :func:`_spatial_times`)."""
+    s = 0.0
+    for c in range(6):
+        s += a[c] * b[c]
+    return s
+
+
+@njit
 def _mass_matrix(arrays, S, inertias):
     """Composite rigid bodies: ``I^c_i = I_i + Σ_children I^c_j`` (all in one frame: plain sums), then
     ``M[d, e] = S_dᵀ I^c_{body(d)} S_e`` for ``e`` a dof of ``body(d)`` or an ancestor (Featherstone §6.2)."""
@@ -363,11 +395,11 @@ def _mass_matrix(arrays, S, inertias):
     M = np.zeros((arrays.n_dofs, arrays.n_dofs))
     for i in range(n):
         for d in range(arrays.dof_start[i], arrays.dof_start[i] + arrays.dof_count[i]):
-            F = composite[i] @ S[d]
+            F = _spatial_times(composite[i], S[d])
             j = i
             while j >= 0:
                 for e in range(arrays.dof_start[j], arrays.dof_start[j] + arrays.dof_count[j]):
-                    value = F @ S[e]
+                    value = _dot6(F, S[e])
                     M[d, e] = value
                     M[e, d] = value
                 j = arrays.parent[j]
@@ -386,14 +418,13 @@ def mass_matrix(arrays, q):
 
 
 @njit
-def _joint_bias(arrays, i, S, qd, V, parent_velocity):
+def _joint_bias(kind, d, i, S, qd, V, parent_velocity):
     """``Ṡ qd`` of body ``i``'s joint (6,): the acceleration its subspace's own motion adds.  A column fixed in a
     body moving with spatial velocity ``W`` changes as ``W ×ₘ S``: revolute, prismatic, ball (its columns are the
     joint frame's axes, fixed in the parent) and the planar translations are fixed in the parent, the planar
     rotation in the child; the floating root's rotation columns move with its origin (``W = (0, v)``), giving
-    ``(0, v × ω)``."""
-    kind = arrays.joint_type[i]
-    d = arrays.dof_start[i]
+    ``(0, v × ω)``.  (``kind``, ``d``: body ``i``'s joint type and first dof: numbers, not the bundle, see
+    :func:`_joint_frame`.)"""
     out = np.zeros(6)
     if kind == JOINT_REVOLUTE or kind == JOINT_PRISMATIC:
         out = _motion_cross(parent_velocity, S[d] * qd[d])
@@ -427,12 +458,12 @@ def _rnea(arrays, S, inertias, qd, qdd, gravity, f_ext):
             vJ += S[d] * qd[d]
             aJ += S[d] * qdd[d]
         V[i] = Vp + vJ
-        A[i] = Ap + aJ + _joint_bias(arrays, i, S, qd, V, Vp)
-        F[i] = inertias[i] @ A[i] + _force_cross(V[i], inertias[i] @ V[i]) - f_ext[i]
+        A[i] = Ap + aJ + _joint_bias(arrays.joint_type[i], arrays.dof_start[i], i, S, qd, V, Vp)
+        F[i] = _spatial_times(inertias[i], A[i]) + _force_cross(V[i], _spatial_times(inertias[i], V[i])) - f_ext[i]
     tau = np.zeros(arrays.n_dofs)
     for i in range(n - 1, -1, -1):
         for d in range(arrays.dof_start[i], arrays.dof_start[i] + arrays.dof_count[i]):
-            tau[d] = S[d] @ F[i]
+            tau[d] = _dot6(S[d], F[i])
         p = arrays.parent[i]
         if p >= 0:
             F[p] += F[i]
@@ -684,17 +715,35 @@ def write_link_bodies(rows, motion, links, out):
 
 
 @njit
-def advance_all(models, q, moving, qd, starts, h, out):
-    """:func:`advance` for every robot in one call: robot ``k`` (``models[k]``, a list of plain
-    :class:`RobotArrays` tuples) has its positions at ``q[q_start[k]:q_start[k + 1]]`` (updated in place), its
-    velocities at ``dof_start``, and its bodies' poses and velocities are written at rows ``body_start[k]`` … of
-    ``out`` (a plain :class:`BodyMotion` tuple of all robots' B bodies).  ``starts``: ``(q_start, dof_start,
-    body_start)``, (robots + 1,) int64 each."""
-    q_start, dof_start, body_start = starts
+def robot_view(models, starts, k):
+    """Robot ``k``'s :class:`RobotArrays` as views into ``models``, every robot's bundle stacked
+    (:func:`~cgp_core.robots.model.stack_robot_arrays`), at its :class:`~cgp_core.robots.model.RobotStarts`
+    ``starts`` (slices: nothing copied)."""
+    m = RobotArrays(*models)
+    b0, b1 = starts.body[k], starts.body[k + 1]
+    f0, f1 = starts.frame[k], starts.frame[k + 1]
+    d0, d1 = starts.dof[k], starts.dof[k + 1]
+    return RobotArrays(m.parent[b0:b1], m.joint_type[b0:b1], m.joint_rotation[b0:b1], m.joint_position[b0:b1],
+                       m.joint_axis[b0:b1], m.plane_u[b0:b1], m.plane_v[b0:b1], m.dof_start[b0:b1],
+                       m.dof_count[b0:b1], m.q_start[b0:b1], m.q_count[b0:b1], m.mass[b0:b1], m.com[b0:b1],
+                       m.inertia[b0:b1], m.frame_body[f0:f1], m.frame_rotation[f0:f1], m.frame_position[f0:f1],
+                       m.dof_body[d0:d1], d1 - d0, starts.q[k + 1] - starts.q[k])
+
+
+@njit
+def advance_all(models, starts, q, moving, qd, h, out):
+    """:func:`advance` for every robot in one call: ``models`` every robot's :class:`RobotArrays` stacked
+    (:func:`~cgp_core.robots.model.stack_robot_arrays`, a plain tuple), ``starts`` their
+    :class:`~cgp_core.robots.model.RobotStarts` (a plain tuple); robot ``k``'s positions at
+    ``q[starts.q[k]:starts.q[k + 1]]`` (updated in place), its velocities at ``starts.dof``, and its bodies' poses
+    and velocities written at rows ``starts.body[k]`` … of ``out`` (a plain :class:`BodyMotion` tuple of all
+    robots' B bodies)."""
+    starts = RobotStarts(*starts)
     rotation, position, linear, angular = out
-    for k in range(len(models)):
-        qs, qe, ds, de, bs = q_start[k], q_start[k + 1], dof_start[k], dof_start[k + 1], body_start[k]
-        q_new, motion = advance(models[k], q[qs:qe].copy(), moving[ds:de].copy(), qd[ds:de].copy(), h)
+    for k in range(len(starts.body) - 1):
+        qs, qe, ds, de, bs = starts.q[k], starts.q[k + 1], starts.dof[k], starts.dof[k + 1], starts.body[k]
+        q_new, motion = advance(robot_view(models, starts, k), q[qs:qe].copy(), moving[ds:de].copy(),
+                                qd[ds:de].copy(), h)
         R, p, v, w = motion.rotation, motion.position, motion.linear, motion.angular
         for i in range(qe - qs):
             q[qs + i] = q_new[i]
