@@ -139,21 +139,31 @@ def _quat_matrix(x, y, z, w):
 
 
 @njit
-def _motion_cross(V, S):
-    """``V ×ₘ S`` of two motion vectors (6,)."""
-    out = np.empty(6)
-    out[0:3] = _cross(V[0:3], S[0:3])
-    out[3:6] = _cross(V[0:3], S[3:6]) + _cross(V[3:6], S[0:3])
-    return out
+def _cross_into(a, i, b, j, out, k):
+    """``out[k:k+3] = a[i:i+3] × b[j:j+3]`` (no temporaries: see :func:`_rnea`)."""
+    out[k] = a[i + 1] * b[j + 2] - a[i + 2] * b[j + 1]
+    out[k + 1] = a[i + 2] * b[j] - a[i] * b[j + 2]
+    out[k + 2] = a[i] * b[j + 1] - a[i + 1] * b[j]
 
 
 @njit
-def _force_cross(V, F):
-    """``V ×_f F`` of a motion vector and a force vector (6,)."""
-    out = np.empty(6)
-    out[0:3] = _cross(V[0:3], F[0:3]) + _cross(V[3:6], F[3:6])
-    out[3:6] = _cross(V[0:3], F[3:6])
-    return out
+def _motion_cross(V, S, out, scratch):
+    """``out = V ×ₘ S`` of two motion vectors (6,) (ω × S_ω, ω × S_v + v × S_ω); ``scratch`` (3,)."""
+    _cross_into(V, 0, S, 0, out, 0)
+    _cross_into(V, 0, S, 3, out, 3)
+    _cross_into(V, 3, S, 0, scratch, 0)
+    for k in range(3):
+        out[3 + k] += scratch[k]
+
+
+@njit
+def _force_cross(V, F, out, scratch):
+    """``out = V ×_f F`` of a motion vector and a force vector (6,) (ω × n + v × f, ω × f); ``scratch`` (3,)."""
+    _cross_into(V, 0, F, 0, out, 0)
+    _cross_into(V, 3, F, 3, scratch, 0)
+    for k in range(3):
+        out[k] += scratch[k]
+    _cross_into(V, 0, F, 3, out, 3)
 
 
 @njit
@@ -361,16 +371,14 @@ def spatial_inertias(arrays, rotation, position):
 
 
 @njit
-def _spatial_times(A, v):
-    """``A v`` (6,) of a 6 × 6 matrix and a 6-vector, as a plain loop (numba's ``@`` calls BLAS, whose call costs
-    more than these 36 products; and the sum order is the same compiled and in plain Python)."""
-    out = np.empty(6)
+def _spatial_times(A, v, out):
+    """``out = A v`` (6,) of a 6 × 6 matrix and a 6-vector, as a plain loop (numba's ``@`` calls BLAS, whose call
+    costs more than these 36 products; and the sum order is the same compiled and in plain Python)."""
     for r in range(6):
         s = 0.0
         for c in range(6):
             s += A[r, c] * v[c]
         out[r] = s
-    return out
 
 
 @njit
@@ -393,9 +401,10 @@ def _mass_matrix(arrays, S, inertias):
         if p >= 0:
             composite[p] += composite[i]
     M = np.zeros((arrays.n_dofs, arrays.n_dofs))
+    F = np.empty(6)
     for i in range(n):
         for d in range(arrays.dof_start[i], arrays.dof_start[i] + arrays.dof_count[i]):
-            F = _spatial_times(composite[i], S[d])
+            _spatial_times(composite[i], S[d], F)
             j = i
             while j >= 0:
                 for e in range(arrays.dof_start[j], arrays.dof_start[j] + arrays.dof_count[j]):
@@ -418,29 +427,39 @@ def mass_matrix(arrays, q):
 
 
 @njit
-def _joint_bias(kind, d, i, S, qd, V, parent_velocity):
-    """``Ṡ qd`` of body ``i``'s joint (6,): the acceleration its subspace's own motion adds.  A column fixed in a
-    body moving with spatial velocity ``W`` changes as ``W ×ₘ S``: revolute, prismatic, ball (its columns are the
-    joint frame's axes, fixed in the parent) and the planar translations are fixed in the parent, the planar
+def _joint_bias(kind, d, i, S, qd, V, parent_velocity, out, column, scratch):
+    """``out = Ṡ qd`` of body ``i``'s joint (6,): the acceleration its subspace's own motion adds.  A column fixed
+    in a body moving with spatial velocity ``W`` changes as ``W ×ₘ S``: revolute, prismatic, ball (its columns are
+    the joint frame's axes, fixed in the parent) and the planar translations are fixed in the parent, the planar
     rotation in the child; the floating root's rotation columns move with its origin (``W = (0, v)``), giving
     ``(0, v × ω)``.  (``kind``, ``d``: body ``i``'s joint type and first dof: numbers, not the bundle, see
-    :func:`_joint_frame`.)"""
-    out = np.zeros(6)
-    if kind == JOINT_REVOLUTE or kind == JOINT_PRISMATIC:
-        out = _motion_cross(parent_velocity, S[d] * qd[d])
-    elif kind == JOINT_BALL:
-        out = _motion_cross(parent_velocity, S[d] * qd[d] + S[d + 1] * qd[d + 1] + S[d + 2] * qd[d + 2])
-    elif kind == JOINT_PLANAR:
-        out = _motion_cross(parent_velocity, S[d] * qd[d] + S[d + 1] * qd[d + 1])
-        out += _motion_cross(V[i], S[d + 2] * qd[d + 2])
+    :func:`_joint_frame`; ``column`` (6,) and ``scratch`` (3,): work space, see :func:`_rnea`.)"""
+    out[:] = 0.0
+    if kind == JOINT_REVOLUTE or kind == JOINT_PRISMATIC or kind == JOINT_BALL or kind == JOINT_PLANAR:
+        moved = 3 if kind == JOINT_BALL else 2 if kind == JOINT_PLANAR else 1  # columns fixed in the parent
+        for k in range(6):  # Σ S_d qd_d over them
+            column[k] = S[d, k] * qd[d]
+            for e in range(d + 1, d + moved):
+                column[k] += S[e, k] * qd[e]
+        _motion_cross(parent_velocity, column, out, scratch)
+        if kind == JOINT_PLANAR:  # its rotation column, fixed in the child
+            for k in range(6):
+                column[k] = S[d + 2, k] * qd[d + 2]
+            rotation = np.empty(6)
+            _motion_cross(V[i], column, rotation, scratch)
+            for k in range(6):
+                out[k] += rotation[k]
     elif kind == JOINT_FLOATING:
-        out[3:6] = _cross(qd[d:d + 3], qd[d + 3:d + 6])
-    return out
+        _cross_into(qd, d, qd, d + 3, out, 3)
 
 
 @njit
 def _rnea(arrays, S, inertias, qd, qdd, gravity, f_ext):
-    """The two passes of the recursive Newton–Euler algorithm (Featherstone §5.3; MuJoCo ``mj_rne``)."""
+    """The two passes of the recursive Newton–Euler algorithm (Featherstone §5.3; MuJoCo ``mj_rne``).  Per body,
+    in vector form: ``V_i = V_p + Σ S_d qd_d``, ``A_i = A_p + Σ S_d qdd_d + Ṡ qd``, ``F_i = I_i A_i + V_i ×_f I_i
+    V_i − f_ext,i``; then ``τ_d = S_d · F_i`` and ``F_p += F_i`` from the leaves.  Written as loops over
+    preallocated 6-vectors: a small array allocated per body and operation (~25 per body) cost more than the
+    arithmetic (measured on a KUKA iiwa's 8 bodies: from 3.0× to 0.6× the time of its forward kinematics)."""
     n = len(arrays.parent)
     V = np.zeros((n, 6))
     A = np.zeros((n, 6))
@@ -448,25 +467,37 @@ def _rnea(arrays, S, inertias, qd, qdd, gravity, f_ext):
     base = np.zeros(6)
     base[3:6] = -gravity
     zero = np.zeros(6)
+    vJ, aJ, bias, IA, IV, fc, column = (np.empty(6), np.empty(6), np.empty(6), np.empty(6), np.empty(6),
+                                        np.empty(6), np.empty(6))
+    scratch = np.empty(3)
     for i in range(n):
         p = arrays.parent[i]
         Vp = V[p] if p >= 0 else zero
         Ap = A[p] if p >= 0 else base
-        vJ = np.zeros(6)
-        aJ = np.zeros(6)
+        vJ[:] = 0.0
+        aJ[:] = 0.0
         for d in range(arrays.dof_start[i], arrays.dof_start[i] + arrays.dof_count[i]):
-            vJ += S[d] * qd[d]
-            aJ += S[d] * qdd[d]
-        V[i] = Vp + vJ
-        A[i] = Ap + aJ + _joint_bias(arrays.joint_type[i], arrays.dof_start[i], i, S, qd, V, Vp)
-        F[i] = _spatial_times(inertias[i], A[i]) + _force_cross(V[i], _spatial_times(inertias[i], V[i])) - f_ext[i]
+            for k in range(6):
+                vJ[k] += S[d, k] * qd[d]
+                aJ[k] += S[d, k] * qdd[d]
+        for k in range(6):
+            V[i, k] = Vp[k] + vJ[k]
+        _joint_bias(arrays.joint_type[i], arrays.dof_start[i], i, S, qd, V, Vp, bias, column, scratch)
+        for k in range(6):
+            A[i, k] = Ap[k] + aJ[k] + bias[k]
+        _spatial_times(inertias[i], A[i], IA)
+        _spatial_times(inertias[i], V[i], IV)
+        _force_cross(V[i], IV, fc, scratch)
+        for k in range(6):
+            F[i, k] = IA[k] + fc[k] - f_ext[i, k]
     tau = np.zeros(arrays.n_dofs)
     for i in range(n - 1, -1, -1):
         for d in range(arrays.dof_start[i], arrays.dof_start[i] + arrays.dof_count[i]):
             tau[d] = _dot6(S[d], F[i])
         p = arrays.parent[i]
         if p >= 0:
-            F[p] += F[i]
+            for k in range(6):
+                F[p, k] += F[i, k]
     return tau
 
 

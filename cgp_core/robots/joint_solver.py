@@ -286,6 +286,8 @@ class JointRows(NamedTuple):
     lower: np.ndarray        # (R,) bounds of the accumulated impulse (tangent rows: ±μ, scaled by λₙ in the sweep)
     upper: np.ndarray        # (R,)
     error: np.ndarray        # (R,) position error at the sub-step's start: a limit's gap s, a mimic's C
+    dof: np.ndarray          # (R,) int64 the dof i of a row J = ±e_i (drive, friction, velocity-limit, limit rows);
+    #                          −1 for the others
 
 
 class Implicit(NamedTuple):
@@ -449,15 +451,16 @@ def _count_rows(joints, terms, implicit, n_contacts):
 def _empty_rows(R, n):
     return JointRows(np.zeros(R, np.int64), np.zeros(R, np.int64), np.zeros((R, n)), np.zeros((R, n)),
                      np.full(R, -1, np.int64), np.zeros((R, 6)), np.zeros((R, 6)), np.zeros(R), np.zeros(R),
-                     np.zeros(R), np.zeros(R), np.zeros(R), np.zeros(R), np.zeros(R))
+                     np.zeros(R), np.zeros(R), np.zeros(R), np.zeros(R), np.zeros(R), np.full(R, -1, np.int64))
 
 
 @njit
-def _dof_row(kinds, keys, J, r, kind, index, dof, sign):
-    """Row r (of the rows' ``kind``, ``key`` and ``J`` arrays: not the bundle, see :class:`DriveTerms`): kind, key,
-    J = sign · e_dof (bounds and target left to the caller)."""
+def _dof_row(kinds, keys, dofs, J, r, kind, index, dof, sign):
+    """Row r (of the rows' ``kind``, ``key``, ``dof`` and ``J`` arrays: not the bundle, see :class:`DriveTerms`):
+    kind, key, J = sign · e_dof (bounds and target left to the caller)."""
     kinds[r] = kind
     keys[r] = kind * KEY_SLOTS + index
+    dofs[r] = dof
     J[r, dof] = sign
 
 
@@ -465,12 +468,12 @@ def _dof_row(kinds, keys, J, r, kind, index, dof, sign):
 def _joint_rows(system, joints, terms, implicit, rows, h):
     """Fill the joint's own rows (drive, friction, velocity limit, mimic, limit) from row 0; returns the next."""
     n = len(implicit)
-    kinds, keys, J = rows.kind, rows.key, rows.J
+    kinds, keys, dofs, J = rows.kind, rows.key, rows.dof, rows.J
     r = 0
     for i in range(n):  # saturated drives: soft rows with the drive's softness, |λ| ≤ h effort_limit
         kp, kd = terms.kp[i], terms.kd[i]
         if (kp > 0.0 or kd > 0.0) and not implicit[i]:
-            _dof_row(kinds, keys, J, r, ROW_DRIVE, i, i, 1.0)
+            _dof_row(kinds, keys, dofs, J, r, ROW_DRIVE, i, i, 1.0)
             gamma = 1.0 / (h * kd + h * h * kp)
             rows.softness[r] = gamma
             rows.target[r] = gamma * h * terms.push[i]
@@ -478,20 +481,21 @@ def _joint_rows(system, joints, terms, implicit, rows, h):
             r += 1
     for i in range(n):
         if joints.friction[i] > 0.0:
-            _dof_row(kinds, keys, J, r, ROW_FRICTION, i, i, 1.0)
+            _dof_row(kinds, keys, dofs, J, r, ROW_FRICTION, i, i, 1.0)
             rows.lower[r], rows.upper[r] = -h * joints.friction[i], h * joints.friction[i]
             r += 1
     for i in range(n):
         vmax = joints.velocity_limit[i]
         if vmax > 0.0 and vmax < np.inf:
             for side in range(2):  # qd ≥ −vmax, then −qd ≥ −vmax
-                _dof_row(kinds, keys, J, r, ROW_VELOCITY_LIMIT, 2 * i + side, i, 1.0 - 2.0 * side)
+                _dof_row(kinds, keys, dofs, J, r, ROW_VELOCITY_LIMIT, 2 * i + side, i, 1.0 - 2.0 * side)
                 rows.target[r], rows.upper[r] = -vmax, np.inf
                 r += 1
     for j in range(len(joints.mimic_follower)):
         f, lead, mult = joints.mimic_follower[j], joints.mimic_leader[j], joints.mimic_multiplier[j]
-        _dof_row(kinds, keys, J, r, ROW_MIMIC, j, f, 1.0)
+        _dof_row(kinds, keys, dofs, J, r, ROW_MIMIC, j, f, 1.0)
         J[r, lead] -= mult
+        dofs[r] = -1  # two dofs: not a unit row
         rows.lower[r], rows.upper[r] = -np.inf, np.inf
         rows.error[r] = system.position[f] - mult * system.position[lead] - joints.mimic_offset[j]
         r += 1
@@ -501,7 +505,7 @@ def _joint_rows(system, joints, terms, implicit, rows, h):
             if bound == np.inf or bound == -np.inf or bound != bound:
                 continue
             sign = 1.0 - 2.0 * side
-            _dof_row(kinds, keys, J, r, ROW_LIMIT, 2 * i + side, i, sign)
+            _dof_row(kinds, keys, dofs, J, r, ROW_LIMIT, 2 * i + side, i, sign)
             gap = sign * (system.position[i] - bound)
             rows.error[r] = gap
             rows.target[r] = -max(gap, 0.0) / h
@@ -556,8 +560,22 @@ def prepare_joints(system, joints, terms, contacts, bodies, h, allowed):
     rows = _empty_rows(_count_rows(joints, terms, implicit.implicit, len(contacts.key)), n)
     first = _joint_rows(system, joints, terms, implicit.implicit, rows, h)
     _contact_rows(contacts, bodies, rows, first, h)
+    # A⁻¹ e_i once per dof (column i of `unit`, solved at its first row): the rows of one dof (a drive, its
+    # friction, two velocity limits, two limits) share it, J = ±e_i giving ±A⁻¹ e_i exactly (rounding is
+    # symmetric in sign)
+    unit = np.zeros((n, n))
+    solved = np.zeros(n, np.bool_)
     for r in range(len(rows.kind)):
-        w = cholesky_solve(implicit.factor, rows.J[r])
+        i = rows.dof[r]
+        if i < 0:
+            w = cholesky_solve(implicit.factor, rows.J[r])
+        else:
+            if not solved[i]:
+                e = np.zeros(n)
+                e[i] = 1.0
+                unit[i] = cholesky_solve(implicit.factor, e)
+                solved[i] = True
+            w = unit[i] * rows.J[r, i]
         k = 0.0
         for i in range(n):
             rows.W[r, i] = w[i]
