@@ -565,21 +565,24 @@ def prepare_joints(system, joints, terms, contacts, bodies, h, allowed):
     # symmetric in sign)
     unit = np.zeros((n, n))
     solved = np.zeros(n, np.bool_)
+    e = np.zeros(n)
     for r in range(len(rows.kind)):
         i = rows.dof[r]
         if i < 0:
             w = cholesky_solve(implicit.factor, rows.J[r])
+            for c in range(n):
+                rows.W[r, c] = w[c]
         else:
             if not solved[i]:
-                e = np.zeros(n)
+                e[:] = 0.0
                 e[i] = 1.0
                 unit[i] = cholesky_solve(implicit.factor, e)
                 solved[i] = True
-            w = unit[i] * rows.J[r, i]
+            for c in range(n):  # (written in place: a temporary per row costs more than the products)
+                rows.W[r, c] = unit[i, c] * rows.J[r, i]
         k = 0.0
         for i in range(n):
-            rows.W[r, i] = w[i]
-            k += rows.J[r, i] * w[i]
+            k += rows.J[r, i] * rows.W[r, i]
         for i in range(6):
             k += rows.Jb[r, i] * rows.Wb[r, i]
         rows.stiff[r] = k
@@ -1044,6 +1047,7 @@ def step_lone_robots(which, stack, memories, state, starts, gravity, settings, p
     q, qd, applied, pseudo, effort_sum, q_of_dof = state
     starts = RobotStarts(*starts)
     stepped = np.full(len(starts.body) - 1, -1, np.int64)  # robot k's entry in `fresh`, −1: not stepped
+    bodies = (np.zeros(0), np.zeros((0, 3, 3)), np.zeros((0, 6)), np.zeros((0, 3)), np.zeros((0, 3)))  # none touched
     fresh = []
     for w in range(len(which)):
         k = which[w]
@@ -1060,7 +1064,6 @@ def step_lone_robots(which, stack, memories, state, starts, gravity, settings, p
         system = (M, bias, applied[ds:de].copy(), coordinate, qdk)
         contacts = (np.zeros((0, 3, n)), np.zeros(0, np.int64), np.zeros((0, 3, 6)), np.zeros(0), np.zeros(0),
                     np.zeros(0, np.int64))
-        bodies = (np.zeros(0), np.zeros((0, 3, 3)), np.zeros((0, 6)), np.zeros((0, 3)), np.zeros((0, 3)))
         step, memory = step_joints(system, robot_properties(properties, starts, k), robot_drives(drives, starts, k),
                                    contacts, bodies, robot_memory(memories, k), settings, profile)
         stepped[k] = len(fresh)
