@@ -706,23 +706,24 @@ def integrate_positions(arrays, q, qd, h):
 
 
 @njit
-def write_link_bodies(rows, motion, links, out):
-    """Link bodies' world state from their robot bodies' poses and velocities (``k`` links, world rows ``rows``):
+def write_link_bodies(rows, body, motion, links, out):
+    """Link bodies' world state from their robot bodies' poses and velocities (``k`` links, world rows ``rows``,
+    robot bodies ``body`` (k,) int64: their rows in ``motion``, read there rather than copied out first):
     COM ``p + R c``, orientation (Shepperd's method, as :func:`cgp_core.rotation.matrix_to_quat`, w ≥ 0), the
     rotation matrix (``out.rotation`` of shape (0, 3, 3): none kept), P = m (v + ω × R c) and L = R I Rᵀ ω.
-    Bundles as plain tuples: ``motion`` :class:`BodyMotion` of the k links, ``links`` :class:`LinkInertia`,
+    Bundles as plain tuples: ``motion`` :class:`BodyMotion` of all robots' bodies, ``links`` :class:`LinkInertia`,
     ``out`` :class:`BodyStateArrays` (written in place)."""
     rotation, position, linear, angular = motion
     com, mass, inertia_body = links
     out_position, out_orientation, out_rotation, out_linear_momentum, out_angular_momentum = out
     keep_rotation = out_rotation.shape[0] > 0
+    c, RI = np.empty(3), np.empty((3, 3))  # R c and R I (work space, overwritten per link)
     for t in range(len(rows)):
-        row = rows[t]
-        R = rotation[t]
-        c = np.empty(3)
+        row, u = rows[t], body[t]
+        R = rotation[u]
         for i in range(3):
             c[i] = R[i, 0] * com[t, 0] + R[i, 1] * com[t, 1] + R[i, 2] * com[t, 2]
-            out_position[row, i] = position[t, i] + c[i]
+            out_position[row, i] = position[u, i] + c[i]
         m00, m11, m22 = R[0, 0], R[1, 1], R[2, 2]
         trace = m00 + m11 + m22
         cand0, cand1 = 1.0 + trace, 1.0 + m00 - m11 - m22
@@ -754,14 +755,13 @@ def write_link_bodies(rows, motion, links, out):
             for i in range(3):
                 for j in range(3):
                     out_rotation[row, i, j] = R[i, j]
-        wx, wy, wz = angular[t, 0], angular[t, 1], angular[t, 2]
-        vx = linear[t, 0] + (wy * c[2] - wz * c[1])
-        vy = linear[t, 1] + (wz * c[0] - wx * c[2])
-        vz = linear[t, 2] + (wx * c[1] - wy * c[0])
+        wx, wy, wz = angular[u, 0], angular[u, 1], angular[u, 2]
+        vx = linear[u, 0] + (wy * c[2] - wz * c[1])
+        vy = linear[u, 1] + (wz * c[0] - wx * c[2])
+        vz = linear[u, 2] + (wx * c[1] - wy * c[0])
         out_linear_momentum[row, 0] = mass[t] * vx
         out_linear_momentum[row, 1] = mass[t] * vy
         out_linear_momentum[row, 2] = mass[t] * vz
-        RI = np.empty((3, 3))
         for i in range(3):
             for j in range(3):
                 RI[i, j] = R[i, 0] * inertia_body[t, 0, j] + R[i, 1] * inertia_body[t, 1, j] \
@@ -770,7 +770,7 @@ def write_link_bodies(rows, motion, links, out):
             s_ = 0.0
             for j in range(3):
                 iw = RI[i, 0] * R[j, 0] + RI[i, 1] * R[j, 1] + RI[i, 2] * R[j, 2]
-                s_ += iw * angular[t, j]
+                s_ += iw * angular[u, j]
             out_angular_momentum[row, i] = s_
 
 

@@ -1004,9 +1004,7 @@ class Robots:
             rotation, position, linear, angular = flat
         if not rows.size:
             return
-        index = self._all_link_index
-        R, position, linear, angular = rotation[index], position[index], linear[index], angular[index]
-        algorithms.write_link_bodies(rows, (R, position, linear, angular),
+        algorithms.write_link_bodies(rows, self._all_link_index, (rotation, position, linear, angular),
                                      (self._all_com, self._all_mass_flat, self._all_inertia),
                                      (state.position, state.orientation,
                                       state.rotation if state.rotation is not None else _NO_ROTATION,
@@ -1024,8 +1022,11 @@ class Robots:
             counts = np.concatenate(([0], np.cumsum(flags)))
             return counts[starts[1:]] - counts[starts[:-1]]
 
-        broken = (per_robot(~np.isfinite(self.q), self._starts.q)
-                  + per_robot(~np.isfinite(self.qd), self._starts.dof)) > 0
+        if np.isfinite(self.q).all() and np.isfinite(self.qd).all():  # the usual case: no count needed
+            broken = np.zeros(len(self.robots), bool)
+        else:
+            broken = (per_robot(~np.isfinite(self.q), self._starts.q)
+                      + per_robot(~np.isfinite(self.qd), self._starts.dof)) > 0
         rows = getattr(self, "_all_rows", np.zeros(0, np.int64))
         if rows.size:
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
