@@ -57,30 +57,41 @@ import numpy as np
 
 from ..jit import njit
 from ..rotation import quat_multiply_scalar, rotvec_to_quat_scalar
-from .model import JOINT_BALL, JOINT_FLOATING, JOINT_PLANAR, JOINT_PRISMATIC, JOINT_REVOLUTE, RobotArrays
+from .model import (
+    JOINT_BALL,
+    JOINT_FLOATING,
+    JOINT_PLANAR,
+    JOINT_PRISMATIC,
+    JOINT_REVOLUTE,
+    RobotArrays,
+    RobotStarts,
+)
 
 __all__ = ["forward_kinematics", "frame_poses", "motion_subspace", "body_velocities", "point_jacobian",
            "angular_jacobian", "spatial_inertias", "mass_matrix", "inverse_dynamics", "bias_forces",
-           "forward_dynamics", "integrate_positions", "cholesky_solve", "joint_space_terms", "advance"]
+           "forward_dynamics", "integrate_positions", "cholesky_solve", "joint_space_terms", "advance", "robot_view",
+           "advance_all"]
 
 
-# ---- small 3-vector helpers (no allocation of temporaries beyond the result) -----------------------------------
+# ---- small 3-vector helpers ---------------------------------------------------------------------------------
+#
+# Those the recursions call per body write into an output the caller allocated once (``out``): in compiled code
+# each small array a helper allocates costs a heap allocation and its reference counting, ~10× the arithmetic of
+# a 3 × 3 product (measured: ~200 against ~12 ns per call on this 2-core machine under load).
 
 @njit
-def _mat_mul(A, B):
-    C = np.empty((3, 3))
+def _mat_mul(A, B, out):
+    """``out = A B`` (3, 3); ``out`` must not be ``A`` or ``B``."""
     for r in range(3):
         for c in range(3):
-            C[r, c] = A[r, 0] * B[0, c] + A[r, 1] * B[1, c] + A[r, 2] * B[2, c]
-    return C
+            out[r, c] = A[r, 0] * B[0, c] + A[r, 1] * B[1, c] + A[r, 2] * B[2, c]
 
 
 @njit
-def _mat_vec(A, v):
-    out = np.empty(3)
+def _mat_vec(A, v, out):
+    """``out = A v`` (3,); ``out`` must not be ``v``."""
     for r in range(3):
         out[r] = A[r, 0] * v[0] + A[r, 1] * v[1] + A[r, 2] * v[2]
-    return out
 
 
 @njit
@@ -93,12 +104,11 @@ def _cross(a, b):
 
 
 @njit
-def _axis_rotation(axis, angle):
-    """Rodrigues: the rotation by ``angle`` [rad] about the unit ``axis`` (3,), (3, 3)."""
+def _axis_rotation(axis, angle, R):
+    """Rodrigues: ``R`` (3, 3) = the rotation by ``angle`` [rad] about the unit ``axis`` (3,)."""
     c, s = math.cos(angle), math.sin(angle)
     t = 1.0 - c
     x, y, z = axis[0], axis[1], axis[2]
-    R = np.empty((3, 3))
     R[0, 0] = t * x * x + c
     R[0, 1] = t * x * y - s * z
     R[0, 2] = t * x * z + s * y
@@ -108,15 +118,13 @@ def _axis_rotation(axis, angle):
     R[2, 0] = t * x * z - s * y
     R[2, 1] = t * y * z + s * x
     R[2, 2] = t * z * z + c
-    return R
 
 
 @njit
-def _quat_matrix(x, y, z, w):
-    """The rotation matrix of the quaternion (x, y, z, w), normalized first."""
+def _quat_matrix(x, y, z, w, R):
+    """``R`` (3, 3) = the rotation matrix of the quaternion (x, y, z, w), normalized first."""
     norm = math.sqrt(x * x + y * y + z * z + w * w)
     x, y, z, w = x / norm, y / norm, z / norm, w / norm
-    R = np.empty((3, 3))
     R[0, 0] = 1.0 - 2.0 * (y * y + z * z)
     R[0, 1] = 2.0 * (x * y - w * z)
     R[0, 2] = 2.0 * (x * z + w * y)
@@ -126,36 +134,51 @@ def _quat_matrix(x, y, z, w):
     R[2, 0] = 2.0 * (x * z - w * y)
     R[2, 1] = 2.0 * (y * z + w * x)
     R[2, 2] = 1.0 - 2.0 * (x * x + y * y)
-    return R
 
 
 @njit
-def _motion_cross(V, S):
-    """``V ×ₘ S`` of two motion vectors (6,)."""
-    out = np.empty(6)
-    out[0:3] = _cross(V[0:3], S[0:3])
-    out[3:6] = _cross(V[0:3], S[3:6]) + _cross(V[3:6], S[0:3])
-    return out
+def _cross_into(a, i, b, j, out, k):
+    """``out[k:k+3] = a[i:i+3] × b[j:j+3]`` (no temporaries: see :func:`_rnea`)."""
+    out[k] = a[i + 1] * b[j + 2] - a[i + 2] * b[j + 1]
+    out[k + 1] = a[i + 2] * b[j] - a[i] * b[j + 2]
+    out[k + 2] = a[i] * b[j + 1] - a[i + 1] * b[j]
 
 
 @njit
-def _force_cross(V, F):
-    """``V ×_f F`` of a motion vector and a force vector (6,)."""
-    out = np.empty(6)
-    out[0:3] = _cross(V[0:3], F[0:3]) + _cross(V[3:6], F[3:6])
-    out[3:6] = _cross(V[0:3], F[3:6])
-    return out
+def _motion_cross(V, S, out, scratch):
+    """``out = V ×ₘ S`` of two motion vectors (6,) (ω × S_ω, ω × S_v + v × S_ω); ``scratch`` (3,)."""
+    _cross_into(V, 0, S, 0, out, 0)
+    _cross_into(V, 0, S, 3, out, 3)
+    _cross_into(V, 3, S, 0, scratch, 0)
+    for k in range(3):
+        out[3 + k] += scratch[k]
 
 
 @njit
-def _joint_frame(arrays, rotation, position, i):
-    """Body ``i``'s joint frame in the world (rotation (3, 3), origin (3,)): its parent's pose times the joint
-    frame's pose in the parent (the world's for the root)."""
-    p = arrays.parent[i]
+def _force_cross(V, F, out, scratch):
+    """``out = V ×_f F`` of a motion vector and a force vector (6,) (ω × n + v × f, ω × f); ``scratch`` (3,)."""
+    _cross_into(V, 0, F, 0, out, 0)
+    _cross_into(V, 3, F, 3, scratch, 0)
+    for k in range(3):
+        out[k] += scratch[k]
+    _cross_into(V, 0, F, 3, out, 3)
+
+
+@njit
+def _joint_frame(parent, joint_rotation, joint_position, rotation, position, i, frame_rotation, frame_origin):
+    """Body ``i``'s joint frame in the world, written into ``frame_rotation`` (3, 3) and ``frame_origin`` (3,):
+    its parent's pose times the joint frame's pose in the parent (the world's for the root).  Takes the
+    RobotArrays fields it reads, not the bundle: a bundle handed to a compiled helper costs a reference-count
+    update per array per call (~20 arrays: more than this helper's arithmetic, measured)."""
+    p = parent[i]
     if p < 0:
-        return arrays.joint_rotation[i].copy(), arrays.joint_position[i].copy()
-    return (_mat_mul(rotation[p], arrays.joint_rotation[i]),
-            position[p] + _mat_vec(rotation[p], arrays.joint_position[i]))
+        frame_rotation[:] = joint_rotation[i]
+        frame_origin[:] = joint_position[i]
+        return
+    _mat_mul(rotation[p], joint_rotation[i], frame_rotation)
+    _mat_vec(rotation[p], joint_position[i], frame_origin)
+    for k in range(3):
+        frame_origin[k] += position[p, k]
 
 
 # ---- kinematics ------------------------------------------------------------------------------------------------
@@ -173,28 +196,35 @@ def forward_kinematics(arrays, q):
     n = len(arrays.parent)
     rotation = np.empty((n, 3, 3))
     position = np.empty((n, 3))
+    Rj, xj = np.empty((3, 3)), np.empty(3)        # the joint frame in the world
+    turn, slide = np.empty((3, 3)), np.empty(3)   # the joint's motion in it (work space, see the helpers)
+    moved = np.empty(3)
     for i in range(n):
-        Rj, xj = _joint_frame(arrays, rotation, position, i)
+        _joint_frame(arrays.parent, arrays.joint_rotation, arrays.joint_position, rotation, position, i, Rj, xj)
         kind = arrays.joint_type[i]
         s = arrays.q_start[i]
-        if kind == JOINT_REVOLUTE:
-            rotation[i] = _mat_mul(Rj, _axis_rotation(arrays.joint_axis[i], q[s]))
-            position[i] = xj
-        elif kind == JOINT_PRISMATIC:
-            rotation[i] = Rj
-            position[i] = xj + _mat_vec(Rj, arrays.joint_axis[i] * q[s])
-        elif kind == JOINT_PLANAR:
-            rotation[i] = _mat_mul(Rj, _axis_rotation(arrays.joint_axis[i], q[s + 2]))
-            position[i] = xj + _mat_vec(Rj, arrays.plane_u[i] * q[s] + arrays.plane_v[i] * q[s + 1])
-        elif kind == JOINT_FLOATING:
-            rotation[i] = _mat_mul(Rj, _quat_matrix(q[s + 3], q[s + 4], q[s + 5], q[s + 6]))
-            position[i] = xj + _mat_vec(Rj, q[s:s + 3])
-        elif kind == JOINT_BALL:  # turned about the joint frame's origin (the ball's centre)
-            rotation[i] = _mat_mul(Rj, _quat_matrix(q[s], q[s + 1], q[s + 2], q[s + 3]))
-            position[i] = xj
+        if kind == JOINT_REVOLUTE or kind == JOINT_PLANAR or kind == JOINT_FLOATING or kind == JOINT_BALL:
+            if kind == JOINT_REVOLUTE or kind == JOINT_PLANAR:
+                _axis_rotation(arrays.joint_axis[i], q[s] if kind == JOINT_REVOLUTE else q[s + 2], turn)
+            elif kind == JOINT_FLOATING:
+                _quat_matrix(q[s + 3], q[s + 4], q[s + 5], q[s + 6], turn)
+            else:  # a ball: turned about the joint frame's origin (the ball's centre)
+                _quat_matrix(q[s], q[s + 1], q[s + 2], q[s + 3], turn)
+            _mat_mul(Rj, turn, rotation[i])
         else:
             rotation[i] = Rj
-            position[i] = xj
+        position[i] = xj
+        if kind == JOINT_PRISMATIC or kind == JOINT_PLANAR or kind == JOINT_FLOATING:
+            for k in range(3):  # the translation in the joint frame
+                if kind == JOINT_PRISMATIC:
+                    slide[k] = arrays.joint_axis[i, k] * q[s]
+                elif kind == JOINT_PLANAR:
+                    slide[k] = arrays.plane_u[i, k] * q[s] + arrays.plane_v[i, k] * q[s + 1]
+                else:
+                    slide[k] = q[s + k]
+            _mat_vec(Rj, slide, moved)
+            for k in range(3):
+                position[i, k] = xj[k] + moved[k]
     return rotation, position
 
 
@@ -206,10 +236,13 @@ def frame_poses(arrays, rotation, position):
     f = len(arrays.frame_body)
     out_r = np.empty((f, 3, 3))
     out_x = np.empty((f, 3))
+    moved = np.empty(3)
     for k in range(f):
         b = arrays.frame_body[k]
-        out_r[k] = _mat_mul(rotation[b], arrays.frame_rotation[k])
-        out_x[k] = position[b] + _mat_vec(rotation[b], arrays.frame_position[k])
+        _mat_mul(rotation[b], arrays.frame_rotation[k], out_r[k])
+        _mat_vec(rotation[b], arrays.frame_position[k], moved)
+        for r in range(3):
+            out_x[k, r] = position[b, r] + moved[r]
     return out_r, out_x
 
 
@@ -224,38 +257,41 @@ def motion_subspace(arrays, rotation, position):
     Returns S (n_dofs, 6)."""
     arrays = RobotArrays(*arrays)
     S = np.zeros((arrays.n_dofs, 6))
+    a, Rj, xj = np.empty(3), np.empty((3, 3)), np.empty(3)  # an axis in the world, a joint frame (work space)
     for i in range(len(arrays.parent)):
         kind = arrays.joint_type[i]
         d = arrays.dof_start[i]
         x = position[i]
         if kind == JOINT_REVOLUTE:
-            a = _mat_vec(rotation[i], arrays.joint_axis[i])
+            _mat_vec(rotation[i], arrays.joint_axis[i], a)
             S[d, 0:3] = a
-            S[d, 3:6] = _cross(x, a)
+            _cross_into(x, 0, a, 0, S[d], 3)
         elif kind == JOINT_PRISMATIC:
-            S[d, 3:6] = _mat_vec(rotation[i], arrays.joint_axis[i])
+            _mat_vec(rotation[i], arrays.joint_axis[i], a)
+            S[d, 3:6] = a
         elif kind == JOINT_PLANAR:
-            Rj, _ = _joint_frame(arrays, rotation, position, i)
-            S[d, 3:6] = _mat_vec(Rj, arrays.plane_u[i])
-            S[d + 1, 3:6] = _mat_vec(Rj, arrays.plane_v[i])
-            a = _mat_vec(rotation[i], arrays.joint_axis[i])
+            _joint_frame(arrays.parent, arrays.joint_rotation, arrays.joint_position, rotation, position, i, Rj, xj)
+            _mat_vec(Rj, arrays.plane_u[i], a)
+            S[d, 3:6] = a
+            _mat_vec(Rj, arrays.plane_v[i], a)
+            S[d + 1, 3:6] = a
+            _mat_vec(rotation[i], arrays.joint_axis[i], a)
             S[d + 2, 0:3] = a
-            S[d + 2, 3:6] = _cross(x, a)
+            _cross_into(x, 0, a, 0, S[d + 2], 3)
         elif kind == JOINT_FLOATING:
             for k in range(3):
                 S[d + k, 3 + k] = 1.0
-                e = np.zeros(3)
-                e[k] = 1.0
-                S[d + 3 + k, 0:3] = e
-                S[d + 3 + k, 3:6] = _cross(x, e)
+                a[:] = 0.0
+                a[k] = 1.0
+                S[d + 3 + k, 0:3] = a
+                _cross_into(x, 0, a, 0, S[d + 3 + k], 3)
         elif kind == JOINT_BALL:
-            Rj, _ = _joint_frame(arrays, rotation, position, i)
+            _joint_frame(arrays.parent, arrays.joint_rotation, arrays.joint_position, rotation, position, i, Rj, xj)
             for k in range(3):
-                a = np.empty(3)
                 for r in range(3):
                     a[r] = Rj[r, k]
                 S[d + k, 0:3] = a
-                S[d + k, 3:6] = _cross(x, a)
+                _cross_into(x, 0, a, 0, S[d + k], 3)
     return S
 
 
@@ -269,7 +305,8 @@ def _spatial_velocities(arrays, S, qd):
         if p >= 0:
             V[i] = V[p]
         for d in range(arrays.dof_start[i], arrays.dof_start[i] + arrays.dof_count[i]):
-            V[i] += S[d] * qd[d]
+            for k in range(6):
+                V[i, k] += S[d, k] * qd[d]
     return V
 
 
@@ -286,9 +323,12 @@ def body_velocities(arrays, q, qd, rotation, position):
     n = len(arrays.parent)
     linear = np.empty((n, 3))
     angular = np.empty((n, 3))
+    turning = np.empty(3)  # ω_i × x_i (work space)
     for i in range(n):
         angular[i] = V[i, 0:3]
-        linear[i] = V[i, 3:6] + _cross(V[i, 0:3], position[i])
+        _cross_into(V[i], 0, position[i], 0, turning, 0)
+        for k in range(3):
+            linear[i, k] = V[i, 3 + k] + turning[k]
     return linear, angular
 
 
@@ -330,11 +370,17 @@ def spatial_inertias(arrays, rotation, position):
     arrays = RobotArrays(*arrays)
     n = len(arrays.parent)
     out = np.zeros((n, 6, 6))
+    c, RI, RT, Ic = np.empty(3), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))  # work space
     for i in range(n):
         m = arrays.mass[i]
         R = rotation[i]
-        c = position[i] + _mat_vec(R, arrays.com[i])
-        Ic = _mat_mul(_mat_mul(R, arrays.inertia[i]), R.T.copy())
+        _mat_vec(R, arrays.com[i], c)
+        for k in range(3):
+            c[k] += position[i, k]
+            for r in range(3):
+                RT[r, k] = R[k, r]
+        _mat_mul(R, arrays.inertia[i], RI)
+        _mat_mul(RI, RT, Ic)
         cc = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
         for r in range(3):
             for k in range(3):
@@ -351,6 +397,26 @@ def spatial_inertias(arrays, rotation, position):
 
 
 @njit
+def _spatial_times(A, v, out):
+    """``out = A v`` (6,) of a 6 × 6 matrix and a 6-vector, as a plain loop (numba's ``@`` calls BLAS, whose call
+    costs more than these 36 products; and the sum order is the same compiled and in plain Python)."""
+    for r in range(6):
+        s = 0.0
+        for c in range(6):
+            s += A[r, c] * v[c]
+        out[r] = s
+
+
+@njit
+def _dot6(a, b):
+    """``a · b`` of two 6-vectors (a plain loop: see :func:`_spatial_times`)."""
+    s = 0.0
+    for c in range(6):
+        s += a[c] * b[c]
+    return s
+
+
+@njit
 def _mass_matrix(arrays, S, inertias):
     """Composite rigid bodies: ``I^c_i = I_i + Σ_children I^c_j`` (all in one frame: plain sums), then
     ``M[d, e] = S_dᵀ I^c_{body(d)} S_e`` for ``e`` a dof of ``body(d)`` or an ancestor (Featherstone §6.2)."""
@@ -361,13 +427,14 @@ def _mass_matrix(arrays, S, inertias):
         if p >= 0:
             composite[p] += composite[i]
     M = np.zeros((arrays.n_dofs, arrays.n_dofs))
+    F = np.empty(6)
     for i in range(n):
         for d in range(arrays.dof_start[i], arrays.dof_start[i] + arrays.dof_count[i]):
-            F = composite[i] @ S[d]
+            _spatial_times(composite[i], S[d], F)
             j = i
             while j >= 0:
                 for e in range(arrays.dof_start[j], arrays.dof_start[j] + arrays.dof_count[j]):
-                    value = F @ S[e]
+                    value = _dot6(F, S[e])
                     M[d, e] = value
                     M[e, d] = value
                 j = arrays.parent[j]
@@ -386,30 +453,39 @@ def mass_matrix(arrays, q):
 
 
 @njit
-def _joint_bias(arrays, i, S, qd, V, parent_velocity):
-    """``Ṡ qd`` of body ``i``'s joint (6,): the acceleration its subspace's own motion adds.  A column fixed in a
-    body moving with spatial velocity ``W`` changes as ``W ×ₘ S``: revolute, prismatic, ball (its columns are the
-    joint frame's axes, fixed in the parent) and the planar translations are fixed in the parent, the planar
+def _joint_bias(kind, d, i, S, qd, V, parent_velocity, out, column, scratch):
+    """``out = Ṡ qd`` of body ``i``'s joint (6,): the acceleration its subspace's own motion adds.  A column fixed
+    in a body moving with spatial velocity ``W`` changes as ``W ×ₘ S``: revolute, prismatic, ball (its columns are
+    the joint frame's axes, fixed in the parent) and the planar translations are fixed in the parent, the planar
     rotation in the child; the floating root's rotation columns move with its origin (``W = (0, v)``), giving
-    ``(0, v × ω)``."""
-    kind = arrays.joint_type[i]
-    d = arrays.dof_start[i]
-    out = np.zeros(6)
-    if kind == JOINT_REVOLUTE or kind == JOINT_PRISMATIC:
-        out = _motion_cross(parent_velocity, S[d] * qd[d])
-    elif kind == JOINT_BALL:
-        out = _motion_cross(parent_velocity, S[d] * qd[d] + S[d + 1] * qd[d + 1] + S[d + 2] * qd[d + 2])
-    elif kind == JOINT_PLANAR:
-        out = _motion_cross(parent_velocity, S[d] * qd[d] + S[d + 1] * qd[d + 1])
-        out += _motion_cross(V[i], S[d + 2] * qd[d + 2])
+    ``(0, v × ω)``.  (``kind``, ``d``: body ``i``'s joint type and first dof: numbers, not the bundle, see
+    :func:`_joint_frame`; ``column`` (6,) and ``scratch`` (3,): work space, see :func:`_rnea`.)"""
+    out[:] = 0.0
+    if kind == JOINT_REVOLUTE or kind == JOINT_PRISMATIC or kind == JOINT_BALL or kind == JOINT_PLANAR:
+        moved = 3 if kind == JOINT_BALL else 2 if kind == JOINT_PLANAR else 1  # columns fixed in the parent
+        for k in range(6):  # Σ S_d qd_d over them
+            column[k] = S[d, k] * qd[d]
+            for e in range(d + 1, d + moved):
+                column[k] += S[e, k] * qd[e]
+        _motion_cross(parent_velocity, column, out, scratch)
+        if kind == JOINT_PLANAR:  # its rotation column, fixed in the child
+            for k in range(6):
+                column[k] = S[d + 2, k] * qd[d + 2]
+            rotation = np.empty(6)
+            _motion_cross(V[i], column, rotation, scratch)
+            for k in range(6):
+                out[k] += rotation[k]
     elif kind == JOINT_FLOATING:
-        out[3:6] = _cross(qd[d:d + 3], qd[d + 3:d + 6])
-    return out
+        _cross_into(qd, d, qd, d + 3, out, 3)
 
 
 @njit
 def _rnea(arrays, S, inertias, qd, qdd, gravity, f_ext):
-    """The two passes of the recursive Newton–Euler algorithm (Featherstone §5.3; MuJoCo ``mj_rne``)."""
+    """The two passes of the recursive Newton–Euler algorithm (Featherstone §5.3; MuJoCo ``mj_rne``).  Per body,
+    in vector form: ``V_i = V_p + Σ S_d qd_d``, ``A_i = A_p + Σ S_d qdd_d + Ṡ qd``, ``F_i = I_i A_i + V_i ×_f I_i
+    V_i − f_ext,i``; then ``τ_d = S_d · F_i`` and ``F_p += F_i`` from the leaves.  Written as loops over
+    preallocated 6-vectors: a small array allocated per body and operation (~25 per body) cost more than the
+    arithmetic (measured on a KUKA iiwa's 8 bodies: from 3.0× to 0.6× the time of its forward kinematics)."""
     n = len(arrays.parent)
     V = np.zeros((n, 6))
     A = np.zeros((n, 6))
@@ -417,25 +493,37 @@ def _rnea(arrays, S, inertias, qd, qdd, gravity, f_ext):
     base = np.zeros(6)
     base[3:6] = -gravity
     zero = np.zeros(6)
+    vJ, aJ, bias, IA, IV, fc, column = (np.empty(6), np.empty(6), np.empty(6), np.empty(6), np.empty(6),
+                                        np.empty(6), np.empty(6))
+    scratch = np.empty(3)
     for i in range(n):
         p = arrays.parent[i]
         Vp = V[p] if p >= 0 else zero
         Ap = A[p] if p >= 0 else base
-        vJ = np.zeros(6)
-        aJ = np.zeros(6)
+        vJ[:] = 0.0
+        aJ[:] = 0.0
         for d in range(arrays.dof_start[i], arrays.dof_start[i] + arrays.dof_count[i]):
-            vJ += S[d] * qd[d]
-            aJ += S[d] * qdd[d]
-        V[i] = Vp + vJ
-        A[i] = Ap + aJ + _joint_bias(arrays, i, S, qd, V, Vp)
-        F[i] = inertias[i] @ A[i] + _force_cross(V[i], inertias[i] @ V[i]) - f_ext[i]
+            for k in range(6):
+                vJ[k] += S[d, k] * qd[d]
+                aJ[k] += S[d, k] * qdd[d]
+        for k in range(6):
+            V[i, k] = Vp[k] + vJ[k]
+        _joint_bias(arrays.joint_type[i], arrays.dof_start[i], i, S, qd, V, Vp, bias, column, scratch)
+        for k in range(6):
+            A[i, k] = Ap[k] + aJ[k] + bias[k]
+        _spatial_times(inertias[i], A[i], IA)
+        _spatial_times(inertias[i], V[i], IV)
+        _force_cross(V[i], IV, fc, scratch)
+        for k in range(6):
+            F[i, k] = IA[k] + fc[k] - f_ext[i, k]
     tau = np.zeros(arrays.n_dofs)
     for i in range(n - 1, -1, -1):
         for d in range(arrays.dof_start[i], arrays.dof_start[i] + arrays.dof_count[i]):
-            tau[d] = S[d] @ F[i]
+            tau[d] = _dot6(S[d], F[i])
         p = arrays.parent[i]
         if p >= 0:
-            F[p] += F[i]
+            for k in range(6):
+                F[p, k] += F[i, k]
     return tau
 
 
@@ -445,8 +533,11 @@ def _external_forces(arrays, rotation, position, f_ext):
     torques ``f_ext[:, 3:6]`` [N m] given about each body's COM ``c``."""
     n = len(arrays.parent)
     out = np.zeros((n, 6))
+    c = np.empty(3)
     for i in range(n):
-        c = position[i] + _mat_vec(rotation[i], arrays.com[i])
+        _mat_vec(rotation[i], arrays.com[i], c)
+        for k in range(3):
+            c[k] += position[i, k]
         out[i, 0:3] = f_ext[i, 3:6] + _cross(c, f_ext[i, 0:3])
         out[i, 3:6] = f_ext[i, 0:3]
     return out
@@ -615,23 +706,24 @@ def integrate_positions(arrays, q, qd, h):
 
 
 @njit
-def write_link_bodies(rows, motion, links, out):
-    """Link bodies' world state from their robot bodies' poses and velocities (``k`` links, world rows ``rows``):
+def write_link_bodies(rows, body, motion, links, out):
+    """Link bodies' world state from their robot bodies' poses and velocities (``k`` links, world rows ``rows``,
+    robot bodies ``body`` (k,) int64: their rows in ``motion``, read there rather than copied out first):
     COM ``p + R c``, orientation (Shepperd's method, as :func:`cgp_core.rotation.matrix_to_quat`, w ≥ 0), the
     rotation matrix (``out.rotation`` of shape (0, 3, 3): none kept), P = m (v + ω × R c) and L = R I Rᵀ ω.
-    Bundles as plain tuples: ``motion`` :class:`BodyMotion` of the k links, ``links`` :class:`LinkInertia`,
+    Bundles as plain tuples: ``motion`` :class:`BodyMotion` of all robots' bodies, ``links`` :class:`LinkInertia`,
     ``out`` :class:`BodyStateArrays` (written in place)."""
     rotation, position, linear, angular = motion
     com, mass, inertia_body = links
     out_position, out_orientation, out_rotation, out_linear_momentum, out_angular_momentum = out
     keep_rotation = out_rotation.shape[0] > 0
+    c, RI = np.empty(3), np.empty((3, 3))  # R c and R I (work space, overwritten per link)
     for t in range(len(rows)):
-        row = rows[t]
-        R = rotation[t]
-        c = np.empty(3)
+        row, u = rows[t], body[t]
+        R = rotation[u]
         for i in range(3):
             c[i] = R[i, 0] * com[t, 0] + R[i, 1] * com[t, 1] + R[i, 2] * com[t, 2]
-            out_position[row, i] = position[t, i] + c[i]
+            out_position[row, i] = position[u, i] + c[i]
         m00, m11, m22 = R[0, 0], R[1, 1], R[2, 2]
         trace = m00 + m11 + m22
         cand0, cand1 = 1.0 + trace, 1.0 + m00 - m11 - m22
@@ -663,14 +755,13 @@ def write_link_bodies(rows, motion, links, out):
             for i in range(3):
                 for j in range(3):
                     out_rotation[row, i, j] = R[i, j]
-        wx, wy, wz = angular[t, 0], angular[t, 1], angular[t, 2]
-        vx = linear[t, 0] + (wy * c[2] - wz * c[1])
-        vy = linear[t, 1] + (wz * c[0] - wx * c[2])
-        vz = linear[t, 2] + (wx * c[1] - wy * c[0])
+        wx, wy, wz = angular[u, 0], angular[u, 1], angular[u, 2]
+        vx = linear[u, 0] + (wy * c[2] - wz * c[1])
+        vy = linear[u, 1] + (wz * c[0] - wx * c[2])
+        vz = linear[u, 2] + (wx * c[1] - wy * c[0])
         out_linear_momentum[row, 0] = mass[t] * vx
         out_linear_momentum[row, 1] = mass[t] * vy
         out_linear_momentum[row, 2] = mass[t] * vz
-        RI = np.empty((3, 3))
         for i in range(3):
             for j in range(3):
                 RI[i, j] = R[i, 0] * inertia_body[t, 0, j] + R[i, 1] * inertia_body[t, 1, j] \
@@ -679,22 +770,40 @@ def write_link_bodies(rows, motion, links, out):
             s_ = 0.0
             for j in range(3):
                 iw = RI[i, 0] * R[j, 0] + RI[i, 1] * R[j, 1] + RI[i, 2] * R[j, 2]
-                s_ += iw * angular[t, j]
+                s_ += iw * angular[u, j]
             out_angular_momentum[row, i] = s_
 
 
 @njit
-def advance_all(models, q, moving, qd, starts, h, out):
-    """:func:`advance` for every robot in one call: robot ``k`` (``models[k]``, a list of plain
-    :class:`RobotArrays` tuples) has its positions at ``q[q_start[k]:q_start[k + 1]]`` (updated in place), its
-    velocities at ``dof_start``, and its bodies' poses and velocities are written at rows ``body_start[k]`` … of
-    ``out`` (a plain :class:`BodyMotion` tuple of all robots' B bodies).  ``starts``: ``(q_start, dof_start,
-    body_start)``, (robots + 1,) int64 each."""
-    q_start, dof_start, body_start = starts
+def robot_view(models, starts, k):
+    """Robot ``k``'s :class:`RobotArrays` as views into ``models``, every robot's bundle stacked
+    (:func:`~cgp_core.robots.model.stack_robot_arrays`), at its :class:`~cgp_core.robots.model.RobotStarts`
+    ``starts`` (slices: nothing copied)."""
+    m = RobotArrays(*models)
+    b0, b1 = starts.body[k], starts.body[k + 1]
+    f0, f1 = starts.frame[k], starts.frame[k + 1]
+    d0, d1 = starts.dof[k], starts.dof[k + 1]
+    return RobotArrays(m.parent[b0:b1], m.joint_type[b0:b1], m.joint_rotation[b0:b1], m.joint_position[b0:b1],
+                       m.joint_axis[b0:b1], m.plane_u[b0:b1], m.plane_v[b0:b1], m.dof_start[b0:b1],
+                       m.dof_count[b0:b1], m.q_start[b0:b1], m.q_count[b0:b1], m.mass[b0:b1], m.com[b0:b1],
+                       m.inertia[b0:b1], m.frame_body[f0:f1], m.frame_rotation[f0:f1], m.frame_position[f0:f1],
+                       m.dof_body[d0:d1], d1 - d0, starts.q[k + 1] - starts.q[k])
+
+
+@njit
+def advance_all(models, starts, q, moving, qd, h, out):
+    """:func:`advance` for every robot in one call: ``models`` every robot's :class:`RobotArrays` stacked
+    (:func:`~cgp_core.robots.model.stack_robot_arrays`, a plain tuple), ``starts`` their
+    :class:`~cgp_core.robots.model.RobotStarts` (a plain tuple); robot ``k``'s positions at
+    ``q[starts.q[k]:starts.q[k + 1]]`` (updated in place), its velocities at ``starts.dof``, and its bodies' poses
+    and velocities written at rows ``starts.body[k]`` … of ``out`` (a plain :class:`BodyMotion` tuple of all
+    robots' B bodies)."""
+    starts = RobotStarts(*starts)
     rotation, position, linear, angular = out
-    for k in range(len(models)):
-        qs, qe, ds, de, bs = q_start[k], q_start[k + 1], dof_start[k], dof_start[k + 1], body_start[k]
-        q_new, motion = advance(models[k], q[qs:qe].copy(), moving[ds:de].copy(), qd[ds:de].copy(), h)
+    for k in range(len(starts.body) - 1):
+        qs, qe, ds, de, bs = starts.q[k], starts.q[k + 1], starts.dof[k], starts.dof[k + 1], starts.body[k]
+        q_new, motion = advance(robot_view(models, starts, k), q[qs:qe].copy(), moving[ds:de].copy(),
+                                qd[ds:de].copy(), h)
         R, p, v, w = motion.rotation, motion.position, motion.linear, motion.angular
         for i in range(qe - qs):
             q[qs + i] = q_new[i]

@@ -122,7 +122,8 @@ import numpy as np
 
 from ..checks import positive
 from ..jit import StageProfile, clock, lap, njit
-from .algorithms import joint_space_terms
+from .algorithms import joint_space_terms, robot_view
+from .model import RobotStarts
 
 #: drive modes (:attr:`JointDrives.mode`)
 DRIVE_NONE, DRIVE_EFFORT, DRIVE_VELOCITY, DRIVE_POSITION = 0, 1, 2, 3
@@ -285,6 +286,8 @@ class JointRows(NamedTuple):
     lower: np.ndarray        # (R,) bounds of the accumulated impulse (tangent rows: ±μ, scaled by λₙ in the sweep)
     upper: np.ndarray        # (R,)
     error: np.ndarray        # (R,) position error at the sub-step's start: a limit's gap s, a mimic's C
+    dof: np.ndarray          # (R,) int64 the dof i of a row J = ±e_i (drive, friction, velocity-limit, limit rows);
+    #                          −1 for the others
 
 
 class Implicit(NamedTuple):
@@ -347,69 +350,78 @@ def cholesky_solve(L, b):
 
 # ---- 1. prepare: the implicit drives, then the rows ----------------------------------------------------------
 
+class DriveTerms(NamedTuple):
+    """Each dof's drive, reduced to the numbers the stages read (``n`` dofs), computed once per sub-step.
+
+    Why once: the stages read them per dof in several loops, and a bundle handed to a small compiled helper costs
+    a reference-count update per array per call (measured: ~130 ns for ``_drive_gains(drives, joints, i)``, more
+    than its arithmetic), so the helpers below take numbers, not bundles."""
+
+    kp: np.ndarray       # (n,) stiffness of the position drive that acts (0: none) [N m/rad / N/m]
+    kd: np.ndarray       # (n,) damping of the position or velocity drive that acts (0: none) [N m s/rad / N s/m]
+    push: np.ndarray     # (n,) kp (q* − q) + kd qd*: the drive's torque at zero end velocity, before the
+    #                      −(h kp + kd) qd⁺ term [N m / N]
+    command: np.ndarray  # (n,) an effort drive's command clamped to ±effort_limit (0 for other modes) [N m / N]
+
+
 @njit
-def _drive_gains(drives, joints, i):
-    """(kp, kd) of dof i's position / velocity drive, (0, 0) if it has none that acts."""
-    mode = drives.mode[i]
-    if joints.effort_limit[i] <= 0.0:
+def _drive_gains(mode, stiffness, damping, effort_limit):
+    """(kp, kd) of a dof's position / velocity drive, (0, 0) if it has none that acts."""
+    if effort_limit <= 0.0:
         return 0.0, 0.0
     if mode == DRIVE_POSITION:
-        return drives.stiffness[i], drives.damping[i]
+        return stiffness, damping
     if mode == DRIVE_VELOCITY:
-        return 0.0, drives.damping[i]
+        return 0.0, damping
     return 0.0, 0.0
 
 
 @njit
-def _drive_push(system, drives, i, kp, kd):
-    """kp (q* − q) + kd qd*: the drive's torque at zero end velocity, before the −(h kp + kd) qd⁺ term."""
-    push = kd * drives.target_velocity[i]
-    if kp > 0.0:
-        push += kp * (drives.target_position[i] - system.position[i])
-    return push
+def drive_terms(system, joints, drives):
+    """The :class:`DriveTerms` of every dof at the sub-step's start."""
+    n = len(system.velocity)
+    kp, kd, push, command = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+    for i in range(n):
+        kp[i], kd[i] = _drive_gains(drives.mode[i], drives.stiffness[i], drives.damping[i], joints.effort_limit[i])
+        push[i] = kd[i] * drives.target_velocity[i]
+        if kp[i] > 0.0:
+            push[i] += kp[i] * (drives.target_position[i] - system.position[i])
+        if drives.mode[i] == DRIVE_EFFORT:
+            limit = joints.effort_limit[i]
+            command[i] = min(max(drives.target_effort[i], -limit), limit)
+    return DriveTerms(kp, kd, push, command)
 
 
 @njit
-def _effort_command(drives, joints, i):
-    """An effort drive's command clamped to ±effort_limit (0 for other modes)."""
-    if drives.mode[i] != DRIVE_EFFORT:
-        return 0.0
-    limit = joints.effort_limit[i]
-    return min(max(drives.target_effort[i], -limit), limit)
-
-
-@njit
-def implicit_drives(system, joints, drives, h, allowed):
+def implicit_drives(system, joints, terms, h, allowed):
     """The :class:`Implicit` solve A qd_free = M qd + h (τ − b + τ_effort + Kp (q* − q) + Kd qd*) with the
-    drives that do not saturate: solved with every acting drive that ``allowed`` (n,) bool lets in A, then again
-    without those whose torque exceeds their effort limit, until none more does."""
+    drives that do not saturate (``terms``: :class:`DriveTerms`): solved with every acting drive that ``allowed``
+    (n,) bool lets in A, then again without those whose torque exceeds their effort limit, until none more does."""
     M, n = system.mass_matrix, len(system.velocity)
     implicit = np.zeros(n, np.bool_)
     for i in range(n):
-        kp, kd = _drive_gains(drives, joints, i)
-        implicit[i] = (kp > 0.0 or kd > 0.0) and allowed[i]
+        implicit[i] = (terms.kp[i] > 0.0 or terms.kd[i] > 0.0) and allowed[i]
     base = np.zeros(n)
     for i in range(n):
         s = 0.0
         for k in range(n):
             s += M[i, k] * system.velocity[k]
-        base[i] = s + h * (system.applied[i] - system.bias[i] + _effort_command(drives, joints, i))
+        base[i] = s + h * (system.applied[i] - system.bias[i] + terms.command[i])
     while True:  # at most n + 1 passes: each but the last takes a drive out of A
         A = M.copy()
         rhs = base.copy()
         for i in range(n):
             A[i, i] += h * joints.damping[i]
             if implicit[i]:
-                kp, kd = _drive_gains(drives, joints, i)
+                kp, kd = terms.kp[i], terms.kd[i]
                 A[i, i] += h * kd + h * h * kp
-                rhs[i] += h * _drive_push(system, drives, i, kp, kd)
+                rhs[i] += h * terms.push[i]
         L = cholesky(A)
         v = cholesky_solve(L, rhs)
         saturated = False
         for i in range(n):
             if implicit[i]:
-                kp, kd = _drive_gains(drives, joints, i)
-                torque = _drive_push(system, drives, i, kp, kd) - (h * kp + kd) * v[i]
+                torque = terms.push[i] - (h * terms.kp[i] + terms.kd[i]) * v[i]
                 if abs(torque) > joints.effort_limit[i] * (1.0 + 1e-12):
                     implicit[i] = False
                     saturated = True
@@ -418,12 +430,11 @@ def implicit_drives(system, joints, drives, h, allowed):
 
 
 @njit
-def _count_rows(joints, drives, implicit, n_contacts):
+def _count_rows(joints, terms, implicit, n_contacts):
     n = len(implicit)
     count = len(joints.mimic_follower) + len(joints.equality_error) + 3 * n_contacts
     for i in range(n):
-        kp, kd = _drive_gains(drives, joints, i)
-        if (kp > 0.0 or kd > 0.0) and not implicit[i]:
+        if (terms.kp[i] > 0.0 or terms.kd[i] > 0.0) and not implicit[i]:
             count += 1
         if joints.friction[i] > 0.0:
             count += 1
@@ -440,47 +451,51 @@ def _count_rows(joints, drives, implicit, n_contacts):
 def _empty_rows(R, n):
     return JointRows(np.zeros(R, np.int64), np.zeros(R, np.int64), np.zeros((R, n)), np.zeros((R, n)),
                      np.full(R, -1, np.int64), np.zeros((R, 6)), np.zeros((R, 6)), np.zeros(R), np.zeros(R),
-                     np.zeros(R), np.zeros(R), np.zeros(R), np.zeros(R), np.zeros(R))
+                     np.zeros(R), np.zeros(R), np.zeros(R), np.zeros(R), np.zeros(R), np.full(R, -1, np.int64))
 
 
 @njit
-def _dof_row(rows, r, kind, index, dof, sign):
-    """Row r: kind, key, J = sign · e_dof (bounds and target left to the caller)."""
-    rows.kind[r] = kind
-    rows.key[r] = kind * KEY_SLOTS + index
-    rows.J[r, dof] = sign
+def _dof_row(kinds, keys, dofs, J, r, kind, index, dof, sign):
+    """Row r (of the rows' ``kind``, ``key``, ``dof`` and ``J`` arrays: not the bundle, see :class:`DriveTerms`):
+    kind, key, J = sign · e_dof (bounds and target left to the caller)."""
+    kinds[r] = kind
+    keys[r] = kind * KEY_SLOTS + index
+    dofs[r] = dof
+    J[r, dof] = sign
 
 
 @njit
-def _joint_rows(system, joints, drives, implicit, rows, h):
+def _joint_rows(system, joints, terms, implicit, rows, h):
     """Fill the joint's own rows (drive, friction, velocity limit, mimic, limit) from row 0; returns the next."""
     n = len(implicit)
+    kinds, keys, dofs, J = rows.kind, rows.key, rows.dof, rows.J
     r = 0
     for i in range(n):  # saturated drives: soft rows with the drive's softness, |λ| ≤ h effort_limit
-        kp, kd = _drive_gains(drives, joints, i)
+        kp, kd = terms.kp[i], terms.kd[i]
         if (kp > 0.0 or kd > 0.0) and not implicit[i]:
-            _dof_row(rows, r, ROW_DRIVE, i, i, 1.0)
+            _dof_row(kinds, keys, dofs, J, r, ROW_DRIVE, i, i, 1.0)
             gamma = 1.0 / (h * kd + h * h * kp)
             rows.softness[r] = gamma
-            rows.target[r] = gamma * h * _drive_push(system, drives, i, kp, kd)
+            rows.target[r] = gamma * h * terms.push[i]
             rows.lower[r], rows.upper[r] = -h * joints.effort_limit[i], h * joints.effort_limit[i]
             r += 1
     for i in range(n):
         if joints.friction[i] > 0.0:
-            _dof_row(rows, r, ROW_FRICTION, i, i, 1.0)
+            _dof_row(kinds, keys, dofs, J, r, ROW_FRICTION, i, i, 1.0)
             rows.lower[r], rows.upper[r] = -h * joints.friction[i], h * joints.friction[i]
             r += 1
     for i in range(n):
         vmax = joints.velocity_limit[i]
         if vmax > 0.0 and vmax < np.inf:
             for side in range(2):  # qd ≥ −vmax, then −qd ≥ −vmax
-                _dof_row(rows, r, ROW_VELOCITY_LIMIT, 2 * i + side, i, 1.0 - 2.0 * side)
+                _dof_row(kinds, keys, dofs, J, r, ROW_VELOCITY_LIMIT, 2 * i + side, i, 1.0 - 2.0 * side)
                 rows.target[r], rows.upper[r] = -vmax, np.inf
                 r += 1
     for j in range(len(joints.mimic_follower)):
         f, lead, mult = joints.mimic_follower[j], joints.mimic_leader[j], joints.mimic_multiplier[j]
-        _dof_row(rows, r, ROW_MIMIC, j, f, 1.0)
-        rows.J[r, lead] -= mult
+        _dof_row(kinds, keys, dofs, J, r, ROW_MIMIC, j, f, 1.0)
+        J[r, lead] -= mult
+        dofs[r] = -1  # two dofs: not a unit row
         rows.lower[r], rows.upper[r] = -np.inf, np.inf
         rows.error[r] = system.position[f] - mult * system.position[lead] - joints.mimic_offset[j]
         r += 1
@@ -490,7 +505,7 @@ def _joint_rows(system, joints, drives, implicit, rows, h):
             if bound == np.inf or bound == -np.inf or bound != bound:
                 continue
             sign = 1.0 - 2.0 * side
-            _dof_row(rows, r, ROW_LIMIT, 2 * i + side, i, sign)
+            _dof_row(kinds, keys, dofs, J, r, ROW_LIMIT, 2 * i + side, i, sign)
             gap = sign * (system.position[i] - bound)
             rows.error[r] = gap
             rows.target[r] = -max(gap, 0.0) / h
@@ -537,20 +552,37 @@ def _contact_rows(contacts, bodies, rows, first, h):
 
 
 @njit
-def prepare_joints(system, joints, drives, contacts, bodies, h, allowed):
-    """Box2D's prepare stage in joint space: the :class:`Implicit` solve (drives ``allowed`` in A, (n,) bool) and
-    the sub-step's :class:`JointRows` with A⁻¹ Jᵀ and their effective masses."""
-    implicit = implicit_drives(system, joints, drives, h, allowed)
+def prepare_joints(system, joints, terms, contacts, bodies, h, allowed):
+    """Box2D's prepare stage in joint space: the :class:`Implicit` solve (drives ``allowed`` in A, (n,) bool;
+    ``terms``: :class:`DriveTerms`) and the sub-step's :class:`JointRows` with A⁻¹ Jᵀ and their effective masses."""
+    implicit = implicit_drives(system, joints, terms, h, allowed)
     n = len(system.velocity)
-    rows = _empty_rows(_count_rows(joints, drives, implicit.implicit, len(contacts.key)), n)
-    first = _joint_rows(system, joints, drives, implicit.implicit, rows, h)
+    rows = _empty_rows(_count_rows(joints, terms, implicit.implicit, len(contacts.key)), n)
+    first = _joint_rows(system, joints, terms, implicit.implicit, rows, h)
     _contact_rows(contacts, bodies, rows, first, h)
+    # A⁻¹ e_i once per dof (column i of `unit`, solved at its first row): the rows of one dof (a drive, its
+    # friction, two velocity limits, two limits) share it, J = ±e_i giving ±A⁻¹ e_i exactly (rounding is
+    # symmetric in sign)
+    unit = np.zeros((n, n))
+    solved = np.zeros(n, np.bool_)
+    e = np.zeros(n)
     for r in range(len(rows.kind)):
-        w = cholesky_solve(implicit.factor, rows.J[r])
+        i = rows.dof[r]
+        if i < 0:
+            w = cholesky_solve(implicit.factor, rows.J[r])
+            for c in range(n):
+                rows.W[r, c] = w[c]
+        else:
+            if not solved[i]:
+                e[:] = 0.0
+                e[i] = 1.0
+                unit[i] = cholesky_solve(implicit.factor, e)
+                solved[i] = True
+            for c in range(n):  # (written in place: a temporary per row costs more than the products)
+                rows.W[r, c] = unit[i, c] * rows.J[r, i]
         k = 0.0
         for i in range(n):
-            rows.W[r, i] = w[i]
-            k += rows.J[r, i] * w[i]
+            k += rows.J[r, i] * rows.W[r, i]
         for i in range(6):
             k += rows.Jb[r, i] * rows.Wb[r, i]
         rows.stiff[r] = k
@@ -561,25 +593,26 @@ def prepare_joints(system, joints, drives, contacts, bodies, h, allowed):
 # ---- 2.–3. warm start and the sweeps -------------------------------------------------------------------------
 
 @njit
-def _row_velocity(rows, r, v, V):
+def _row_velocity(J, Jb, b, r, v, V):
+    """Row r's velocity J v (+ J_b V of its free body ``b``, −1: none) (the rows' arrays, not the bundle: see
+    :class:`DriveTerms`)."""
     s = 0.0
     for i in range(len(v)):
-        s += rows.J[r, i] * v[i]
-    b = rows.body[r]
+        s += J[r, i] * v[i]
     if b >= 0:
         for k in range(6):
-            s += rows.Jb[r, k] * V[b, k]
+            s += Jb[r, k] * V[b, k]
     return s
 
 
 @njit
-def _apply_row(rows, r, delta, v, V):
+def _apply_row(W, Wb, b, r, delta, v, V):
+    """Row r's impulse change ``delta`` applied to v (and to its free body ``b``'s V)."""
     for i in range(len(v)):
-        v[i] += rows.W[r, i] * delta
-    b = rows.body[r]
+        v[i] += W[r, i] * delta
     if b >= 0:
         for k in range(6):
-            V[b, k] += rows.Wb[r, k] * delta
+            V[b, k] += Wb[r, k] * delta
 
 
 @njit
@@ -598,17 +631,18 @@ def warm_start_joints(rows, memory, v, V, warm_start):
                 lam[r] = min(max(lam[r], rows.lower[r]), rows.upper[r])
     for r in range(R):
         if rows.kind[r] == ROW_TANGENT and (r + 1 < R and rows.kind[r + 1] == ROW_TANGENT):
-            _clamp_cone(rows, r, lam)
+            _clamp_cone(rows.upper[r], r, lam)
     for r in range(R):
         if lam[r] != 0.0:
-            _apply_row(rows, r, lam[r], v, V)
+            _apply_row(rows.W, rows.Wb, rows.body[r], r, lam[r], v, V)
     return lam
 
 
 @njit
-def _clamp_cone(rows, r, lam):
-    """Clamp the tangent pair (r, r + 1) to |λ_t| ≤ μ λₙ (the normal is row r + 2, μ in the pair's upper)."""
-    limit = rows.upper[r] * lam[r + 2]
+def _clamp_cone(friction, r, lam):
+    """Clamp the tangent pair (r, r + 1) to |λ_t| ≤ μ λₙ (the normal is row r + 2, μ = ``friction``: the pair's
+    upper bound)."""
+    limit = friction * lam[r + 2]
     norm = math.sqrt(lam[r] * lam[r] + lam[r + 1] * lam[r + 1])
     if norm > limit:
         scale = limit / norm if norm > 0.0 else 0.0
@@ -620,6 +654,7 @@ def _clamp_cone(rows, r, lam):
 def solve_joints(rows, lam, v, V, settings):
     """Projected Gauss–Seidel over the rows, in place on λ, v, V; returns the sweeps run."""
     R = len(rows.kind)
+    J, W, Jb, Wb, body = rows.J, rows.W, rows.Jb, rows.Wb, rows.body
     sweeps = 0
     for _ in range(settings.velocity_iterations):
         sweeps += 1
@@ -627,22 +662,24 @@ def solve_joints(rows, lam, v, V, settings):
         r = 0
         while r < R:
             if rows.kind[r] == ROW_TANGENT:  # t₁ and t₂ of a point together, clamped to its cone
-                d1 = rows.eff[r] * (rows.target[r] - _row_velocity(rows, r, v, V))
-                d2 = rows.eff[r + 1] * (rows.target[r + 1] - _row_velocity(rows, r + 1, v, V))
+                b = body[r]
+                d1 = rows.eff[r] * (rows.target[r] - _row_velocity(J, Jb, b, r, v, V))
+                d2 = rows.eff[r + 1] * (rows.target[r + 1] - _row_velocity(J, Jb, b, r + 1, v, V))
                 old1, old2 = lam[r], lam[r + 1]
                 lam[r], lam[r + 1] = old1 + d1, old2 + d2
-                _clamp_cone(rows, r, lam)
+                _clamp_cone(rows.upper[r], r, lam)
                 d1, d2 = lam[r] - old1, lam[r + 1] - old2
-                _apply_row(rows, r, d1, v, V)
-                _apply_row(rows, r + 1, d2, v, V)
+                _apply_row(W, Wb, b, r, d1, v, V)
+                _apply_row(W, Wb, b, r + 1, d2, v, V)
                 change = max(change, abs(d1) * rows.stiff[r], abs(d2) * rows.stiff[r + 1])
                 r += 2
                 continue
-            delta = rows.eff[r] * (rows.target[r] - _row_velocity(rows, r, v, V) - rows.softness[r] * lam[r])
+            b = body[r]
+            delta = rows.eff[r] * (rows.target[r] - _row_velocity(J, Jb, b, r, v, V) - rows.softness[r] * lam[r])
             old = lam[r]
             lam[r] = min(max(old + delta, rows.lower[r]), rows.upper[r])
             delta = lam[r] - old
-            _apply_row(rows, r, delta, v, V)
+            _apply_row(W, Wb, b, r, delta, v, V)
             change = max(change, abs(delta) * (rows.stiff[r] + rows.softness[r]))
             r += 1
         if change <= settings.velocity_tolerance:
@@ -651,14 +688,13 @@ def solve_joints(rows, lam, v, V, settings):
 
 
 @njit
-def saturated_by_rows(system, joints, drives, implicit, v, h, allowed):
+def saturated_by_rows(joints, terms, implicit, v, h, allowed):
     """Whether a drive left in A has a torque beyond its effort limit at the solved velocity v (n,); such drives
     are taken out of ``allowed`` (in place)."""
     found = False
     for i in range(len(v)):
         if implicit.implicit[i]:
-            kp, kd = _drive_gains(drives, joints, i)
-            torque = _drive_push(system, drives, i, kp, kd) - (h * kp + kd) * v[i]
+            torque = terms.push[i] - (h * terms.kp[i] + terms.kd[i]) * v[i]
             if abs(torque) > joints.effort_limit[i] * (1.0 + 1e-9):
                 allowed[i] = False
                 found = True
@@ -668,12 +704,11 @@ def saturated_by_rows(system, joints, drives, implicit, v, h, allowed):
 # ---- 4. the position stage -----------------------------------------------------------------------------------
 
 @njit
-def _positional(rows, r):
-    """Whether row r takes part in the position stage: limits, mimics, equalities, normals against the static
-    world."""
-    kind = rows.kind[r]
+def _positional(kind, body):
+    """Whether a row of ``kind`` (and free ``body``, −1: none) takes part in the position stage: limits, mimics,
+    equalities, normals against the static world."""
     return (kind == ROW_LIMIT or kind == ROW_MIMIC or kind == ROW_EQUALITY
-            or (kind == ROW_NORMAL and rows.body[r] < 0))
+            or (kind == ROW_NORMAL and body < 0))
 
 
 @njit
@@ -686,7 +721,7 @@ def relax_positions(rows, v, settings):
     goal = np.zeros(R)
     lam = np.zeros(R)
     for r in range(R):
-        if _positional(rows, r):
+        if _positional(rows.kind[r], rows.body[r]):
             predicted = rows.error[r]
             for i in range(n):
                 predicted += h * rows.J[r, i] * v[i]
@@ -698,7 +733,7 @@ def relax_positions(rows, v, settings):
     for _ in range(settings.position_iterations):
         change = 0.0
         for r in range(R):
-            if not _positional(rows, r) or rows.stiff[r] <= 0.0:
+            if not _positional(rows.kind[r], rows.body[r]) or rows.stiff[r] <= 0.0:
                 continue
             s = 0.0
             for i in range(n):
@@ -720,16 +755,15 @@ def relax_positions(rows, v, settings):
 # ---- 5. store: impulses to the free bodies, the effort, the memory -------------------------------------------
 
 @njit
-def store_joints(system, joints, drives, implicit, rows, lam, v, bodies, h):
+def store_joints(joints, terms, implicit, rows, lam, v, bodies, h):
     """Adds the contact rows' impulses to the free bodies' momenta (in place); returns the effort (n,) (see the
     module docstring), the contact impulses (c, 3) and the new :class:`JointSolverMemory`."""
     n, R = len(v), len(rows.kind)
     effort = np.zeros(n)
     for i in range(n):
-        effort[i] = _effort_command(drives, joints, i) - joints.damping[i] * v[i]
+        effort[i] = terms.command[i] - joints.damping[i] * v[i]
         if implicit.implicit[i]:
-            kp, kd = _drive_gains(drives, joints, i)
-            effort[i] += _drive_push(system, drives, i, kp, kd) - (h * kp + kd) * v[i]
+            effort[i] += terms.push[i] - (h * terms.kp[i] + terms.kd[i]) * v[i]
     n_joint_rows = 0  # rows before the contacts: the joint's own and the equalities
     for r in range(R):
         if rows.kind[r] < ROW_TANGENT:
@@ -767,8 +801,9 @@ def step_joints(system, joints, drives, contacts, bodies, memory, settings, prof
     allowed = np.ones(n, np.bool_)
     sweeps = 0
     start = clock()
+    terms = drive_terms(system, joints, drives)
     while True:  # at most n + 1 passes: each but the last takes a drive out of A
-        implicit, rows = prepare_joints(system, joints, drives, contacts, bodies, h, allowed)
+        implicit, rows = prepare_joints(system, joints, terms, contacts, bodies, h, allowed)
         v = implicit.velocity.copy()
         V = bodies.velocity.copy()
         start = lap(profile, PREPARE, start)
@@ -778,14 +813,14 @@ def step_joints(system, joints, drives, contacts, bodies, memory, settings, prof
         start = lap(profile, SOLVE, start)
         # the rows may have held a drive back (a contact, a limit): one whose torque now exceeds its limit is
         # taken out of A and the sub-step solved again with it as a clamped row
-        if not saturated_by_rows(system, joints, drives, implicit, v, h, allowed):
+        if not saturated_by_rows(joints, terms, implicit, v, h, allowed):
             break
     for b in range(len(V)):
         for k in range(6):
             bodies.velocity[b, k] = V[b, k]
     pseudo = relax_positions(rows, v, settings)
     start = lap(profile, RELAX, start)
-    effort, impulse, memory = store_joints(system, joints, drives, implicit, rows, lam, v, bodies, h)
+    effort, impulse, memory = store_joints(joints, terms, implicit, rows, lam, v, bodies, h)
     lap(profile, STORE, start)
     return JointStep(v, pseudo, effort, impulse, sweeps), memory
 
@@ -897,52 +932,130 @@ __all__ = ["DRIVE_EFFORT", "DRIVE_NONE", "DRIVE_POSITION", "DRIVE_VELOCITY", "ST
 
 # ---- many robots in one call ----------------------------------------------------------------------------------
 
-class RobotLists(NamedTuple):
-    """Every robot's bundles, one list entry per robot (``numba.typed.List`` of plain tuples; a Python list with
-    the JIT off)."""
+class RobotStack(NamedTuple):
+    """Every robot's bundles in one, each array the robots' side by side (concatenated along axis 0; robot ``k``'s
+    part at its :class:`~cgp_core.robots.model.RobotStarts`): what :func:`step_lone_robots` takes.  Why not a list
+    of per-robot bundles: numba's dispatcher types a ``numba.typed.List`` of tuples in Python and hashes its nested
+    type at every call (~41 µs a call, measured with numba 0.68), plain tuples of arrays in C (~0.1 µs an array);
+    robot ``k``'s bundles are views taken inside the compiled call (:func:`robot_properties`, ...)."""
 
-    models: list       # :class:`~cgp_core.robots.model.RobotArrays`
-    properties: list   # :class:`JointProperties`
-    drives: list       # :class:`JointDrives` (views of the world's drive arrays)
-    memories: list     # :class:`JointSolverMemory` (replaced by each step)
+    models: tuple      # RobotArrays stacked (cgp_core.robots.model.stack_robot_arrays)
+    properties: tuple  # JointProperties: the per-dof fields at starts.dof, mimic_* at starts.mimic, equality_error
+    #                    at starts.equality, equality_jacobian flattened to (Σ e_k n_k,) at starts.equality_entry
+    #                    (robot k's (e_k, n_k) rows, row-major)
+    drives: tuple      # JointDrives of every dof ((n_dofs,) each: the world's drive arrays)
+
+
+class RobotMemories(NamedTuple):
+    """Every robot's :class:`JointSolverMemory` side by side (``W`` rows in all)."""
+
+    key: np.ndarray      # (W,) int64 robot k's keys at start[k] … start[k + 1], ascending within each robot
+    impulse: np.ndarray  # (W,) their accumulated impulses [N m s / N s]
+    start: np.ndarray    # (robots + 1,) int64
+
+    @staticmethod
+    def empty(robots: int) -> RobotMemories:
+        return RobotMemories(np.zeros(0, np.int64), np.zeros(0), np.zeros(robots + 1, np.int64))
 
 
 class RobotsState(NamedTuple):
-    """All robots' joint-space arrays side by side (robot ``k``'s at its offsets)."""
+    """All robots' joint-space arrays side by side (robot ``k``'s at its starts)."""
 
     q: np.ndarray           # (n_q,) positions
     qd: np.ndarray          # (n_dofs,) velocities (written: q̇ after the sub-step)
     applied: np.ndarray     # (n_dofs,) applied joint efforts (wrench commands as Jᵀ F) [N m / N]
     pseudo: np.ndarray      # (n_dofs,) the position stage's pseudo-velocity (written)
     effort_sum: np.ndarray  # (n_dofs,) the joints' efforts summed over the tick's sub-steps (added to)
+    q_of_dof: np.ndarray    # (n_dofs,) int64 each 1-dof joint's position index within its robot (−1: none)
 
 
-class RobotOffsets(NamedTuple):
-    """Where robot ``k``'s part starts in the side-by-side arrays."""
+def stack_properties(properties: list) -> tuple[JointProperties, np.ndarray, np.ndarray, np.ndarray]:
+    """Every robot's :class:`JointProperties` (each with its equality arrays) stacked as :attr:`RobotStack.properties`
+    says, with the starts of its mimic couplings, equality rows and equality Jacobian entries ((robots + 1,) int64
+    each)."""
+    fields = [np.concatenate([getattr(p, name) for p in properties]) for name in JointProperties._fields[:10]]
+    jacobian = np.concatenate([p.equality_jacobian.reshape(-1) for p in properties])
+    error = np.concatenate([p.equality_error for p in properties])
 
-    q_start: np.ndarray    # (robots + 1,) int64 in q
-    dof_start: np.ndarray  # (robots + 1,) int64 in qd
-    q_of_dof: np.ndarray   # (n_dofs,) int64 each 1-dof joint's position index within its robot (−1: none)
+    def starts(sizes):
+        return np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
+
+    return (JointProperties(*(np.ascontiguousarray(f) for f in fields), np.ascontiguousarray(jacobian, float),
+                            np.ascontiguousarray(error, float)),
+            starts([len(p.mimic_follower) for p in properties]), starts([len(p.equality_error) for p in properties]),
+            starts([p.equality_jacobian.size for p in properties]))
 
 
 @njit
-def step_lone_robots(which, robots, state, offsets, gravity, settings, profile):
+def robot_properties(properties, starts, k):
+    """Robot ``k``'s :class:`JointProperties` as views into the stacked ones (:attr:`RobotStack.properties`)."""
+    p = JointProperties(*properties)
+    d0, d1 = starts.dof[k], starts.dof[k + 1]
+    m0, m1 = starts.mimic[k], starts.mimic[k + 1]
+    e0, e1 = starts.equality[k], starts.equality[k + 1]
+    jacobian = p.equality_jacobian[starts.equality_entry[k]:starts.equality_entry[k + 1]].reshape((e1 - e0, d1 - d0))
+    return JointProperties(p.lower[d0:d1], p.upper[d0:d1], p.effort_limit[d0:d1], p.velocity_limit[d0:d1],
+                           p.damping[d0:d1], p.friction[d0:d1], p.mimic_follower[m0:m1], p.mimic_leader[m0:m1],
+                           p.mimic_multiplier[m0:m1], p.mimic_offset[m0:m1], jacobian, p.equality_error[e0:e1])
+
+
+@njit
+def robot_drives(drives, starts, k):
+    """Robot ``k``'s :class:`JointDrives` as views into every dof's."""
+    d = JointDrives(*drives)
+    d0, d1 = starts.dof[k], starts.dof[k + 1]
+    return JointDrives(d.mode[d0:d1], d.target_position[d0:d1], d.target_velocity[d0:d1], d.target_effort[d0:d1],
+                       d.stiffness[d0:d1], d.damping[d0:d1])
+
+
+@njit
+def robot_memory(memories, k):
+    """Robot ``k``'s :class:`JointSolverMemory` as views into :class:`RobotMemories`."""
+    a, b = memories.start[k], memories.start[k + 1]
+    return JointSolverMemory(memories.key[a:b], memories.impulse[a:b])
+
+
+@njit
+def replace_memories(memories, stepped, fresh):
+    """New :class:`RobotMemories`: robot ``k``'s is ``fresh[stepped[k]]`` (a :class:`JointSolverMemory`), or its
+    old one where ``stepped[k]`` (robots,) int64 is −1."""
+    count = len(memories.start) - 1
+    start = np.zeros(count + 1, np.int64)
+    for k in range(count):
+        size = memories.start[k + 1] - memories.start[k] if stepped[k] < 0 else len(fresh[stepped[k]].key)
+        start[k + 1] = start[k] + size
+    key, impulse = np.empty(start[count], np.int64), np.empty(start[count])
+    for k in range(count):
+        memory = robot_memory(memories, k) if stepped[k] < 0 else fresh[stepped[k]]
+        for i in range(len(memory.key)):
+            key[start[k] + i] = memory.key[i]
+            impulse[start[k] + i] = memory.impulse[i]
+    return RobotMemories(key, impulse, start)
+
+
+@njit
+def step_lone_robots(which, stack, memories, state, starts, gravity, settings, profile):
     """One sub-step of the robots ``which`` (int64 indices) that touch nothing this sub-step, in one compiled call
     (what :meth:`cgp_core.robots.world.Robots.solve` does per robot from Python, without the Python): per robot
     ``k`` its M and bias (:func:`~cgp_core.robots.algorithms.joint_space_terms`), :func:`step_joints` without
     contact rows, q̇ written into ``qd``, the pseudo-velocity into ``pseudo``, the effort added to
-    ``effort_sum``, the new warm-start memory into ``memories[k]``.  Bundles as plain tuples:
-    :class:`RobotLists`, :class:`RobotsState`, :class:`RobotOffsets`."""
-    models, properties, drives, memories = robots
-    q, qd, applied, pseudo, effort_sum = state
-    q_start, dof_start, q_of_dof = offsets
+    ``effort_sum``.  Bundles as plain tuples: :class:`RobotStack`, :class:`RobotMemories`, :class:`RobotsState`,
+    :class:`~cgp_core.robots.model.RobotStarts`.  Returns the new :class:`RobotMemories` (the robots not stepped
+    keep theirs)."""
+    models, properties, drives = stack
+    memories = RobotMemories(*memories)
+    q, qd, applied, pseudo, effort_sum, q_of_dof = state
+    starts = RobotStarts(*starts)
+    stepped = np.full(len(starts.body) - 1, -1, np.int64)  # robot k's entry in `fresh`, −1: not stepped
+    bodies = (np.zeros(0), np.zeros((0, 3, 3)), np.zeros((0, 6)), np.zeros((0, 3)), np.zeros((0, 3)))  # none touched
+    fresh = []
     for w in range(len(which)):
         k = which[w]
-        qs, qe, ds, de = q_start[k], q_start[k + 1], dof_start[k], dof_start[k + 1]
+        qs, qe, ds, de = starts.q[k], starts.q[k + 1], starts.dof[k], starts.dof[k + 1]
         n = de - ds
         qk = q[qs:qe].copy()
         qdk = qd[ds:de].copy()
-        M, bias = joint_space_terms(models[k], qk, qdk, gravity)
+        M, bias = joint_space_terms(robot_view(models, starts, k), qk, qdk, gravity)
         coordinate = np.zeros(n)
         for i in range(n):
             j = q_of_dof[ds + i]
@@ -951,11 +1064,14 @@ def step_lone_robots(which, robots, state, offsets, gravity, settings, profile):
         system = (M, bias, applied[ds:de].copy(), coordinate, qdk)
         contacts = (np.zeros((0, 3, n)), np.zeros(0, np.int64), np.zeros((0, 3, 6)), np.zeros(0), np.zeros(0),
                     np.zeros(0, np.int64))
-        bodies = (np.zeros(0), np.zeros((0, 3, 3)), np.zeros((0, 6)), np.zeros((0, 3)), np.zeros((0, 3)))
-        step, memory = step_joints(system, properties[k], drives[k], contacts, bodies, memories[k], settings,
-                                   profile)
-        memories[k] = (memory.key, memory.impulse)
+        step, memory = step_joints(system, robot_properties(properties, starts, k), robot_drives(drives, starts, k),
+                                   contacts, bodies, robot_memory(memories, k), settings, profile)
+        stepped[k] = len(fresh)
+        fresh.append(memory)
         for i in range(n):
             qd[ds + i] = step.velocity[i]
             pseudo[ds + i] = step.pseudo_velocity[i]
             effort_sum[ds + i] += step.effort[i]
+    if len(fresh) == 0:
+        return memories
+    return replace_memories(memories, stepped, fresh)

@@ -212,6 +212,29 @@ class RobotArrays(NamedTuple):
     n_q: int
 
 
+class RobotStarts(NamedTuple):
+    """Where robot ``k``'s part is in arrays holding every robot's side by side (concatenated along axis 0, CSR
+    style): rows ``start[k]`` … ``start[k + 1]``.  Each (robots + 1,) int64, the last entry the total."""
+
+    body: np.ndarray            # bodies (one joint each): the per-body fields of RobotArrays
+    frame: np.ndarray           # frames (every URDF link): frame_body, frame_rotation, frame_position
+    dof: np.ndarray             # velocities: qd, dof_body, the joint solver's per-dof properties and drives
+    q: np.ndarray               # positions
+    mimic: np.ndarray           # mimic couplings
+    equality: np.ndarray        # the joint solver's equality rows (loop closures)
+    equality_entry: np.ndarray  # entries of the flattened (e, n_dofs) equality Jacobians
+
+
+def stack_robot_arrays(bundles: list) -> RobotArrays:
+    """Every robot's :class:`RobotArrays` in one bundle: each array field concatenated along axis 0 (robot ``k``'s
+    rows at its :class:`RobotStarts`; :func:`cgp_core.robots.algorithms.robot_view` takes them out again), the index
+    fields (parent, dof_start, q_start, frame_body, dof_body) left each robot's own; n_dofs and n_q the totals.
+    ``bundles``: one RobotArrays (or plain tuple) per robot, at least one."""
+    arrays = len(RobotArrays._fields) - 2  # all but n_dofs, n_q
+    fields = [np.ascontiguousarray(np.concatenate([b[i] for b in bundles])) for i in range(arrays)]
+    return RobotArrays(*fields, int(sum(b[-2] for b in bundles)), int(sum(b[-1] for b in bundles)))
+
+
 def plane_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The in-plane directions ``(u, v)`` of a planar joint with unit normal ``axis`` (3,): ``u`` is the coordinate
     axis least aligned with ``axis`` (the first of equals) made orthogonal to it, ``v = axis × u``; for axis z:

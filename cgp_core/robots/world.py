@@ -60,7 +60,15 @@ from .joint_solver import (
     ROW_VELOCITY_LIMIT,
 )
 from .links import link_body_specs, link_name
-from .model import JOINT_FIXED_ROOT, JOINT_FLOATING, JOINT_PRISMATIC, JOINT_REVOLUTE, neutral_positions
+from .model import (
+    JOINT_FIXED_ROOT,
+    JOINT_FLOATING,
+    JOINT_PRISMATIC,
+    JOINT_REVOLUTE,
+    RobotStarts,
+    neutral_positions,
+    stack_robot_arrays,
+)
 
 
 class RobotInstance:
@@ -140,19 +148,23 @@ def place_root(model, rotation: np.ndarray, position: np.ndarray):
 _NO_ROTATION = np.zeros((0, 3, 3))
 
 
-def _kernel_list(items: list):
-    """``items`` (plain tuples of one type) as the list a compiled kernel takes: a ``numba.typed.List`` (a Python
-    list with the JIT off; an empty list stays a Python list: nothing is stepped from it)."""
-    from ..jit import JIT_DISABLED
+class _Poses:
+    """Every robot's body poses side by side, ``rotation`` (B, 3, 3) and ``position`` (B, 3) [m], robot ``k``'s at
+    rows ``start[k]`` …; ``poses[k]`` is its ``(rotation, position)`` as views, made when asked (slicing them for
+    every robot every sub-step cost ~30 µs at 64 robots, and most sub-steps ask for none)."""
 
-    if JIT_DISABLED or not items:
-        return list(items)
-    from numba.typed import List
+    def __init__(self, rotation: np.ndarray, position: np.ndarray, start: np.ndarray):
+        self.rotation, self.position, self.start = rotation, position, start
 
-    out = List()
-    for item in items:
-        out.append(item)
-    return out
+    def __len__(self) -> int:
+        return len(self.start) - 1
+
+    def __getitem__(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        a, b = self.start[k], self.start[k + 1]
+        return self.rotation[a:b], self.position[a:b]
+
+    def __iter__(self):
+        return (self[k] for k in range(len(self)))
 
 
 def _islands(count: int, robot_a: np.ndarray, robot_b: np.ndarray) -> tuple[np.ndarray, list[list[int]]]:
@@ -264,14 +276,23 @@ class Robots:
         self.body_link = np.zeros(0, np.int64)
         self._tally = None  # the contact report's sums over the tick (start_report ... finish_report)
         # the robots that touch nothing in a sub-step are stepped in one compiled call (joint_solver.
-        # step_lone_robots): their bundles as lists the kernel takes, their offsets in q / qd
-        self._q_start = np.array([r.q_slice.start for r in self.robots] + [self.n_q], np.int64)
-        self._dof_start = np.array([r.dof_slice.start for r in self.robots] + [self.n_dofs], np.int64)
+        # step_lone_robots), and all are integrated in one (algorithms.advance_all): every robot's arrays side by
+        # side (concatenated: no per-robot lists at the border, see joint_solver.RobotStack), robot k's part at
+        # its starts
+
+        def starts(sizes):
+            return np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
+
+        self._starts = RobotStarts(starts([r.model.n_bodies for r in self.robots]),
+                                   starts([len(r.arrays.frame_body) for r in self.robots]),
+                                   starts([r.model.n_dofs for r in self.robots]),
+                                   starts([r.model.n_q for r in self.robots]),
+                                   *(np.zeros(len(self.robots) + 1, np.int64) for _ in range(3)))  # _stack_properties
+        self._q_start, self._dof_start, self._body_start = self._starts.q, self._starts.dof, self._starts.body
         self._q_of_local = (np.concatenate([r.q_of_dof for r in self.robots]) if self.robots
                             else np.zeros(0, np.int64))
-        self._models = _kernel_list([r.kernel_arrays for r in self.robots])
-        self._body_start = np.cumsum([0] + [r.model.n_bodies for r in self.robots]).astype(np.int64)
-        self._property_list = _kernel_list([tuple(r.properties) for r in self.robots])
+        self._models = tuple(stack_robot_arrays([r.kernel_arrays for r in self.robots])) if self.robots else ()
+        self._stack_properties()
         #: the robots with loop closures (scene articulations): their equality rows change every sub-step
         self._looped = [k for k, r in enumerate(self.robots)
                         if r.spec.articulation is not None and r.spec.articulation.loops]
@@ -284,24 +305,48 @@ class Robots:
         self._joined = (np.zeros(0, np.int64), np.zeros(0, np.int64))
         self.reset()
 
-    _KERNEL_LISTS = ("_models", "_property_list", "_drive_list", "_memories")
-
     def __deepcopy__(self, memo):
-        """A copy (the node's warm-up steps a throwaway copy of the world): the compiled kernels' typed lists do
-        not copy, so they are built again from the copied robots; each robot's drives are views of the copied
-        :attr:`drives` again, as commands need."""
+        """A copy (the node's warm-up steps a throwaway copy of the world) whose robots' drives are views of the
+        copied :attr:`drives` again, as commands need (a deep copy of a view is no view)."""
         import copy
 
         new = type(self).__new__(type(self))
         memo[id(self)] = new
         for key, value in self.__dict__.items():
-            if key not in self._KERNEL_LISTS:
-                new.__dict__[key] = copy.deepcopy(value, memo)
-        new._models = _kernel_list([r.kernel_arrays for r in new.robots])
-        new._property_list = _kernel_list([tuple(r.properties) for r in new.robots])
-        new._memories = _kernel_list([tuple(copy.deepcopy(tuple(m), memo)) for m in self._memories])
+            new.__dict__[key] = copy.deepcopy(value, memo)
         new.drives = new._drives
         return new
+
+    def _stack_properties(self) -> None:
+        """Every robot's joint properties side by side, as :func:`~.joint_solver.step_lone_robots` takes them, and
+        the starts of their mimic couplings and equality rows (again whenever a robot's loop rows change)."""
+        from .joint_solver import stack_properties
+
+        if not self.robots:
+            self._properties = ()
+            return
+        properties, mimic, equality, entry = stack_properties([r.properties for r in self.robots])
+        self._properties = tuple(properties)
+        self._starts = self._starts._replace(mimic=mimic, equality=equality, equality_entry=entry)
+
+    def _memory(self, k: int):
+        """Robot ``k``'s warm-start memory (:class:`~.joint_solver.JointSolverMemory`, copies)."""
+        from .joint_solver import JointSolverMemory
+
+        a, b = self._memories.start[k], self._memories.start[k + 1]
+        return JointSolverMemory(self._memories.key[a:b].copy(), self._memories.impulse[a:b].copy())
+
+    def _set_memory(self, k: int, memory) -> None:
+        """Robot ``k``'s warm-start memory replaced (the others' kept; one concatenation of all)."""
+        from .joint_solver import RobotMemories
+
+        old = self._memories
+        parts = [(memory.key, memory.impulse) if j == k else
+                 (old.key[old.start[j]:old.start[j + 1]], old.impulse[old.start[j]:old.start[j + 1]])
+                 for j in range(len(self.robots))]
+        start = np.concatenate(([0], np.cumsum([len(key) for key, _ in parts]))).astype(np.int64)
+        self._memories = RobotMemories(np.concatenate([key for key, _ in parts]).astype(np.int64),
+                                       np.concatenate([impulse for _, impulse in parts]).astype(float), start)
 
     # ---- robots added and removed at run time (World.spawn / World.delete) ------------------------------------
 
@@ -408,6 +453,8 @@ class Robots:
         self._robot_rows = [np.flatnonzero(self.body_robot == k) for k in range(len(self.robots))]
         self._robot_links = [self.body_link[rows] for rows in self._robot_rows]
         self._all_rows = np.concatenate(self._robot_rows) if self.robots else np.zeros(0, np.int64)
+        #: (robots,) each robot's moving links
+        self._link_count = np.array([rows.size for rows in self._robot_rows], np.int64)
         #: each moving link's robot body in the robots' bodies side by side (advance_all's rows)
         self._all_link_index = (np.concatenate([self._body_start[k] + links for k, links in
                                                 enumerate(self._robot_links)]).astype(np.int64)
@@ -441,7 +488,9 @@ class Robots:
         active = self.active
         if active is None or not hasattr(self, "_robot_rows"):
             return np.zeros(len(self.robots), bool)
-        return np.array([rows.size > 0 and not active[rows].any() for rows in self._robot_rows], bool)
+        rows = self._all_rows
+        awake = np.bincount(self.body_robot[rows[active[rows]]], minlength=len(self.robots))
+        return (self._link_count > 0) & (awake == 0)
 
     def hold_sleeping(self, awake: np.ndarray) -> None:
         """After the islands' update: the robots whose links all fell asleep (``awake`` (n_bodies,) False) keep
@@ -468,9 +517,9 @@ class Robots:
         for r in self.robots:
             if r.solver is not None:
                 r.solver.reset()
-        from .joint_solver import JointSolverMemory
+        from .joint_solver import RobotMemories
 
-        self._memories = _kernel_list([tuple(JointSolverMemory.empty()) for _ in self.robots])
+        self._memories = RobotMemories.empty(len(self.robots))
         self.drives = self._initial_drives()
         self._wrench_torque = np.zeros(self.n_dofs)
         self._pseudo = np.zeros(self.n_dofs)
@@ -486,7 +535,6 @@ class Robots:
         self._drives = drives
         for r in self.robots:
             r.drives = tuple(a[r.dof_slice] for a in drives)
-        self._drive_list = _kernel_list([r.drives for r in self.robots])
 
     def _initial_drives(self):
         """Position drives holding the initial positions on every movable joint of a robot with ``hold``
@@ -544,6 +592,8 @@ class Robots:
         if not rows.size:
             return
         F, T = state.force[rows], state.torque[rows]
+        if not (F.any() or T.any()):  # no wrench on a link (the usual case)
+            return
         loaded = np.flatnonzero((F != 0.0).any(axis=1) | (T != 0.0).any(axis=1))
         for i in loaded:
             row = rows[i]
@@ -574,7 +624,8 @@ class Robots:
             jacobian = np.ascontiguousarray(np.vstack([j for j, _ in rows]))
             error = np.ascontiguousarray(np.concatenate([c for _, c in rows]))
             r.properties = r.properties._replace(equality_jacobian=jacobian, equality_error=error)
-            self._property_list[k] = tuple(r.properties)
+        if self._looped:
+            self._stack_properties()
 
     def loop_errors(self) -> dict[str, float]:
         """Every loop-closing joint's error |p_a − p_b| [m] at the current q, by joint name."""
@@ -590,7 +641,7 @@ class Robots:
     def solve(self, contacts, body_model, state, h: float, gravity, velocity, angular_velocity, inv_inertia):
         """The robot stage (module docstring, step 3): every robot, or island of robots whose links touch,
         solved on its own; returns the contacts left for the body solver."""
-        from .joint_solver import FreeBodies, JointSolver, JointSolverMemory, JointSystem
+        from .joint_solver import FreeBodies, JointSolver, JointSystem
 
         if contacts.count:
             a, b = contacts.body_a, contacts.body_b
@@ -608,12 +659,15 @@ class Robots:
         else:
             rest, chosen = contacts, np.zeros(0, np.int64)
         if self._h != h:  # a new sub-step length: new solvers, the warm-start memories kept
+            from .joint_solver import JointSettings
+
             for r in self.robots:
                 memory = r.solver.memory if r.solver is not None else None
                 r.solver = JointSolver(h, check=False)
                 if memory is not None:
                     r.solver.memory = memory
             self._h = h
+            self._settings = tuple(JointSettings.default(h))
         gravity = np.asarray(gravity, float)
         # which robot each chosen contact belongs to; robots joined by a link–link contact form an island
         owner = {}  # island root → its contacts (indices into ``contacts``, in the detector's order)
@@ -634,23 +688,26 @@ class Robots:
             r = self.robots[k]
             self.qd[r.dof_slice] = 0.0
             self._pseudo[r.dof_slice] = 0.0
-        lone = np.array([g[0] for g in groups if len(g) == 1 and (g[0] if root is None else int(root[g[0]]))
-                         not in owner and not sleeping[g[0]]], np.int64)
+        if root is None:  # no link touches anything (the usual case): every robot awake is stepped below
+            lone = np.flatnonzero(~sleeping)
+        else:
+            lone = np.array([g[0] for g in groups if len(g) == 1 and int(root[g[0]]) not in owner
+                             and not sleeping[g[0]]], np.int64)
         if lone.size:
-            from .joint_solver import JointSettings, step_lone_robots
+            from .joint_solver import RobotMemories, step_lone_robots
 
             if self._profile is None:
                 self._profile = self.robots[0].solver.profile
-            step_lone_robots(lone, (self._models, self._property_list, self._drive_list, self._memories),
-                             (self.q, self.qd, self._wrench_torque, self._pseudo, self._effort_sum),
-                             (self._q_start, self._dof_start, self._q_of_local), gravity,
-                             tuple(JointSettings.default(h)), self._profile.seconds)
+            self._memories = RobotMemories(*step_lone_robots(
+                lone, (self._models, self._properties, tuple(self._drives)), tuple(self._memories),
+                (self.q, self.qd, self._wrench_torque, self._pseudo, self._effort_sum, self._q_of_local),
+                tuple(self._starts), gravity, self._settings, self._profile.seconds))
             self._profile.calls += 1
         bodies = None
-        for group in groups:
-            if len(group) == 1 and (group[0] if root is None else int(root[group[0]])) not in owner:
+        for group in groups if root is not None else ():
+            if len(group) == 1 and int(root[group[0]]) not in owner:
                 continue  # stepped above (or asleep)
-            picked = owner.get(group[0] if root is None else int(root[group[0]]))
+            picked = owner.get(int(root[group[0]]))
             if picked is not None and picked.size:
                 selected = contacts.select(picked)
                 if bodies is None:
@@ -667,9 +724,9 @@ class Robots:
                 coordinate = np.where(r.has_coordinate, q[r.q_of_dof_clipped], 0.0)
                 system = JointSystem(M, bias, self._wrench_torque[r.dof_slice].copy(), coordinate, qd.copy())
                 rows = self._contact_rows(selected, body_model, state, {group[0]: 0}, r.model.n_dofs)
-                r.solver.memory = JointSolverMemory(*self._memories[group[0]])
+                r.solver.memory = self._memory(group[0])
                 step = r.solver.step(system, r.properties, r.drives, rows, use_bodies)
-                self._memories[group[0]] = tuple(r.solver.memory)
+                self._set_memory(group[0], r.solver.memory)
                 self._finish(group, step, rows, selected, state)
             else:
                 self._solve_island(group, selected, body_model, state, gravity, use_bodies)
@@ -692,7 +749,7 @@ class Robots:
     def _solve_island(self, group, selected, body_model, state, gravity, bodies) -> None:
         """Robots whose links touch each other in this sub-step: one joint-space system of all their dofs
         (block-diagonal M), their warm-start memories merged and split again."""
-        from .joint_solver import JointProperties, JointSolver, JointSolverMemory, JointSystem
+        from .joint_solver import JointProperties, JointSolver, JointSystem
 
         offsets, mimic_offsets, equality_offsets = {}, {}, {}
         n = k_mimic = k_equality = 0
@@ -725,7 +782,7 @@ class Robots:
         drives = tuple(np.concatenate([self.robots[k].drives[i] for k in group]) for i in range(6))
         rows = self._contact_rows(selected, body_model, state, offsets, n)
         solver = JointSolver(self._h, check=False)
-        solver.memory = _merge_memories([(JointSolverMemory(*self._memories[k]), offsets[k], mimic_offsets[k],
+        solver.memory = _merge_memories([(self._memory(k), offsets[k], mimic_offsets[k],
                                           equality_offsets[k]) for k in group])
         step = solver.step(JointSystem(M, bias, applied, coordinate, qd), properties, drives, rows, bodies)
         contact_robots = {}
@@ -737,9 +794,9 @@ class Robots:
                         contact_robots.setdefault(key, set()).add(int(self.body_robot[side]))
         for k in group:
             r = self.robots[k]
-            self._memories[k] = tuple(_split_memory(solver.memory, offsets[k], r.model.n_dofs, mimic_offsets[k],
-                                                    len(r.properties.mimic_follower), equality_offsets[k],
-                                                    len(r.properties.equality_error), k, contact_robots))
+            self._set_memory(k, _split_memory(solver.memory, offsets[k], r.model.n_dofs, mimic_offsets[k],
+                                              len(r.properties.mimic_follower), equality_offsets[k],
+                                              len(r.properties.equality_error), k, contact_robots))
             r.solver.profile.seconds += solver.profile.seconds / len(group)
         self._finish(group, step, rows, selected, state)
 
@@ -899,12 +956,9 @@ class Robots:
         rotation, position = np.empty((B, 3, 3)), np.empty((B, 3))
         linear, angular = np.empty((B, 3)), np.empty((B, 3))
         if self.robots:
-            algorithms.advance_all(self._models, self.q, moving, self.qd,
-                                   (self._q_start, self._dof_start, self._body_start), h,
+            algorithms.advance_all(self._models, tuple(self._starts), self.q, moving, self.qd, h,
                                    (rotation, position, linear, angular))
-        starts = self._body_start
-        self._poses = [(rotation[starts[k]:starts[k + 1]], position[starts[k]:starts[k + 1]])
-                       for k in range(len(self.robots))]
+        self._poses = _Poses(rotation, position, self._body_start)
         self._velocities = (rotation, position, linear, angular)
         if self._looped:
             self._project_loops()
@@ -950,9 +1004,7 @@ class Robots:
             rotation, position, linear, angular = flat
         if not rows.size:
             return
-        index = self._all_link_index
-        R, position, linear, angular = rotation[index], position[index], linear[index], angular[index]
-        algorithms.write_link_bodies(rows, (R, position, linear, angular),
+        algorithms.write_link_bodies(rows, self._all_link_index, (rotation, position, linear, angular),
                                      (self._all_com, self._all_mass_flat, self._all_inertia),
                                      (state.position, state.orientation,
                                       state.rotation if state.rotation is not None else _NO_ROTATION,
@@ -966,22 +1018,24 @@ class Robots:
         from ..limits import BLOWUP_SPEED, BLOWUP_SPIN
         from .joint_solver import JointSolverMemory
 
-        bad = []
-        rows_of = self._robot_rows if hasattr(self, "_robot_rows") else [np.zeros(0, np.int64)] * len(self.robots)
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            # every body's speed and spin once (the world's I⁻¹ at its poses: once per tick, not once per robot)
-            absurd = None
-            if any(rows.size for rows in rows_of):
+        def per_robot(flags, starts):  # how many of the flags (along q or qd) are set in each robot's part
+            counts = np.concatenate(([0], np.cumsum(flags)))
+            return counts[starts[1:]] - counts[starts[:-1]]
+
+        if np.isfinite(self.q).all() and np.isfinite(self.qd).all():  # the usual case: no count needed
+            broken = np.zeros(len(self.robots), bool)
+        else:
+            broken = (per_robot(~np.isfinite(self.q), self._starts.q)
+                      + per_robot(~np.isfinite(self.qd), self._starts.dof)) > 0
+        rows = getattr(self, "_all_rows", np.zeros(0, np.int64))
+        if rows.size:
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                # every body's speed and spin once (the world's I⁻¹ at its poses: once per tick, not once per robot)
                 speed = np.linalg.norm(state.linear_momentum, axis=1) / body_model.mass
                 spin = np.linalg.norm(state.angular_velocity(body_model), axis=1)
                 absurd = ~((speed < BLOWUP_SPEED) & (spin < BLOWUP_SPIN))
-            for k, r in enumerate(self.robots):
-                rows = rows_of[k]
-                finite = np.isfinite(self.q[r.q_slice]).all() and np.isfinite(self.qd[r.dof_slice]).all()
-                if finite and rows.size:
-                    finite = not bool(absurd[rows].any())
-                if not finite:
-                    bad.append(k)
+            broken[self.body_robot[rows[absurd[rows]]]] = True
+        bad = np.flatnonzero(broken).tolist()
         if not bad:
             return []
         initial = self._initial_drives()
@@ -994,7 +1048,7 @@ class Robots:
                 field[r.dof_slice] = start[r.dof_slice]
             if r.solver is not None:
                 r.solver.reset()
-            self._memories[k] = tuple(JointSolverMemory.empty())
+            self._set_memory(k, JointSolverMemory.empty())
         self.write_bodies(body_model, state)
         return [self.robots[k].name for k in bad]
 
