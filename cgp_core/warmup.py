@@ -58,7 +58,7 @@ def warm_up(ticks: int = 24, *, complete: bool = True, flocks: bool = True) -> W
     def run() -> None:
         for k in range(ticks):
             # every other tick with the contact report (the node's ~/contacts, on by default, summed only while
-            # someone listens): the solver's two entry points, solve_step and solve_step_reporting
+            # someone listens): the solver's one entry point, solve_step, with its `report` argument both ways
             world.report_contacts = k % 2 == 0
             world.step()
         for flock in world.flocks:
@@ -221,7 +221,6 @@ _CONVEX_MODULES = ("cgp_core.collision.convex_phase", "cgp_core.collision.convex
 PARTS: tuple[CompilePart, ...] = (
     CompilePart("solver", ("cgp_core.solver", "cgp_core.rotation", "cgp_core.bodies"),
                 ("cgp_core.solver.sequential_impulse:solve_step",
-                 "cgp_core.solver.sequential_impulse:solve_step_reporting",
                  "cgp_core.solver.sequential_impulse:recover_penetration_kernel"), steps_flocks=False),
     # (rotation's and bodies' few small kernels are compiled by both rigid-body parts: each part's kernels call them)
     CompilePart("contacts", _CONTACT_MODULES + ("cgp_core.integrators", "cgp_core.dynamics", "cgp_core.sleep",

@@ -103,7 +103,6 @@ from .arrays import (
     RecoveryBodies,
     Rows,
     Scratch,
-    Solved,
     SolverBodies,
     StepSettings,
     Targets,
@@ -696,9 +695,21 @@ def store_impulses(manifolds, rows, lam):
 # ---- the velocity stage, in order ---------------------------------------------------------------------------
 
 @njit
-def _velocity_stage(contacts, bodies, memory, settings, profile):
-    """Box2D's stages in order, each timed into ``profile`` (:data:`STAGES`); bundles as :func:`solve_step`
-    takes them.  Returns :class:`Solved` and the new warm-start memory."""
+def solve_step(contacts, bodies, memory, settings, tally, report, profile):
+    """The pipeline stage "solve contacts" of one sub-step: Box2D's stages in order, each timed into ``profile``
+    (:data:`STAGES`).  ``contacts``: a :class:`ContactSet`; ``bodies``: :class:`BodyArrays` (its momenta get the
+    impulses, in place); ``memory``: the previous sub-step's :class:`WarmStart`; ``settings``:
+    :class:`StepSettings`; ``tally``: the tick's :class:`~.report.ContactTally` so far — each as a plain tuple from
+    Python (see "Bundles" in :mod:`cgp_core.jit`).  ``report`` (a bool): whether the contact report is wanted this
+    tick; if so ``tally`` is summed with this sub-step's contacts (:func:`~.report.tally_contacts`), else it is not
+    read (an empty one will do).
+
+    One compiled entry for both cases, ``report`` an argument and not a literal: numba compiles each entry point
+    with the whole tree of functions it calls, so two entries sharing this body (with and without the report)
+    cost the solver's compile twice (issue 34).
+
+    Returns what the position stage needs (:class:`Handover`), the new warm-start memory and the new tally (None
+    without ``report``)."""
     contacts, bodies, memory, settings = (ContactSet(*contacts), BodyArrays(*bodies), WarmStart(*memory),
                                           StepSettings(*settings))
     start = clock()
@@ -715,36 +726,11 @@ def _velocity_stage(contacts, bodies, memory, settings, profile):
     start = lap(profile, APPLY_IMPULSES, start)
     memory = store_impulses(manifolds, rows, lam)
     lap(profile, STORE_IMPULSES, start)
-    return Solved(manifolds, rows, targets, sweeps, deepest, lam, impulse), memory
-
-
-@njit(inline="always")
-def _handover(solved):
-    m = solved.manifolds
-    return Handover(m.a, m.b, m.group_start, m.separation, solved.rows, solved.targets.toi_shift, solved.sweeps,
-                    solved.deepest)
-
-
-@njit
-def solve_step(contacts, bodies, memory, settings, profile):
-    """The pipeline stage "solve contacts" of one sub-step: Box2D's stages in order, each timed into ``profile``
-    (:data:`STAGES`).  ``contacts``: a :class:`ContactSet`; ``bodies``: :class:`BodyArrays` (its momenta get the
-    impulses, in place); ``memory``: the previous sub-step's :class:`WarmStart`; ``settings``:
-    :class:`StepSettings` — each as a plain tuple from Python (see "Bundles" in :mod:`cgp_core.jit`).
-
-    Returns what the position stage needs (:class:`Handover`) and the new warm-start memory."""
-    solved, memory = _velocity_stage(contacts, bodies, memory, settings, profile)
-    return _handover(solved), memory
-
-
-@njit
-def solve_step_reporting(contacts, bodies, memory, settings, tally, profile):
-    """:func:`solve_step` for a tick whose contact report is wanted: also the :class:`~.report.ContactTally`
-    ``tally`` (a plain tuple) summed with this sub-step's contacts (:func:`~.report.tally_contacts`), returned
-    third."""
-    solved, memory = _velocity_stage(contacts, bodies, memory, settings, profile)
-    tally = tally_contacts(solved.manifolds, solved.rows, solved.lam, solved.impulse, tally)
-    return _handover(solved), memory, tally
+    handover = Handover(manifolds.a, manifolds.b, manifolds.group_start, manifolds.separation, rows,
+                        targets.toi_shift, sweeps, deepest)
+    # (None without a report, not the tally handed back: numba boxes None for nothing, the tally's 9 arrays for
+    # ~2 µs, which at 4 sub-steps a tick is 3 % of the 5-body default scene's tick)
+    return handover, memory, (tally_contacts(manifolds, rows, lam, impulse, tally) if report else None)
 
 
 # ---- the position stage ("recover penetration") --------------------------------------------------------------
@@ -827,6 +813,10 @@ def _recover_penetration(handover, bodies, settings):
 
 
 # ---- the solver object ----------------------------------------------------------------------------------------
+
+#: the tally :func:`solve_step` is given when no contact report is wanted (it does not read it)
+_NO_TALLY = tuple(ContactTally.start(0, 0))
+
 
 class PendingRecovery(NamedTuple):
     """What :meth:`SequentialImpulseSolver.recover_penetration` needs from the last ``solve_velocities``."""
@@ -928,12 +918,12 @@ class SequentialImpulseSolver:
             tally = self._tally
             if tally is None or len(tally.touched) != n + 1:
                 tally = ContactTally.start(n, len(self._memory.key))
-            handover, memory, tally = solve_step_reporting(tuple(contacts), bodies, tuple(self._memory), settings,
-                                                           tuple(tally), self.profile.seconds)
+            handover, memory, tally = solve_step(tuple(contacts), bodies, tuple(self._memory), settings,
+                                                 tuple(tally), True, self.profile.seconds)
             self._tally = ContactTally(*tally)
         else:
-            handover, memory = solve_step(tuple(contacts), bodies, tuple(self._memory), settings,
-                                          self.profile.seconds)
+            handover, memory, _ = solve_step(tuple(contacts), bodies, tuple(self._memory), settings, _NO_TALLY,
+                                             False, self.profile.seconds)
         self._memory = memory
         self.profile.calls += 1
         self.stats = {"contacts": contacts.count, "manifolds": len(handover.group_start) - 1,
