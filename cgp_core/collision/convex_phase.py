@@ -562,7 +562,7 @@ def _ground_contacts(k, shapes, poses, axis, out, m):
     return m
 
 
-@njit
+@njit(inline="always")  # (called once: compiled into convex_phase, not as a kernel of its own; issue 34)
 def _primitive_pair_contacts(a, b, shapes, poses, work, out, m):
     """Primitives ``a`` (A) and ``b`` (B), neither a mesh, kinds in SPHERE < BOX < CAPSULE < HULL order, written
     into ``out`` from row ``m``: returns ``(next free row, flipped)`` — flipped when the hull kernels wanted the
@@ -608,7 +608,7 @@ def _primitive_pair_contacts(a, b, shapes, poses, work, out, m):
     return m, False
 
 
-@njit
+@njit(inline="always")  # (called once: compiled into convex_phase, not as a kernel of its own; issue 34)
 def _mesh_contacts(a, b, shapes, poses, candidates, work, out, m):
     """Mesh primitive ``a`` (A) against primitive ``b`` (B, not a mesh) into ``out`` from row ``m``: returns
     ``(next free row, done)`` — not done when the BVH query's ``candidates`` scratch or ``out``'s free rows were
