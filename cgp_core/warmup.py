@@ -71,10 +71,24 @@ def warm_up(ticks: int = 24, *, complete: bool = True, flocks: bool = True) -> W
         with parallel_from(0):  # the same again, on the parallel twins
             run()
     if complete:
-        warm_up_convex(flocks=flocks)
+        # (in a compile worker, only the scenarios whose kernels it compiles: the robots' scene in another worker
+        # only ran their kernels as plain Python and compiled numba's typed-list functions, which a robots' world
+        # builds and which numba caches nowhere, ~2 s of CPU in each worker; issue 34)
+        if _compiles_any("cgp_core.collision", "cgp_core.solver", "cgp_core.boids", "cgp_core.integrators"):
+            warm_up_convex(flocks=flocks)
         _warm_up_grid()
-        warm_up_robots()
+        if _compiles_any("cgp_core.robots"):
+            warm_up_robots()
     return world
+
+
+def _compiles_any(*modules: str) -> bool:
+    """Whether this process compiles kernels of any of these modules or packages: every process but a compile
+    worker (``CGP_SIM_JIT_ONLY``, :mod:`cgp_core.jit`), which compiles only its part's."""
+    from .jit import JIT_ONLY
+
+    return not JIT_ONLY or any(p == m or p.startswith(m + ".") or m.startswith(p + ".")
+                               for p in JIT_ONLY for m in modules)
 
 
 def warm_up_robots(ticks: int = 4) -> World:
