@@ -214,7 +214,7 @@ def _apply(MJ, c, r, delta, V, a, b):
 
 # ---- 1. prepare the bodies --------------------------------------------------------------------------------
 
-@njit
+@njit(inline="always")
 def prepare_bodies(bodies, h):
     """The n + 1 :class:`SolverBodies` rows of the n bodies in ``bodies`` (:class:`BodyArrays`) and the static
     row n: the movable ones dynamic, with V = M⁻¹ (momentum + h·force) — gravity is inside the solve, so a
@@ -252,7 +252,7 @@ def prepare_bodies(bodies, h):
 
 # ---- 2. prepare the contacts ------------------------------------------------------------------------------
 
-@njit
+@njit(inline="always")
 def prepare_contacts(contacts, bodies, memory, settings):
     """Box2D's prepare stage for a :class:`ContactSet`: the contacts that can move something (a contact between
     two bodies that cannot move needs no impulse, and has no effective mass) sorted by body pair into
@@ -387,7 +387,7 @@ def velocity_targets(manifolds, rows, bodies, settings):
 
 # ---- 3. warm start ----------------------------------------------------------------------------------------
 
-@njit
+@njit(inline="always")
 def warm_start_contacts(manifolds, rows, bodies, memory, warm_start):
     """The accumulated impulses ``lam (m, 3)`` to start from: the matched contacts' of the previous sub-step
     (``memory``; the friction vector re-projected onto the new tangents and clamped to the cone), applied to
@@ -413,7 +413,7 @@ def warm_start_contacts(manifolds, rows, bodies, memory, warm_start):
 
 # ---- 4. solve: the sweeps ---------------------------------------------------------------------------------
 
-@njit
+@njit(inline="always")
 def solve_contacts(manifolds, rows, targets, lam, bodies, settings):
     """The sweeps: manifold after manifold (:func:`_solve_manifold`), updating ``lam`` and ``bodies.velocity``
     in place, until a whole sweep changed no row velocity by more than ``velocity_tolerance`` (a warm-started
@@ -567,7 +567,7 @@ def _push_normal_row(c, rows, lam, target, lower, V, a, b):
 
 # ---- 5. bounce time shift: bounces off the static world placed at their time of impact -------------------------
 
-@njit
+@njit(inline="always")
 def bounce_time_shift(manifolds, rows, targets, bodies, h):
     """The position target that puts a bounce off the static world at its time of impact; it applies no
     restitution (issue 35: it was misnamed ``apply_restitution``).  Restitution is a target of the sweeps
@@ -590,7 +590,7 @@ def bounce_time_shift(manifolds, rows, targets, bodies, h):
 
 # ---- 6. impulses → momenta ---------------------------------------------------------------------------------
 
-@njit
+@njit(inline="always")
 def apply_impulses(manifolds, rows, lam, bodies, momenta, rolling_resistance):
     """Add the accumulated impulses to the momenta, equal and opposite at the same point: ΔP = Σ J_linᵀ λ,
     ΔL = Σ J_angᵀ λ (= Σ r × impulse); with rolling resistance (:func:`resist_rolling`) on top.  ``momenta``:
@@ -676,7 +676,7 @@ def resist_rolling(manifolds, rows, lam, bodies, coefficient, impulse):
 
 # ---- 7. store the impulses for the next warm start --------------------------------------------------------
 
-@njit
+@njit(inline="always")
 def store_impulses(manifolds, rows, lam):
     """The :class:`WarmStart` memory: each contact's normal impulse and world-frame friction impulse, by key."""
     key, J = manifolds.key, rows.J
@@ -751,7 +751,7 @@ def recover_penetration_kernel(handover, bodies, settings, profile):
     return turn, deepest
 
 
-@njit
+@njit(inline="always")
 def _recover_penetration(handover, bodies, settings):
     a, b, group_start, separation, rows = (handover.a, handover.b, handover.group_start, handover.separation,
                                            handover.rows)
