@@ -220,8 +220,9 @@ class CompilePart:
     #: parts whose workers must have finished before this one starts (when they compile too): the kernels this
     #: part shares with them (its kernels call theirs) are then loaded from the cache, not compiled a second time
     after: tuple[str, ...] = ()
-    #: the part's compile CPU seconds as last measured (``benchmarks/bench_compile.py``), for the order in which
-    #: :func:`compile_in_parallel` starts the workers when some wait for others; a guide only
+    #: the part's compile CPU seconds as last measured (``benchmarks/bench_compile.py``'s compile CPU per part, every
+    #: kernel), for the order in which :func:`compile_in_parallel` starts the workers when some wait for others; a
+    #: guide only
     cpu_s: float = 0.0
 
 
@@ -238,18 +239,18 @@ _CONVEX_MODULES = ("cgp_core.collision.convex_phase", "cgp_core.collision.convex
 PARTS: tuple[CompilePart, ...] = (
     CompilePart("solver", ("cgp_core.solver", "cgp_core.rotation", "cgp_core.bodies"),
                 ("cgp_core.solver.sequential_impulse:solve_step",
-                 "cgp_core.solver.sequential_impulse:recover_penetration_kernel"), steps_flocks=False, cpu_s=25.0),
+                 "cgp_core.solver.sequential_impulse:recover_penetration_kernel"), steps_flocks=False, cpu_s=14.0),
     # (rotation's and bodies' few small kernels are compiled by both rigid-body parts: each part's kernels call them)
     CompilePart("contacts", _CONTACT_MODULES + ("cgp_core.integrators", "cgp_core.dynamics", "cgp_core.sleep",
                                                 "cgp_core.rotation", "cgp_core.bodies"),
                 ("cgp_core.collision.detector:narrow_phase", "cgp_core.integrators.implicit_midpoint:_step_kernel",
-                 "cgp_core.dynamics:coming_velocities"), steps_flocks=False, cpu_s=28.0),
+                 "cgp_core.dynamics:coming_velocities"), steps_flocks=False, cpu_s=23.0),
     # (the obstacle query of static meshes calls the BVH's closest point, which calls GJK's closest point on a
     # triangle; GJK calls the hulls' support mapping: with gjk compiled here, convex's kernels must be too, or the
     # convex shapes' contacts, plain Python in this worker, reach a compiled GJK calling a plain support_index)
     CompilePart("flock", ("cgp_core.boids", "cgp_core.collision.bvh", "cgp_core.collision.gjk",
                           "cgp_core.collision.convex"),
-                ("cgp_core.boids.rules:_neighbor_sums", "cgp_core.boids.flock:_move"), cpu_s=37.0),
+                ("cgp_core.boids.rules:_neighbor_sums", "cgp_core.boids.flock:_move"), cpu_s=28.0),
     # issue 25's shapes: ~60 s of compiling on an idle core (GJK, EPA, the manifolds and the stage that calls them
     # all), more than any other part; it calls the sphere / box / capsule kernels too (compiled here as well)
     # (after "contacts": the sphere / box / capsule kernels it calls are that part's, ~25 s of CPU that both
@@ -257,14 +258,14 @@ PARTS: tuple[CompilePart, ...] = (
     # the other parts keep the other CPUs busy meanwhile: compile_in_parallel)
     CompilePart("convex", _CONVEX_MODULES + _CONTACT_MODULES,
                 ("cgp_core.collision.convex_phase:convex_phase", "cgp_core.collision.convex_phase:sweep_times"),
-                steps_flocks=False, default_scene=False, after=("contacts",), cpu_s=55.0),
+                steps_flocks=False, default_scene=False, after=("contacts",), cpu_s=54.0),
     # issue 35's robots: the recursive algorithms and the joint solver (~15 s on an idle core); rotation's small
     # kernels too, which the floating root's integration calls (without them the worker's kernels failed to type:
     # a compiled kernel cannot call rotation's plain-Python functions)
     CompilePart("robots", ("cgp_core.robots", "cgp_core.rotation"),
                 ("cgp_core.robots.algorithms:mass_matrix", "cgp_core.robots.joint_solver:step_joints",
                  "cgp_core.robots.joint_solver:step_lone_robots"),
-                steps_flocks=False, default_scene=False, cpu_s=40.0),
+                steps_flocks=False, default_scene=False, cpu_s=38.0),
 )
 
 
