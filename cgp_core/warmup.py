@@ -239,18 +239,18 @@ _CONVEX_MODULES = ("cgp_core.collision.convex_phase", "cgp_core.collision.convex
 PARTS: tuple[CompilePart, ...] = (
     CompilePart("solver", ("cgp_core.solver", "cgp_core.rotation", "cgp_core.bodies"),
                 ("cgp_core.solver.sequential_impulse:solve_step",
-                 "cgp_core.solver.sequential_impulse:recover_penetration_kernel"), steps_flocks=False, cpu_s=14.0),
+                 "cgp_core.solver.sequential_impulse:recover_penetration_kernel"), steps_flocks=False, cpu_s=15.0),
     # (rotation's and bodies' few small kernels are compiled by both rigid-body parts: each part's kernels call them)
     CompilePart("contacts", _CONTACT_MODULES + ("cgp_core.integrators", "cgp_core.dynamics", "cgp_core.sleep",
                                                 "cgp_core.rotation", "cgp_core.bodies"),
                 ("cgp_core.collision.detector:narrow_phase", "cgp_core.integrators.implicit_midpoint:_step_kernel",
-                 "cgp_core.dynamics:coming_velocities"), steps_flocks=False, cpu_s=23.0),
+                 "cgp_core.dynamics:coming_velocities"), steps_flocks=False, cpu_s=26.0),
     # (the obstacle query of static meshes calls the BVH's closest point, which calls GJK's closest point on a
     # triangle; GJK calls the hulls' support mapping: with gjk compiled here, convex's kernels must be too, or the
     # convex shapes' contacts, plain Python in this worker, reach a compiled GJK calling a plain support_index)
     CompilePart("flock", ("cgp_core.boids", "cgp_core.collision.bvh", "cgp_core.collision.gjk",
                           "cgp_core.collision.convex"),
-                ("cgp_core.boids.rules:_neighbor_sums", "cgp_core.boids.flock:_move"), cpu_s=28.0),
+                ("cgp_core.boids.rules:_neighbor_sums", "cgp_core.boids.flock:_move"), cpu_s=30.0),
     # issue 25's shapes: ~60 s of compiling on an idle core (GJK, EPA, the manifolds and the stage that calls them
     # all), more than any other part; it calls the sphere / box / capsule kernels too (compiled here as well)
     # (after "contacts": the sphere / box / capsule kernels it calls are that part's, ~25 s of CPU that both
@@ -265,7 +265,7 @@ PARTS: tuple[CompilePart, ...] = (
     CompilePart("robots", ("cgp_core.robots", "cgp_core.rotation"),
                 ("cgp_core.robots.algorithms:mass_matrix", "cgp_core.robots.joint_solver:step_joints",
                  "cgp_core.robots.joint_solver:step_lone_robots"),
-                steps_flocks=False, default_scene=False, cpu_s=38.0),
+                steps_flocks=False, default_scene=False, cpu_s=43.0),
 )
 
 
