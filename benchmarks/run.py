@@ -16,7 +16,8 @@ still run.
     .venv/bin/python benchmarks/run.py --update-readme # and put the tables into benchmarks/README.md
     .venv/bin/python benchmarks/run.py --extras        # also bench_bag.py, bench_integrators.py,
                                                        # bench_scenes.py, bench_render.py, bench_flock_stats.py,
-                                                       # bench_recording.py, bench_fresh_clone.py
+                                                       # bench_recording.py, bench_fresh_clone.py,
+                                                       # bench_load_world.py, bench_compile.py
 
 Exit status: 0 when every benchmark ran (whether or not every target is met: a SHORT figure is a result,
 not an error), 1 when one failed.
@@ -49,7 +50,7 @@ BENCHMARKS = {"tick": "bench_tick.py", "realtime": "bench_realtime.py", "rigid":
               "robot_node": "bench_robot_node.py"}
 EXTRAS = {"bag": "bench_bag.py", "integrators": "bench_integrators.py", "scenes": "bench_scenes.py",
           "render": "bench_render.py", "flock_stats": "bench_flock_stats.py", "recording": "bench_recording.py",
-          "fresh_clone": "bench_fresh_clone.py", "load_world": "bench_load_world.py"}
+          "fresh_clone": "bench_fresh_clone.py", "load_world": "bench_load_world.py", "compile": "bench_compile.py"}
 
 #: issue 12's figures measured by the scripts above, in the issue's order: (id, benchmark, the issue's wording).
 #: Figures other scripts mark ``issue12`` (the rigid-body ones) follow them in the table.

@@ -188,6 +188,56 @@ class _InTreeLocator(_DependencyStamp, caching.InTreeCacheLocator):
 caching.CacheImpl._locator_classes[:0] = [_UserDirLocator, _InTreeLocator]
 
 
+# ---- numba's typed lists: their functions cached too ------------------------------------------------------------
+#
+# A ``numba.typed.List`` (the robots' kernels take their per-robot bundles in one) is driven from Python by numba's
+# own compiled functions (``numba.typed.typedlist``: make a list, append, get and set an item ...), which numba
+# compiles without a cache, for each item type, in every process: ~2.6 s of CPU at every start of a world with
+# robots, cache or not (measured: the warm-up's warm start compiled nothing else; issue 34).  They are cached
+# here as cgp_core's kernels are (numba's own locators: beside numba's sources, or the user's cache directory),
+# once numba loads that module: it is not imported before a typed list is made, and costs ~40 ms to import.
+
+def _cache_typed_list_functions(module) -> None:
+    from numba.core.registry import CPUDispatcher
+
+    for value in vars(module).values():
+        if isinstance(value, CPUDispatcher) and value._cache.__class__.__name__ == "NullCache":
+            try:
+                value.enable_caching()
+            except RuntimeError:  # no writable cache location for numba's sources: compiled as before
+                return
+
+
+class _TypedListHook:
+    """Import hook: calls :func:`_cache_typed_list_functions` on ``numba.typed.typedlist`` when it is loaded."""
+
+    name = "numba.typed.typedlist"
+
+    def find_spec(self, name, path, target=None):
+        if name != self.name:
+            return None
+        sys.meta_path.remove(self)
+        import importlib.util
+
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
+            return spec
+        run = spec.loader.exec_module
+
+        def exec_module(module):
+            run(module)
+            _cache_typed_list_functions(module)
+
+        spec.loader.exec_module = exec_module
+        return spec
+
+
+if _TypedListHook.name in sys.modules:
+    _cache_typed_list_functions(sys.modules[_TypedListHook.name])
+else:
+    sys.meta_path.insert(0, _TypedListHook())
+
+
 def njit(*args, **options):
     """``numba.njit`` with cgp_core's defaults (see the module docstring); use as ``@njit`` or ``@njit(...)``."""
     settings = {**_DEFAULTS, **options}

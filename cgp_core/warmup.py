@@ -58,7 +58,7 @@ def warm_up(ticks: int = 24, *, complete: bool = True, flocks: bool = True) -> W
     def run() -> None:
         for k in range(ticks):
             # every other tick with the contact report (the node's ~/contacts, on by default, summed only while
-            # someone listens): the solver's two entry points, solve_step and solve_step_reporting
+            # someone listens): the solver's one entry point, solve_step, with its `report` argument both ways
             world.report_contacts = k % 2 == 0
             world.step()
         for flock in world.flocks:
@@ -71,10 +71,24 @@ def warm_up(ticks: int = 24, *, complete: bool = True, flocks: bool = True) -> W
         with parallel_from(0):  # the same again, on the parallel twins
             run()
     if complete:
-        warm_up_convex(flocks=flocks)
+        # (in a compile worker, only the scenarios whose kernels it compiles: the robots' scene in another worker
+        # only ran their kernels as plain Python and compiled numba's typed-list functions, which a robots' world
+        # builds and which numba caches nowhere, ~2 s of CPU in each worker; issue 34)
+        if _compiles_any("cgp_core.collision", "cgp_core.solver", "cgp_core.boids", "cgp_core.integrators"):
+            warm_up_convex(flocks=flocks)
         _warm_up_grid()
-        warm_up_robots()
+        if _compiles_any("cgp_core.robots"):
+            warm_up_robots()
     return world
+
+
+def _compiles_any(*modules: str) -> bool:
+    """Whether this process compiles kernels of any of these modules or packages: every process but a compile
+    worker (``CGP_SIM_JIT_ONLY``, :mod:`cgp_core.jit`), which compiles only its part's."""
+    from .jit import JIT_ONLY
+
+    return not JIT_ONLY or any(p == m or p.startswith(m + ".") or m.startswith(p + ".")
+                               for p in JIT_ONLY for m in modules)
 
 
 def warm_up_robots(ticks: int = 4) -> World:
@@ -206,6 +220,10 @@ class CompilePart:
     #: parts whose workers must have finished before this one starts (when they compile too): the kernels this
     #: part shares with them (its kernels call theirs) are then loaded from the cache, not compiled a second time
     after: tuple[str, ...] = ()
+    #: the part's compile CPU seconds as last measured (``benchmarks/bench_compile.py``'s compile CPU per part, every
+    #: kernel), for the order in which :func:`compile_in_parallel` starts the workers when some wait for others; a
+    #: guide only
+    cpu_s: float = 0.0
 
 
 #: the modules of the sphere / box / capsule contacts (the default scene's), and those of issue 25's shapes
@@ -221,33 +239,33 @@ _CONVEX_MODULES = ("cgp_core.collision.convex_phase", "cgp_core.collision.convex
 PARTS: tuple[CompilePart, ...] = (
     CompilePart("solver", ("cgp_core.solver", "cgp_core.rotation", "cgp_core.bodies"),
                 ("cgp_core.solver.sequential_impulse:solve_step",
-                 "cgp_core.solver.sequential_impulse:solve_step_reporting",
-                 "cgp_core.solver.sequential_impulse:recover_penetration_kernel"), steps_flocks=False),
+                 "cgp_core.solver.sequential_impulse:recover_penetration_kernel"), steps_flocks=False, cpu_s=15.0),
     # (rotation's and bodies' few small kernels are compiled by both rigid-body parts: each part's kernels call them)
     CompilePart("contacts", _CONTACT_MODULES + ("cgp_core.integrators", "cgp_core.dynamics", "cgp_core.sleep",
                                                 "cgp_core.rotation", "cgp_core.bodies"),
                 ("cgp_core.collision.detector:narrow_phase", "cgp_core.integrators.implicit_midpoint:_step_kernel",
-                 "cgp_core.dynamics:coming_velocities"), steps_flocks=False),
+                 "cgp_core.dynamics:coming_velocities"), steps_flocks=False, cpu_s=26.0),
     # (the obstacle query of static meshes calls the BVH's closest point, which calls GJK's closest point on a
     # triangle; GJK calls the hulls' support mapping: with gjk compiled here, convex's kernels must be too, or the
     # convex shapes' contacts, plain Python in this worker, reach a compiled GJK calling a plain support_index)
     CompilePart("flock", ("cgp_core.boids", "cgp_core.collision.bvh", "cgp_core.collision.gjk",
                           "cgp_core.collision.convex"),
-                ("cgp_core.boids.rules:_neighbor_sums", "cgp_core.boids.flock:_move")),
+                ("cgp_core.boids.rules:_neighbor_sums", "cgp_core.boids.flock:_move"), cpu_s=30.0),
     # issue 25's shapes: ~60 s of compiling on an idle core (GJK, EPA, the manifolds and the stage that calls them
     # all), more than any other part; it calls the sphere / box / capsule kernels too (compiled here as well)
     # (after "contacts": the sphere / box / capsule kernels it calls are that part's, ~25 s of CPU that both
-    # workers compiled side by side on a cold cache, issue 34; the first 3 parts keep both cores busy meanwhile)
+    # workers compiled side by side on a cold cache, issue 34; so the workers run one per CPU, contacts first, and
+    # the other parts keep the other CPUs busy meanwhile: compile_in_parallel)
     CompilePart("convex", _CONVEX_MODULES + _CONTACT_MODULES,
                 ("cgp_core.collision.convex_phase:convex_phase", "cgp_core.collision.convex_phase:sweep_times"),
-                steps_flocks=False, default_scene=False, after=("contacts",)),
+                steps_flocks=False, default_scene=False, after=("contacts",), cpu_s=54.0),
     # issue 35's robots: the recursive algorithms and the joint solver (~15 s on an idle core); rotation's small
     # kernels too, which the floating root's integration calls (without them the worker's kernels failed to type:
     # a compiled kernel cannot call rotation's plain-Python functions)
     CompilePart("robots", ("cgp_core.robots", "cgp_core.rotation"),
                 ("cgp_core.robots.algorithms:mass_matrix", "cgp_core.robots.joint_solver:step_joints",
                  "cgp_core.robots.joint_solver:step_lone_robots"),
-                steps_flocks=False, default_scene=False),
+                steps_flocks=False, default_scene=False, cpu_s=43.0),
 )
 
 
@@ -301,17 +319,34 @@ def _sigint_deferred():
             signal.raise_signal(signal.SIGINT)
 
 
+def worker_slots() -> int:
+    """How many compile workers run at once when some wait for others: one per CPU this process may use."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def _chain_s(part: CompilePart, parts: list[CompilePart]) -> float:
+    """The compile CPU seconds from ``part``'s start to the end of the longest chain of parts that wait for it."""
+    return part.cpu_s + max((_chain_s(p, parts) for p in parts if part.name in p.after), default=0.0)
+
+
 def compile_in_parallel(parts: list[CompilePart], worker_module: str, *worker_args: str) -> dict[str, str]:
     """Run one worker process per part, ``python -P -m <worker_module> --part <name> <worker_args>`` with
-    ``CGP_SIM_JIT_ONLY`` set to the part's modules, side by side (a part starts once the parts it comes
-    :attr:`~CompilePart.after`, among those given, have finished); wait for them.  The workers import the same
-    packages as this process (its package root first on ``PYTHONPATH``), so they write the cache this process
-    reads.  Returns ``{part name: the worker's output}`` for each worker that failed (the kernels it should
-    have compiled then compile on first use)."""
+    ``CGP_SIM_JIT_ONLY`` set to the part's modules; wait for them.  The workers import the same packages as this
+    process (its package root first on ``PYTHONPATH``), so they write the cache this process reads.  Returns
+    ``{part name: the worker's output}`` for each worker that failed (the kernels it should have compiled then
+    compile on first use).
+
+    Order: a part starts once the parts it comes :attr:`~CompilePart.after`, among those given, have finished.
+    When none waits for another, every worker starts at once (they share the CPUs and end about together).  When
+    some do, at most :func:`worker_slots` run at a time (one per CPU), the longest chain of waiting parts first
+    (by :attr:`~CompilePart.cpu_s`): more workers than CPUs would slow the chain's head — the contacts part,
+    which the convex part waits for — and with it the end of the whole compile (issue 34)."""
     root = str(Path(__file__).resolve().parents[1])  # the directory cgp_core (and cgp_sim_ros) was imported from
     python_path = os.pathsep.join([root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
     names = {part.name for part in parts}
-    waiting = list(parts)
+    chains = any(a in names for part in parts for a in part.after)
+    slots = worker_slots() if chains else len(parts)
+    waiting = sorted(parts, key=lambda part: -_chain_s(part, parts))  # (stable: the given order on a tie)
     workers, readers, outputs, failed = {}, {}, {}, {}
 
     def start_ready() -> None:
@@ -319,6 +354,8 @@ def compile_in_parallel(parts: list[CompilePart], worker_module: str, *worker_ar
         # clean-up below, compiling on after the caller exits: SIGINT waits until every worker is entered.
         with _sigint_deferred():
             for part in [p for p in waiting if all(a not in names or a in outputs for a in p.after)]:
+                if len(workers) - len(outputs) >= slots:
+                    break
                 waiting.remove(part)
                 env = dict(os.environ, PYTHONPATH=python_path, CGP_SIM_JIT_ONLY=",".join(part.modules))
                 worker = workers[part.name] = subprocess.Popen(

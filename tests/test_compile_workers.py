@@ -270,6 +270,7 @@ def test_a_part_after_another_starts_once_that_ones_worker_has_finished(tmp_path
         "time.sleep(0.2)\n"
         "(out / f'{name}.end').touch()\n")
     monkeypatch.setenv("PYTHONPATH", str(tmp_path))
+    monkeypatch.setattr(warmup, "worker_slots", lambda: 2)  # (a part waits: one worker per CPU, here 2)
     parts = [warmup.CompilePart("first", ("cgp_core",), ()),
              warmup.CompilePart("second", ("cgp_core",), (), after=("first",)),
              warmup.CompilePart("free", ("cgp_core",), ()),
@@ -279,6 +280,34 @@ def test_a_part_after_another_starts_once_that_ones_worker_has_finished(tmp_path
     assert len(stamp) == 8  # every worker ran, "alone" too (the part it comes after is not among those given)
     assert stamp["second.start"] >= stamp["first.end"]
     assert stamp["free.start"] <= stamp["first.end"]
+
+
+def test_with_a_part_that_waits_one_worker_runs_per_cpu_the_longest_chain_first(tmp_path, monkeypatch):
+    """When a part waits for another, at most worker_slots() workers run at once, and the head of the longest
+    chain (by CompilePart.cpu_s: contacts, then convex after it) starts first, the shorter parts after it."""
+    from cgp_core import warmup
+
+    (tmp_path / "stamping_worker.py").write_text(
+        "import pathlib, sys, time\n"
+        f"out = pathlib.Path({str(tmp_path)!r})\n"
+        "name = sys.argv[sys.argv.index('--part') + 1]\n"
+        "(out / f'{name}.start').write_text(str(time.monotonic_ns()))\n"
+        "time.sleep(0.3)\n"
+        "(out / f'{name}.end').write_text(str(time.monotonic_ns()))\n")
+    monkeypatch.setenv("PYTHONPATH", str(tmp_path))
+    monkeypatch.setattr(warmup, "worker_slots", lambda: 2)
+    parts = [warmup.CompilePart("short", ("cgp_core",), (), cpu_s=10.0),
+             warmup.CompilePart("long", ("cgp_core",), (), cpu_s=40.0),
+             warmup.CompilePart("tail", ("cgp_core",), (), after=("head",), cpu_s=50.0),
+             warmup.CompilePart("head", ("cgp_core",), (), cpu_s=20.0)]
+    assert warmup.compile_in_parallel(parts, "stamping_worker") == {}
+    at = {f.name: int(f.read_text()) for f in tmp_path.iterdir() if f.suffix in (".start", ".end")}
+    spans = {name: (at[f"{name}.start"], at[f"{name}.end"]) for name in ("short", "long", "tail", "head")}
+    first = sorted(spans, key=lambda name: spans[name][0])
+    assert set(first[:2]) == {"head", "long"}  # the chain head (20 + 50 s) and the longest free part
+    assert spans["tail"][0] >= spans["head"][1]
+    for moment, _ in spans.values():  # never more than 2 at once
+        assert sum(start <= moment < end for start, end in spans.values()) <= 2
 
 
 LOADED_DURING_TICKS = r"""

@@ -384,6 +384,11 @@ def _column(R, k, out):
     out[2] = R[2, k]
 
 
+#: the rows a ground or pair contact may add (up to 4 points): a numpy integer, not a literal 4, for which numba
+#: compiled :func:`_grown` once more (its other call passes a computed count; issue 34)
+PAIR_ROWS = np.int64(4)
+
+
 @njit
 def _grown(out, owner_a, owner_b, m, need):
     """The :class:`.narrowphase.ContactBuffer` ``out`` and the rows' primitives ``owner_a``, ``owner_b`` with room
@@ -393,12 +398,16 @@ def _grown(out, owner_a, owner_b, m, need):
     cap = max(2 * len(out.separation), m + need)
     grown = ContactBuffer(np.empty((cap, 3)), np.empty(cap), np.empty((cap, 3)), np.empty(cap, np.int64))
     a2, b2 = np.empty(cap, np.int64), np.empty(cap, np.int64)
-    grown.normal[:m] = out.normal[:m]
-    grown.separation[:m] = out.separation[:m]
-    grown.point[:m] = out.point[:m]
-    grown.feature[:m] = out.feature[:m]
-    a2[:m] = owner_a[:m]
-    b2[:m] = owner_b[:m]
+    # element by element, not grown.point[:m] = out.point[:m]: numba compiles a slice copy with a shape check whose
+    # error message (formatting the shapes) alone costs ~1 s to compile (issue 34)
+    for r in range(m):
+        for k in range(3):
+            grown.normal[r, k] = out.normal[r, k]
+            grown.point[r, k] = out.point[r, k]
+        grown.separation[r] = out.separation[r]
+        grown.feature[r] = out.feature[r]
+        a2[r] = owner_a[r]
+        b2[r] = owner_b[r]
     return grown, a2, b2
 
 
@@ -562,7 +571,7 @@ def _ground_contacts(k, shapes, poses, axis, out, m):
     return m
 
 
-@njit
+@njit(inline="always")  # (called once: compiled into convex_phase, not as a kernel of its own; issue 34)
 def _primitive_pair_contacts(a, b, shapes, poses, work, out, m):
     """Primitives ``a`` (A) and ``b`` (B), neither a mesh, kinds in SPHERE < BOX < CAPSULE < HULL order, written
     into ``out`` from row ``m``: returns ``(next free row, flipped)`` — flipped when the hull kernels wanted the
@@ -608,7 +617,7 @@ def _primitive_pair_contacts(a, b, shapes, poses, work, out, m):
     return m, False
 
 
-@njit
+@njit(inline="always")  # (called once: compiled into convex_phase, not as a kernel of its own; issue 34)
 def _mesh_contacts(a, b, shapes, poses, candidates, work, out, m):
     """Mesh primitive ``a`` (A) against primitive ``b`` (B, not a mesh) into ``out`` from row ``m``: returns
     ``(next free row, done)`` — not done when the BVH query's ``candidates`` scratch or ``out``'s free rows were
@@ -657,7 +666,7 @@ def convex_phase(shapes, poses, pairs, active, ground, key_base):
         for k in range(first_new, P):
             if not active[prims.body[k]] or not poses.lo[k, 2] < poses.margin[k] or prims.kind[k] == MESH:
                 continue
-            out, prim_a, prim_b = _grown(out, prim_a, prim_b, m, 4)
+            out, prim_a, prim_b = _grown(out, prim_a, prim_b, m, PAIR_ROWS)
             start = m
             m = _ground_contacts(k, shapes, poses, work[0], out, m)
             rank_features(out.feature, start, m)
@@ -680,7 +689,7 @@ def convex_phase(shapes, poses, pairs, active, ground, key_base):
             a, b = j, i
         else:
             a, b = i, j
-        out, prim_a, prim_b = _grown(out, prim_a, prim_b, m, 4)
+        out, prim_a, prim_b = _grown(out, prim_a, prim_b, m, PAIR_ROWS)
         start = m
         first, second = a, b  # the contact's side A and B
         if prims.kind[a] == MESH:

@@ -62,6 +62,11 @@ from .epa import epa
 from .gjk import Core, empty_simplex, gjk, support_point
 from .narrowphase import CAPSULE_PARALLEL_SINE, write_point
 
+#: :func:`face_contact`'s ``flip``: numpy booleans, not Python's ``True`` / ``False``, which numba passes on as
+#: literals, compiling :func:`face_contact` once for each (its callers linking both: ~2 s more of the convex part's
+#: compile, issue 34)
+FLIPPED, NOT_FLIPPED = np.bool_(True), np.bool_(False)
+
 FACE_FEATURE = np.int64(1) << np.int64(62)
 EDGE_FEATURE = np.int64(1) << np.int64(61)
 #: a reference-side label in the clip codes (incident edges are 0..254)
@@ -417,8 +422,8 @@ def hull_hull_contacts(hull_a, hull_b, margin, out, m):
         return write_point(out, m, nx, ny, nz, sep, 0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * (az + bz),
                            edge_feature)
     if use_b:
-        return face_contact(hull_b, fb, hull_a, True, best_b, margin, out, m)
-    return face_contact(hull_a, fa, hull_b, False, best_a, margin, out, m)
+        return face_contact(hull_b, fb, hull_a, FLIPPED, best_b, margin, out, m)
+    return face_contact(hull_a, fa, hull_b, NOT_FLIPPED, best_a, margin, out, m)
 
 
 # ---- hull–plane --------------------------------------------------------------------------------------------
@@ -667,8 +672,8 @@ def triangle_hull_contacts(triangle, active_edges, two_sided, hull, margin, out,
         bound = _separation_at_most(triangle, hull, planes[front], sx, sy, sz, front_sep) + SEPARATION_BOUND_SLACK
         if bound <= edge_above and bound < margin:
             if use_b:
-                return face_contact(hull, fb, flat, True, best_b, margin, out, m)
-            return face_contact(flat, front, hull, False, front_sep, margin, out, m)
+                return face_contact(hull, fb, flat, FLIPPED, best_b, margin, out, m)
+            return face_contact(flat, front, hull, NOT_FLIPPED, front_sep, margin, out, m)
     sep, cx, cy, cz, ax, ay, az, bx, by, bz, edge_feature = signed_distance(flat_core, core)
     if not sep < margin:
         return m
@@ -689,5 +694,5 @@ def triangle_hull_contacts(triangle, active_edges, two_sided, hull, margin, out,
         return write_point(out, m, cx, cy, cz, sep, 0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * (az + bz),
                            edge_feature)
     if use_b:
-        return face_contact(hull, fb, flat, True, best_b, margin, out, m)
-    return face_contact(flat, front, hull, False, front_sep, margin, out, m)
+        return face_contact(hull, fb, flat, FLIPPED, best_b, margin, out, m)
+    return face_contact(flat, front, hull, NOT_FLIPPED, front_sep, margin, out, m)

@@ -121,26 +121,13 @@ class Scratch(NamedTuple):
     big: np.ndarray    # (m, 2) per-point increments of a Jacobi step (big groups, friction of multi-point groups)
 
 
-class Solved(NamedTuple):
-    """Everything the velocity stage's contacts end with (inside the compiled step; Python gets a
-    :class:`Handover`)."""
-
-    manifolds: Manifolds
-    rows: Rows
-    targets: Targets
-    sweeps: int       # sweeps run (regular and impact)
-    deepest: float    # deepest penetration among all the contacts given [m] (0 if none)
-    lam: np.ndarray      # (m, 3) the accumulated impulses [N s] of the manifolds' contacts (normal, t₁, t₂)
-    impulse: np.ndarray  # (n + 1, 6) each body row's contact impulse [ΔP, ΔL about its COM] (what the report sums)
-
-
 class Handover(NamedTuple):
     """What the velocity stage hands back to Python: the position stage's inputs (the manifolds' body pairs, runs
-    and gaps, their rows, the time-of-impact targets) and the statistics.  Narrower than :class:`Solved` on
-    purpose: every array a kernel returns to Python is boxed one by one (~0.5–1 µs each: numba unpickles the array
-    type for each), and a 5-body scene's whole sub-step is ~50 µs — returning all of :class:`Solved` (24 arrays)
-    cost it 15–25 %.  The contact report, which needs the rest, is summed inside the kernel
-    (:func:`.sequential_impulse.solve_step_reporting`)."""
+    and gaps, their rows, the time-of-impact targets) and the statistics.  Narrower than everything the stage ends
+    with on purpose: every array a kernel returns to Python is boxed one by one (~0.5–1 µs each: numba unpickles the
+    array type for each), and a 5-body scene's whole sub-step is ~50 µs — returning all of the manifolds, rows,
+    targets and impulses (24 arrays) cost it 15–25 %.  The contact report, which needs the rest, is summed inside
+    the kernel (:func:`.sequential_impulse.solve_step` with ``report``)."""
 
     a: np.ndarray            # (m,) int64 = Manifolds.a
     b: np.ndarray            # (m,) int64 = Manifolds.b

@@ -97,7 +97,7 @@ class ContactReport(NamedTuple):
         return (self.normal_impulse[:, None] * self.normal + self.friction_impulse) / self.duration
 
 
-@njit
+@njit(inline="always")
 def tally_contacts(manifolds, rows, lam, impulse, tally):
     """The :class:`ContactTally` after one more sub-step: ``manifolds`` / ``rows`` (:class:`~.arrays.Manifolds`,
     :class:`~.arrays.Rows`), ``lam (m, 3)`` the accumulated impulses (normal, t₁, t₂) and ``impulse (n + 1, 6)`` the

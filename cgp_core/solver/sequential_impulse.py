@@ -103,7 +103,6 @@ from .arrays import (
     RecoveryBodies,
     Rows,
     Scratch,
-    Solved,
     SolverBodies,
     StepSettings,
     Targets,
@@ -215,7 +214,7 @@ def _apply(MJ, c, r, delta, V, a, b):
 
 # ---- 1. prepare the bodies --------------------------------------------------------------------------------
 
-@njit
+@njit(inline="always")
 def prepare_bodies(bodies, h):
     """The n + 1 :class:`SolverBodies` rows of the n bodies in ``bodies`` (:class:`BodyArrays`) and the static
     row n: the movable ones dynamic, with V = M⁻¹ (momentum + h·force) — gravity is inside the solve, so a
@@ -253,7 +252,7 @@ def prepare_bodies(bodies, h):
 
 # ---- 2. prepare the contacts ------------------------------------------------------------------------------
 
-@njit
+@njit(inline="always")
 def prepare_contacts(contacts, bodies, memory, settings):
     """Box2D's prepare stage for a :class:`ContactSet`: the contacts that can move something (a contact between
     two bodies that cannot move needs no impulse, and has no effective mass) sorted by body pair into
@@ -388,7 +387,7 @@ def velocity_targets(manifolds, rows, bodies, settings):
 
 # ---- 3. warm start ----------------------------------------------------------------------------------------
 
-@njit
+@njit(inline="always")
 def warm_start_contacts(manifolds, rows, bodies, memory, warm_start):
     """The accumulated impulses ``lam (m, 3)`` to start from: the matched contacts' of the previous sub-step
     (``memory``; the friction vector re-projected onto the new tangents and clamped to the cone), applied to
@@ -414,7 +413,7 @@ def warm_start_contacts(manifolds, rows, bodies, memory, warm_start):
 
 # ---- 4. solve: the sweeps ---------------------------------------------------------------------------------
 
-@njit
+@njit(inline="always")
 def solve_contacts(manifolds, rows, targets, lam, bodies, settings):
     """The sweeps: manifold after manifold (:func:`_solve_manifold`), updating ``lam`` and ``bodies.velocity``
     in place, until a whole sweep changed no row velocity by more than ``velocity_tolerance`` (a warm-started
@@ -568,7 +567,7 @@ def _push_normal_row(c, rows, lam, target, lower, V, a, b):
 
 # ---- 5. bounce time shift: bounces off the static world placed at their time of impact -------------------------
 
-@njit
+@njit(inline="always")
 def bounce_time_shift(manifolds, rows, targets, bodies, h):
     """The position target that puts a bounce off the static world at its time of impact; it applies no
     restitution (issue 35: it was misnamed ``apply_restitution``).  Restitution is a target of the sweeps
@@ -591,7 +590,7 @@ def bounce_time_shift(manifolds, rows, targets, bodies, h):
 
 # ---- 6. impulses → momenta ---------------------------------------------------------------------------------
 
-@njit
+@njit(inline="always")
 def apply_impulses(manifolds, rows, lam, bodies, momenta, rolling_resistance):
     """Add the accumulated impulses to the momenta, equal and opposite at the same point: ΔP = Σ J_linᵀ λ,
     ΔL = Σ J_angᵀ λ (= Σ r × impulse); with rolling resistance (:func:`resist_rolling`) on top.  ``momenta``:
@@ -677,7 +676,7 @@ def resist_rolling(manifolds, rows, lam, bodies, coefficient, impulse):
 
 # ---- 7. store the impulses for the next warm start --------------------------------------------------------
 
-@njit
+@njit(inline="always")
 def store_impulses(manifolds, rows, lam):
     """The :class:`WarmStart` memory: each contact's normal impulse and world-frame friction impulse, by key."""
     key, J = manifolds.key, rows.J
@@ -696,9 +695,21 @@ def store_impulses(manifolds, rows, lam):
 # ---- the velocity stage, in order ---------------------------------------------------------------------------
 
 @njit
-def _velocity_stage(contacts, bodies, memory, settings, profile):
-    """Box2D's stages in order, each timed into ``profile`` (:data:`STAGES`); bundles as :func:`solve_step`
-    takes them.  Returns :class:`Solved` and the new warm-start memory."""
+def solve_step(contacts, bodies, memory, settings, tally, report, profile):
+    """The pipeline stage "solve contacts" of one sub-step: Box2D's stages in order, each timed into ``profile``
+    (:data:`STAGES`).  ``contacts``: a :class:`ContactSet`; ``bodies``: :class:`BodyArrays` (its momenta get the
+    impulses, in place); ``memory``: the previous sub-step's :class:`WarmStart`; ``settings``:
+    :class:`StepSettings`; ``tally``: the tick's :class:`~.report.ContactTally` so far — each as a plain tuple from
+    Python (see "Bundles" in :mod:`cgp_core.jit`).  ``report`` (a bool): whether the contact report is wanted this
+    tick; if so ``tally`` is summed with this sub-step's contacts (:func:`~.report.tally_contacts`), else it is not
+    read (an empty one will do).
+
+    One compiled entry for both cases, ``report`` an argument and not a literal: numba compiles each entry point
+    with the whole tree of functions it calls, so two entries sharing this body (with and without the report)
+    cost the solver's compile twice (issue 34).
+
+    Returns what the position stage needs (:class:`Handover`), the new warm-start memory and the new tally (None
+    without ``report``)."""
     contacts, bodies, memory, settings = (ContactSet(*contacts), BodyArrays(*bodies), WarmStart(*memory),
                                           StepSettings(*settings))
     start = clock()
@@ -715,36 +726,11 @@ def _velocity_stage(contacts, bodies, memory, settings, profile):
     start = lap(profile, APPLY_IMPULSES, start)
     memory = store_impulses(manifolds, rows, lam)
     lap(profile, STORE_IMPULSES, start)
-    return Solved(manifolds, rows, targets, sweeps, deepest, lam, impulse), memory
-
-
-@njit(inline="always")
-def _handover(solved):
-    m = solved.manifolds
-    return Handover(m.a, m.b, m.group_start, m.separation, solved.rows, solved.targets.toi_shift, solved.sweeps,
-                    solved.deepest)
-
-
-@njit
-def solve_step(contacts, bodies, memory, settings, profile):
-    """The pipeline stage "solve contacts" of one sub-step: Box2D's stages in order, each timed into ``profile``
-    (:data:`STAGES`).  ``contacts``: a :class:`ContactSet`; ``bodies``: :class:`BodyArrays` (its momenta get the
-    impulses, in place); ``memory``: the previous sub-step's :class:`WarmStart`; ``settings``:
-    :class:`StepSettings` — each as a plain tuple from Python (see "Bundles" in :mod:`cgp_core.jit`).
-
-    Returns what the position stage needs (:class:`Handover`) and the new warm-start memory."""
-    solved, memory = _velocity_stage(contacts, bodies, memory, settings, profile)
-    return _handover(solved), memory
-
-
-@njit
-def solve_step_reporting(contacts, bodies, memory, settings, tally, profile):
-    """:func:`solve_step` for a tick whose contact report is wanted: also the :class:`~.report.ContactTally`
-    ``tally`` (a plain tuple) summed with this sub-step's contacts (:func:`~.report.tally_contacts`), returned
-    third."""
-    solved, memory = _velocity_stage(contacts, bodies, memory, settings, profile)
-    tally = tally_contacts(solved.manifolds, solved.rows, solved.lam, solved.impulse, tally)
-    return _handover(solved), memory, tally
+    handover = Handover(manifolds.a, manifolds.b, manifolds.group_start, manifolds.separation, rows,
+                        targets.toi_shift, sweeps, deepest)
+    # (None without a report, not the tally handed back: numba boxes None for nothing, the tally's 9 arrays for
+    # ~2 µs, which at 4 sub-steps a tick is 3 % of the 5-body default scene's tick)
+    return handover, memory, (tally_contacts(manifolds, rows, lam, impulse, tally) if report else None)
 
 
 # ---- the position stage ("recover penetration") --------------------------------------------------------------
@@ -765,7 +751,7 @@ def recover_penetration_kernel(handover, bodies, settings, profile):
     return turn, deepest
 
 
-@njit
+@njit(inline="always")
 def _recover_penetration(handover, bodies, settings):
     a, b, group_start, separation, rows = (handover.a, handover.b, handover.group_start, handover.separation,
                                            handover.rows)
@@ -827,6 +813,10 @@ def _recover_penetration(handover, bodies, settings):
 
 
 # ---- the solver object ----------------------------------------------------------------------------------------
+
+#: the tally :func:`solve_step` is given when no contact report is wanted (it does not read it)
+_NO_TALLY = tuple(ContactTally.start(0, 0))
+
 
 class PendingRecovery(NamedTuple):
     """What :meth:`SequentialImpulseSolver.recover_penetration` needs from the last ``solve_velocities``."""
@@ -928,12 +918,12 @@ class SequentialImpulseSolver:
             tally = self._tally
             if tally is None or len(tally.touched) != n + 1:
                 tally = ContactTally.start(n, len(self._memory.key))
-            handover, memory, tally = solve_step_reporting(tuple(contacts), bodies, tuple(self._memory), settings,
-                                                           tuple(tally), self.profile.seconds)
+            handover, memory, tally = solve_step(tuple(contacts), bodies, tuple(self._memory), settings,
+                                                 tuple(tally), True, self.profile.seconds)
             self._tally = ContactTally(*tally)
         else:
-            handover, memory = solve_step(tuple(contacts), bodies, tuple(self._memory), settings,
-                                          self.profile.seconds)
+            handover, memory, _ = solve_step(tuple(contacts), bodies, tuple(self._memory), settings, _NO_TALLY,
+                                             False, self.profile.seconds)
         self._memory = memory
         self.profile.calls += 1
         self.stats = {"contacts": contacts.count, "manifolds": len(handover.group_start) - 1,

@@ -179,7 +179,8 @@ def main(argv: list[str] | None = None) -> int:
         print(_scene_list())
         return 0
     # Right after an install or an edit of the kernels' sources numba has nothing cached: compile the kernels
-    # in parallel processes now (about 25 s on 2 cores), not one by one in the first tick (about 40 s).
+    # in parallel processes now (24 s on 2 cores, benchmarks/bench_compile.py), not one by one in the first tick
+    # (about 40 s of CPU).
     try:
         compile_missing_kernels(lambda text: print(f"cgp-sim: {text}", file=sys.stderr, flush=True))
     except KeyboardInterrupt:
