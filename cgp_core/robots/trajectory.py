@@ -22,6 +22,7 @@ robot's spawn), and a looping one (``loop: true``) goes on from its first point 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -98,19 +99,37 @@ def check_trajectory(joints, start_ns: int, times, positions, velocities) -> Tra
     return Trajectory(joints, int(start_ns) if start_ns else None, t, q, v)
 
 
+class _Segment(NamedTuple):
+    """One segment of a trajectory: its ends' times [s], positions (k,) and velocities (k,) (``None`` without)."""
+
+    t0: float
+    t1: float
+    q0: np.ndarray
+    q1: np.ndarray
+    v0: np.ndarray | None
+    v1: np.ndarray | None
+
+
+def _segment(trajectory: Trajectory, t: float, start_positions: np.ndarray) -> _Segment:
+    """The segment holding ``t`` (before the last point's time); before the first point, the lead-in from
+    ``start_positions`` at time 0 at rest."""
+    times, q, v = trajectory.times, trajectory.positions, trajectory.velocities
+    i = int(np.searchsorted(times, t, side="right"))  # the segment [i - 1, i] (i = 0: before the first point)
+    if i == 0:
+        q1 = q[0]
+        v0, v1 = (np.zeros_like(q1), v[0]) if v is not None else (None, None)
+        return _Segment(0.0, times[0], np.asarray(start_positions, float), q1, v0, v1)
+    v0, v1 = (v[i - 1], v[i]) if v is not None else (None, None)
+    return _Segment(times[i - 1], times[i], q[i - 1], q[i], v0, v1)
+
+
 def sample(trajectory: Trajectory, t: float, start_positions: np.ndarray) -> np.ndarray:
     """The position targets (k,) at ``t`` seconds from the trajectory's start (``start_positions`` (k,): the joints'
     positions when it was taken, the segment before the first point starts there)."""
-    times, q, v = trajectory.times, trajectory.positions, trajectory.velocities
+    times, q = trajectory.times, trajectory.positions
     if t >= times[-1]:
         return q[-1].copy()
-    i = int(np.searchsorted(times, t, side="right"))  # the segment [i - 1, i] (i = 0: before the first point)
-    if i == 0:
-        t0, t1, q0, q1 = 0.0, times[0], np.asarray(start_positions, float), q[0]
-        v0, v1 = (np.zeros_like(q1), v[0]) if v is not None else (None, None)
-    else:
-        t0, t1, q0, q1 = times[i - 1], times[i], q[i - 1], q[i]
-        v0, v1 = (v[i - 1], v[i]) if v is not None else (None, None)
+    t0, t1, q0, q1, v0, v1 = _segment(trajectory, t, start_positions)
     span = t1 - t0
     if span <= 0.0:
         return q1.copy()
@@ -128,16 +147,10 @@ def sample(trajectory: Trajectory, t: float, start_positions: np.ndarray) -> np.
 def sample_velocity(trajectory: Trajectory, t: float, start_positions: np.ndarray) -> np.ndarray:
     """The velocities (k,) of :func:`sample`'s curve at ``t`` (its time derivative: the cubic's, or a linear
     segment's slope; 0 after the last point), the position drives' feed-forward for a scene trajectory."""
-    times, q, v = trajectory.times, trajectory.positions, trajectory.velocities
+    times, q = trajectory.times, trajectory.positions
     if t >= times[-1]:
         return np.zeros(q.shape[1])
-    i = int(np.searchsorted(times, t, side="right"))
-    if i == 0:
-        t0, t1, q0, q1 = 0.0, times[0], np.asarray(start_positions, float), q[0]
-        v0, v1 = (np.zeros_like(q1), v[0]) if v is not None else (None, None)
-    else:
-        t0, t1, q0, q1 = times[i - 1], times[i], q[i - 1], q[i]
-        v0, v1 = (v[i - 1], v[i]) if v is not None else (None, None)
+    t0, t1, q0, q1, v0, v1 = _segment(trajectory, t, start_positions)
     span = t1 - t0
     if span <= 0.0:
         return np.zeros(q.shape[1])
