@@ -123,7 +123,7 @@ import numpy as np
 from ..checks import positive
 from ..jit import StageProfile, clock, lap, njit
 from .algorithms import joint_space_terms, robot_view
-from .model import RobotStarts
+from .model import RobotStarts, row_starts
 
 #: drive modes (:attr:`JointDrives.mode`)
 DRIVE_NONE, DRIVE_EFFORT, DRIVE_VELOCITY, DRIVE_POSITION = 0, 1, 2, 3
@@ -976,14 +976,11 @@ def stack_properties(properties: list) -> tuple[JointProperties, np.ndarray, np.
     fields = [np.concatenate([getattr(p, name) for p in properties]) for name in JointProperties._fields[:10]]
     jacobian = np.concatenate([p.equality_jacobian.reshape(-1) for p in properties])
     error = np.concatenate([p.equality_error for p in properties])
-
-    def starts(sizes):
-        return np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
-
     return (JointProperties(*(np.ascontiguousarray(f) for f in fields), np.ascontiguousarray(jacobian, float),
                             np.ascontiguousarray(error, float)),
-            starts([len(p.mimic_follower) for p in properties]), starts([len(p.equality_error) for p in properties]),
-            starts([p.equality_jacobian.size for p in properties]))
+            row_starts([len(p.mimic_follower) for p in properties]),
+            row_starts([len(p.equality_error) for p in properties]),
+            row_starts([p.equality_jacobian.size for p in properties]))
 
 
 @njit

@@ -225,6 +225,12 @@ class RobotStarts(NamedTuple):
     equality_entry: np.ndarray  # entries of the flattened (e, n_dofs) equality Jacobians
 
 
+def row_starts(sizes) -> np.ndarray:
+    """The :class:`RobotStarts` entry of parts of ``sizes`` rows each, side by side: ``(len(sizes) + 1,)`` int64,
+    0 first and the total last."""
+    return np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
+
+
 def stack_robot_arrays(bundles: list) -> RobotArrays:
     """Every robot's :class:`RobotArrays` in one bundle: each array field concatenated along axis 0 (robot ``k``'s
     rows at its :class:`RobotStarts`; :func:`cgp_core.robots.algorithms.robot_view` takes them out again), the index

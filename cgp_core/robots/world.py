@@ -67,6 +67,7 @@ from .model import (
     JOINT_REVOLUTE,
     RobotStarts,
     neutral_positions,
+    row_starts,
     stack_robot_arrays,
 )
 
@@ -279,14 +280,10 @@ class Robots:
         # step_lone_robots), and all are integrated in one (algorithms.advance_all): every robot's arrays side by
         # side (concatenated: no per-robot lists at the border, see joint_solver.RobotStack), robot k's part at
         # its starts
-
-        def starts(sizes):
-            return np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
-
-        self._starts = RobotStarts(starts([r.model.n_bodies for r in self.robots]),
-                                   starts([len(r.arrays.frame_body) for r in self.robots]),
-                                   starts([r.model.n_dofs for r in self.robots]),
-                                   starts([r.model.n_q for r in self.robots]),
+        self._starts = RobotStarts(row_starts([r.model.n_bodies for r in self.robots]),
+                                   row_starts([len(r.arrays.frame_body) for r in self.robots]),
+                                   row_starts([r.model.n_dofs for r in self.robots]),
+                                   row_starts([r.model.n_q for r in self.robots]),
                                    *(np.zeros(len(self.robots) + 1, np.int64) for _ in range(3)))  # _stack_properties
         self._q_start, self._dof_start, self._body_start = self._starts.q, self._starts.dof, self._starts.body
         self._q_of_local = (np.concatenate([r.q_of_dof for r in self.robots]) if self.robots
@@ -344,7 +341,7 @@ class Robots:
         parts = [(memory.key, memory.impulse) if j == k else
                  (old.key[old.start[j]:old.start[j + 1]], old.impulse[old.start[j]:old.start[j + 1]])
                  for j in range(len(self.robots))]
-        start = np.concatenate(([0], np.cumsum([len(key) for key, _ in parts]))).astype(np.int64)
+        start = row_starts([len(key) for key, _ in parts])
         self._memories = RobotMemories(np.concatenate([key for key, _ in parts]).astype(np.int64),
                                        np.concatenate([impulse for _, impulse in parts]).astype(float), start)
 
