@@ -90,13 +90,16 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
     # 3a. robot stage: the contacts that touch a link are rows in the robots' joint space, with limits, drives,
     #     mimic couplings and joint friction (cgp_core.robots.world); the free bodies they touch get their share
     #     of those impulses, and the remaining contacts go on to 3b
+    coupled = None
     if robots is not None and robots.n_dofs:
         robots.active = active  # sleeping robots (their links asleep) are not stepped
-        contacts = robots.solve(contacts, model, state, h, gravity, velocity, angular_velocity, inv_inertia)
+        contacts = robots.solve(contacts, model, state, h, gravity)
+        coupled = robots.coupled
 
     # 3b. solve contacts: impulses added to P and L as momentum changes at the start of the sub-step, so that
-    #    momentum + h·force + impulse satisfies non-penetration, restitution and friction
-    solver.solve_velocities(model, state, contacts, h, inv_inertia=inv_inertia, active=active)
+    #    momentum + h·force + impulse satisfies non-penetration, restitution and friction; the robots whose links
+    #    touch a free body (``coupled``) have their rows solved in the same loop (cgp_core.robots.coupled)
+    solver.solve_velocities(model, state, contacts, h, inv_inertia=inv_inertia, active=active, coupled=coupled)
 
     # 4. integrate; then continuous collision for bodies turning fast next to fixed hulls and meshes (put back at
     #    their time of impact: cgp_core.collision.convex_phase)
@@ -110,6 +113,7 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
     if robots is not None and robots.n_dofs:
         robots.integrate(h)
         robots.write_bodies(model, state)  # the links where the joints put them, whatever the integrator did
+        robots.displace_free_bodies(model, state)  # the links' position stage pushed free bodies out of them
     solver.detector.sweep_fast_rotation(model, state, h)
 
     # 5. recover penetration (moves bodies apart; momenta untouched: adds no kinetic energy)

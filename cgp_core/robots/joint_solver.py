@@ -306,6 +306,8 @@ class JointStep(NamedTuple):
     effort: np.ndarray           # (n,) the joint torque/force this sub-step (see the module docstring) [N m / N]
     contact_impulse: np.ndarray  # (c, 3) the contact points' accumulated impulses [normal, t₁, t₂] [N s]
     sweeps: int                  # velocity sweeps run (summed over the passes a row-saturated drive caused)
+    body_displacement: np.ndarray  # (b, 6) the position stage's displacement of each free body [Δx m, Δθ rad]:
+    #                                the caller moves the bodies by it after the integrator (their momenta not)
 
 
 # ---- dense linear algebra (our own loops: bit-identical compiled and plain) ----------------------------------
@@ -653,38 +655,46 @@ def _clamp_cone(friction, r, lam):
 @njit
 def solve_joints(rows, lam, v, V, settings):
     """Projected Gauss–Seidel over the rows, in place on λ, v, V; returns the sweeps run."""
-    R = len(rows.kind)
-    J, W, Jb, Wb, body = rows.J, rows.W, rows.Jb, rows.Wb, rows.body
     sweeps = 0
     for _ in range(settings.velocity_iterations):
         sweeps += 1
-        change = 0.0
-        r = 0
-        while r < R:
-            if rows.kind[r] == ROW_TANGENT:  # t₁ and t₂ of a point together, clamped to its cone
-                b = body[r]
-                d1 = rows.eff[r] * (rows.target[r] - _row_velocity(J, Jb, b, r, v, V))
-                d2 = rows.eff[r + 1] * (rows.target[r + 1] - _row_velocity(J, Jb, b, r + 1, v, V))
-                old1, old2 = lam[r], lam[r + 1]
-                lam[r], lam[r + 1] = old1 + d1, old2 + d2
-                _clamp_cone(rows.upper[r], r, lam)
-                d1, d2 = lam[r] - old1, lam[r + 1] - old2
-                _apply_row(W, Wb, b, r, d1, v, V)
-                _apply_row(W, Wb, b, r + 1, d2, v, V)
-                change = max(change, abs(d1) * rows.stiff[r], abs(d2) * rows.stiff[r + 1])
-                r += 2
-                continue
-            b = body[r]
-            delta = rows.eff[r] * (rows.target[r] - _row_velocity(J, Jb, b, r, v, V) - rows.softness[r] * lam[r])
-            old = lam[r]
-            lam[r] = min(max(old + delta, rows.lower[r]), rows.upper[r])
-            delta = lam[r] - old
-            _apply_row(W, Wb, b, r, delta, v, V)
-            change = max(change, abs(delta) * (rows.stiff[r] + rows.softness[r]))
-            r += 1
-        if change <= settings.velocity_tolerance:
+        if sweep_joints(rows, lam, v, V) <= settings.velocity_tolerance:
             break
     return sweeps
+
+
+@njit
+def sweep_joints(rows, lam, v, V):
+    """One Gauss–Seidel sweep over the rows, in place on λ, v, V (also a sweep of the one loop that solves robot
+    rows and body rows together, :mod:`cgp_core.robots.coupled`); returns the largest change of a row's velocity
+    it made (the early stop's measure)."""
+    R = len(rows.kind)
+    J, W, Jb, Wb, body = rows.J, rows.W, rows.Jb, rows.Wb, rows.body
+    change = 0.0
+    r = 0
+    while r < R:
+        if rows.kind[r] == ROW_TANGENT:  # t₁ and t₂ of a point together, clamped to its cone
+            b = body[r]
+            d1 = rows.eff[r] * (rows.target[r] - _row_velocity(J, Jb, b, r, v, V))
+            d2 = rows.eff[r + 1] * (rows.target[r + 1] - _row_velocity(J, Jb, b, r + 1, v, V))
+            old1, old2 = lam[r], lam[r + 1]
+            lam[r], lam[r + 1] = old1 + d1, old2 + d2
+            _clamp_cone(rows.upper[r], r, lam)
+            d1, d2 = lam[r] - old1, lam[r + 1] - old2
+            _apply_row(W, Wb, b, r, d1, v, V)
+            _apply_row(W, Wb, b, r + 1, d2, v, V)
+            change = max(change, abs(d1) * rows.stiff[r], abs(d2) * rows.stiff[r + 1])
+            r += 2
+            continue
+        b = body[r]
+        delta = rows.eff[r] * (rows.target[r] - _row_velocity(J, Jb, b, r, v, V) - rows.softness[r] * lam[r])
+        old = lam[r]
+        lam[r] = min(max(old + delta, rows.lower[r]), rows.upper[r])
+        delta = lam[r] - old
+        _apply_row(W, Wb, b, r, delta, v, V)
+        change = max(change, abs(delta) * (rows.stiff[r] + rows.softness[r]))
+        r += 1
+    return change
 
 
 @njit
@@ -704,27 +714,26 @@ def saturated_by_rows(joints, terms, implicit, v, h, allowed):
 # ---- 4. the position stage -----------------------------------------------------------------------------------
 
 @njit
-def _positional(kind, body):
-    """Whether a row of ``kind`` (and free ``body``, −1: none) takes part in the position stage: limits, mimics,
-    equalities, normals against the static world."""
-    return (kind == ROW_LIMIT or kind == ROW_MIMIC or kind == ROW_EQUALITY
-            or (kind == ROW_NORMAL and body < 0))
+def _positional(kind):
+    """Whether a row of ``kind`` takes part in the position stage: limits, mimics, equalities, contact normals."""
+    return kind == ROW_LIMIT or kind == ROW_MIMIC or kind == ROW_EQUALITY or kind == ROW_NORMAL
 
 
 @njit
-def relax_positions(rows, v, settings):
+def relax_positions(rows, v, V, settings):
     """The position stage: the displacement Δq (as the pseudo-velocity Δq / h, (n,)) that removes the fraction
-    β of the limits' and mimics' position errors predicted after the velocity step, and of the penetration of the
-    contacts with the static world beyond the slop (see the module docstring)."""
+    β of the limits' and mimics' position errors predicted after the velocity step, and of the contacts'
+    penetration beyond the slop (see the module docstring); and the displacement D (len(V), 6) [m, rad] of the
+    free bodies those contacts push, M_b⁻¹ J_bᵀ λ, which the caller applies to their poses after the integrator
+    (never to their momenta: split impulses add no energy).  ``V`` (b, 6): the free bodies' solved velocities."""
     n, R, h = len(v), len(rows.kind), settings.h
     d = np.zeros(n)
+    D = np.zeros((len(V), 6))
     goal = np.zeros(R)
     lam = np.zeros(R)
     for r in range(R):
-        if _positional(rows.kind[r], rows.body[r]):
-            predicted = rows.error[r]
-            for i in range(n):
-                predicted += h * rows.J[r, i] * v[i]
+        if _positional(rows.kind[r]):
+            predicted = rows.error[r] + h * _row_velocity(rows.J, rows.Jb, rows.body[r], r, v, V)
             if rows.kind[r] == ROW_NORMAL:  # as the contact solver's position stage: slop, β, a cap
                 goal[r] = min(-settings.contact_correction * (predicted + settings.penetration_slop),
                               settings.max_correction)
@@ -733,23 +742,19 @@ def relax_positions(rows, v, settings):
     for _ in range(settings.position_iterations):
         change = 0.0
         for r in range(R):
-            if not _positional(rows.kind[r], rows.body[r]) or rows.stiff[r] <= 0.0:
+            if not _positional(rows.kind[r]) or rows.stiff[r] <= 0.0:
                 continue
-            s = 0.0
-            for i in range(n):
-                s += rows.J[r, i] * d[i]
-            delta = (goal[r] - s) / rows.stiff[r]
+            delta = (goal[r] - _row_velocity(rows.J, rows.Jb, rows.body[r], r, d, D)) / rows.stiff[r]
             if rows.kind[r] != ROW_MIMIC and rows.kind[r] != ROW_EQUALITY:  # one-sided
                 delta = max(lam[r] + delta, 0.0) - lam[r]
             lam[r] += delta
-            for i in range(n):
-                d[i] += rows.W[r, i] * delta
+            _apply_row(rows.W, rows.Wb, rows.body[r], r, delta, d, D)
             change = max(change, abs(delta) * rows.stiff[r])
         if change <= POSITION_TOLERANCE:  # nothing (more) to correct: the usual case, one sweep
             break
     for i in range(n):
         d[i] /= h
-    return d
+    return d, D
 
 
 # ---- 5. store: impulses to the free bodies, the effort, the memory -------------------------------------------
@@ -818,11 +823,11 @@ def step_joints(system, joints, drives, contacts, bodies, memory, settings, prof
     for b in range(len(V)):
         for k in range(6):
             bodies.velocity[b, k] = V[b, k]
-    pseudo = relax_positions(rows, v, settings)
+    pseudo, displacement = relax_positions(rows, v, V, settings)
     start = lap(profile, RELAX, start)
     effort, impulse, memory = store_joints(joints, terms, implicit, rows, lam, v, bodies, h)
     lap(profile, STORE, start)
-    return JointStep(v, pseudo, effort, impulse, sweeps), memory
+    return JointStep(v, pseudo, effort, impulse, sweeps, displacement), memory
 
 
 def integrate_dofs(position: np.ndarray, step: JointStep, h: float) -> np.ndarray:

@@ -42,6 +42,8 @@ asks for one solve loop; this is the step before it, see docs/robots.md.)
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from ..limits import MAX_ROBOT_DOFS
@@ -231,6 +233,20 @@ def _split_memory(memory, dofs: int, n: int, mimics: int, k_mimic: int, equaliti
     return JointSolverMemory(key[order], memory.impulse[mine][order])
 
 
+class Island(NamedTuple):
+    """Robots solved as one joint-space system in a sub-step (:meth:`Robots._island`): block-diagonal M, their rows
+    side by side (robot ``k``'s dofs, mimic couplings and loop rows from its ``offsets``)."""
+
+    group: list          # the robots, ascending
+    system: tuple        # JointSystem of all their dofs
+    properties: tuple    # JointProperties, the mimic dofs and the loop rows' columns shifted by the offsets
+    drives: tuple        # JointDrives, concatenated
+    rows: tuple          # ContactRows of the contacts ``selected`` (free bodies by their world body row)
+    selected: object     # the ContactSet of their links' contacts, or None
+    memory: tuple        # JointSolverMemory: theirs merged (cgp_core.robots.world._merge_memories)
+    offsets: tuple       # (dof, mimic, loop row) offsets: three dicts robot → its first index there
+
+
 def _q_index(model, dof: int) -> int:
     """The position index of a 1-dof joint's velocity index ``dof``."""
     body = int(np.searchsorted(model.dof_start, dof, side="right") - 1)
@@ -300,6 +316,9 @@ class Robots:
         self._sleeping = np.zeros(len(self.robots), bool)
         self._commanded: set[int] = set()  # robots given a joint command since the last tick (they wake)
         self._joined = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        #: the robots whose links touch free bodies this sub-step, for the body solver's loop (None: none)
+        self.coupled = None
+        self._displacement = None  # their position stage's free-body displacements (displace_free_bodies)
         self.reset()
 
     def __deepcopy__(self, memo):
@@ -635,9 +654,11 @@ class Robots:
                 out[loop.name] = float(np.linalg.norm(pa - pb))
         return out
 
-    def solve(self, contacts, body_model, state, h: float, gravity, velocity, angular_velocity, inv_inertia):
-        """The robot stage (module docstring, step 3): every robot, or island of robots whose links touch,
-        solved on its own; returns the contacts left for the body solver."""
+    def solve(self, contacts, body_model, state, h: float, gravity):
+        """The robot stage (module docstring, step 3): every robot, or island of robots whose links touch, solved
+        on its own — except the robots whose links touch a free body, which are prepared as one joint-space system
+        in :attr:`coupled` (None when there are none) for the body solver's loop; returns the contacts left for
+        the body solver."""
         from .joint_solver import FreeBodies, JointSolver, JointSystem
 
         if contacts.count:
@@ -700,20 +721,18 @@ class Robots:
                 (self.q, self.qd, self._wrench_torque, self._pseudo, self._effort_sum, self._q_of_local),
                 tuple(self._starts), gravity, self._settings, self._profile.seconds))
             self._profile.calls += 1
-        bodies = None
+        self.coupled = None
+        coupled_robots, coupled_contacts = [], []
         for group in groups if root is not None else ():
             if len(group) == 1 and int(root[group[0]]) not in owner:
                 continue  # stepped above (or asleep)
             picked = owner.get(int(root[group[0]]))
-            if picked is not None and picked.size:
-                selected = contacts.select(picked)
-                if bodies is None:
-                    bodies = FreeBodies(np.ascontiguousarray(body_model.inv_mass, dtype=float), inv_inertia,
-                                        np.ascontiguousarray(np.hstack([velocity, angular_velocity])),
-                                        state.linear_momentum, state.angular_momentum)
-                use_bodies = bodies
-            else:
-                selected, use_bodies = None, FreeBodies.empty()
+            if picked is not None and picked.size and self._touches_free_body(contacts, picked, body_model):
+                # its rows share free bodies with the body solver's: solved in its loop (cgp_core.robots.coupled)
+                coupled_robots += group
+                coupled_contacts.append(picked)
+                continue
+            selected = contacts.select(picked) if picked is not None and picked.size else None
             if len(group) == 1:
                 r = self.robots[group[0]]
                 q, qd = self.q[r.q_slice], self.qd[r.dof_slice]
@@ -722,13 +741,31 @@ class Robots:
                 system = JointSystem(M, bias, self._wrench_torque[r.dof_slice].copy(), coordinate, qd.copy())
                 rows = self._contact_rows(selected, body_model, state, {group[0]: 0}, r.model.n_dofs)
                 r.solver.memory = self._memory(group[0])
-                step = r.solver.step(system, r.properties, r.drives, rows, use_bodies)
+                step = r.solver.step(system, r.properties, r.drives, rows, FreeBodies.empty())
                 self._set_memory(group[0], r.solver.memory)
                 self._finish(group, step, rows, selected, state)
             else:
-                self._solve_island(group, selected, body_model, state, gravity, use_bodies)
+                self._solve_island(group, selected, body_model, state, gravity)
+        if coupled_robots:
+            # every robot touching a free body in one joint-space system (block-diagonal M): one loop with the
+            # body rows needs one set of robot rows
+            selected = contacts.select(np.sort(np.concatenate(coupled_contacts)))
+            self.coupled = CoupledRobots(self, self._island(sorted(coupled_robots), selected, body_model, state,
+                                                            gravity), state)
         self._substeps += 1
         return rest
+
+    def _touches_free_body(self, contacts, picked: np.ndarray, body_model) -> bool:
+        """Whether one of the contacts ``picked`` has a free body (awake, movable, no link) on a side."""
+        return bool(self._free_side(contacts.body_a[picked], body_model).any()
+                    or self._free_side(contacts.body_b[picked], body_model).any())
+
+    def _free_side(self, side: np.ndarray, body_model) -> np.ndarray:
+        """(k,) bool: the bodies ``side`` (−1: the ground) that are free bodies the contact rows move: not a link,
+        movable, awake (a sleeping body is static to the robots, as to the body solver)."""
+        row = np.maximum(side, 0)
+        free = (side >= 0) & (self.body_robot[row] < 0) & (body_model.inv_mass[row] > 0.0)
+        return free if self.active is None else free & self.active[row]
 
     def _finish(self, group, step, rows, selected, state) -> None:
         """Write an island's step: q̇, the pseudo-velocity, the effort; the contact report's sums."""
@@ -743,10 +780,10 @@ class Robots:
         if self._tally is not None and selected is not None and selected.count:
             self._tally_contacts(selected, rows, step.contact_impulse, state)
 
-    def _solve_island(self, group, selected, body_model, state, gravity, bodies) -> None:
-        """Robots whose links touch each other in this sub-step: one joint-space system of all their dofs
-        (block-diagonal M), their warm-start memories merged and split again."""
-        from .joint_solver import JointProperties, JointSolver, JointSystem
+    def _island(self, group, selected, body_model, state, gravity) -> Island:
+        """The joint-space problem of robots ``group`` solved as one system (block-diagonal M) with the contacts
+        ``selected`` (None: none) of their links: their warm-start memories merged."""
+        from .joint_solver import JointProperties, JointSystem
 
         offsets, mimic_offsets, equality_offsets = {}, {}, {}
         n = k_mimic = k_equality = 0
@@ -777,11 +814,17 @@ class Robots:
             properties.equality_jacobian[e0:e0 + len(p.equality_error), n0:n0 + p.equality_jacobian.shape[1]] = \
                 p.equality_jacobian
         drives = tuple(np.concatenate([self.robots[k].drives[i] for k in group]) for i in range(6))
-        rows = self._contact_rows(selected, body_model, state, offsets, n)
-        solver = JointSolver(self._h, check=False)
-        solver.memory = _merge_memories([(self._memory(k), offsets[k], mimic_offsets[k],
-                                          equality_offsets[k]) for k in group])
-        step = solver.step(JointSystem(M, bias, applied, coordinate, qd), properties, drives, rows, bodies)
+        memory = _merge_memories([(self._memory(k), offsets[k], mimic_offsets[k], equality_offsets[k])
+                                  for k in group])
+        return Island(group, JointSystem(M, bias, applied, coordinate, qd), properties, drives,
+                      self._contact_rows(selected, body_model, state, offsets, n), selected, memory,
+                      (offsets, mimic_offsets, equality_offsets))
+
+    def _island_solved(self, island: Island, step, memory, seconds: np.ndarray, state) -> None:
+        """An island's step written back: each robot's part of the memory (split again), of the stage times
+        ``seconds``, its q̇, pseudo-velocity and effort, the contact report's sums."""
+        offsets, mimic_offsets, equality_offsets = island.offsets
+        selected, rows = island.selected, island.rows
         contact_robots = {}
         if selected is not None:
             for c in range(selected.count):
@@ -789,13 +832,44 @@ class Robots:
                 for side in (int(selected.body_a[c]), int(selected.body_b[c])):
                     if side >= 0 and self.body_robot[side] >= 0:
                         contact_robots.setdefault(key, set()).add(int(self.body_robot[side]))
-        for k in group:
+        for k in island.group:
             r = self.robots[k]
-            self._set_memory(k, _split_memory(solver.memory, offsets[k], r.model.n_dofs, mimic_offsets[k],
+            self._set_memory(k, _split_memory(memory, offsets[k], r.model.n_dofs, mimic_offsets[k],
                                               len(r.properties.mimic_follower), equality_offsets[k],
                                               len(r.properties.equality_error), k, contact_robots))
-            r.solver.profile.seconds += solver.profile.seconds / len(group)
-        self._finish(group, step, rows, selected, state)
+            r.solver.profile.seconds += seconds / len(island.group)
+        self._finish(island.group, step, rows, selected, state)
+
+    def _solve_island(self, group, selected, body_model, state, gravity) -> None:
+        """Robots whose links touch each other (and no free body) in this sub-step: one joint-space system of all
+        their dofs (:meth:`_island`), solved on its own."""
+        from .joint_solver import FreeBodies, JointSolver
+
+        island = self._island(group, selected, body_model, state, gravity)
+        solver = JointSolver(self._h, check=False)
+        solver.memory = island.memory
+        step = solver.step(island.system, island.properties, island.drives, island.rows, FreeBodies.empty())
+        self._island_solved(island, step, solver.memory, solver.profile.seconds, state)
+
+    def displace_free_bodies(self, body_model, state) -> None:
+        """After the integrator: move the free bodies the links' contacts pushed in the position stage by their
+        displacement (:attr:`~.joint_solver.JointStep.body_displacement`), positions and orientations only — the
+        angular momentum turned with the body, so that neither momentum nor kinetic energy changes (split
+        impulses, as the body solver's penetration recovery)."""
+        displacement, self._displacement = getattr(self, "_displacement", None), None
+        if displacement is None:
+            return
+        moved = np.flatnonzero(np.abs(displacement[:body_model.count]).max(axis=1) > 0.0)
+        if not moved.size:
+            return
+        from ..rotation import quat_from_rotvec, quat_multiply, quat_normalize, quat_rotate
+
+        state.position[moved] += displacement[moved, :3]
+        turn = quat_from_rotvec(displacement[moved, 3:])
+        state.orientation[moved] = quat_normalize(quat_multiply(turn, state.orientation[moved]))
+        state.angular_momentum[moved] = quat_rotate(turn, state.angular_momentum[moved])
+        if state.rotation is not None:  # an integrator that keeps its own matrix (explicit Euler)
+            state.rotation[moved] = quat_to_matrix(turn) @ state.rotation[moved]
 
     def _q_of_dof(self) -> np.ndarray:
         """(n_dofs,) the position index of every 1-dof joint's velocity (−1 for a floating root's)."""
@@ -861,7 +935,7 @@ class Robots:
                     Jp = algorithms.point_jacobian(r.kernel_arrays, rotation, position, int(self.body_link[side]), p)
                     start = offsets[k]
                     J[c, :, start:start + r.model.n_dofs] += sign * (D @ Jp)
-                elif body_model.inv_mass[side] > 0.0:
+                elif self._free_side(np.array([side]), body_model)[0]:
                     body[c] = side
                     arm = p - state.position[side]
                     d = sign * D  # the body's row: sign · [D, r × D]
@@ -1244,3 +1318,31 @@ class Robots:
             static.append(True)
         quaternions = matrix_to_quat(np.array(rotations))  # one batched call: ~130 µs each one by one
         return list(zip(parents, children, quaternions, translations, static))
+
+
+class CoupledRobots:
+    """The robots whose links touch free bodies in this sub-step, prepared by :meth:`Robots.solve` as one
+    :class:`Island` for the body solver's loop: the body solver calls :meth:`solve` where it would call its own
+    kernel (``SequentialImpulseSolver.solve_velocities(..., coupled=...)``), and the robot rows and the body rows
+    are solved together (:func:`cgp_core.robots.coupled.step_coupled`); the robots' results are written back here,
+    the body solver's returned."""
+
+    def __init__(self, robots: Robots, island: Island, state):
+        self._robots, self._island, self._state = robots, island, state
+
+    def solve(self, contacts, bodies, memory, settings, tally, report, profile):
+        """:func:`~cgp_core.solver.sequential_impulse.solve_step`'s arguments and result, with the robots' rows in
+        the same loop."""
+        from .coupled import step_coupled
+        from .joint_solver import STAGES, JointSolverMemory, JointStep
+
+        island, robots = self._island, self._robots
+        seconds = np.zeros(len(STAGES))
+        joint_problem = (tuple(island.system), tuple(island.properties), tuple(island.drives), tuple(island.rows),
+                         tuple(island.memory), robots._settings)
+        (step, memory_after), body = step_coupled(joint_problem, (contacts, bodies, memory, settings, tally, report),
+                                                  seconds, profile)
+        step = JointStep(*step)
+        robots._island_solved(island, step, JointSolverMemory(*memory_after), seconds, self._state)
+        robots._displacement = step.body_displacement
+        return body

@@ -88,11 +88,13 @@ class ContactSolver(Protocol):
     detector: CollisionDetector
 
     def solve_velocities(self, model: BodyModel, state: BodyState, contacts: ContactSet, h: float, *,
-                         inv_inertia=None, active=None) -> None:
+                         inv_inertia=None, active=None, coupled=None) -> None:
         """Add contact impulses to ``state.linear_momentum`` / ``angular_momentum`` (see module docstring).
         ``inv_inertia`` (n, 3, 3): the world-frame I⁻¹ at ``state``'s poses if the caller has it already
         (default: computed from the state).  ``active`` (n,) bool: the bodies being stepped (default: all);
-        the others (sleeping) act as static bodies."""
+        the others (sleeping) act as static bodies.  ``coupled``: None, or the robots whose links touch free
+        bodies this sub-step, whose rows are solved in the same loop as the contacts (``coupled.solve`` runs
+        the velocity stage instead of the solver's own kernel: :mod:`cgp_core.robots.coupled`)."""
         ...
 
     def recover_penetration(self, model: BodyModel, state: BodyState, h: float) -> None:

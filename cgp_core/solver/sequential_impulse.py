@@ -899,10 +899,15 @@ class SequentialImpulseSolver:
         return cached[2]
 
     def solve_velocities(self, model: BodyModel, state: BodyState, contacts: ContactSet, h: float, *,
-                         inv_inertia: np.ndarray | None = None, active: np.ndarray | None = None) -> None:
+                         inv_inertia: np.ndarray | None = None, active: np.ndarray | None = None,
+                         coupled=None) -> None:
         """Add contact impulses to ``state.linear_momentum`` / ``angular_momentum`` (see :mod:`.base`).
         ``inv_inertia`` (n, 3, 3): the world-frame I⁻¹ at ``state``'s poses if the caller has it already;
-        ``active`` (n,) bool: the bodies being stepped (default: all; a sleeping body acts as static)."""
+        ``active`` (n,) bool: the bodies being stepped (default: all; a sleeping body acts as static).
+        ``coupled``: None, or rows of other solvers that act on the same bodies and are to be solved in the same
+        loop as the contacts (the robots whose links touch free bodies: :class:`cgp_core.robots.world.
+        CoupledRobots`): its ``solve`` is called instead of :func:`solve_step`, with the same arguments, and
+        returns what ``solve_step`` returns (this module does not know the robots)."""
         n = model.count
         self._pending = None
         if model is not self._warm_model or n != self._warm_count:
@@ -914,16 +919,17 @@ class SequentialImpulseSolver:
         settings = self._settings_for(float(h))
         bodies = (model.inv_mass, movable, np.ascontiguousarray(inv_inertia), state.position, state.linear_momentum,
                   state.angular_momentum, state.force, state.torque)  # a BodyArrays, as a plain tuple
+        solve = solve_step if coupled is None else coupled.solve
         if self._reporting:
             tally = self._tally
             if tally is None or len(tally.touched) != n + 1:
                 tally = ContactTally.start(n, len(self._memory.key))
-            handover, memory, tally = solve_step(tuple(contacts), bodies, tuple(self._memory), settings,
-                                                 tuple(tally), True, self.profile.seconds)
+            handover, memory, tally = solve(tuple(contacts), bodies, tuple(self._memory), settings, tuple(tally),
+                                            True, self.profile.seconds)
             self._tally = ContactTally(*tally)
         else:
-            handover, memory, _ = solve_step(tuple(contacts), bodies, tuple(self._memory), settings, _NO_TALLY,
-                                             False, self.profile.seconds)
+            handover, memory, _ = solve(tuple(contacts), bodies, tuple(self._memory), settings, _NO_TALLY, False,
+                                        self.profile.seconds)
         self._memory = memory
         self.profile.calls += 1
         self.stats = {"contacts": contacts.count, "manifolds": len(handover.group_start) - 1,

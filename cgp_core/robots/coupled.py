@@ -1,0 +1,220 @@
+"""The robots' joint-space rows and the free bodies' contact rows in ONE solve loop (issue 35), for the sub-steps
+in which a link touches a free body.
+
+**Why.**  A link pressing a free body against something else — a crate pushed across the ground, a box squeezed
+between a gripper and a wall — is one constraint problem: the link's row and the crate's ground rows act on the
+same crate velocity.  Solved as two Gauss–Seidel blocks one after the other (first every robot row, then every
+body row), the robot sees the crate move freely and gives it the link's speed; the ground's friction then takes
+some of it back, and the link moves on into the crate by h · μ g h every sub-step (2.8 cm over 1.5 s in
+tests/test_robot_world.py's push).  Here every sweep visits both kinds of rows on one shared velocity state of the
+free bodies (the body solver's V, rows n + 1), as Bullet's btMultiBodyConstraintSolver does, so the crate's
+velocity at the end of the sub-step satisfies the link row and the ground rows together.
+
+**The sub-step** (:func:`step_coupled`, one compiled call; the robots are those whose links touch a free body, as
+one joint-space system, :meth:`cgp_core.robots.world.Robots.solve`):
+
+1. the body solver's :func:`~cgp_core.solver.sequential_impulse.prepare_bodies`: V = M⁻¹ (momentum + h·force);
+2. the joint solver's prepare and warm start (:func:`~.joint_solver.prepare_joints`,
+   :func:`~.joint_solver.warm_start_joints`): the robot's rows, their free body's share of the warm impulses on V;
+3. the body solver's prepare and warm start (:func:`~cgp_core.solver.sequential_impulse.prepare_contacts`,
+   :func:`~cgp_core.solver.sequential_impulse.warm_start_contacts`) on that V;
+4. the sweeps (:func:`solve_together`): a joint-row sweep (:func:`~.joint_solver.sweep_joints`) then a body-row
+   sweep (the body solver's manifolds, :func:`~cgp_core.solver.sequential_impulse._solve_manifold`), until a
+   round changed no row of either kind by more than its tolerance, or the larger of the two iteration caps; then
+   the body solver's impact sweeps (with a joint sweep each, so the bounce reaches the robot too);
+5. a drive the rows held beyond its effort limit: taken out of A and 2.–4. again (as :func:`~.joint_solver.
+   step_joints` does);
+6. the body solver's bounce time shift, impulses to momenta and warm-start memory; the joint solver's position
+   stage (:func:`~.joint_solver.relax_positions`: the link–free-body contacts corrected too, by a split impulse
+   that moves the robot by a pseudo-velocity and the free body by a displacement — neither momentum changes) and
+   its store stage (the robot rows' impulses to the free bodies' momenta, the effort, the memory).
+
+The position stage is not one loop yet: the joint solver's (limits, mimics, loop closures, the links' contacts
+with the world and with free bodies) runs before the integrator, on the predicted errors; the body solver's
+penetration recovery of the body–body contacts after it, on the actual motion (which includes the displacement
+the link contacts gave the free bodies).
+
+A sub-step in which no link touches a free body has nothing to couple: the robots' rows and the bodies' rows share
+no velocity, and the two solvers run on their own (:func:`~.joint_solver.step_joints`,
+:func:`~cgp_core.solver.sequential_impulse.solve_step`; a scene without robots never comes here).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ..collision.contacts import ContactSet
+from ..jit import clock, lap, njit
+from ..solver.arrays import BodyArrays, Handover, Scratch, SolverBodies, StepSettings, WarmStart
+from ..solver.manifold import MAX_BLOCK
+from ..solver.report import tally_contacts
+from ..solver.sequential_impulse import (
+    APPLY_IMPULSES,
+    BOUNCE_TIME_SHIFT,
+    STORE_IMPULSES,
+    _solve_manifold,
+    apply_impulses,
+    bounce_time_shift,
+    prepare_bodies,
+    prepare_contacts,
+    store_impulses,
+    warm_start_contacts,
+)
+from ..solver.sequential_impulse import PREPARE as BODY_PREPARE
+from ..solver.sequential_impulse import SOLVE as BODY_SOLVE
+from ..solver.sequential_impulse import WARM_START as BODY_WARM_START
+from .joint_solver import (
+    PREPARE,
+    RELAX,
+    STORE,
+    WARM_START,
+    ContactRows,
+    FreeBodies,
+    JointDrives,
+    JointProperties,
+    JointSettings,
+    JointSolverMemory,
+    JointStep,
+    JointSystem,
+    drive_terms,
+    prepare_joints,
+    relax_positions,
+    saturated_by_rows,
+    store_joints,
+    sweep_joints,
+    warm_start_joints,
+)
+
+
+class JointProblem(NamedTuple):
+    """The coupled robots' side of :func:`step_coupled` (each a plain tuple of its bundle from Python)."""
+
+    system: tuple    # JointSystem
+    joints: tuple    # JointProperties (with equality arrays)
+    drives: tuple    # JointDrives
+    contacts: tuple  # ContactRows: body = the world body row of a free body (rows of the body solver's V)
+    memory: tuple    # JointSolverMemory
+    settings: tuple  # JointSettings
+
+
+class BodyProblem(NamedTuple):
+    """The body solver's side of :func:`step_coupled`: the first six arguments of
+    :func:`~cgp_core.solver.sequential_impulse.solve_step`, as it takes them."""
+
+    contacts: tuple  # ContactSet of the contacts between free bodies (and with the static world)
+    bodies: tuple    # BodyArrays (the momenta get every impulse, in place)
+    memory: tuple    # WarmStart
+    settings: tuple  # StepSettings
+    tally: tuple     # ContactTally (read only with ``report``)
+    report: bool     # whether the contact report is summed this tick
+
+
+@njit
+def solve_together(joint_rows, joint_lam, v, manifolds, rows, targets, lam, bodies, joint_settings, settings):
+    """The one loop: each round a sweep over the robot rows (:func:`~.joint_solver.sweep_joints`, on v and the
+    shared V) and one over the body solver's manifolds (as :func:`~cgp_core.solver.sequential_impulse.
+    solve_contacts` does, on the same V), in place on both λ, v and V = ``bodies.velocity``; the rounds stop
+    once neither kind changed a row velocity by more than its own tolerance, or after the larger of the two
+    iteration caps.  Then the body solver's impact sweeps over the manifolds holding a bouncing point, each with a
+    robot sweep.  Returns the rounds run (impact sweeps not counted, as in ``solve_contacts``)."""
+    group_start = manifolds.group_start
+    m = len(manifolds.a)
+    G = len(group_start) - 1
+    V = bodies.velocity
+    lam_n = np.empty(m)
+    scratch = Scratch(np.empty((2, MAX_BLOCK)), np.zeros(MAX_BLOCK, np.bool_), np.empty((m, 2)))
+    impact = np.zeros(G, np.bool_)
+    any_impact = False
+    for g in range(G):
+        if group_start[g + 1] - group_start[g] > 1:
+            for c in range(group_start[g], group_start[g + 1]):
+                if targets.bounce[c]:
+                    impact[g] = True
+                    any_impact = True
+    cap = max(joint_settings.velocity_iterations, settings.velocity_iterations)
+    rounds = 0
+    impact_done = 0
+    regular = True
+    while True:
+        joint_change = sweep_joints(joint_rows, joint_lam, v, V)
+        change = 0.0
+        for g in range(G):
+            if regular or impact[g]:
+                change = max(change, _solve_manifold(g, manifolds, rows, targets, lam, lam_n, V, scratch))
+        converged = change <= settings.velocity_tolerance and joint_change <= joint_settings.velocity_tolerance
+        if regular:
+            rounds += 1
+            if converged or rounds >= cap:
+                regular = False
+                if not any_impact or settings.impact_sweeps == 0:
+                    break
+        else:
+            impact_done += 1
+            if converged or impact_done >= settings.impact_sweeps:
+                break
+    return rounds
+
+
+@njit
+def step_coupled(joint_problem, body_problem, joint_profile, body_profile):
+    """One sub-step's velocity solve of the robots whose links touch free bodies together with every contact
+    between free bodies (the module docstring's stages), and the robots' position stage.  ``joint_problem``:
+    :class:`JointProblem`; ``body_problem``: :class:`BodyProblem` (plain tuples); the stages are timed into
+    ``joint_profile`` (:data:`~.joint_solver.STAGES`) and ``body_profile`` (the body solver's; the shared sweeps
+    are its ``solve``).
+
+    Returns ``(joint, body)``: ``joint`` = (:class:`~.joint_solver.JointStep` — its ``body_displacement`` the free
+    bodies' (n + 1 rows, the last the ground's) —, the new :class:`~.joint_solver.JointSolverMemory`); ``body`` =
+    what :func:`~cgp_core.solver.sequential_impulse.solve_step` returns (the :class:`~cgp_core.solver.arrays.
+    Handover`, the new warm start, the tally or None)."""
+    system, joints, drives, contacts, memory, settings = joint_problem
+    system, joints, drives = JointSystem(*system), JointProperties(*joints), JointDrives(*drives)
+    contacts, memory, settings = ContactRows(*contacts), JointSolverMemory(*memory), JointSettings(*settings)
+    body_contacts, body_arrays, body_memory, body_settings, tally, report = body_problem
+    body_contacts, body_arrays = ContactSet(*body_contacts), BodyArrays(*body_arrays)
+    body_memory, body_settings = WarmStart(*body_memory), StepSettings(*body_settings)
+    h, n = settings.h, len(system.velocity)
+    start = clock()
+    prepared = prepare_bodies(body_arrays, body_settings.h)
+    # the robot rows see the free bodies as the body solver does (a sleeping body: static), and their impulses go
+    # to the same momenta
+    free = FreeBodies(prepared.inv_mass, prepared.inv_inertia, prepared.velocity, body_arrays.linear_momentum,
+                      body_arrays.angular_momentum)
+    allowed = np.ones(n, np.bool_)
+    terms = drive_terms(system, joints, drives)
+    rounds = 0
+    while True:  # at most n + 1 passes: each but the last takes a drive out of A (as step_joints)
+        implicit, joint_rows = prepare_joints(system, joints, terms, contacts, free, h, allowed)
+        v = implicit.velocity.copy()
+        V = prepared.velocity.copy()  # every pass starts from the contact-free velocities
+        start = lap(joint_profile, PREPARE, start)
+        joint_lam = warm_start_joints(joint_rows, memory, v, V, settings.warm_start)
+        start = lap(joint_profile, WARM_START, start)
+        bodies = SolverBodies(prepared.inv_mass, prepared.inv_inertia, prepared.position, prepared.dynamic, V,
+                              prepared.velocity_before)
+        manifolds, rows, targets, deepest = prepare_contacts(body_contacts, bodies, body_memory, body_settings)
+        start = lap(body_profile, BODY_PREPARE, start)
+        lam = warm_start_contacts(manifolds, rows, bodies, body_memory, body_settings.warm_start)
+        start = lap(body_profile, BODY_WARM_START, start)
+        rounds += solve_together(joint_rows, joint_lam, v, manifolds, rows, targets, lam, bodies, settings,
+                                 body_settings)
+        start = lap(body_profile, BODY_SOLVE, start)
+        if not saturated_by_rows(joints, terms, implicit, v, h, allowed):
+            break
+    bounce_time_shift(manifolds, rows, targets, bodies, body_settings.h)
+    start = lap(body_profile, BOUNCE_TIME_SHIFT, start)
+    impulse = apply_impulses(manifolds, rows, lam, bodies, body_arrays, body_settings.rolling_resistance)
+    start = lap(body_profile, APPLY_IMPULSES, start)
+    new_body_memory = store_impulses(manifolds, rows, lam)
+    start = lap(body_profile, STORE_IMPULSES, start)
+    pseudo, displacement = relax_positions(joint_rows, v, V, settings)
+    start = lap(joint_profile, RELAX, start)
+    effort, contact_impulse, new_memory = store_joints(joints, terms, implicit, joint_rows, joint_lam, v, free, h)
+    lap(joint_profile, STORE, start)
+    handover = Handover(manifolds.a, manifolds.b, manifolds.group_start, manifolds.separation, rows,
+                        targets.toi_shift, rounds, deepest)
+    step = JointStep(v, pseudo, effort, contact_impulse, rounds, displacement)
+    return (step, new_memory), (handover, new_body_memory,
+                                (tally_contacts(manifolds, rows, lam, impulse, tally) if report else None))
