@@ -88,8 +88,8 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
                                           angular_velocity=angular_velocity, rotation=R, active=active)
 
     # 3a. robot stage: the contacts that touch a link are rows in the robots' joint space, with limits, drives,
-    #     mimic couplings and joint friction (cgp_core.robots.world); the free bodies they touch get their share
-    #     of those impulses, and the remaining contacts go on to 3b
+    #     mimic couplings and joint friction (cgp_core.robots.world); the robots whose links touch no free body
+    #     are solved here, those that do are handed to 3b (``coupled``), with the remaining contacts
     coupled = None
     if robots is not None and robots.n_dofs:
         robots.active = active  # sleeping robots (their links asleep) are not stepped

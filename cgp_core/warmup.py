@@ -101,16 +101,17 @@ def warm_up_robots(ticks: int = 4) -> World:
                          effort=[0.0, 0.0, 1.0])
     for _ in range(ticks):  # a robot that touches nothing: the robots' batched kernels (step_lone_robots, ...)
         world.step()
-    # a robot whose link touches a body (a crate resting on its level upper arm): its contact rows, the joint step
-    # from Python (Robots.solve)
+    # a robot whose link touches a body (a crate resting on its level upper arm): its contact rows, its rows and the
+    # body rows in one loop (Robots.solve, robots.coupled.step_coupled)
     from .scene import scene_from_dict
 
-    touching = World(scene_from_dict({
-        "robots": [{"name": "arm", "urdf": "arm.urdf", "joints": {"shoulder_lift": 1.5708, "elbow": -1.5708}}],
-        "bodies": [{"name": "crate", "shape": "box", "size": [0.06, 0.06, 0.04], "mass": 0.4,
-                    "position": [0.25, 0.0, 0.247]}]}, "<warm-up>"))
-    for _ in range(ticks):
-        touching.step()
+    for fixed in (False, True):  # a free crate: the one loop; a fixed one: the joint step alone, from Python
+        touching = World(scene_from_dict({
+            "robots": [{"name": "arm", "urdf": "arm.urdf", "joints": {"shoulder_lift": 1.5708, "elbow": -1.5708}}],
+            "bodies": [{"name": "crate", "shape": "box", "size": [0.06, 0.06, 0.04], "mass": 0.4, "fixed": fixed,
+                        "position": [0.25, 0.0, 0.247]}]}, "<warm-up>"))
+        for _ in range(ticks):
+            touching.step()
     return world
 
 
@@ -261,11 +262,13 @@ PARTS: tuple[CompilePart, ...] = (
                 steps_flocks=False, default_scene=False, after=("contacts",), cpu_s=54.0),
     # issue 35's robots: the recursive algorithms and the joint solver (~15 s on an idle core); rotation's small
     # kernels too, which the floating root's integration calls (without them the worker's kernels failed to type:
-    # a compiled kernel cannot call rotation's plain-Python functions)
-    CompilePart("robots", ("cgp_core.robots", "cgp_core.rotation"),
+    # a compiled kernel cannot call rotation's plain-Python functions); and the contact solver's and bodies', which
+    # the one loop of robot rows and body rows calls (robots.coupled.step_coupled) — after "solver", so that its
+    # kernels not inlined into step_coupled load from the cache instead of being compiled twice
+    CompilePart("robots", ("cgp_core.robots", "cgp_core.rotation", "cgp_core.solver", "cgp_core.bodies"),
                 ("cgp_core.robots.algorithms:mass_matrix", "cgp_core.robots.joint_solver:step_joints",
-                 "cgp_core.robots.joint_solver:step_lone_robots"),
-                steps_flocks=False, default_scene=False, cpu_s=43.0),
+                 "cgp_core.robots.joint_solver:step_lone_robots", "cgp_core.robots.coupled:step_coupled"),
+                steps_flocks=False, default_scene=False, after=("solver",), cpu_s=43.0),
 )
 
 

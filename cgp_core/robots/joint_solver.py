@@ -71,10 +71,13 @@ displacement Δq found by the same projected Gauss–Seidel on the same A⁻¹ (
 J Δq = −β C⁺); it is returned as a *pseudo-velocity* Δq / h that the caller integrates with qd⁺ but never adds
 to qd (split impulses): the correction adds no kinetic energy.  The constraints are linear in joint space, so
 β = 1 (the default) removes the error in one sub-step: a mimic follower tracks its leader to round-off.
-Contacts with the static world take part too, as in the contact solver's position stage (J Δq ≥
-β (−s⁺ − slop), at most ``max_correction``, β = ``contact_correction``): a robot started in the ground rises out of
-it without velocity.  A contact with a free body is not corrected here (the body's pose is the World's; its
-penetration recovery is the place for it — not yet done).
+The contacts take part too, as in the contact solver's position stage (J Δq + J_b D ≥ β (−s⁺ − slop), at most
+``max_correction``, β = ``contact_correction``, s⁺ predicted with the free body's solved velocity): against the
+static world only the robot moves (a robot started in the ground rises out of it without velocity); against a free
+body the correction is shared by the two sides' effective masses — the robot's part in the pseudo-velocity, the
+body's a displacement D = M_b⁻¹ J_bᵀ λ (:attr:`JointStep.body_displacement`) that the caller applies to the body's
+pose after the integrator, never to its momenta (:meth:`cgp_core.robots.world.Robots.displace_free_bodies`): a
+link pushing a crate does not sink into it, and the crate gains no energy.
 
 **Integration** is the caller's: q⁺ = integrate(q, qd⁺ + pseudo, h) with the robot's own integrator (a floating
 base's quaternion, continuous joints); for 1-dof joints it is q + h (qd⁺ + pseudo) (:func:`integrate_dofs`).
@@ -99,17 +102,19 @@ it over a tick's sub-steps.
 4. ``qd = step.velocity``; ``q = integrate_positions(arrays, q, step.velocity + step.pseudo_velocity, h)``;
 5. add ``step.effort`` into the tick's sum (the joint_states effort is the mean over the sub-steps).
 
-The robot's solve comes before the rigid-body contact solver in the sub-step: the free body's impulse from the
-robot is then already in its momentum (Gauss–Seidel between the two solvers; a body pressed between a robot and
-the ground converges over sub-steps, not within one).
+:func:`step_joints` sees a free body only through the robot's rows, not the body's own contacts.  In a World, a
+robot whose links touch a free body is therefore not stepped by it: its rows and the body solver's contact rows
+are solved in ONE loop, each sweep visiting both on the free bodies' shared velocities
+(:func:`cgp_core.robots.coupled.step_coupled`, built from this module's stages and :func:`sweep_joints`), so a
+body pressed between a link and the ground converges within the sub-step.
 
 **The stages** (:data:`STAGES`, timed into a :class:`~cgp_core.jit.StageProfile`), run by :func:`step_joints`:
 
 1. :func:`prepare_joints` — the implicit matrix A with its saturated drives found, its factor, qd_free, and
    the rows (:class:`JointRows`) with A⁻¹ Jᵀ and effective masses;
 2. :func:`warm_start_joints` — the previous sub-step's impulses of the same keys applied;
-3. :func:`solve_joints` — the sweeps;
-4. :func:`relax_positions` — the position stage (pseudo-velocity);
+3. :func:`solve_joints` — the sweeps (:func:`sweep_joints` each);
+4. :func:`relax_positions` — the position stage (pseudo-velocity; the free bodies' displacement);
 5. :func:`store_joints` — the free bodies' impulses added to their momenta, the effort, the warm-start memory.
 """
 

@@ -14,8 +14,8 @@ warm-start memory), its M, bias, drives, properties and the contact rows of its 
 robots (a dense Cholesky of each robot's n × n, not of all robots' dofs at once).  Robots whose links touch each
 other in a sub-step are an *island* (union-find over the link–link contacts between robots): such an island is
 solved as one system, its block-diagonal M and its robots' rows together, their warm-start memories merged for the
-solve and split again after it.  A free body touched by several robots is solved by each in turn (Gauss–Seidel
-between the robots, as between the robot stage and the body stage).
+solve and split again after it.  The robots whose links touch a free body in a sub-step are one such system too
+(:class:`CoupledRobots`), solved in the body solver's loop (below).
 
 Links are bodies of the world's :class:`~cgp_core.bodies.BodyModel` too (:mod:`.links`): the collision detector
 finds their contacts like any body's, markers and contact reports show them, and their poses and momenta are
@@ -28,16 +28,20 @@ written from the robot's state after every sub-step (:meth:`Robots.write_bodies`
 3. **robot stage** (:meth:`solve`): the contacts that touch a link become rows in joint space (row Jacobian
    d·J(p) of the link's point p, minus the other link's if both sides are links; the free body on the other
    side, if any, takes part with its own mass, and its momenta get the equal and opposite impulses); the joint
-   solver finds q̇ for the end of the sub-step; the remaining contacts go on to the body solver;
-4. solve contacts between free bodies (the body solver, unchanged), integrate bodies; integrate q
-   (:func:`~cgp_core.robots.algorithms.integrate_positions`);
-5. write the link bodies' poses and momenta from q, q̇.
+   solver finds q̇ for the end of the sub-step — for the robots that touch no free body; the remaining contacts
+   go on to the body solver, and the robots whose links touch a free body with them (:attr:`Robots.coupled`);
+4. solve contacts between free bodies (the body solver) — with the coupled robots' rows in the same loop —,
+   integrate bodies; integrate q (:func:`~cgp_core.robots.algorithms.integrate_positions`);
+5. write the link bodies' poses and momenta from q, q̇; move the free bodies the links' position stage pushed
+   out of them (:meth:`displace_free_bodies`).
 
-A contact between a link and a free body is solved in the robot stage only, before the body stage solves the
-free bodies' own contacts: the two are one Gauss–Seidel pass over two blocks of rows per sub-step (the free
-body's velocity after the robot stage is where the body stage starts).  Bullet's btMultiBody solves all rows in
-one loop; a link pushing a box that rests on another box converges over the sub-steps here instead.  (Issue 35
-asks for one solve loop; this is the step before it, see docs/robots.md.)
+A contact between a link and a free body is solved in ONE loop with the free bodies' own contacts
+(:mod:`cgp_core.robots.coupled`, as Bullet's btMultiBody constraint solver): every sweep visits the robot rows and
+the body rows on one shared velocity of the free bodies, so a link pushing a crate that the ground's friction
+holds back (or a box resting on another box) converges within the sub-step, not over sub-steps.  Its penetration
+is corrected by the joint solver's position stage (split impulses: the robot by a pseudo-velocity, the body by a
+displacement; no energy added).  The position stages are still two: the joint solver's before the integrator, the
+body solver's penetration recovery of the body–body contacts after it.
 """
 
 from __future__ import annotations
