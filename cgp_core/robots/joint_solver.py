@@ -100,7 +100,8 @@ it over a tick's sub-steps.
    place: pass the arrays themselves, not a fancy-indexed copy);
 3. ``step = solver.step(JointSystem(M, bias, applied, position, qd), joints, drives, contacts, bodies)``;
 4. ``qd = step.velocity``; ``q = integrate_positions(arrays, q, step.velocity + step.pseudo_velocity, h)``;
-5. add ``step.effort`` into the tick's sum (the joint_states effort is the mean over the sub-steps).
+5. add ``step.effort`` into the tick's sum (the joint_states effort is the mean over the sub-steps);
+6. move each free body by ``step.body_displacement`` after the integrator (poses only).
 
 :func:`step_joints` sees a free body only through the robot's rows, not the body's own contacts.  In a World, a
 robot whose links touch a free body is therefore not stepped by it: its rows and the body solver's contact rows

@@ -1349,4 +1349,5 @@ class CoupledRobots:
         step = JointStep(*step)
         robots._island_solved(island, step, JointSolverMemory(*memory_after), seconds, self._state)
         robots._displacement = step.body_displacement
+        robots.coupled = None  # solved: nothing of this sub-step is kept past it (a copy of the world copies none)
         return body
