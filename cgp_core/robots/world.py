@@ -818,8 +818,8 @@ class Robots:
             properties.equality_jacobian[e0:e0 + len(p.equality_error), n0:n0 + p.equality_jacobian.shape[1]] = \
                 p.equality_jacobian
         drives = tuple(np.concatenate([self.robots[k].drives[i] for k in group]) for i in range(6))
-        memory = _merge_memories([(self._memory(k), offsets[k], mimic_offsets[k], equality_offsets[k])
-                                  for k in group])
+        memory = self._memory(group[0]) if len(group) == 1 else _merge_memories(
+            [(self._memory(k), offsets[k], mimic_offsets[k], equality_offsets[k]) for k in group])
         return Island(group, JointSystem(M, bias, applied, coordinate, qd), properties, drives,
                       self._contact_rows(selected, body_model, state, offsets, n), selected, memory,
                       (offsets, mimic_offsets, equality_offsets))
@@ -829,6 +829,12 @@ class Robots:
         ``seconds``, its q̇, pseudo-velocity and effort, the contact report's sums."""
         offsets, mimic_offsets, equality_offsets = island.offsets
         selected, rows = island.selected, island.rows
+        if len(island.group) == 1:  # its own memory, nothing to split
+            k = island.group[0]
+            self._set_memory(k, memory)
+            self.robots[k].solver.profile.seconds += seconds
+            self._finish(island.group, step, rows, selected, state)
+            return
         contact_robots = {}
         if selected is not None:
             for c in range(selected.count):
@@ -924,12 +930,14 @@ class Robots:
         J = np.zeros((m, 3, n))
         body = np.full(m, -1, np.int64)
         body_jacobian = np.zeros((m, 3, 6))
+        free = (self._free_side(contacts.body_a, body_model), self._free_side(contacts.body_b, body_model))
         for c in range(m):
             nrm = contacts.normal[c]
             t = tangent_basis_scalar(nrm[0], nrm[1], nrm[2])
             D = np.array([nrm, [t[0], t[1], t[2]], [t[3], t[4], t[5]]])  # (3 directions, 3), from A to B
             p = contacts.point[c]
-            for side, sign in ((int(contacts.body_a[c]), -1.0), (int(contacts.body_b[c]), 1.0)):
+            for side, sign, movable in ((int(contacts.body_a[c]), -1.0, free[0][c]),
+                                        (int(contacts.body_b[c]), 1.0, free[1][c])):
                 if side < 0:
                     continue
                 k = int(self.body_robot[side])
@@ -939,7 +947,7 @@ class Robots:
                     Jp = algorithms.point_jacobian(r.kernel_arrays, rotation, position, int(self.body_link[side]), p)
                     start = offsets[k]
                     J[c, :, start:start + r.model.n_dofs] += sign * (D @ Jp)
-                elif self._free_side(np.array([side]), body_model)[0]:
+                elif movable:
                     body[c] = side
                     arm = p - state.position[side]
                     d = sign * D  # the body's row: sign · [D, r × D]
