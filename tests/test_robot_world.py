@@ -205,6 +205,29 @@ def test_a_crate_started_inside_a_link_is_pushed_out_without_gaining_energy():
     assert world.body_state.position[box][2] > top + 0.03 - 1e-3  # it went up, out of the arm
 
 
+def test_two_arms_each_holding_a_crate_of_its_own_step_exactly_as_one_alone():
+    """The robots whose links touch free bodies are solved as one system in the body solver's loop (block-diagonal
+    M, their warm-start memories merged and split again): two arms 2 m apart, each with a crate resting on its
+    upper arm, give the one arm's joint efforts and crate pose to the bit."""
+    joints = {"shoulder_lift": np.pi / 2, "elbow": -np.pi / 2, "wrist": 0.0}
+
+    def scene(count):
+        robots = [{"name": f"arm{i}", "urdf": "arm.urdf", "position": [0, 2.0 * i, 0], "joints": joints}
+                  for i in range(count)]
+        crates = [{"name": f"crate{i}", "shape": "box", "size": [0.06, 0.06, 0.04], "mass": 0.4, "friction": 1.0,
+                   "position": [0.25, 2.0 * i, 0.247]} for i in range(count)]
+        return World(scene_from_dict({"world": {"substeps": 4}, "robots": robots, "bodies": crates}, "<test>"))
+
+    two, one = scene(2), scene(1)
+    for _ in range(60):
+        two.step()
+        one.step()
+    assert np.array_equal(two.robots.joint_state("arm0")[3], one.robots.joint_state("arm0")[3])
+    assert np.array_equal(two.body_state.position[two.body_model.index("crate0")],
+                          one.body_state.position[one.body_model.index("crate0")])
+    assert one.robots.joint_state("arm0")[3][1] < -1.0  # the crate's weight is on the shoulder
+
+
 def test_a_limp_arm_falls_onto_the_ground_and_rests_there():
     world = World(arm_scene(hold=False))
     run(world, 3.0)
