@@ -268,7 +268,10 @@ class Robots:
         body_robot, body_link: (n_bodies,) int64 per world body: the robot and the robot body it is, −1 for a
                     body that is not a moving link (set by :meth:`attach`).
         islands:    the last sub-step's groups of robots solved together (lists of robot indices; a robot alone
-                    when no link of it touched another robot's).
+                    when no link of it touched another robot's); the groups that touched free bodies were moreover
+                    solved as one system, in the body solver's loop (:attr:`coupled`, :mod:`.coupled`).
+        coupled:    during a sub-step, between :meth:`solve` and the body solver: the robots whose links touch
+                    free bodies (:class:`CoupledRobots`), or None.
     """
 
     def __init__(self, specs: list[RobotSpec]):
