@@ -59,6 +59,7 @@ from .joint_solver import (
     ROW_TANGENT,
     ROW_VELOCITY_LIMIT,
 )
+from .joint_integrators import DEFAULT_JOINT_INTEGRATOR, JOINT_INTEGRATORS, Collocation, smooth_steps
 from .links import link_body_specs, link_name
 from .model import (
     JOINT_FIXED_ROOT,
@@ -113,6 +114,9 @@ class RobotInstance:
             np.asarray(m.mimic_multiplier, float).reshape(-1), np.asarray(m.mimic_offset, float).reshape(-1),
             np.zeros((0, m.n_dofs)), np.zeros(0))  # a scene articulation's loop rows: set at each sub-step
         self.solver = None  # its JointSolver (warm-start memory), made at the first sub-step
+        #: its joint-space integrator (cgp_core.robots.joint_integrators.JOINT_INTEGRATORS; the scene's
+        #: ``joint_integrator``, None there: the default semi-implicit Euler step)
+        self.joint_integrator = spec.joint_integrator or DEFAULT_JOINT_INTEGRATOR
 
     def initial_positions(self) -> np.ndarray:
         """(n_q,) the scene's initial joint positions (others at the neutral configuration)."""
@@ -300,6 +304,20 @@ class Robots:
         self._sleeping = np.zeros(len(self.robots), bool)
         self._commanded: set[int] = set()  # robots given a joint command since the last tick (they wake)
         self._joined = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        #: the robots integrated by a Gauss–Legendre method (joint_integrators), by method: their smooth flow is
+        #: stepped after the joint solver's default step (solve); none: every robot takes the default step,
+        #: unchanged
+        self._smooth = {}
+        for k, r in enumerate(self.robots):
+            if JOINT_INTEGRATORS[r.joint_integrator] is not None:
+                self._smooth.setdefault(r.joint_integrator, []).append(k)
+        self._smooth = {name: np.array(robots, np.int64) for name, robots in self._smooth.items()}
+        self._collocation = {}  # method name → its Collocation as a plain tuple, for the sub-step h
+        #: (robots,) int64 per robot: the Gauss–Legendre fixed-point passes and the sub-steps that fell back to
+        #: the default step (not converged within joint_integrators.MAX_ITERATIONS), since the world was made
+        self.integrator_iterations = np.zeros(len(self.robots), np.int64)
+        self.integrator_fallbacks = np.zeros(len(self.robots), np.int64)
+        self._fallbacks_reported = np.zeros(len(self.robots), np.int64)
         self.reset()
 
     def __deepcopy__(self, memo):
@@ -520,6 +538,7 @@ class Robots:
         self.drives = self._initial_drives()
         self._wrench_torque = np.zeros(self.n_dofs)
         self._pseudo = np.zeros(self.n_dofs)
+        self._displacement = np.zeros(self.n_dofs)  # the smooth step's displacement − qd⁺ (joint_integrators)
         self.prepare()
 
     @property
@@ -685,6 +704,7 @@ class Robots:
             r = self.robots[k]
             self.qd[r.dof_slice] = 0.0
             self._pseudo[r.dof_slice] = 0.0
+        start = self.qd.copy() if self._smooth else None  # the smooth flow starts where the default step did
         if root is None:  # no link touches anything (the usual case): every robot awake is stepped below
             lone = np.flatnonzero(~sleeping)
         else:
@@ -727,8 +747,34 @@ class Robots:
                 self._finish(group, step, rows, selected, state)
             else:
                 self._solve_island(group, selected, body_model, state, gravity, use_bodies)
+        if self._smooth:
+            self._smooth_step(start, h, gravity, sleeping)
         self._substeps += 1
         return rest
+
+    def _smooth_step(self, start: np.ndarray, h: float, gravity: np.ndarray, sleeping: np.ndarray) -> None:
+        """The robots integrated by a Gauss–Legendre method, after the joint solver's default step: their smooth
+        flow from the sub-step's start (``start``: the velocities there, (n_dofs,)) under the default step's
+        forces held constant (:mod:`.joint_integrators`) replaces :attr:`qd`, and sets the displacement term
+        :meth:`integrate` adds."""
+        self._displacement[:] = 0.0
+        for name, robots in self._smooth.items():
+            which = robots[~sleeping[robots]]
+            if not which.size:
+                continue
+            method = self._collocation.get(name)
+            if method is None or method[2] != h:
+                method = self._collocation[name] = tuple(Collocation.named(name, h))
+            smooth_steps(which, self._models, tuple(self._starts),
+                         (self.q, start, self.qd, self._displacement, self.integrator_iterations,
+                          self.integrator_fallbacks), gravity, method)
+
+    def take_fallbacks(self) -> list[tuple[str, int]]:
+        """The robots whose Gauss–Legendre step fell back to the default step since the last call, with how many
+        sub-steps did (the World reports them as events)."""
+        new = self.integrator_fallbacks - self._fallbacks_reported
+        self._fallbacks_reported = self.integrator_fallbacks.copy()
+        return [(self.robots[k].name, int(new[k])) for k in np.flatnonzero(new)]
 
     def _finish(self, group, step, rows, selected, state) -> None:
         """Write an island's step: q̇, the pseudo-velocity, the effort; the contact report's sums."""
@@ -949,6 +995,8 @@ class Robots:
         velocities there are kept for :meth:`write_bodies` (one compiled call for all robots:
         :func:`~cgp_core.robots.algorithms.advance_all`)."""
         moving = self.qd + self._pseudo  # the position stage's pseudo-velocity moves q, never qd (no energy)
+        if self._smooth:  # a Gauss–Legendre step's own displacement (joint_integrators; 0 for the other robots)
+            moving += self._displacement
         B = self._body_start[-1]
         rotation, position = np.empty((B, 3, 3)), np.empty((B, 3))
         linear, angular = np.empty((B, 3)), np.empty((B, 3))
