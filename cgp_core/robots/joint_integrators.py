@@ -38,9 +38,10 @@ a rotation's quaternion moves by the exponential map, its angular velocity is no
 identity elsewhere.  They are solved by **fixed-point iteration** from K_i = q̈(q₀, qd₀): each pass evaluates M and
 b at every stage (one :func:`joint_space_terms` and one Cholesky solve per stage) until no stage velocity h K_i
 changed by more than ``tolerance`` (1e-13) × (1 + max |qd₀|) — a contraction for h ‖∂q̈/∂(q, qd)‖ small, as here
-(the stiff terms, drives and damping, are not in this flow: they stay implicit in the joint solver); ~5 passes at
-1/240 s on the double pendulum.  Past ``max_iterations`` (or a non-finite stage) the sub-step **falls back** to
-the default semi-implicit Euler step for that robot (the joint solver's, already taken), counted per robot (:attr:`Robots.integrator_fallbacks
+(the stiff terms, drives and damping, enter the flow only as the default step's constant effort, not as functions
+of the stages: they stay implicit in the joint solver); ~6 passes at 1/240 s on the double pendulum.  Past
+``max_iterations`` (or a non-finite stage) the sub-step **falls back** to the default semi-implicit Euler step for
+that robot (the joint solver's, already taken), counted per robot (:attr:`Robots.integrator_fallbacks
 <cgp_core.robots.world.Robots>`) and reported by the World as an event: never silent.
 
 **How it meets the joint solver** (no change to it): the joint solver takes its default step first — drives,

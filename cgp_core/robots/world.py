@@ -48,6 +48,7 @@ from ..limits import MAX_ROBOT_DOFS
 from ..rotation import matrix_to_quat, quat_to_matrix
 from ..scene.robots import RobotSpec
 from . import algorithms
+from .joint_integrators import DEFAULT_JOINT_INTEGRATOR, JOINT_INTEGRATORS, Collocation, smooth_steps
 from .joint_solver import (
     KEY_SLOTS,
     ROW_DRIVE,
@@ -59,7 +60,6 @@ from .joint_solver import (
     ROW_TANGENT,
     ROW_VELOCITY_LIMIT,
 )
-from .joint_integrators import DEFAULT_JOINT_INTEGRATOR, JOINT_INTEGRATORS, Collocation, smooth_steps
 from .links import link_body_specs, link_name
 from .model import (
     JOINT_FIXED_ROOT,

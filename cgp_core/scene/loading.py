@@ -10,7 +10,6 @@ from pathlib import Path
 from typing import Any
 
 from ..integrators import DEFAULT_INTEGRATOR, INTEGRATORS
-from ..robots.joint_integrators import DEFAULT_JOINT_INTEGRATOR, JOINT_INTEGRATORS
 from ..limits import (
     MAX_BOIDS,
     MAX_DAMPING,
@@ -20,6 +19,7 @@ from ..limits import (
     MAX_ROLLING_RESISTANCE,
     rigid_work_refusal,
 )
+from ..robots.joint_integrators import DEFAULT_JOINT_INTEGRATOR, JOINT_INTEGRATORS
 from ..user_input import SceneLoader, UserInputError, load_yaml, read_user_text
 from .bodies import parse_bodies, parse_body
 from .flocks import parse_flock, parse_flocks
