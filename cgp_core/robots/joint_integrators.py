@@ -15,16 +15,18 @@ couplings and loop closures stay the joint solver's, solved exactly as today.
 - ``gauss_legendre_6``: the 3-stage Gauss–Legendre method (Gauss points ½, ½ ∓ √15/10): order 6, A-stable,
   symmetric.  Why offered beside the 4th-order one: on the chaotic double pendulum of
   ``tests/test_body_joints.py`` at 60 Hz × 4 sub-steps the 2-stage method's energy error is bounded (an h⁴
-  oscillation whose mean stays ~3e-8, no drift over 120 s) but reaches 1.1e-6 of (m₁ + m₂) g ℓ₁ over 60 s, above
-  issue 35's 1e-6; the 3-stage one stays within 4.5e-9 for ~1.5× the cost per sub-step.
+  oscillation whose mean stays ≤ 3e-8, no drift over 120 s) but reaches 1.0–1.1e-6 of (m₁ + m₂) g ℓ₁ over 60 s,
+  above issue 35's 1e-6; the 3-stage one stays within 4.3e-9 for ~1.1× the 2-stage one's cost per tick
+  (``benchmarks/bench_robots.py --joint-integrators``).
 
 Both are applied to the first-order system in (q, qd), not in the canonical (q, p = M(q) qd): a Runge–Kutta method
 is not invariant under that nonlinear change of variables, so the map is symplectic exactly only where M is
 constant (a single pendulum, prismatic chains), and symmetric (time-reversible) always.  Measured on the double
 pendulum (a prototype with its closed-form M, b and ∂L/∂q), the (q, qd) and (q, p) forms of the 2-stage method keep
 the energy to the same 1.2e-6 and 1.3e-6 over 60 s: the velocity form is kept because it needs nothing beyond
-M and b, which the robot stage computes anyway.  (Slide erratum / departure: the lecture integrates a rigid
-body's momenta P, L explicitly; a tree's state here is (q, qd), see :mod:`~cgp_core.robots.algorithms`.)
+M and b, which the robot stage computes anyway.  (Departure from the lecture slides, ``../shared/seed/``: they
+integrate a free rigid body's momenta P, L by explicit Euler; a tree's state here is (q, qd) — see
+:mod:`~cgp_core.robots.algorithms` — and its integrator implicit and of higher order.)
 
 **The stage equations**, for s stages with Butcher matrix a (s, s) and weights w (s,), in local coordinates Θ
 about the sub-step's start (q = q₀ ⊕ Θ: q₀ + Θ for 1-dof and planar coordinates, exp(Θ_ω) ⊗ quat for a ball or a
@@ -54,8 +56,9 @@ qd⁺ is the collocation's, q⁺ = q₀ ⊕ h (Σ w_i dexp⁻¹(V_i) + pseudo) (
 
 Why this order and not the smooth flow first with the rows' impulse at its end (a Lie splitting): a drive holding
 an arm against gravity would then see the arm fall freely for h and kick it back each sub-step — its position
-moved by ½ h² q̈ while its velocity changed by h q̈ — and the hold's equilibrium had qd = ½ h q̈ ≠ 0 (~0.02 rad/s
-reported at rest) and a different sag (measured: 4.3e-4 rad off on the 7-DoF arm's elbow).  With the solver's
+moved by ½ h² q̈ while its velocity changed by h q̈ — so the hold's equilibrium has qd = ½ h q̈ ≠ 0 (an estimate:
+~0.02 rad/s for q̈ ~ 10 rad/s²) and a different sag (measured with that first design: the 7-DoF arm's elbow held
+5.8e-4 rad away from the default step's equilibrium).  With the solver's
 forces held constant through the flow, a held joint at rest stays at rest exactly as in the default step, and with
 no row and no drive acting f = τ (to round-off) and the step is the collocation's.  The price: the rows are
 solved for the default step's qd_s, and the collocation's qd⁺ differs from it by O(h²) — a limit or contact meets
