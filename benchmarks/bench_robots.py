@@ -22,8 +22,8 @@ over the run, after the first second) in each engine.
 
 ``--joint-integrators``: instead, the cost of each scene ``joint_integrator`` (cgp_core.robots.joint_integrators:
 the default semi-implicit Euler, the 2- and 3-stage Gauss–Legendre methods) per tick on tests/test_body_joints.py's
-double pendulum and on the built-in ``arm`` scene (the 7-DoF arm following its trajectory through the boxes),
-interleaved, with the fixed-point passes per sub-step and the speed probe beside.
+double pendulum, on the built-in ``arm`` scene (the 7-DoF arm following its trajectory through the boxes) and
+on the ``chain`` scene (30 pinned links, 32 dofs), interleaved, with the fixed-point passes per sub-step and the speed probe beside.
 
     .venv/bin/python benchmarks/bench_robots.py [--quick] [--joint-integrators]
 """
@@ -203,14 +203,15 @@ def double_pendulum_scene(joint_integrator: str) -> dict:
                         "anchor": (top + [0.6, 0, 0]).tolist(), "axis": [0, 1, 0]}]}
 
 
-def arm_scene_world(joint_integrator: str) -> World:
-    """The built-in ``arm`` scene (the 7-DoF arm7.urdf following its looping trajectory across the table's boxes:
-    drives, contacts) with every robot's joint integrator set."""
+def scene_world(name: str, joint_integrator: str) -> World:
+    """A built-in scene with every robot's and articulation's joint integrator set: ``arm`` (the 7-DoF arm7.urdf
+    following its looping trajectory across the table's boxes: drives, contacts), ``chain`` (a 5 kg ball on 30
+    pinned 0.1 kg links knocking a wall over: 32 dofs)."""
     from cgp_core.scene import load_scene
 
-    scene = load_scene("arm")
+    scene = load_scene(name)
     scene.world.joint_integrator = joint_integrator
-    for spec in scene.robots:
+    for spec in list(scene.robots) + list(scene.articulations):
         spec.joint_integrator = joint_integrator
     return World(scene)
 
@@ -222,7 +223,8 @@ def joint_integrator_ticks(seconds: float) -> dict:
     worlds = {}
     for name in JOINT_INTEGRATORS:
         worlds[("double_pendulum", name)] = World(scene_from_dict(double_pendulum_scene(name)))
-        worlds[("arm", name)] = arm_scene_world(name)
+        worlds[("arm", name)] = scene_world("arm", name)
+        worlds[("chain", name)] = scene_world("chain", name)
     for world in worlds.values():
         world.step()  # compile / load every kernel before timing
     ticks = round(seconds / TICK)
