@@ -23,7 +23,8 @@ over the run, after the first second) in each engine.
 ``--joint-integrators``: instead, the cost of each scene ``joint_integrator`` (cgp_core.robots.joint_integrators:
 the default semi-implicit Euler, the 2- and 3-stage Gauss–Legendre methods) per tick on tests/test_body_joints.py's
 double pendulum, on the built-in ``arm`` scene (the 7-DoF arm following its trajectory through the boxes) and
-on the ``chain`` scene (30 pinned links, 32 dofs), interleaved, with the fixed-point passes per sub-step and the speed probe beside.
+on the ``chain`` scene (30 pinned links, 32 dofs), interleaved, with the fixed-point passes per sub-step, the
+fallbacks and the speed probe beside.
 
     .venv/bin/python benchmarks/bench_robots.py [--quick] [--joint-integrators]
 """
