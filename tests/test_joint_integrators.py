@@ -205,10 +205,11 @@ def test_a_four_bar_keeps_its_loop_closed_with_gauss_legendre():
 def test_a_held_arm_stays_held():
     """The 7-DoF arm of the ``arm`` scene (arm7.urdf) held at a bent pose by its position drives (implicit, in the
     joint solver as before) against gravity for 2 s (sleep off: stepped throughout): with gauss_legendre_6 it sags
-    (2.6e-4 rad) into the very equilibrium the default step holds (≤ 1e-12 rad apart at the end, 1e-16 measured;
-    ≤ 1e-4 during the first ticks' transient, 1.4e-5 measured: the step is first order where drives act), at rest,
-    without a fallback — the joint solver's forces are held constant through the smooth flow, so a joint held at
-    rest stays at rest."""
+    (2.6e-4 rad) into the equilibrium the default step holds, to ≤ 1e-6 rad (1.3e-7 measured: the smooth flow's
+    stages see the arm fall within the sub-step, an O(h²) change of the drive's equilibrium), at rest to
+    ≤ 1e-4 rad/s (9e-6 measured: the same residual, as a steady qd that the position update's ½ h Δqd of the
+    drive cancels; the default: 0), ≤ 1e-4 rad from the default during the first ticks' transient, without a
+    fallback."""
     worlds = [World(scene_from_dict({"world": {"joint_integrator": name, "sleep": False},
                                      "robots": [{"name": "arm", "urdf": "arm7.urdf", "position": [0, 0, 0.2],
                                                  "joints": {"shoulder_lift": 0.3, "elbow": 0.6, "wrist": 0.6}}]}))
@@ -220,9 +221,9 @@ def test_a_held_arm_stays_held():
             world.step()
         worst = max(worst, float(np.abs(worlds[1].robots.q - worlds[0].robots.q).max()))
     assert worst <= 1e-4, worst
-    assert np.abs(worlds[1].robots.q - worlds[0].robots.q).max() <= 1e-12
+    assert np.abs(worlds[1].robots.q - worlds[0].robots.q).max() <= 1e-6
     assert 1e-5 <= np.abs(worlds[1].robots.q - q0).max() <= 1e-3  # it sags under gravity, a little
-    assert np.abs(worlds[1].robots.qd).max() <= 1e-6
+    assert np.abs(worlds[1].robots.qd).max() <= 1e-4
     assert worlds[1].robots.integrator_fallbacks.sum() == 0 and worlds[1].robots.integrator_iterations.sum() > 0
 
 

@@ -76,6 +76,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..jit import njit
+from ..rotation import quat_multiply_scalar, quat_to_rotvec_scalar
 from .algorithms import cholesky_solve, integrate_positions, joint_space_terms, robot_view
 from .model import JOINT_BALL, JOINT_FLOATING, RobotArrays, RobotStarts
 
@@ -97,10 +98,15 @@ JOINT_INTEGRATORS = {
 }
 #: a stage velocity changing by no more than this × (1 + max |qd₀|) [rad/s or m/s] ends the iterations
 TOLERANCE = 1e-13
-#: fixed-point passes at most before the sub-step falls back to the default step.  Why so many: the passes contract
-#: by h ‖∂q̈/∂(q, qd)‖ ρ(a); where a chain whips at 60 rad/s (h ω ~ 0.26: the `chain` scene's ball knocking the wall)
-#: they take off only ~40 % each and converge in ~45 (measured; with 40 at most, 8 sub-steps of 20 s fell back)
-MAX_ITERATIONS = 100
+#: passes (fixed-point, then simplified Newton) at most in one step before it is split in two
+MAX_ITERATIONS = 30
+#: a sub-step split into at most this many pieces before it falls back to the default step.  Why split: the passes
+#: contract by ~h ‖∂q̈/∂(q, qd)‖ ρ(a); where the `chain` scene's light links whip at ~100 rad/s they stall or diverge
+#: at h = 1/240 s (one step took 263 passes, another went non-finite) and converge in 10–13 at h / 2 (measured)
+MAX_PIECES = 8
+#: fixed-point passes before slow ones (each taking off less than 1 − SLOW of the change) switch to simplified Newton
+NEWTON_AFTER = 6
+SLOW = 0.3
 #: a change that stopped shrinking within this × the tolerance is the round-off floor: converged (1e-13 → 1e-8 of
 #: the velocities at most)
 ROUND_OFF = 1e5
@@ -124,10 +130,12 @@ class Collocation(NamedTuple):
 class SmoothStep(NamedTuple):
     """One robot's smooth sub-step (``n`` dofs)."""
 
-    velocity: np.ndarray      # (n,) qd⁺ of the smooth flow
-    displacement: np.ndarray  # (n,) Σ w_i dexp⁻¹(V_i): q⁺ = q₀ ⊕ h · this
-    iterations: int           # fixed-point passes run
+    velocity: np.ndarray      # (n,) qd_c, the smooth flow's velocity at the sub-step's end
+    displacement: np.ndarray  # (n,) D = Σ w_i dexp⁻¹(V_i): the flow's q_c = q₀ ⊕ h D
+    equivalent: np.ndarray    # (n,) b(q₀, qd₀) + M(q₀) (qd_c − qd₀) / h: the effort the joint solver takes for τ
+    iterations: int           # passes run (fixed-point, then simplified Newton; all pieces')
     converged: bool           # False: the caller keeps the default step
+    pieces: int               # steps of h / pieces it took (1: one step of h)
 
 
 class SmoothState(NamedTuple):
@@ -136,10 +144,13 @@ class SmoothState(NamedTuple):
 
     q: np.ndarray             # (n_q,) positions at the sub-step's start
     start: np.ndarray         # (n_dofs,) velocities at the sub-step's start
-    velocity: np.ndarray      # (n_dofs,) in: the joint solver's qd_s; out: the stepped robots' qd⁺ (kept on a
-    #                           fallback)
-    displacement: np.ndarray  # (n_dofs,) out: the stepped robots' displacement − qd⁺ (0 on a fallback)
-    iterations: np.ndarray    # (robots,) int64, added to: fixed-point passes
+    applied: np.ndarray       # (n_dofs,) in: the applied efforts τ; out: a stepped robot's equivalent effort (a
+    #                           robot that did not converge keeps its τ: the default step)
+    velocity: np.ndarray      # (n_dofs,) out: a stepped robot's qd_c
+    displacement: np.ndarray  # (n_dofs,) out: a stepped robot's D
+    stepped: np.ndarray       # (n_dofs,) bool, out: the dof's robot took the collocation (False: the default step)
+    iterations: np.ndarray    # (robots,) int64, added to: passes
+    subdivided: np.ndarray    # (robots,) int64, added to: sub-steps integrated in 2 or more pieces
     fallbacks: np.ndarray     # (robots,) int64, added to: sub-steps that kept the default step
 
 
@@ -205,26 +216,162 @@ def _stage_displacements(arrays, a, h, theta, V, rates):
 
 
 @njit
-def collocation_step(arrays, q, start, solved, gravity, method):
+def _lu_factor(G):
+    """G = P⁻¹ L U with partial pivoting (our own loops, as the joint solver's Cholesky: no LAPACK, so compiled and
+    plain-Python runs agree bit for bit): the packed factors and the row order."""
+    m = G.shape[0]
+    LU = G.copy()
+    order = np.arange(m)
+    for k in range(m):
+        p, big = k, abs(LU[k, k])
+        for r in range(k + 1, m):
+            if abs(LU[r, k]) > big:
+                p, big = r, abs(LU[r, k])
+        if p != k:
+            for c in range(m):
+                LU[k, c], LU[p, c] = LU[p, c], LU[k, c]
+            order[k], order[p] = order[p], order[k]
+        d = LU[k, k]
+        if d == 0.0:
+            continue  # singular: the solve gives inf / nan, which ends in a fallback
+        for r in range(k + 1, m):
+            LU[r, k] /= d
+            f = LU[r, k]
+            for c in range(k + 1, m):
+                LU[r, c] -= f * LU[k, c]
+    return LU, order
+
+
+@njit
+def _lu_solve(LU, order, b):
+    m = len(b)
+    x = np.empty(m)
+    for i in range(m):
+        x[i] = b[order[i]]
+        for k in range(i):
+            x[i] -= LU[i, k] * x[k]
+    for i in range(m - 1, -1, -1):
+        for k in range(i + 1, m):
+            x[i] -= LU[i, k] * x[k]
+        x[i] /= LU[i, i]
+    return x
+
+
+@njit
+def _newton_matrix(arrays, q, a, h, theta, V, tau, gravity):
+    """The LU factors of the simplified-Newton matrix G = I − h (a ⊗ J_v) − h² (a² ⊗ J_q) of the stage equations
+    K_i = q̈(q₀ ⊕ Θ_i, V_i) in K (s n × s n), with J_v = ∂q̈/∂qd and J_q = ∂q̈/∂Θ by forward differences at the
+    stages' mean (2 n + 1 evaluations; dexp⁻¹ taken as the identity in the Jacobian: Newton's step is still
+    exact at its fixed point)."""
+    s, n = V.shape
+    mean_theta, mean_v = np.zeros(n), np.zeros(n)
+    for i in range(s):
+        for d in range(n):
+            mean_theta[d] += theta[i, d] / s
+            mean_v[d] += V[i, d] / s
+    base_q = integrate_positions(arrays, q, mean_theta, 1.0)
+    f0 = _acceleration(arrays, base_q, mean_v, tau, gravity)
+    Jv, Jq = np.empty((n, n)), np.empty((n, n))
+    for j in range(n):
+        delta = 1.5e-8 * max(1.0, abs(mean_v[j]))
+        mean_v[j] += delta
+        column = _acceleration(arrays, base_q, mean_v, tau, gravity)
+        mean_v[j] -= delta
+        for d in range(n):
+            Jv[d, j] = (column[d] - f0[d]) / delta
+        step = 1.5e-8 * max(1.0, abs(mean_theta[j]))
+        mean_theta[j] += step
+        column = _acceleration(arrays, integrate_positions(arrays, q, mean_theta, 1.0), mean_v, tau, gravity)
+        mean_theta[j] -= step
+        for d in range(n):
+            Jq[d, j] = (column[d] - f0[d]) / step
+    a2 = np.zeros((s, s))
+    for i in range(s):
+        for j in range(s):
+            for k in range(s):
+                a2[i, j] += a[i, k] * a[k, j]
+    G = np.zeros((s * n, s * n))
+    for i in range(s):
+        for j in range(s):
+            for r in range(n):
+                for c in range(n):
+                    G[i * n + r, j * n + c] = -h * a[i, j] * Jv[r, c] - h * h * a2[i, j] * Jq[r, c]
+    for m in range(s * n):
+        G[m, m] += 1.0
+    return _lu_factor(G)
+
+
+@njit
+def _displacement_between(arrays, q0, q1, h):
+    """The D (n_dofs,) with q₀ ⊕ h D = q₁ (:func:`integrate_positions`' ⊕: a quaternion by the logarithm of
+    quat₁ ⊗ quat₀⁻¹, every other coordinate by its difference)."""
+    D = np.empty(arrays.n_dofs)
+    for i in range(len(arrays.parent)):
+        s, d, kind = arrays.q_start[i], arrays.dof_start[i], arrays.joint_type[i]
+        if kind == JOINT_FLOATING or kind == JOINT_BALL:
+            if kind == JOINT_FLOATING:
+                for k in range(3):
+                    D[d + k] = (q1[s + k] - q0[s + k]) / h
+                s, d = s + 3, d + 3
+            x, y, z, w = quat_multiply_scalar(q1[s], q1[s + 1], q1[s + 2], q1[s + 3],
+                                              -q0[s], -q0[s + 1], -q0[s + 2], q0[s + 3])
+            rx, ry, rz = quat_to_rotvec_scalar(x, y, z, w)
+            D[d], D[d + 1], D[d + 2] = rx / h, ry / h, rz / h
+        else:
+            for k in range(arrays.q_count[i]):
+                D[d + k] = (q1[s + k] - q0[s + k]) / h
+    return D
+
+
+@njit
+def collocation_step(arrays, q, start, tau, gravity, method):
     """One sub-step of the smooth flow by the Gauss–Legendre method ``method`` (:class:`Collocation`) from (q,
-    ``start``), under the joint forces of the default step that reached ``solved`` (module docstring).  Args:
-    ``arrays`` :class:`RobotArrays`, q (n_q,), start and solved (n_dofs,), gravity (3,).  Returns the
-    :class:`SmoothStep`."""
+    ``start``) under the applied efforts τ (module docstring): one step of h, or — where its stages do not converge
+    (a light chain whipping at ~100 rad/s: h ω ~ 0.4, measured) — 2, 4, … up to :data:`MAX_PIECES` steps of h / m
+    in turn, the method unchanged at a smaller step.  Args: ``arrays`` :class:`RobotArrays`, q (n_q,), start and τ
+    (n_dofs,), gravity (3,).  Returns the :class:`SmoothStep` (not converged: the caller keeps the default step)."""
     arrays = RobotArrays(*arrays)
     method = Collocation(*method)
-    a, w, h = method.a, method.w, method.h
+    n, h = len(start), method.h
+    iterations = 0
+    pieces = 1
+    while pieces <= MAX_PIECES:
+        qc, vc = q.copy(), start.copy()
+        done = True
+        for _ in range(pieces):
+            step = _collocate(arrays, qc, vc, tau, gravity, method, h / pieces)
+            iterations += step.iterations
+            if not step.converged:
+                done = False
+                break
+            if pieces == 1:
+                return SmoothStep(step.velocity, step.displacement, step.equivalent, iterations, True, 1)
+            qc = integrate_positions(arrays, qc, step.displacement, h / pieces)
+            vc = step.velocity
+        if done:
+            M0, b0 = joint_space_terms(arrays, q, start, gravity)
+            equivalent = np.empty(n)
+            for r in range(n):
+                x = 0.0
+                for c in range(n):
+                    x += M0[r, c] * (vc[c] - start[c])
+                equivalent[r] = b0[r] + x / h
+            return SmoothStep(vc, _displacement_between(arrays, q, qc, h), equivalent, iterations, True, pieces)
+        pieces *= 2
+    return SmoothStep(start.copy(), np.zeros(n), tau.copy(), iterations, False, pieces)
+
+
+@njit
+def _collocate(arrays, q, start, tau, gravity, method, h):
+    """One Gauss–Legendre step of ``h`` (module docstring: fixed-point passes, then simplified Newton)."""
+    a, w = method.a, method.w
     s, n = len(w), len(start)
     M0, b0 = joint_space_terms(arrays, q, start, gravity)
-    tau = np.empty(n)  # the default step's equivalent effort b + M (qd_s − qd₀) / h
-    for r in range(n):
-        x = 0.0
-        for c in range(n):
-            x += M0[r, c] * (solved[c] - start[c])
-        tau[r] = b0[r] + x / h
+    first = cholesky_solve(M0, tau - b0)
     K = np.empty((s, n))
-    for i in range(s):  # from the default step's acceleration (qd_s − qd₀) / h
+    for i in range(s):  # from the acceleration at the start
         for d in range(n):
-            K[i, d] = (solved[d] - start[d]) / h
+            K[i, d] = first[d]
     V, theta, rates = np.zeros((s, n)), np.zeros((s, n)), np.zeros((s, n))
     speed = 0.0
     for d in range(n):
@@ -233,6 +380,9 @@ def collocation_step(arrays, q, start, solved, gravity, method):
     converged = False
     iterations = 0
     previous = math.inf
+    newton = False
+    LU, order = np.zeros((0, 0)), np.zeros(0, np.int64)
+    residual = np.empty(s * n)
     while iterations < method.max_iterations:
         iterations += 1
         _stage_velocities(a, h, start, K, V)
@@ -241,8 +391,17 @@ def collocation_step(arrays, q, start, solved, gravity, method):
         for i in range(s):
             k = _acceleration(arrays, integrate_positions(arrays, q, theta[i], 1.0), V[i], tau, gravity)
             for d in range(n):
-                change = max(change, h * abs(k[d] - K[i, d]))  # (nan: never ≤ limit, so a fallback)
-                K[i, d] = k[d]
+                if newton:
+                    residual[i * n + d] = K[i, d] - k[d]
+                else:
+                    change = max(change, h * abs(k[d] - K[i, d]))  # (nan: never ≤ limit, so a fallback)
+                    K[i, d] = k[d]
+        if newton:  # K ← K − G⁻¹ (K − q̈(stages))
+            step = _lu_solve(LU, order, residual)
+            for i in range(s):
+                for d in range(n):
+                    change = max(change, h * abs(step[i * n + d]))
+                    K[i, d] -= step[i * n + d]
         if change <= limit:
             converged = True
             break
@@ -255,44 +414,58 @@ def collocation_step(arrays, q, start, solved, gravity, method):
         if change >= 0.5 * previous and change <= ROUND_OFF * limit:
             converged = True
             break
+        # fixed-point passes that contract slowly (h ‖∂q̈/∂qd‖ near 1: a light chain whipping after a hard contact
+        # took ~0.88 a pass, measured) hand over to simplified Newton, its matrix made once at the stages reached
+        if not newton and iterations >= NEWTON_AFTER and change > SLOW * previous:
+            _stage_velocities(a, h, start, K, V)
+            _stage_displacements(arrays, a, h, theta, V, rates)
+            LU, order = _newton_matrix(arrays, q, a, h, theta, V, tau, gravity)
+            newton = True
         previous = change
     _stage_velocities(a, h, start, K, V)
     _stage_displacements(arrays, a, h, theta, V, rates)
-    velocity, displacement = np.empty(n), np.zeros(n)
+    velocity, displacement, equivalent = np.empty(n), np.zeros(n), np.empty(n)
     for d in range(n):
         x = 0.0
         for i in range(s):
             x += w[i] * K[i, d]
             displacement[d] += w[i] * rates[i, d]
         velocity[d] = start[d] + h * x
-        if not (math.isfinite(velocity[d]) and math.isfinite(displacement[d])):
+    for r in range(n):  # b₀ + M₀ (qd⁺ − qd₀) / h: the effort the joint solver takes for τ
+        x = 0.0
+        for c in range(n):
+            x += M0[r, c] * (velocity[c] - start[c])
+        equivalent[r] = b0[r] + x / h
+    for d in range(n):
+        if not (math.isfinite(velocity[d]) and math.isfinite(displacement[d]) and math.isfinite(equivalent[d])):
             converged = False
-    return SmoothStep(velocity, displacement, iterations, converged)
+    return SmoothStep(velocity, displacement, equivalent, iterations, converged, 1)
 
 
 @njit
 def smooth_steps(which, models, starts, state, gravity, method):
-    """:func:`collocation_step` for the robots ``which`` (int64 indices) in one compiled call, after the joint
-    solver's default step; bundles as plain tuples: ``models`` every robot's :class:`RobotArrays` stacked,
-    ``starts`` their :class:`RobotStarts`, ``state`` a :class:`SmoothState` (written in place: a converged robot's
-    qd⁺ into ``velocity`` and its displacement − qd⁺ into ``displacement``; a robot that did not converge keeps
-    the default step's velocity and a zero displacement, and counts a fallback)."""
+    """:func:`collocation_step` for the robots ``which`` (int64 indices) in one compiled call, before the joint
+    solver; bundles as plain tuples: ``models`` every robot's :class:`RobotArrays` stacked, ``starts`` their
+    :class:`RobotStarts`, ``state`` a :class:`SmoothState` (written in place; a robot that did not converge keeps
+    its τ, is not marked ``stepped`` and counts a fallback)."""
     starts = RobotStarts(*starts)
-    q, start, velocity, displacement, iterations, fallbacks = state
+    q, start, applied, velocity, displacement, stepped, iterations, subdivided, fallbacks = state
     for t in range(len(which)):
         k = which[t]
         qs, qe, ds, de = starts.q[k], starts.q[k + 1], starts.dof[k], starts.dof[k + 1]
         step = collocation_step(robot_view(models, starts, k), q[qs:qe].copy(), start[ds:de].copy(),
-                                velocity[ds:de].copy(), gravity, method)
+                                applied[ds:de].copy(), gravity, method)
         iterations[k] += step.iterations
+        if step.pieces > 1 and step.converged:
+            subdivided[k] += 1
         if not step.converged:
             fallbacks[k] += 1
-            for d in range(de - ds):
-                displacement[ds + d] = 0.0
             continue
         for d in range(de - ds):
+            applied[ds + d] = step.equivalent[d]
             velocity[ds + d] = step.velocity[d]
-            displacement[ds + d] = step.displacement[d] - step.velocity[d]
+            displacement[ds + d] = step.displacement[d]
+            stepped[ds + d] = True
 
 
 __all__ = ["DEFAULT_JOINT_INTEGRATOR", "JOINT_INTEGRATORS", "Collocation", "SmoothState", "SmoothStep",

@@ -305,8 +305,7 @@ class Robots:
         self._commanded: set[int] = set()  # robots given a joint command since the last tick (they wake)
         self._joined = (np.zeros(0, np.int64), np.zeros(0, np.int64))
         #: the robots integrated by a Gauss–Legendre method (joint_integrators), by method: their smooth flow is
-        #: stepped after the joint solver's default step (solve); none: every robot takes the default step,
-        #: unchanged
+        #: stepped before the joint solver (solve); none: every robot takes the default step, unchanged
         self._smooth = {}
         for k, r in enumerate(self.robots):
             if JOINT_INTEGRATORS[r.joint_integrator] is not None:
@@ -317,6 +316,9 @@ class Robots:
         #: the default step (not converged within joint_integrators.MAX_ITERATIONS), since the world was made
         self.integrator_iterations = np.zeros(len(self.robots), np.int64)
         self.integrator_fallbacks = np.zeros(len(self.robots), np.int64)
+        #: (robots,) int64: the sub-steps whose smooth flow took 2 to joint_integrators.MAX_PIECES Gauss–Legendre
+        #: steps of h / pieces (the stages did not converge at h)
+        self.integrator_subdivided = np.zeros(len(self.robots), np.int64)
         self._fallbacks_reported = np.zeros(len(self.robots), np.int64)
         self.reset()
 
@@ -704,7 +706,7 @@ class Robots:
             r = self.robots[k]
             self.qd[r.dof_slice] = 0.0
             self._pseudo[r.dof_slice] = 0.0
-        start = self.qd.copy() if self._smooth else None  # the smooth flow starts where the default step did
+        applied = self._smooth_step(h, gravity, sleeping) if self._smooth else self._wrench_torque
         if root is None:  # no link touches anything (the usual case): every robot awake is stepped below
             lone = np.flatnonzero(~sleeping)
         else:
@@ -717,7 +719,7 @@ class Robots:
                 self._profile = self.robots[0].solver.profile
             self._memories = RobotMemories(*step_lone_robots(
                 lone, (self._models, self._properties, tuple(self._drives)), tuple(self._memories),
-                (self.q, self.qd, self._wrench_torque, self._pseudo, self._effort_sum, self._q_of_local),
+                (self.q, self.qd, applied, self._pseudo, self._effort_sum, self._q_of_local),
                 tuple(self._starts), gravity, self._settings, self._profile.seconds))
             self._profile.calls += 1
         bodies = None
@@ -739,25 +741,28 @@ class Robots:
                 q, qd = self.q[r.q_slice], self.qd[r.dof_slice]
                 M, bias = algorithms.joint_space_terms(r.kernel_arrays, q, qd, gravity)
                 coordinate = np.where(r.has_coordinate, q[r.q_of_dof_clipped], 0.0)
-                system = JointSystem(M, bias, self._wrench_torque[r.dof_slice].copy(), coordinate, qd.copy())
+                system = JointSystem(M, bias, applied[r.dof_slice].copy(), coordinate, qd.copy())
                 rows = self._contact_rows(selected, body_model, state, {group[0]: 0}, r.model.n_dofs)
                 r.solver.memory = self._memory(group[0])
                 step = r.solver.step(system, r.properties, r.drives, rows, use_bodies)
                 self._set_memory(group[0], r.solver.memory)
                 self._finish(group, step, rows, selected, state)
             else:
-                self._solve_island(group, selected, body_model, state, gravity, use_bodies)
-        if self._smooth:
-            self._smooth_step(start, h, gravity, sleeping)
+                self._solve_island(group, selected, (body_model, state, applied), gravity, use_bodies)
+        if self._smooth:  # the rows' and drives' velocity change Δ = qd⁺ − qd_c moves q by h Δ / 2 (joint_integrators)
+            self._displacement = np.where(self._stepped, self._displacement - 0.5 * (self._collocated + self.qd), 0.0)
         self._substeps += 1
         return rest
 
-    def _smooth_step(self, start: np.ndarray, h: float, gravity: np.ndarray, sleeping: np.ndarray) -> None:
-        """The robots integrated by a Gauss–Legendre method, after the joint solver's default step: their smooth
-        flow from the sub-step's start (``start``: the velocities there, (n_dofs,)) under the default step's
-        forces held constant (:mod:`.joint_integrators`) replaces :attr:`qd`, and sets the displacement term
-        :meth:`integrate` adds."""
-        self._displacement[:] = 0.0
+    def _smooth_step(self, h: float, gravity: np.ndarray, sleeping: np.ndarray) -> np.ndarray:
+        """The smooth flow of the awake robots integrated by a Gauss–Legendre method, before the joint solver
+        (:mod:`.joint_integrators`): returns the applied joint efforts (n_dofs,) the solver takes — the wrench
+        torques, each such robot's replaced by its equivalent effort —, and keeps the flow's velocity and
+        displacement for the position update (:meth:`solve` ends it)."""
+        applied = self._wrench_torque.copy()
+        self._collocated = np.zeros(self.n_dofs)
+        self._displacement = np.zeros(self.n_dofs)
+        self._stepped = np.zeros(self.n_dofs, bool)
         for name, robots in self._smooth.items():
             which = robots[~sleeping[robots]]
             if not which.size:
@@ -766,8 +771,10 @@ class Robots:
             if method is None or method[2] != h:
                 method = self._collocation[name] = tuple(Collocation.named(name, h))
             smooth_steps(which, self._models, tuple(self._starts),
-                         (self.q, start, self.qd, self._displacement, self.integrator_iterations,
-                          self.integrator_fallbacks), gravity, method)
+                         (self.q, self.qd, applied, self._collocated, self._displacement, self._stepped,
+                          self.integrator_iterations, self.integrator_subdivided, self.integrator_fallbacks),
+                         gravity, method)
+        return applied
 
     def take_fallbacks(self) -> list[tuple[str, int]]:
         """The robots whose Gauss–Legendre step fell back to the default step since the last call, with how many
@@ -789,10 +796,13 @@ class Robots:
         if self._tally is not None and selected is not None and selected.count:
             self._tally_contacts(selected, rows, step.contact_impulse, state)
 
-    def _solve_island(self, group, selected, body_model, state, gravity, bodies) -> None:
+    def _solve_island(self, group, selected, world, gravity, bodies) -> None:
         """Robots whose links touch each other in this sub-step: one joint-space system of all their dofs
-        (block-diagonal M), their warm-start memories merged and split again."""
+        (block-diagonal M), their warm-start memories merged and split again.  ``world``: the body model, the body
+        state and every robot's applied joint efforts (n_dofs,)."""
         from .joint_solver import JointProperties, JointSolver, JointSystem
+
+        body_model, state, applied_all = world
 
         offsets, mimic_offsets, equality_offsets = {}, {}, {}
         n = k_mimic = k_equality = 0
@@ -808,7 +818,7 @@ class Robots:
             s = slice(offsets[k], offsets[k] + r.model.n_dofs)
             q = self.q[r.q_slice]
             M[s, s], bias[s] = algorithms.joint_space_terms(r.kernel_arrays, q, self.qd[r.dof_slice], gravity)
-            applied[s] = self._wrench_torque[r.dof_slice]
+            applied[s] = applied_all[r.dof_slice]
             coordinate[s] = np.where(r.has_coordinate, q[r.q_of_dof_clipped], 0.0)
             qd[s] = self.qd[r.dof_slice]
         parts = [self.robots[k].properties for k in group]
