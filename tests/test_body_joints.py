@@ -161,7 +161,7 @@ def test_double_pendulum_energy_drift_over_10_s():
     """Measured: the chaotic double pendulum's total energy over 10 s at 60 Hz × 4 (semi-implicit Euler in joint
     space, explicit in the Coriolis and centrifugal forces: not symplectic) stays within 0.35 of the energy
     scale (m₁ + m₂) g ℓ₁ (measured 0.31, i.e. 3 J of 52 J); with 16 sub-steps 0.031 (first order or better).
-    The issue's 60 s ≤ 1e-6 is met by the scene key ``joint_integrator: gauss_legendre_6`` (4.3e-9 over 60 s:
+    The issue's 60 s ≤ 1e-6 is met by the scene key ``joint_integrator: gauss_legendre_6`` (3.5e-9 over 60 s:
     tests/test_joint_integrators.py); this is the default step's figure."""
     names = ["upper", "lower"]
     scale = (1.0 + 0.7) * G * 0.6

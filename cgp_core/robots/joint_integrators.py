@@ -2,9 +2,8 @@
 
 **What is integrated.**  The *smooth flow* of a tree in reduced coordinates: q̇ = qd, M(q) q̈ = τ − b(q, qd),
 with ``b`` Coriolis, centrifugal and gravity (:func:`~cgp_core.robots.algorithms.joint_space_terms`) and τ the
-joint forces held constant over the sub-step: the applied efforts (wrench commands as Jᵀ F) and what the joint
-solver's rows and drives did in that sub-step (below).  Drives, URDF viscous damping, limits, contacts, mimic
-couplings and loop closures stay the joint solver's, solved exactly as today.
+applied joint efforts of the sub-step (wrench commands as Jᵀ F, constant over it).  Drives, URDF viscous damping,
+limits, contacts, mimic couplings and loop closures stay the joint solver's, solved as today on the flow's result.
 
 **The methods** (a scene's ``joint_integrator``, :data:`JOINT_INTEGRATORS`):
 
@@ -15,8 +14,8 @@ couplings and loop closures stay the joint solver's, solved exactly as today.
 - ``gauss_legendre_6``: the 3-stage Gauss–Legendre method (Gauss points ½, ½ ∓ √15/10): order 6, A-stable,
   symmetric.  Why offered beside the 4th-order one: on the chaotic double pendulum of
   ``tests/test_body_joints.py`` at 60 Hz × 4 sub-steps the 2-stage method's energy error is bounded (an h⁴
-  oscillation whose mean stays ≤ 3e-8, no drift over 120 s) but reaches 1.0–1.1e-6 of (m₁ + m₂) g ℓ₁ over 60 s,
-  above issue 35's 1e-6; the 3-stage one stays within 4.3e-9 for ~1.1× the 2-stage one's cost per tick
+  oscillation whose mean stays ≤ 6e-8, no drift over 120 s) but reaches 1.0–1.2e-6 of (m₁ + m₂) g ℓ₁ over 60 s,
+  above issue 35's 1e-6; the 3-stage one stays within 3.5e-9 for ~1.1× the 2-stage one's cost per tick
   (``benchmarks/bench_robots.py --joint-integrators``).
 
 Both are applied to the first-order system in (q, qd), not in the canonical (q, p = M(q) qd): a Runge–Kutta method
@@ -37,35 +36,41 @@ floating root's orientation, as :func:`~cgp_core.robots.algorithms.integrate_pos
 
 dexp⁻¹_Θ(ω) = ω − ½ Θ × ω + (1 − (θ/2) cot(θ/2)) / θ² Θ × (Θ × ω) on the rotational dofs (Runge–Kutta–Munthe-Kaas:
 a rotation's quaternion moves by the exponential map, its angular velocity is not the derivative of Θ), the
-identity elsewhere.  They are solved by **fixed-point iteration** from K_i = q̈(q₀, qd₀): each pass evaluates M and
-b at every stage (one :func:`joint_space_terms` and one Cholesky solve per stage) until no stage velocity h K_i
-changed by more than ``tolerance`` (1e-13) × (1 + max |qd₀|), or until the change stops shrinking within 1e5 ×
-that (the round-off floor of an ill-conditioned M: :data:`ROUND_OFF`) — a contraction for h ‖∂q̈/∂(q, qd)‖ small, as here
-(the stiff terms, drives and damping, enter the flow only as the default step's constant effort, not as functions
-of the stages: they stay implicit in the joint solver); ~6 passes at 1/240 s on the double pendulum.  Past
-``max_iterations`` (or a non-finite stage) the sub-step **falls back** to the default semi-implicit Euler step for
-that robot (the joint solver's, already taken), counted per robot (:attr:`Robots.integrator_fallbacks
-<cgp_core.robots.world.Robots>`) and reported by the World as an event: never silent.
+identity elsewhere.  They are solved by **fixed-point iteration** from K_i = q̈(q₀, qd₀): each pass evaluates M
+and b at every stage (one :func:`joint_space_terms` and one Cholesky solve per stage) until no stage velocity
+h K_i changed by more than ``tolerance`` (1e-13) × (1 + max |qd₀|), or until the change stops shrinking within
+1e5 × that (the round-off floor of an ill-conditioned M: :data:`ROUND_OFF`); ~6 passes at 1/240 s on the
+double pendulum.  Passes that contract slowly (after :data:`NEWTON_AFTER`, each taking off less than 70 %) hand
+over to **simplified Newton** (its matrix I − h a ⊗ ∂q̈/∂qd − h² a² ⊗ ∂q̈/∂Θ by forward differences, made once,
+LU-factored by our own loops); a step whose stages do not converge within :data:`MAX_ITERATIONS` passes is
+**split** into 2, 4, up to :data:`MAX_PIECES` Gauss–Legendre steps of h / m (the same method at a smaller step;
+counted in ``Robots.integrator_subdivided``).  Only past that does the sub-step **fall back** to the default
+semi-implicit Euler step for that robot, counted per robot (:attr:`Robots.integrator_fallbacks
+<cgp_core.robots.world.Robots>`) and reported by the World as a ``warn`` event: never silent.
 
-**How it meets the joint solver** (no change to it): the joint solver takes its default step first — drives,
-damping and rows implicit, as today — giving qd_s; its forces over the sub-step are then one constant effort,
-the default step's *equivalent effort* f = b(q₀, qd₀) + M(q₀) (qd_s − qd₀) / h (what makes M qd_s = M qd₀ +
-h (f − b): τ plus the rows' and drives' impulses / h), and the smooth flow is integrated from (q₀, qd₀) with τ = f:
-qd⁺ is the collocation's, q⁺ = q₀ ⊕ h (Σ w_i dexp⁻¹(V_i) + pseudo) (the position stage's pseudo-velocity kept).
-:meth:`Robots.integrate <cgp_core.robots.world.Robots.integrate>` gets the displacement through one term,
-``displacement`` = Σ w_i dexp⁻¹(V_i) − qd⁺, added to the moving velocity qd⁺ + pseudo.
+**How it meets the joint solver** (no change to it).  The flow is stepped first, from (q₀, qd₀), giving qd_c and
+q_c = q₀ ⊕ h D.  The joint solver then takes the sub-step as always, with its momentum balance fed the flow's
+velocity change as an *equivalent effort* in place of τ, f = b(q₀, qd₀) + M(q₀) (qd_c − qd₀) / h (so that
+M qd₀ + h (f − b) = M(q₀) qd_c: with no row and no drive acting it returns qd_c to round-off), and its drives,
+damping and rows act on that: every row constrains the final velocity qd⁺, as in the default step.  The position
+is q⁺ = q₀ ⊕ h (D + ½ (qd⁺ − qd_c) + pseudo): the flow's own displacement, plus the rows' and drives' velocity change
+Δ = qd⁺ − qd_c taken as a constant acceleration over the sub-step (it moves q by h Δ / 2), plus the position
+stage's pseudo-velocity.  :meth:`Robots.integrate <cgp_core.robots.world.Robots.integrate>` gets it through one
+term added to its moving velocity qd⁺ + pseudo: D − ½ (qd_c + qd⁺).
 
-Why this order and not the smooth flow first with the rows' impulse at its end (a Lie splitting): a drive holding
-an arm against gravity would then see the arm fall freely for h and kick it back each sub-step — its position
-moved by ½ h² q̈ while its velocity changed by h q̈ — so the hold's equilibrium has qd = ½ h q̈ ≠ 0 (an estimate:
-~0.02 rad/s for q̈ ~ 10 rad/s²) and a different sag (measured with that first design: the 7-DoF arm's elbow held
-5.8e-4 rad away from the default step's equilibrium).  With the solver's
-forces held constant through the flow, a held joint at rest stays at rest exactly as in the default step, and with
-no row and no drive acting f = τ (to round-off) and the step is the collocation's.  The price: the rows are
-solved for the default step's qd_s, and the collocation's qd⁺ differs from it by O(h²) — a limit or contact meets
-its velocity target to that order, the position stage and the next sub-step correct it; a loop closure keeps its
-equality rows and the Newton projection after the integration.  Where rows or drives act, the step is first
-order, as the default.
+Why h Δ / 2 and not the default step's h Δ: a drive (or a resting contact) holding a joint against gravity cancels
+the flow's fall each sub-step — the flow moves q by ½ h² q̈ and qd by h q̈, the drive takes Δ = −h q̈ — and only with
+½ h Δ does the held joint stay where it is (with h Δ it was pushed up by ½ h² q̈ every sub-step; measured on the
+7-DoF arm, the equilibrium then sat 5.8e-4 rad off the default's; now 1.3e-7 rad, with a steady residual qd of
+9e-6 rad/s: the stages see the arm fall within the sub-step).  The price: a joint meeting its limit at speed v may
+pass it by up to ½ h v for one sub-step (the speculative row assumed q moves by h qd⁺), which the position stage
+removes without adding energy.  A loop closure keeps its equality rows and the Newton projection after the
+integration.  Where rows or drives act the step is first order, like the default.
+
+Why not the reverse order (the default step first, its rows' and drives' impulses then held constant as a force
+through the flow; the first design): the rows are then satisfied by the default step's velocity, not by the one
+the flow ends with, and where a light chain whips (h ω ~ 0.4) the two differ by far more than round-off — the
+`chain` scene blew up after ~13 s, measured.
 """
 
 from __future__ import annotations
