@@ -312,8 +312,8 @@ class Robots:
                 self._smooth.setdefault(r.joint_integrator, []).append(k)
         self._smooth = {name: np.array(robots, np.int64) for name, robots in self._smooth.items()}
         self._collocation = {}  # method name → its Collocation as a plain tuple, for the sub-step h
-        #: (robots,) int64 per robot: the Gauss–Legendre fixed-point passes and the sub-steps that fell back to
-        #: the default step (not converged within joint_integrators.MAX_ITERATIONS), since the world was made
+        #: (robots,) int64 per robot: the Gauss–Legendre passes (fixed-point and Newton) and the sub-steps that fell
+        #: back to the default step (not converged even in joint_integrators.MAX_PIECES pieces), since it was made
         self.integrator_iterations = np.zeros(len(self.robots), np.int64)
         self.integrator_fallbacks = np.zeros(len(self.robots), np.int64)
         #: (robots,) int64: the sub-steps whose smooth flow took 2 to joint_integrators.MAX_PIECES Gauss–Legendre
@@ -540,7 +540,7 @@ class Robots:
         self.drives = self._initial_drives()
         self._wrench_torque = np.zeros(self.n_dofs)
         self._pseudo = np.zeros(self.n_dofs)
-        self._displacement = np.zeros(self.n_dofs)  # the smooth step's displacement − qd⁺ (joint_integrators)
+        self._displacement = np.zeros(self.n_dofs)  # Gauss–Legendre: D − ½ (qd_c + qd⁺) (joint_integrators)
         self.prepare()
 
     @property
@@ -706,7 +706,9 @@ class Robots:
             r = self.robots[k]
             self.qd[r.dof_slice] = 0.0
             self._pseudo[r.dof_slice] = 0.0
-        applied = self._smooth_step(h, gravity, sleeping) if self._smooth else self._wrench_torque
+        # the joint efforts the solver takes (also _solve_island's): the wrench torques, or a Gauss–Legendre robot's
+        # equivalent effort
+        self._applied = applied = self._smooth_step(h, gravity, sleeping) if self._smooth else self._wrench_torque
         if root is None:  # no link touches anything (the usual case): every robot awake is stepped below
             lone = np.flatnonzero(~sleeping)
         else:
@@ -748,7 +750,7 @@ class Robots:
                 self._set_memory(group[0], r.solver.memory)
                 self._finish(group, step, rows, selected, state)
             else:
-                self._solve_island(group, selected, (body_model, state, applied), gravity, use_bodies)
+                self._solve_island(group, selected, body_model, state, gravity, use_bodies)
         if self._smooth:  # the rows' and drives' velocity change Δ = qd⁺ − qd_c moves q by h Δ / 2 (joint_integrators)
             self._displacement = np.where(self._stepped, self._displacement - 0.5 * (self._collocated + self.qd), 0.0)
         self._substeps += 1
@@ -796,13 +798,10 @@ class Robots:
         if self._tally is not None and selected is not None and selected.count:
             self._tally_contacts(selected, rows, step.contact_impulse, state)
 
-    def _solve_island(self, group, selected, world, gravity, bodies) -> None:
+    def _solve_island(self, group, selected, body_model, state, gravity, bodies) -> None:
         """Robots whose links touch each other in this sub-step: one joint-space system of all their dofs
-        (block-diagonal M), their warm-start memories merged and split again.  ``world``: the body model, the body
-        state and every robot's applied joint efforts (n_dofs,)."""
+        (block-diagonal M), their warm-start memories merged and split again."""
         from .joint_solver import JointProperties, JointSolver, JointSystem
-
-        body_model, state, applied_all = world
 
         offsets, mimic_offsets, equality_offsets = {}, {}, {}
         n = k_mimic = k_equality = 0
@@ -818,7 +817,7 @@ class Robots:
             s = slice(offsets[k], offsets[k] + r.model.n_dofs)
             q = self.q[r.q_slice]
             M[s, s], bias[s] = algorithms.joint_space_terms(r.kernel_arrays, q, self.qd[r.dof_slice], gravity)
-            applied[s] = applied_all[r.dof_slice]
+            applied[s] = self._applied[r.dof_slice]
             coordinate[s] = np.where(r.has_coordinate, q[r.q_of_dof_clipped], 0.0)
             qd[s] = self.qd[r.dof_slice]
         parts = [self.robots[k].properties for k in group]
