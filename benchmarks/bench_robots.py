@@ -241,6 +241,7 @@ def joint_integrator_ticks(seconds: float) -> dict:
         robots = world.robots
         passes = float(robots.integrator_iterations.sum()) / ((ticks + 1) * world.substeps * len(robots.robots))
         out.setdefault(scene, {})[name] = {**_stats(times[(scene, name)]), "passes_per_substep": round(passes, 2),
+                                           "subdivided": int(robots.integrator_subdivided.sum()),
                                            "fallbacks": int(robots.integrator_fallbacks.sum())}
     return out
 
@@ -298,15 +299,16 @@ def joint_integrator_figures(out, seconds: float) -> int:
           f" after {probe_after['numpy_ms']:.1f} / {probe_after['python_ms']:.1f}", flush=True)
     print("joint integrators, ms per 1/60 s tick (4 x 1/240 s), interleaved:")
     print(f"  {'scene':16s} {'joint_integrator':20s} {'median':>8s} {'p99':>8s} {'x default':>10s} "
-          f"{'passes/sub-step':>16s} {'fallbacks':>9s}")
+          f"{'passes/sub-step':>16s} {'split':>6s} {'fallbacks':>9s}")
     for scene, by_name in ticks.items():
         base = by_name["semi_implicit_euler"]["median"]
         for name, t in by_name.items():
             print(f"  {scene:16s} {name:20s} {t['median']:8.3f} {t['p99']:8.3f} {t['median'] / base:10.2f} "
-                  f"{t['passes_per_substep']:16.2f} {t['fallbacks']:9d}")
+                  f"{t['passes_per_substep']:16.2f} {t['subdivided']:6d} {t['fallbacks']:9d}")
             out.figure(f"joint_integrator_{scene}_{name}", f"{scene}: {name} median tick", t["median"], "ms",
                        "(measured)", None, p99_ms=t["p99"], vs_default=round(t["median"] / base, 3),
-                       passes_per_substep=t["passes_per_substep"], fallbacks=t["fallbacks"])
+                       passes_per_substep=t["passes_per_substep"], subdivided=t["subdivided"],
+                       fallbacks=t["fallbacks"])
     out.data.update(joint_integrators=ticks, probe_before=probe_before, probe_after=probe_after)
     print(f"wrote {out.write()}")
     return 0
