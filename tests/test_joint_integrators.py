@@ -314,6 +314,17 @@ def test_a_robot_entry_overrides_the_world():
     assert [r.joint_integrator for r in world.robots.robots] == ["gauss_legendre_4", "semi_implicit_euler"]
 
 
+def test_a_spawned_robot_takes_the_worlds_joint_integrator_unless_its_entry_names_one():
+    world = World(scene_from_dict({"world": {"joint_integrator": "gauss_legendre_6"}}))
+    world.spawn({"robot": {"urdf": "arm3.urdf"}}, name="a")
+    world.spawn({"robot": {"urdf": "arm3.urdf", "joint_integrator": "semi_implicit_euler"}}, name="b",
+                position=(1.0, 0.0, 0.0))
+    assert [r.joint_integrator for r in world.robots.robots] == ["gauss_legendre_6", "semi_implicit_euler"]
+    for _ in range(3):
+        world.step()
+    assert world.robots.integrator_iterations[0] > 0 and world.robots.integrator_iterations[1] == 0
+
+
 @pytest.mark.parametrize("data, key", [
     ({"world": {"joint_integrator": "rk4"}}, "world.joint_integrator"),
     ({"robots": [{"name": "a", "urdf": "arm3.urdf", "joint_integrator": "gauss_legendre"}]},
