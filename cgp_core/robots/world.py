@@ -31,6 +31,10 @@ written from the robot's state after every sub-step (:meth:`Robots.write_bodies`
    solver finds q̇ for the end of the sub-step; the remaining contacts go on to the body solver;
 4. solve contacts between free bodies (the body solver, unchanged), integrate bodies; integrate q
    (:func:`~cgp_core.robots.algorithms.integrate_positions`);
+
+   (a robot whose ``joint_integrator`` is a Gauss–Legendre method has its smooth flow stepped first in step 3,
+   :mod:`.joint_integrators`: the joint solver then takes the flow's velocity as an equivalent effort, and the
+   position update adds the flow's own displacement);
 5. write the link bodies' poses and momenta from q, q̇.
 
 A contact between a link and a free body is solved in the robot stage only, before the body stage solves the
