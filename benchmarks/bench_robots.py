@@ -20,7 +20,13 @@ Every engine is stepped tick by tick in turn (interleaved) so that all see the s
 (``common.speed_probe``) is printed beside the figures.  Also: the single arm's hold error (the largest |q − q*|
 over the run, after the first second) in each engine.
 
-    .venv/bin/python benchmarks/bench_robots.py [--quick]
+``--joint-integrators``: instead, the cost of each scene ``joint_integrator`` (cgp_core.robots.joint_integrators:
+the default semi-implicit Euler, the 2- and 3-stage Gauss–Legendre methods) per tick on tests/test_body_joints.py's
+double pendulum, on the built-in ``arm`` scene (the 7-DoF arm following its trajectory through the boxes) and
+on the ``chain`` scene (30 pinned links, 32 dofs), interleaved, with the fixed-point passes per sub-step, the
+fallbacks and the speed probe beside.
+
+    .venv/bin/python benchmarks/bench_robots.py [--quick] [--joint-integrators]
 """
 
 from __future__ import annotations
@@ -180,11 +186,75 @@ def side_by_side(count: int, seconds: float, engines=("cgp_sim", "pybullet", "mu
             "count": count, "seconds": seconds}
 
 
+#: the scene's joint_integrator values timed by joint_integrator_ticks (cgp_core.robots.joint_integrators)
+JOINT_INTEGRATORS = ("semi_implicit_euler", "gauss_legendre_4", "gauss_legendre_6")
+
+
+def double_pendulum_scene(joint_integrator: str) -> dict:
+    """tests/test_body_joints.py's chaotic double pendulum (two boxes on two pins, no ground)."""
+    top = np.array([0.0, 0.0, 3.0])
+    return {"world": {"ground": False, "sleep": False, "joint_integrator": joint_integrator},
+            "bodies": [{"name": "upper", "shape": "box", "size": [0.6, 0.05, 0.05], "mass": 1.0,
+                        "position": (top + [0.3, 0, 0]).tolist()},
+                       {"name": "lower", "shape": "box", "size": [0.05, 0.05, 0.5], "mass": 0.7,
+                        "position": (top + [0.6, 0, 0.25]).tolist()}],
+            "joints": [{"name": "shoulder", "type": "revolute", "parent": "world", "child": "upper",
+                        "anchor": top.tolist(), "axis": [0, 1, 0]},
+                       {"name": "elbow", "type": "revolute", "parent": "upper", "child": "lower",
+                        "anchor": (top + [0.6, 0, 0]).tolist(), "axis": [0, 1, 0]}]}
+
+
+def scene_world(name: str, joint_integrator: str) -> World:
+    """A built-in scene with every robot's and articulation's joint integrator set: ``arm`` (the 7-DoF arm7.urdf
+    following its looping trajectory across the table's boxes: drives, contacts), ``chain`` (a 5 kg ball on 30
+    pinned 0.1 kg links knocking a wall over: 32 dofs)."""
+    from cgp_core.scene import load_scene
+
+    scene = load_scene(name)
+    scene.world.joint_integrator = joint_integrator
+    for spec in list(scene.robots) + list(scene.articulations):
+        spec.joint_integrator = joint_integrator
+    return World(scene)
+
+
+def joint_integrator_ticks(seconds: float) -> dict:
+    """Median / p99 tick [ms] of the double pendulum and of the ``arm`` scene with each joint integrator, the
+    worlds stepped tick by tick in turn (all see the same machine), and the Gauss–Legendre fixed-point passes per
+    sub-step."""
+    worlds = {}
+    for name in JOINT_INTEGRATORS:
+        worlds[("double_pendulum", name)] = World(scene_from_dict(double_pendulum_scene(name)))
+        worlds[("arm", name)] = scene_world("arm", name)
+        worlds[("chain", name)] = scene_world("chain", name)
+    for world in worlds.values():
+        world.step()  # compile / load every kernel before timing
+    ticks = round(seconds / TICK)
+    times = {key: np.empty(ticks) for key in worlds}
+    clock = time.perf_counter
+    for k in range(ticks):
+        for key, world in worlds.items():
+            t0 = clock()
+            world.step()
+            times[key][k] = clock() - t0
+    out = {}
+    for (scene, name), world in worlds.items():
+        robots = world.robots
+        passes = float(robots.integrator_iterations.sum()) / ((ticks + 1) * world.substeps * len(robots.robots))
+        out.setdefault(scene, {})[name] = {**_stats(times[(scene, name)]), "passes_per_substep": round(passes, 2),
+                                           "subdivided": int(robots.integrator_subdivided.sum()),
+                                           "fallbacks": int(robots.integrator_fallbacks.sum())}
+    return out
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="shorter runs")
+    parser.add_argument("--joint-integrators", action="store_true",
+                        help="only the cost of each joint_integrator (double pendulum, the arm scene)")
     args = parser.parse_args(argv)
-    out = Results("robots", options=vars(args))
+    out = Results("robots" if not args.joint_integrators else "robots_joint_integrators", options=vars(args))
+    if args.joint_integrators:
+        return joint_integrator_figures(out, 5.0 if args.quick else 20.0)
     probe_before = speed_probe()
     one = side_by_side(1, 5.0 if args.quick else 10.0)
     many = side_by_side(64, 2.0 if args.quick else 5.0)
@@ -217,6 +287,29 @@ def main(argv=None) -> int:
     out.figure("robots_64_arms_vs_mujoco", "  ... cgp_sim / MuJoCo (median tick)",
                None if mj64 is None else ours64 / mj64, "x", "<= 3", None if mj64 is None else ours64 / mj64 <= 3.0)
     out.data.update(one_arm=one, arms_64=many, probe_before=probe_before, probe_after=probe_after)
+    print(f"wrote {out.write()}")
+    return 0
+
+
+def joint_integrator_figures(out, seconds: float) -> int:
+    probe_before = speed_probe()
+    ticks = joint_integrator_ticks(seconds)
+    probe_after = speed_probe()
+    print(f"speed probe (numpy / python ms): before {probe_before['numpy_ms']:.1f} / {probe_before['python_ms']:.1f},"
+          f" after {probe_after['numpy_ms']:.1f} / {probe_after['python_ms']:.1f}", flush=True)
+    print("joint integrators, ms per 1/60 s tick (4 x 1/240 s), interleaved:")
+    print(f"  {'scene':16s} {'joint_integrator':20s} {'median':>8s} {'p99':>8s} {'x default':>10s} "
+          f"{'passes/sub-step':>16s} {'split':>6s} {'fallbacks':>9s}")
+    for scene, by_name in ticks.items():
+        base = by_name["semi_implicit_euler"]["median"]
+        for name, t in by_name.items():
+            print(f"  {scene:16s} {name:20s} {t['median']:8.3f} {t['p99']:8.3f} {t['median'] / base:10.2f} "
+                  f"{t['passes_per_substep']:16.2f} {t['subdivided']:6d} {t['fallbacks']:9d}")
+            out.figure(f"joint_integrator_{scene}_{name}", f"{scene}: {name} median tick", t["median"], "ms",
+                       "(measured)", None, p99_ms=t["p99"], vs_default=round(t["median"] / base, 3),
+                       passes_per_substep=t["passes_per_substep"], subdivided=t["subdivided"],
+                       fallbacks=t["fallbacks"])
+    out.data.update(joint_integrators=ticks, probe_before=probe_before, probe_after=probe_after)
     print(f"wrote {out.write()}")
     return 0
 

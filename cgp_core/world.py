@@ -309,6 +309,10 @@ class World:
                                                   "joint state non-finite or a link beyond the blow-up speeds): "
                                                   "reset to its initial joint positions at rest, its drives "
                                                   "holding them"))
+                for name, count in self.robots.take_fallbacks():
+                    self.events.append(WorldEvent(self.time, "warn", f"robot {name}: its Gauss–Legendre joint "
+                                                  f"integrator did not converge in {count} sub-step(s) of this "
+                                                  "tick, which took the default semi-implicit Euler step"))
             self._update_sleep(contacts, *self._contain_blowups())
         elif self.report_contacts:
             self._report_contacts(model, islands)  # everything asleep (or no bodies): the last contacts hold
@@ -807,6 +811,10 @@ class World:
         count = 0 if self.robots is None else len(self.robots.robots)
         if count + 1 > MAX_ROBOTS:
             raise EditError("not_possible", f"the world has {count} robots, the most it holds ({MAX_ROBOTS})")
+        if spec.joint_integrator is None:  # a spawned robot without its own takes the world's
+            from dataclasses import replace
+
+            spec = replace(spec, joint_integrator=self.scene.world.joint_integrator)
         try:
             return Robots([spec]) if self.robots is None else self.robots.with_robot(spec)
         except ValueError as exc:  # MAX_ROBOT_DOFS

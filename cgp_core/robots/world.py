@@ -32,6 +32,10 @@ written from the robot's state after every sub-step (:meth:`Robots.write_bodies`
    go on to the body solver, and the robots whose links touch a free body with them (:attr:`Robots.coupled`);
 4. solve contacts between free bodies (the body solver) — with the coupled robots' rows in the same loop —,
    integrate bodies; integrate q (:func:`~cgp_core.robots.algorithms.integrate_positions`);
+
+   (a robot whose ``joint_integrator`` is a Gauss–Legendre method has its smooth flow stepped first in step 3,
+   :mod:`.joint_integrators`: the joint solver then takes the flow's velocity as an equivalent effort, and the
+   position update adds the flow's own displacement);
 5. write the link bodies' poses and momenta from q, q̇; move the free bodies the links' position stage pushed
    out of them (:meth:`displace_free_bodies`).
 
@@ -54,6 +58,7 @@ from ..limits import MAX_ROBOT_DOFS
 from ..rotation import matrix_to_quat, quat_to_matrix
 from ..scene.robots import RobotSpec
 from . import algorithms
+from .joint_integrators import DEFAULT_JOINT_INTEGRATOR, JOINT_INTEGRATORS, Collocation, smooth_steps
 from .joint_solver import (
     KEY_SLOTS,
     ROW_DRIVE,
@@ -119,6 +124,9 @@ class RobotInstance:
             np.asarray(m.mimic_multiplier, float).reshape(-1), np.asarray(m.mimic_offset, float).reshape(-1),
             np.zeros((0, m.n_dofs)), np.zeros(0))  # a scene articulation's loop rows: set at each sub-step
         self.solver = None  # its JointSolver (warm-start memory), made at the first sub-step
+        #: its joint-space integrator (cgp_core.robots.joint_integrators.JOINT_INTEGRATORS; the scene's
+        #: ``joint_integrator``, None there: the default semi-implicit Euler step)
+        self.joint_integrator = spec.joint_integrator or DEFAULT_JOINT_INTEGRATOR
 
     def initial_positions(self) -> np.ndarray:
         """(n_q,) the scene's initial joint positions (others at the neutral configuration)."""
@@ -325,7 +333,23 @@ class Robots:
         self._joined = (np.zeros(0, np.int64), np.zeros(0, np.int64))
         #: the robots whose links touch free bodies this sub-step, for the body solver's loop (None: none)
         self.coupled = None
-        self._displacement = None  # their position stage's free-body displacements (displace_free_bodies)
+        self._body_displacement = None  # their position stage's free-body displacements (displace_free_bodies)
+        #: the robots integrated by a Gauss–Legendre method (joint_integrators), by method: their smooth flow is
+        #: stepped before the joint solver (solve); none: every robot takes the default step, unchanged
+        self._smooth = {}
+        for k, r in enumerate(self.robots):
+            if JOINT_INTEGRATORS[r.joint_integrator] is not None:
+                self._smooth.setdefault(r.joint_integrator, []).append(k)
+        self._smooth = {name: np.array(robots, np.int64) for name, robots in self._smooth.items()}
+        self._collocation = {}  # method name → its Collocation as a plain tuple, for the sub-step h
+        #: (robots,) int64 per robot: the Gauss–Legendre passes (fixed-point and Newton) and the sub-steps that fell
+        #: back to the default step (not converged even in joint_integrators.MAX_PIECES pieces), since it was made
+        self.integrator_iterations = np.zeros(len(self.robots), np.int64)
+        self.integrator_fallbacks = np.zeros(len(self.robots), np.int64)
+        #: (robots,) int64: the sub-steps whose smooth flow took 2 to joint_integrators.MAX_PIECES Gauss–Legendre
+        #: steps of h / pieces (the stages did not converge at h)
+        self.integrator_subdivided = np.zeros(len(self.robots), np.int64)
+        self._fallbacks_reported = np.zeros(len(self.robots), np.int64)
         self.reset()
 
     def __deepcopy__(self, memo):
@@ -546,6 +570,9 @@ class Robots:
         self.drives = self._initial_drives()
         self._wrench_torque = np.zeros(self.n_dofs)
         self._pseudo = np.zeros(self.n_dofs)
+        self._flow_displacement = np.zeros(self.n_dofs)  # Gauss–Legendre: the flow's D (joint_integrators)
+        self._collocated = np.zeros(self.n_dofs)  # Gauss–Legendre: the flow's velocity qd_c
+        self._stepped = np.zeros(self.n_dofs, bool)  # the dofs of robots whose flow was stepped this sub-step
         self.prepare()
 
     @property
@@ -713,6 +740,9 @@ class Robots:
             r = self.robots[k]
             self.qd[r.dof_slice] = 0.0
             self._pseudo[r.dof_slice] = 0.0
+        # the joint efforts the solver takes (also _solve_island's): the wrench torques, or a Gauss–Legendre robot's
+        # equivalent effort
+        self._applied = applied = self._smooth_step(h, gravity, sleeping) if self._smooth else self._wrench_torque
         if root is None:  # no link touches anything (the usual case): every robot awake is stepped below
             lone = np.flatnonzero(~sleeping)
         else:
@@ -725,7 +755,7 @@ class Robots:
                 self._profile = self.robots[0].solver.profile
             self._memories = RobotMemories(*step_lone_robots(
                 lone, (self._models, self._properties, tuple(self._drives)), tuple(self._memories),
-                (self.q, self.qd, self._wrench_torque, self._pseudo, self._effort_sum, self._q_of_local),
+                (self.q, self.qd, applied, self._pseudo, self._effort_sum, self._q_of_local),
                 tuple(self._starts), gravity, self._settings, self._profile.seconds))
             self._profile.calls += 1
         self.coupled = None
@@ -745,7 +775,7 @@ class Robots:
                 q, qd = self.q[r.q_slice], self.qd[r.dof_slice]
                 M, bias = algorithms.joint_space_terms(r.kernel_arrays, q, qd, gravity)
                 coordinate = np.where(r.has_coordinate, q[r.q_of_dof_clipped], 0.0)
-                system = JointSystem(M, bias, self._wrench_torque[r.dof_slice].copy(), coordinate, qd.copy())
+                system = JointSystem(M, bias, applied[r.dof_slice].copy(), coordinate, qd.copy())
                 rows = self._contact_rows(selected, body_model, state, {group[0]: 0}, r.model.n_dofs)
                 r.solver.memory = self._memory(group[0])
                 step = r.solver.step(system, r.properties, r.drives, rows, FreeBodies.empty())
@@ -773,6 +803,35 @@ class Robots:
         row = np.maximum(side, 0)
         free = (side >= 0) & (self.body_robot[row] < 0) & (body_model.inv_mass[row] > 0.0)
         return free if self.active is None else free & self.active[row]
+
+    def _smooth_step(self, h: float, gravity: np.ndarray, sleeping: np.ndarray) -> np.ndarray:
+        """The smooth flow of the awake robots integrated by a Gauss–Legendre method, before the joint solver
+        (:mod:`.joint_integrators`): returns the applied joint efforts (n_dofs,) the solver takes — the wrench
+        torques, each such robot's replaced by its equivalent effort —, and keeps the flow's velocity and
+        displacement for the position update (:meth:`integrate` ends it)."""
+        applied = self._wrench_torque.copy()
+        self._collocated = np.zeros(self.n_dofs)
+        self._flow_displacement = np.zeros(self.n_dofs)
+        self._stepped = np.zeros(self.n_dofs, bool)
+        for name, robots in self._smooth.items():
+            which = robots[~sleeping[robots]]
+            if not which.size:
+                continue
+            method = self._collocation.get(name)
+            if method is None or method[2] != h:
+                method = self._collocation[name] = tuple(Collocation.named(name, h))
+            smooth_steps(which, self._models, tuple(self._starts),
+                         (self.q, self.qd, applied, self._collocated, self._flow_displacement, self._stepped,
+                          self.integrator_iterations, self.integrator_subdivided, self.integrator_fallbacks),
+                         gravity, method)
+        return applied
+
+    def take_fallbacks(self) -> list[tuple[str, int]]:
+        """The robots whose Gauss–Legendre step fell back to the default step since the last call, with how many
+        sub-steps did (the World reports them as events)."""
+        new = self.integrator_fallbacks - self._fallbacks_reported
+        self._fallbacks_reported = self.integrator_fallbacks.copy()
+        return [(self.robots[k].name, int(new[k])) for k in np.flatnonzero(new)]
 
     def _finish(self, group, step, rows, selected, state) -> None:
         """Write an island's step: q̇, the pseudo-velocity, the effort; the contact report's sums."""
@@ -806,7 +865,7 @@ class Robots:
             s = slice(offsets[k], offsets[k] + r.model.n_dofs)
             q = self.q[r.q_slice]
             M[s, s], bias[s] = algorithms.joint_space_terms(r.kernel_arrays, q, self.qd[r.dof_slice], gravity)
-            applied[s] = self._wrench_torque[r.dof_slice]
+            applied[s] = self._applied[r.dof_slice]
             coordinate[s] = np.where(r.has_coordinate, q[r.q_of_dof_clipped], 0.0)
             qd[s] = self.qd[r.dof_slice]
         parts = [self.robots[k].properties for k in group]
@@ -869,7 +928,7 @@ class Robots:
         displacement (:attr:`~.joint_solver.JointStep.body_displacement`), positions and orientations only — the
         angular momentum turned with the body, so that neither momentum nor kinetic energy changes (split
         impulses, as the body solver's penetration recovery)."""
-        displacement, self._displacement = getattr(self, "_displacement", None), None
+        displacement, self._body_displacement = getattr(self, "_body_displacement", None), None
         if displacement is None:
             return
         moved = np.flatnonzero(np.abs(displacement[:body_model.count]).max(axis=1) > 0.0)
@@ -1038,6 +1097,11 @@ class Robots:
         velocities there are kept for :meth:`write_bodies` (one compiled call for all robots:
         :func:`~cgp_core.robots.algorithms.advance_all`)."""
         moving = self.qd + self._pseudo  # the position stage's pseudo-velocity moves q, never qd (no energy)
+        if self._smooth:  # a Gauss–Legendre step's own displacement (joint_integrators; 0 for the other robots):
+            # D − ½ (qd_c + qd⁺), the rows' and drives' velocity change Δ = qd⁺ − qd_c moving q by h Δ / 2; taken
+            # here, not at the end of solve, since a robot coupled to free bodies gets its qd⁺ in the body
+            # solver's loop (coupled.py), after solve
+            moving += np.where(self._stepped, self._flow_displacement - 0.5 * (self._collocated + self.qd), 0.0)
         B = self._body_start[-1]
         rotation, position = np.empty((B, 3, 3)), np.empty((B, 3))
         linear, angular = np.empty((B, 3)), np.empty((B, 3))
@@ -1359,6 +1423,6 @@ class CoupledRobots:
                                                   seconds, profile)
         step = JointStep(*step)
         robots._island_solved(island, step, JointSolverMemory(*memory_after), seconds, self._state)
-        robots._displacement = step.body_displacement
+        robots._body_displacement = step.body_displacement
         robots.coupled = None  # solved: nothing of this sub-step is kept past it (a copy of the world copies none)
         return body

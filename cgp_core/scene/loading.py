@@ -19,6 +19,7 @@ from ..limits import (
     MAX_ROLLING_RESISTANCE,
     rigid_work_refusal,
 )
+from ..robots.joint_integrators import DEFAULT_JOINT_INTEGRATOR, JOINT_INTEGRATORS
 from ..user_input import SceneLoader, UserInputError, load_yaml, read_user_text
 from .bodies import parse_bodies, parse_body
 from .flocks import parse_flock, parse_flocks
@@ -180,8 +181,12 @@ def scene_from_dict(data: Any, source: str = "<dict>") -> Scene:
     joints, articulations = parse_joints(v, data.get("joints", []), bodies, seen | {r.name for r in robots})
     named_poses = parse_named_poses(v, data.get("named_poses"))
     description = v.string(data.get("description", ""), "description")
+    for robot in robots:  # a robot entry without its own joint_integrator takes the world's
+        if robot.joint_integrator is None:
+            robot.joint_integrator = world.joint_integrator
     scene = Scene(source=source, world=world, bodies=bodies, flocks=flocks, robots=robots, joints=joints,
-                  articulations=[articulation_spec(a) for a in articulations], named_poses=named_poses,
+                  articulations=[articulation_spec(a, world.joint_integrator) for a in articulations],
+                  named_poses=named_poses,
                   description=" ".join(description.split()), tags=parse_tags(v, data.get("tags", []), "tags"))
     refusal = rigid_work_refusal(*scene.rigid_work(), world.substeps)
     if refusal:
@@ -268,6 +273,9 @@ def parse_world(v: Validator, raw: Any) -> WorldSpec:
                                            maximum=1.0)
     if "integrator" in d:
         spec.integrator = v.choice(d["integrator"], "world.integrator", sorted(INTEGRATORS), DEFAULT_INTEGRATOR)
+    if "joint_integrator" in d:
+        spec.joint_integrator = v.choice(d["joint_integrator"], "world.joint_integrator", sorted(JOINT_INTEGRATORS),
+                                         DEFAULT_JOINT_INTEGRATOR)
     if "substeps" in d:
         spec.substeps = v.integer(d["substeps"], "world.substeps", minimum=1, maximum=1000, default=4)
     for key, top, unit in (("linear_damping", MAX_DAMPING, "1/s"), ("angular_damping", MAX_DAMPING, "1/s"),

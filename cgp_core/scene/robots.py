@@ -21,6 +21,8 @@ A robot entry::
         restitution: 0.0
         xacro_args: {}                 # arguments of a .xacro file
         package_paths: {}              # package name -> directory, for package:// URIs
+        joint_integrator: gauss_legendre_6  # its joint-space integrator (default: the world's joint_integrator;
+                                       # cgp_core.robots.joint_integrators)
         trajectory:                    # a joint trajectory followed through the position drives from the start
           loop: true                   # (the world's load or reset, the robot's spawn); loop: from the first
           points:                      # point again after the last (which must equal the first)
@@ -41,10 +43,12 @@ from typing import Any
 
 import numpy as np
 
+from ..robots.joint_integrators import DEFAULT_JOINT_INTEGRATOR, JOINT_INTEGRATORS
 from .validation import COORDINATES, Validator, kind_of, short_repr
 
 ROBOT_KEYS = {"name", "urdf", "position", "orientation", "fixed_base", "joints", "hold", "stiffness", "damping",
-              "self_collision", "friction", "restitution", "xacro_args", "package_paths", "trajectory"}
+              "self_collision", "friction", "restitution", "xacro_args", "package_paths", "trajectory",
+              "joint_integrator"}
 TRAJECTORY_KEYS = {"points", "loop"}
 POINT_KEYS = {"time", "positions", "velocities"}
 #: a scene trajectory's path is checked against the joints' limits and velocity limits at this many instants per
@@ -80,13 +84,17 @@ class RobotSpec:
     #: links are the scene's own bodies (their names kept), its drives and initial velocities its joints'; None
     #: for a URDF robot
     articulation: Any = None
+    #: its joint-space integrator (a name of cgp_core.robots.joint_integrators.JOINT_INTEGRATORS); None: the
+    #: world's ``joint_integrator`` (a scene fills it in; a spawned robot without one takes the world's)
+    joint_integrator: str | None = None
 
 
-def articulation_spec(articulation) -> RobotSpec:
-    """The :class:`RobotSpec` of an articulation of the scene's ``joints:`` (cgp_core.scene.joints)."""
+def articulation_spec(articulation, joint_integrator: str | None = None) -> RobotSpec:
+    """The :class:`RobotSpec` of an articulation of the scene's ``joints:`` (cgp_core.scene.joints), integrated by
+    ``joint_integrator`` (the world's)."""
     return RobotSpec(name=articulation.name, model=articulation.model, position=articulation.position.copy(),
                      orientation=articulation.orientation.copy(), hold=False, self_collision=True,
-                     articulation=articulation)
+                     articulation=articulation, joint_integrator=joint_integrator)
 
 
 def builtin_robot_dir() -> Path:
@@ -170,6 +178,10 @@ def parse_robot(v: Validator, raw: Any, key: str, seen: set[str], *, name: str |
     friction = v.number(d.get("friction", 0.8), f"{key}.friction", minimum=0.0, maximum=10.0)
     restitution = v.number(d.get("restitution", 0.0), f"{key}.restitution", minimum=0.0, maximum=1.0)
     xacro_args = _string_map(v, d.get("xacro_args", {}), f"{key}.xacro_args")
+    joint_integrator = None
+    if "joint_integrator" in d:
+        joint_integrator = v.choice(d["joint_integrator"], f"{key}.joint_integrator", sorted(JOINT_INTEGRATORS),
+                                    DEFAULT_JOINT_INTEGRATOR)
     package_paths = _string_map(v, d.get("package_paths", {}), f"{key}.package_paths")
     joints_raw = v.mapping(d.get("joints", {}), f"{key}.joints")
     joints = {}
@@ -212,7 +224,8 @@ def parse_robot(v: Validator, raw: Any, key: str, seen: set[str], *, name: str |
             return None
     return RobotSpec(name=name, model=model, position=position, orientation=q / np.linalg.norm(q), joints=joints,
                      hold=hold, stiffness=stiffness, damping=damping, self_collision=self_collision,
-                     friction=friction, restitution=restitution, notes=notes, trajectory=trajectory)
+                     friction=friction, restitution=restitution, notes=notes, trajectory=trajectory,
+                     joint_integrator=joint_integrator)
 
 
 def parse_trajectory(v: Validator, raw: Any, key: str, model, initial: dict, robot: str):

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..bodies import BodyModel, BodyState, CompoundParts, Shape, rigid_work
 from ..integrators import DEFAULT_INTEGRATOR
+from ..robots.joint_integrators import DEFAULT_JOINT_INTEGRATOR
 
 
 @dataclass
@@ -26,6 +27,9 @@ class WorldSpec:
     #: asphalt or a wooden ball on wood, so balls and logs come to rest; 0 is the ideal rigid model
     rolling_resistance: float = 0.01
     sleep: bool = True
+    #: the joint-space integrator of every robot and scene articulation (a robot entry's own
+    #: ``joint_integrator`` wins): cgp_core.robots.joint_integrators.JOINT_INTEGRATORS
+    joint_integrator: str = DEFAULT_JOINT_INTEGRATOR
 
 
 @dataclass
