@@ -219,7 +219,7 @@ def face_scratch(capacity):
     return FaceScratch(np.empty((13, capacity)), np.empty((4, capacity), np.int64), np.empty((3, capacity), np.bool_))
 
 
-@njit
+@njit(inline="always")  # (per triangle under a hull: a call passes every array of both hulls; issue 38)
 def incident_face(reference, face_r, incident):
     """The face of hull I (``incident``) most anti-parallel to face ``face_r`` of hull R (``reference``), and the
     columns :func:`clip_incident` needs for the two: ``(face_i, capacity)``.  Clipping a convex polygon by a plane
@@ -829,7 +829,7 @@ def triangle_hull_contacts(triangle, active_edges, two_sided, hull, margin, out,
     return triangle_contacts_into(triangle, active_edges, two_sided, hull, margin, out, m, triangle_scratch(hull))
 
 
-@njit
+@njit(inline="always")  # (per triangle: a call passes every array of the hull and the scratch; issue 38)
 def triangle_contacts_into(triangle, active_edges, two_sided, hull, margin, out, m, scratch):
     """A static mesh's triangle (A: ``triangle (3, 3)`` world vertices, counter-clockwise seen from its front) vs
     hull B (a :class:`.convex.PosedHull`).  The triangle is a flat hull with two faces (front and back) and the contact
