@@ -471,12 +471,16 @@ def merge_close_rows(out, start, m):
     return kept
 
 
+#: :func:`reduce_mesh_rows`: a kept point within this of the deepest point's separation [m] counts as the deepest
+DEEPEST_TIE = 1e-9
+
+
 @njit
 def reduce_mesh_rows(out, start, m):
     """At most 4 of the rows ``start .. m − 1`` of ``out`` (one mesh–shape pair's points, from several triangles),
     near-duplicates merged first (:func:`merge_close_rows`): those extreme along the diagonals of the plane across
-    their mean normal (:func:`.manifold.reduce_to_four`, the box kernel's rule), and the deepest point always;
-    each keeps its own normal.  Returns the new end row."""
+    their mean normal (:func:`.manifold.reduce_to_four`, the box kernel's rule), and the deepest point always
+    (unless a kept point is as deep within :data:`DEEPEST_TIE`); each keeps its own normal.  Returns the new end row."""
     m = merge_close_rows(out, start, m)
     normal, separation, point = out.normal, out.separation, out.point
     k = m - start
@@ -511,6 +515,11 @@ def reduce_mesh_rows(out, start, m):
         umin, umax, vmin, vmax = min(umin, X[s]), max(umax, X[s]), min(vmin, Y[s]), max(vmax, Y[s])
     reduce_to_four(X, Y, max(0.5 * (umax - umin), 1e-12), max(0.5 * (vmax - vmin), 1e-12), valid)
     d = deepest - start
+    for s in range(k):  # a kept point as deep to round-off stands for it (the corners of a box resting on a flat
+        # grid are as deep as its every other point: the deepest by round-off alone would change from step to step)
+        if valid[s] and separation[start + s] <= separation[deepest] + DEEPEST_TIE:
+            d = s
+            break
     if not valid[d]:  # the deepest point replaces the kept point nearest to it
         near, best = -1, np.inf
         for s in range(k):
