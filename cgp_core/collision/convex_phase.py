@@ -107,7 +107,8 @@ TOI_TARGET = 1e-3
 TOI_TOLERANCE = 2.5e-4
 
 #: mesh pairs: the BVH query's first scratch size, grown 8x when a query finds more triangles (a box resting on a
-#: 1 cm grid has 20,000 under it: two queries more)
+#: 1 cm grid has 20,000 under it: one query more, the first time — the caller keeps the grown buffer, see
+#: :func:`convex_phase`)
 MESH_CANDIDATES = 4096
 
 
@@ -470,12 +471,16 @@ def merge_close_rows(out, start, m):
     return kept
 
 
+#: :func:`reduce_mesh_rows`: a kept point within this of the deepest point's separation [m] counts as the deepest
+DEEPEST_TIE = 1e-9
+
+
 @njit
 def reduce_mesh_rows(out, start, m):
     """At most 4 of the rows ``start .. m − 1`` of ``out`` (one mesh–shape pair's points, from several triangles),
     near-duplicates merged first (:func:`merge_close_rows`): those extreme along the diagonals of the plane across
-    their mean normal (:func:`.manifold.reduce_to_four`, the box kernel's rule), and the deepest point always;
-    each keeps its own normal.  Returns the new end row."""
+    their mean normal (:func:`.manifold.reduce_to_four`, the box kernel's rule), and the deepest point always
+    (unless a kept point is as deep within :data:`DEEPEST_TIE`); each keeps its own normal.  Returns the new end row."""
     m = merge_close_rows(out, start, m)
     normal, separation, point = out.normal, out.separation, out.point
     k = m - start
@@ -510,6 +515,11 @@ def reduce_mesh_rows(out, start, m):
         umin, umax, vmin, vmax = min(umin, X[s]), max(umax, X[s]), min(vmin, Y[s]), max(vmax, Y[s])
     reduce_to_four(X, Y, max(0.5 * (umax - umin), 1e-12), max(0.5 * (vmax - vmin), 1e-12), valid)
     d = deepest - start
+    for s in range(k):  # a kept point as deep to round-off stands for it (the corners of a box resting on a flat
+        # grid are as deep as its every other point: the deepest by round-off alone would change from step to step)
+        if valid[s] and separation[start + s] <= separation[deepest] + DEEPEST_TIE:
+            d = s
+            break
     if not valid[d]:  # the deepest point replaces the kept point nearest to it
         near, best = -1, np.inf
         for s in range(k):
@@ -636,12 +646,14 @@ def _mesh_contacts(a, b, shapes, poses, candidates, work, out, m):
 
 
 @njit
-def convex_phase(shapes, poses, pairs, active, ground, key_base):
+def convex_phase(shapes, poses, pairs, active, ground, key_base, candidates):
     """Contact points of this stage's active primitives with the ground and of the candidate pairs (primitive
     indices, AABBs overlapping) that this stage's primitives take part in (pairs of two of the detector's
     primitives are skipped: :func:`.detector.narrow_phase` has them): the :class:`.ContactSet` (ground contacts
-    first, then the pairs in the order given) and ``touched (n,)``: the sleeping bodies in a contact.  Keys: pair
-    ids from ``key_base`` (see the module docstring).
+    first, then the pairs in the order given), ``touched (n,)``: the sleeping bodies in a contact, and the BVH
+    query's scratch ``candidates (c,)`` int64 (the one given, or a bigger one if a mesh pair needed it: the caller
+    passes it to the next call, so a big query is not run twice every sub-step, once to learn its size; issue 38).
+    Keys: pair ids from ``key_base`` (see the module docstring).
 
     ``shapes``: :class:`ShapeModel`; ``poses``: :class:`ShapePoses`; ``pairs``: :class:`.detector.Pairs`;
     ``active (n,)`` bool: the bodies being stepped; ``ground``: :class:`.detector.GroundPlane` — bundles as plain
@@ -658,7 +670,6 @@ def convex_phase(shapes, poses, pairs, active, ground, key_base):
     prim_a = np.empty(cap, np.int64)  # −1: the ground
     prim_b = np.empty(cap, np.int64)
     work = np.empty((3, 3))
-    candidates = np.empty(MESH_CANDIDATES, np.int64)
     m = np.int64(0)
 
     # -- the ground plane z = 0 (side A) against this stage's active primitives near it
@@ -693,6 +704,9 @@ def convex_phase(shapes, poses, pairs, active, ground, key_base):
         start = m
         first, second = a, b  # the contact's side A and B
         if prims.kind[a] == MESH:
+            # room for 4 rows per candidate before the first call: a kernel short of rows stops part way, and its
+            # triangles' work until then is lost
+            out, prim_a, prim_b = _grown(out, prim_a, prim_b, m, 4 * len(candidates))
             done = False
             while not done:
                 m, done = _mesh_contacts(a, b, shapes, poses, candidates, work, out, m)
@@ -708,7 +722,8 @@ def convex_phase(shapes, poses, pairs, active, ground, key_base):
         rank_features(out.feature, start, m)
         prim_a[start:m] = first
         prim_b[start:m] = second
-    return _contact_set(shapes, out, prim_a, prim_b, m, active, ground, key_base)
+    contacts, touched = _contact_set(shapes, out, prim_a, prim_b, m, active, ground, key_base)
+    return contacts, touched, candidates
 
 
 @njit

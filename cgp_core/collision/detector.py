@@ -52,6 +52,7 @@ from .box_box import box_box_contacts
 from .broadphase import DEFAULT_BROAD_PHASE, get_broad_phase, grid_kernel, sweep_and_prune_kernel, sweep_and_prune_pairs
 from .contacts import FEATURE_SLOTS, GROUND, ContactSet
 from .convex_phase import (
+    MESH_CANDIDATES,
     TOI_TARGET,
     TOI_TOLERANCE,
     ShapeModel,
@@ -151,6 +152,8 @@ class CollisionDetector:
         self._shapes: ShapeModel | None = None  # the convex stage's primitives (None: the model has none)
         self._plain_shapes: tuple = ()
         self._sweeps = None  # what sweep_fast_rotation needs from the last detect
+        #: the convex stage's BVH query scratch, kept from sub-step to sub-step (grown when a mesh pair needs it)
+        self._candidates = np.empty(MESH_CANDIDATES, np.int64)
         #: body pairs never tested (the robots' jointed links, :meth:`exclude`), or None
         self.excluded = None
         #: whether the last broad phase found the scene too dense for the sweep and ran the grid (the default
@@ -307,8 +310,8 @@ class CollisionDetector:
         now = clock()
         profile.add(NARROW_PHASE, now - start)
         start = now
-        contacts, touched_new = convex_phase(self._plain_shapes, tuple(every), (i, j), active, ground_plane,
-                                             np.int64((p + 1) ** 2))
+        contacts, touched_new, self._candidates = convex_phase(self._plain_shapes, tuple(every), (i, j), active,
+                                                               ground_plane, np.int64((p + 1) ** 2), self._candidates)
         parts.append(contacts)
         touched |= touched_new
         if self.continuous:

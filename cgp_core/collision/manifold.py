@@ -203,151 +203,188 @@ def best_face(hull, other, stop):
     return best_f, best
 
 
+class FaceScratch(NamedTuple):
+    """Work space of :func:`clip_incident` for polygons of up to ``c`` vertices (:func:`face_scratch`; the rows'
+    meanings are listed where it is used)."""
+
+    real: np.ndarray   # (13, c) float: the polygons' coordinates, the clipped points' face coordinates
+    label: np.ndarray  # (4, c) int64: clip labels (in-edge, out-edge) before and after a side
+    flags: np.ndarray  # (3, c) bool: valid, before the reduction, the first reduction's
+
+
 @njit
-def face_contact(reference, face_r, incident, flip, best, margin, out, m):
-    """Face contact: face ``face_r`` of hull R (``reference``, a :class:`.convex.PosedHull`) is the reference face,
-    hull I's face most anti-parallel to it the incident face; Sutherland–Hodgman clipping of the incident polygon
-    by the reference face's side planes (Ericson 8.3.4), points below ``margin`` kept, at most 4
-    (:func:`reduce_to_four`).  ``flip``: R is B (the normal written is reversed so that it still points from A to
-    B).  ``best``: the reference face's SAT separation (the points are lowered to it when apart)."""
-    vertices_r, face_plane_r, position_r, rotation_r = (reference.vertices, reference.face_plane, reference.position,
-                                                        reference.rotation)
-    face_vertex_start_r, face_vertices_r = reference.face_vertex_start, reference.face_vertices
-    vertices_i, face_plane_i, position_i, rotation_i = (incident.vertices, incident.face_plane, incident.position,
-                                                        incident.rotation)
-    face_vertex_start_i, face_vertices_i = incident.face_vertex_start, incident.face_vertices
-    nx, ny, nz, d_ref = _world_plane(face_plane_r, face_r, position_r, rotation_r)
-    # incident face: the most anti-parallel
+def face_scratch(capacity):
+    """A :class:`FaceScratch` of ``capacity`` columns: rows of three allocations, not eighteen (issue 38: a box on a
+    fine mesh clips once per triangle under it, and each allocation costs ~30 ns)."""
+    return FaceScratch(np.empty((13, capacity)), np.empty((4, capacity), np.int64), np.empty((3, capacity), np.bool_))
+
+
+@njit(inline="always")  # (per triangle under a hull: a call passes every array of both hulls; issue 38)
+def incident_face(reference, face_r, incident):
+    """The face of hull I (``incident``) most anti-parallel to face ``face_r`` of hull R (``reference``), and the
+    columns :func:`clip_incident` needs for the two: ``(face_i, capacity)``.  Clipping a convex polygon by a plane
+    adds at most one vertex, so the incident loop plus one per reference side fits — twice that, and a check in the
+    clipping, for a polygon that round-off has made slightly non-convex."""
+    nx, ny, nz, _ = _world_plane(reference.face_plane, face_r, reference.position, reference.rotation)
+    face_plane_i, position_i, rotation_i = incident.face_plane, incident.position, incident.rotation
     face_i, most = np.int64(0), np.inf
     for f in range(len(face_plane_i)):
         a, b, c, _ = _world_plane(face_plane_i, f, position_i, rotation_i)
         dot = a * nx + b * ny + c * nz
         if dot < most:
             face_i, most = f, dot
-    # the incident polygon in world, with its clip labels (in-edge, out-edge); clipping a convex polygon by a
-    # plane adds at most one vertex, so the loop plus one per reference side fits — twice that, and a check
-    # below, for a polygon that round-off has made slightly non-convex
+    k = incident.face_vertex_start[face_i + 1] - incident.face_vertex_start[face_i]
+    return face_i, 2 * (k + reference.face_vertex_start[face_r + 1] - reference.face_vertex_start[face_r]) + 4
+
+
+@njit
+def face_contact(reference, face_r, incident, flip, best, margin, out, m):
+    """Face contact: face ``face_r`` of hull R (``reference``, a :class:`.convex.PosedHull`) is the reference face,
+    hull I's face most anti-parallel to it the incident face (:func:`incident_face`); :func:`clip_incident` in work
+    space of its own."""
+    face_i, capacity = incident_face(reference, face_r, incident)
+    return clip_incident(reference, face_r, incident, face_i, flip, best, margin, out, m, face_scratch(capacity))
+
+
+@njit
+def clip_incident(reference, face_r, incident, face_i, flip, best, margin, out, m, scratch):
+    """Face ``face_r`` of hull R (``reference``, a :class:`.convex.PosedHull`) the reference face, face ``face_i`` of
+    hull I the incident face: Sutherland–Hodgman clipping of the incident polygon by the reference face's side
+    planes (Ericson 8.3.4), points below ``margin`` kept, at most 4 (:func:`reduce_to_four`).  ``flip``: R is B (the
+    normal written is reversed so that it still points from A to B).  ``best``: the reference face's SAT separation
+    (the points are lowered to it when apart).  ``scratch``: a :class:`FaceScratch` of at least
+    :func:`incident_face`'s capacity (one per mesh–hull pair serves all its triangles)."""
+    vertices_r, face_plane_r, position_r, rotation_r = (reference.vertices, reference.face_plane, reference.position,
+                                                        reference.rotation)
+    face_vertex_start_r, face_vertices_r = reference.face_vertex_start, reference.face_vertices
+    vertices_i, position_i, rotation_i = incident.vertices, incident.position, incident.rotation
+    face_vertex_start_i, face_vertices_i = incident.face_vertex_start, incident.face_vertices
+    nx, ny, nz, d_ref = _world_plane(face_plane_r, face_r, position_r, rotation_r)
+    # the incident polygon in world, with its clip labels (in-edge, out-edge)
     i0, i1 = face_vertex_start_i[face_i], face_vertex_start_i[face_i + 1]
     k = i1 - i0
     capacity = 2 * (k + face_vertex_start_r[face_r + 1] - face_vertex_start_r[face_r]) + 4
-    # the scratch arrays as rows of three allocations, not eighteen (issue 38: a box on a fine mesh calls this
-    # once per triangle under it, and each allocation costs ~30 ns)
-    real = np.empty((13, capacity))
-    label = np.empty((4, capacity), np.int64)
-    flags = np.empty((3, capacity), np.bool_)
-    px, py, pz, qx, qy, qz = real[0], real[1], real[2], real[3], real[4], real[5]
-    lin, lout, qin, qout = label[0], label[1], label[2], label[3]
+    # the work arrays by row and column, not through row views: a view costs a reference count up and down
+    # (atomic), and ~20 of them were most of a triangle's time (issue 38).  Rows: real 0–2 the polygon (x, y, z),
+    # 3–5 the polygon being clipped, 6–8 the reference loop, 9–10 the points' face coordinates (X, Y), 11 their
+    # separation Z (lowered when apart), 12 Z as clipped; label 0–1 the polygon's (in, out) labels, 2–3 the
+    # clipped one's; flags 0 valid, 1 valid before the reduction, 2 the first reduction's choice
+    real, label, flags = scratch
     for s in range(k):
-        px[s], py[s], pz[s] = _world_vertex(vertices_i, face_vertices_i[i0 + s], position_i, rotation_i)
-        lin[s], lout[s] = (s - 1) % k, s
+        real[0, s], real[1, s], real[2, s] = _world_vertex(vertices_i, face_vertices_i[i0 + s], position_i, rotation_i)
+        label[0, s], label[1, s] = (s - 1 if s > 0 else k - 1), s  # (the wraps as compares, not %: a division each)
     # the reference face's loop in world
     r0, r1 = face_vertex_start_r[face_r], face_vertex_start_r[face_r + 1]
     nref = r1 - r0
-    rx, ry, rz = real[6, :nref], real[7, :nref], real[8, :nref]  # (nref < capacity)
     for s in range(nref):
-        rx[s], ry[s], rz[s] = _world_vertex(vertices_r, face_vertices_r[r0 + s], position_r, rotation_r)
+        real[6, s], real[7, s], real[8, s] = _world_vertex(vertices_r, face_vertices_r[r0 + s], position_r, rotation_r)
     # clip by each side plane: inward normal n × (edge), through the edge's start
     for side in range(nref):
         if k == 0:
             break
-        e = (side + 1) % nref
-        ex, ey, ez = rx[e] - rx[side], ry[e] - ry[side], rz[e] - rz[side]
+        e = side + 1 if side + 1 < nref else 0
+        ex, ey, ez = real[6, e] - real[6, side], real[7, e] - real[7, side], real[8, e] - real[8, side]
         sx, sy, sz = ny * ez - nz * ey, nz * ex - nx * ez, nx * ey - ny * ex
-        offset = sx * rx[side] + sy * ry[side] + sz * rz[side]
+        offset = sx * real[6, side] + sy * real[7, side] + sz * real[8, side]
         clipped = 0
         for s in range(k):
             if clipped + 2 > capacity:
                 break  # never for a convex polygon (see above)
-            t = (s + 1) % k
-            ds = sx * px[s] + sy * py[s] + sz * pz[s] - offset
-            dt = sx * px[t] + sy * py[t] + sz * pz[t] - offset
+            t = s + 1 if s + 1 < k else 0
+            ds = sx * real[0, s] + sy * real[1, s] + sz * real[2, s] - offset
+            dt = sx * real[0, t] + sy * real[1, t] + sz * real[2, t] - offset
             if ds >= 0.0 and dt >= 0.0:  # both inside: keep the edge's end
-                qx[clipped], qy[clipped], qz[clipped] = px[t], py[t], pz[t]
-                qin[clipped], qout[clipped] = lin[t], lout[t]
+                real[3, clipped], real[4, clipped], real[5, clipped] = real[0, t], real[1, t], real[2, t]
+                label[2, clipped], label[3, clipped] = label[0, t], label[1, t]
                 clipped += 1
             elif ds >= 0.0 or dt >= 0.0:  # crossing: the crossing point, then the end if it is inside
                 u = ds / (ds - dt)
-                qx[clipped] = px[s] + u * (px[t] - px[s])
-                qy[clipped] = py[s] + u * (py[t] - py[s])
-                qz[clipped] = pz[s] + u * (pz[t] - pz[s])
+                real[3, clipped] = real[0, s] + u * (real[0, t] - real[0, s])
+                real[4, clipped] = real[1, s] + u * (real[1, t] - real[1, s])
+                real[5, clipped] = real[2, s] + u * (real[2, t] - real[2, s])
                 if ds >= 0.0:  # leaving through this side
-                    qin[clipped], qout[clipped] = lout[s], _REFERENCE_SIDE + side
+                    label[2, clipped], label[3, clipped] = label[1, s], _REFERENCE_SIDE + side
                 else:  # entering
-                    qin[clipped], qout[clipped] = _REFERENCE_SIDE + side, lin[t]
+                    label[2, clipped], label[3, clipped] = _REFERENCE_SIDE + side, label[0, t]
                 clipped += 1
                 if dt >= 0.0:
-                    qx[clipped], qy[clipped], qz[clipped] = px[t], py[t], pz[t]
-                    qin[clipped], qout[clipped] = lin[t], lout[t]
+                    real[3, clipped], real[4, clipped], real[5, clipped] = real[0, t], real[1, t], real[2, t]
+                    label[2, clipped], label[3, clipped] = label[0, t], label[1, t]
                     clipped += 1
         for s in range(clipped):
-            px[s], py[s], pz[s], lin[s], lout[s] = qx[s], qy[s], qz[s], qin[s], qout[s]
+            real[0, s], real[1, s], real[2, s] = real[3, s], real[4, s], real[5, s]
+            label[0, s], label[1, s] = label[2, s], label[3, s]
         k = clipped
     if k == 0:
         return m
     # the reference face's 2-D frame: u along its first edge, v = n × u; half spans hu, hv of the face
-    ux, uy, uz = rx[1] - rx[0], ry[1] - ry[0], rz[1] - rz[0]
+    ux, uy, uz = real[6, 1] - real[6, 0], real[7, 1] - real[7, 0], real[8, 1] - real[8, 0]
     lu = math.sqrt(ux * ux + uy * uy + uz * uz)
     ux, uy, uz = ux / lu, uy / lu, uz / lu
     vx, vy, vz = ny * uz - nz * uy, nz * ux - nx * uz, nx * uy - ny * ux
     umin = vmin = np.inf
     umax = vmax = -np.inf
     for s in range(nref):
-        a = ux * rx[s] + uy * ry[s] + uz * rz[s]
-        b = vx * rx[s] + vy * ry[s] + vz * rz[s]
+        a = ux * real[6, s] + uy * real[7, s] + uz * real[8, s]
+        b = vx * real[6, s] + vy * real[7, s] + vz * real[8, s]
         umin, umax, vmin, vmax = min(umin, a), max(umax, a), min(vmin, b), max(vmax, b)
     hu, hv = 0.5 * (umax - umin), 0.5 * (vmax - vmin)
-    X, Y, Z, Zg = real[9, :k], real[10, :k], real[11, :k], real[12, :k]  # (k <= capacity)
-    valid = flags[0, :k]
-    valid[:] = True
     for s in range(k):
-        X[s] = ux * px[s] + uy * py[s] + uz * pz[s]
-        Y[s] = vx * px[s] + vy * py[s] + vz * pz[s]
-        Z[s] = nx * px[s] + ny * py[s] + nz * pz[s] - d_ref
-        Zg[s] = Z[s]
+        flags[0, s] = True
+        real[9, s] = ux * real[0, s] + uy * real[1, s] + uz * real[2, s]
+        real[10, s] = vx * real[0, s] + vy * real[1, s] + vz * real[2, s]
+        real[11, s] = nx * real[0, s] + ny * real[1, s] + nz * real[2, s] - d_ref
+        real[12, s] = real[11, s]
     # merge (near) duplicates, as box–box does: a point coinciding with an earlier one is dropped
     close = (1e-4 * (hu + hv)) ** 2
     for j in range(k):
         for i in range(j):
-            if valid[i] and (X[j] - X[i]) ** 2 + (Y[j] - Y[i]) ** 2 <= close:
-                valid[j] = False
+            if flags[0, i] and (real[9, j] - real[9, i]) ** 2 + (real[10, j] - real[10, i]) ** 2 <= close:
+                flags[0, j] = False
                 break
     apart = best > 0.0
-    _lower_to(Z, valid, best, apart)
+    if apart:
+        _lower_to(real[11, :k], flags[0, :k], best, apart)
     for s in range(k):
-        valid[s] = valid[s] and Z[s] < margin
+        flags[0, s] = flags[0, s] and real[11, s] < margin
     # the reduction, in the reference face's units (box–box's rule, which this then reproduces for boxes); where
     # that keeps fewer than 4 of more candidates — a small hull on a big face, whose diagonal extremes in the
     # face's units fall on the same two points: a line of support, on which it would rock — in the units of the
     # contact polygon's own half spans, if that keeps more
-    before = flags[1, :k]
-    before[:] = valid
-    reduce_to_four(X, Y, hu, hv, valid)
+    candidates = 0
+    for s in range(k):
+        flags[1, s] = flags[0, s]
+        candidates += flags[0, s]
+    if candidates > 4:  # (reduce_to_four keeps 4 or fewer as they are)
+        reduce_to_four(real[9, :k], real[10, :k], hu, hv, flags[0, :k])
     candidates = kept = 0
     cu_lo = cv_lo = np.inf
     cu_hi = cv_hi = -np.inf
     for s in range(k):
-        if before[s]:
+        if flags[1, s]:
             candidates += 1
-            cu_lo, cu_hi, cv_lo, cv_hi = min(cu_lo, X[s]), max(cu_hi, X[s]), min(cv_lo, Y[s]), max(cv_hi, Y[s])
-        kept += valid[s]
+            cu_lo, cu_hi = min(cu_lo, real[9, s]), max(cu_hi, real[9, s])
+            cv_lo, cv_hi = min(cv_lo, real[10, s]), max(cv_hi, real[10, s])
+        kept += flags[0, s]
     if kept < min(candidates, 4):
-        first = flags[2, :k]
-        first[:] = valid
         for s in range(k):
-            valid[s] = before[s]
-        reduce_to_four(X, Y, max(0.5 * (cu_hi - cu_lo), 1e-12), max(0.5 * (cv_hi - cv_lo), 1e-12), valid)
-        if valid.sum() <= kept:  # no better: the first
+            flags[2, s] = flags[0, s]
+            flags[0, s] = flags[1, s]
+        reduce_to_four(real[9, :k], real[10, :k], max(0.5 * (cu_hi - cu_lo), 1e-12),
+                       max(0.5 * (cv_hi - cv_lo), 1e-12), flags[0, :k])
+        if flags[0, :k].sum() <= kept:  # no better: the first
             for s in range(k):
-                valid[s] = first[s]
-    _lower_to(Z, valid, best, apart)
+                flags[0, s] = flags[2, s]
+    if apart:
+        _lower_to(real[11, :k], flags[0, :k], best, apart)
     sign = -1.0 if flip else 1.0
     base = FACE_FEATURE | (np.int64(1 if flip else 0) << np.int64(60)) | (np.int64(face_r) << np.int64(40)) \
         | (np.int64(face_i) << np.int64(20))
     for s in range(k):
-        if valid[s]:
-            half = 0.5 * Zg[s]
-            m = write_point(out, m, sign * nx, sign * ny, sign * nz, Z[s], px[s] - half * nx, py[s] - half * ny,
-                            pz[s] - half * nz, base | (lin[s] * 512 + lout[s]))
+        if flags[0, s]:
+            half = 0.5 * real[12, s]
+            m = write_point(out, m, sign * nx, sign * ny, sign * nz, real[11, s], real[0, s] - half * nx,
+                            real[1, s] - half * ny, real[2, s] - half * nz, base | (label[0, s] * 512 + label[1, s]))
     return m
 
 
@@ -549,7 +586,7 @@ SEPARATION_BOUND_SLACK = 1e-7
 SEPARATION_BOUND_FACES = 32
 
 
-@njit
+@njit(inline="always")  # (one caller, per triangle: a call passes every array of both hulls; issue 38)
 def _separation_at_most(triangle, hull, front_plane, sx, sy, sz, front_sep):
     """An upper bound of the true separation (GJK's distance, or minus EPA's depth) of ``triangle (3, 3)`` and
     the :class:`.convex.PosedHull` ``hull``, or inf if none is found cheaply.  The true separation is at most
@@ -611,8 +648,189 @@ def _separation_at_most(triangle, hull, front_plane, sx, sy, sz, front_sep):
     return best
 
 
+class TriangleScratch(NamedTuple):
+    """Work space of :func:`triangle_contacts_into` for one hull (:func:`triangle_scratch`): the triangle as a flat
+    hull (its planes rewritten per triangle; its loops, unused adjacency and identity frame constant) and the
+    clipping's :class:`FaceScratch`."""
+
+    planes: np.ndarray   # (2, 4) the triangle's front and back planes
+    indices: np.ndarray  # (13,) int64: loop starts [0:3], loops [3:9], adjacency starts [9:13] (zeros)
+    frame: np.ndarray    # (4, 3): the identity rotation [0:3], the origin [3]
+    faces: FaceScratch
+
+
+@njit
+def triangle_scratch(hull):
+    """The :class:`TriangleScratch` for triangles against ``hull`` (a :class:`.convex.PosedHull`): its clipping
+    columns cover a triangle against any of the hull's faces (:func:`incident_face`'s capacity either way round)."""
+    indices = np.zeros(13, np.int64)
+    indices[1], indices[2] = 3, 6
+    indices[4], indices[5], indices[7], indices[8] = 1, 2, 2, 1
+    frame = np.zeros((4, 3))
+    frame[0, 0] = frame[1, 1] = frame[2, 2] = 1.0
+    loop = 3
+    for f in range(len(hull.face_vertex_start) - 1):
+        loop = max(loop, hull.face_vertex_start[f + 1] - hull.face_vertex_start[f])
+    return TriangleScratch(np.empty((2, 4)), indices, frame, face_scratch(2 * (loop + 3) + 4))
+
+
+@njit(inline="always")  # (per triangle: a call passes every array of both hulls; issue 38)
+def _clip_triangle(reference, face_r, incident, flip, best, margin, out, m, faces):
+    """:func:`face_contact` of a triangle and a hull in the pair's :class:`FaceScratch` ``faces``: the triangle's
+    face as reference with its corners inside the hull's incident face by :func:`_corners_under_face`, else by
+    :func:`clip_incident`."""
+    face_i, _ = incident_face(reference, face_r, incident)
+    if not flip:
+        done = _corners_under_face(reference, face_r, incident, face_i, best, margin, out, m)
+        if done >= 0:
+            return done
+    return clip_incident(reference, face_r, incident, face_i, flip, best, margin, out, m, faces)
+
+
+#: :func:`_corners_under_face` takes a triangle's corners as what the clipping would give when each is at least this
+#: far inside the incident face, relative to the triangle's longest edge (the clipping's crossings are then far
+#: from its sign tests' zero)
+CORNER_INSIDE = 1e-6
+
+
+@njit(inline="always")  # (one caller, per triangle: a call passes every array of both hulls; issue 38)
+def _corners_under_face(flat, face_r, hull, face_i, best, margin, out, m):
+    """The face contact of :func:`clip_incident` with the triangle ``flat`` (a flat :class:`.convex.PosedHull`,
+    identity frame) as reference and the hull's face ``face_i`` as incident, when the triangle's three corners lie
+    inside that face (seen along the triangle's normal; the face anti-parallel enough, winding the other way — a
+    hull resting on a mesh, on every triangle under it but those along its outline): the clipped polygon is then
+    the triangle itself, so its points are the corners lifted onto the incident face, with the clipping's labels
+    (corner j of the loop: reference sides j in, j − 1 out), separations, lowering and features — what
+    :func:`clip_incident` gives, to round-off, in ~a fifth of its time (issue 38: clipping a 4-gon by 3 sides was
+    most of a triangle's cost).  Returns the next free row, or −1 if the corners are not all well inside (then the
+    caller clips)."""
+    nx, ny, nz, d_ref = _world_plane(flat.face_plane, face_r, flat.position, flat.rotation)
+    a, b, c, d_i = _world_plane(hull.face_plane, face_i, hull.position, hull.rotation)
+    facing = a * nx + b * ny + c * nz
+    if not facing < -0.5:
+        return -1
+    r0 = flat.face_vertex_start[face_r]
+    corners = flat.face_vertices
+    q0x, q0y, q0z = _world_vertex(flat.vertices, corners[r0], flat.position, flat.rotation)
+    q1x, q1y, q1z = _world_vertex(flat.vertices, corners[r0 + 1], flat.position, flat.rotation)
+    q2x, q2y, q2z = _world_vertex(flat.vertices, corners[r0 + 2], flat.position, flat.rotation)
+    longest = math.sqrt(max((q1x - q0x) ** 2 + (q1y - q0y) ** 2 + (q1z - q0z) ** 2,
+                            (q2x - q1x) ** 2 + (q2y - q1y) ** 2 + (q2z - q1z) ** 2,
+                            (q0x - q2x) ** 2 + (q0y - q2y) ** 2 + (q0z - q2z) ** 2))
+    # each corner inside every edge of the incident loop, which must wind clockwise about n (the hull's outward
+    # face seen from the triangle's front): (e × w) · n < 0 by a margin
+    i0, i1 = hull.face_vertex_start[face_i], hull.face_vertex_start[face_i + 1]
+    k = i1 - i0
+    vertices_i, loop_i, position_i, rotation_i = hull.vertices, hull.face_vertices, hull.position, hull.rotation
+    px, py, pz = _world_vertex(vertices_i, loop_i[i1 - 1], position_i, rotation_i)
+    turn = 0.0
+    for s in range(k):
+        tx, ty, tz = _world_vertex(vertices_i, loop_i[i0 + s], position_i, rotation_i)
+        ex, ey, ez = tx - px, ty - py, tz - pz
+        cx, cy, cz = ey * nz - ez * ny, ez * nx - ex * nz, ex * ny - ey * nx  # e × n: (e × w) · n = −(e × n) · w
+        turn += (py * ez - pz * ey) * nx + (pz * ex - px * ez) * ny + (px * ey - py * ex) * nz
+        reach = CORNER_INSIDE * longest * math.sqrt(ex * ex + ey * ey + ez * ez)
+        if not (cx * (q0x - px) + cy * (q0y - py) + cz * (q0z - pz) > reach
+                and cx * (q1x - px) + cy * (q1y - py) + cz * (q1z - pz) > reach
+                and cx * (q2x - px) + cy * (q2y - py) + cz * (q2z - pz) > reach):
+            return -1
+        px, py, pz = tx, ty, tz
+    if not turn < 0.0:
+        return -1
+    # the points: each corner lifted along n onto the incident plane, in the reference face's frame as the clipping
+    # has them (u along the loop's first edge, v = n × u), near-duplicates (a sliver) left to the clipping
+    ux, uy, uz = q1x - q0x, q1y - q0y, q1z - q0z
+    lu = math.sqrt(ux * ux + uy * uy + uz * uz)
+    ux, uy, uz = ux / lu, uy / lu, uz / lu
+    vx, vy, vz = ny * uz - nz * uy, nz * ux - nx * uz, nx * uy - ny * ux
+    x0, x1, x2 = ux * q0x + uy * q0y + uz * q0z, ux * q1x + uy * q1y + uz * q1z, ux * q2x + uy * q2y + uz * q2z
+    y0, y1, y2 = vx * q0x + vy * q0y + vz * q0z, vx * q1x + vy * q1y + vz * q1z, vx * q2x + vy * q2y + vz * q2z
+    hu = 0.5 * (max(x0, x1, x2) - min(x0, x1, x2))
+    hv = 0.5 * (max(y0, y1, y2) - min(y0, y1, y2))
+    close = (1e-4 * (hu + hv)) ** 2
+    if (x1 - x0) ** 2 + (y1 - y0) ** 2 <= close or (x2 - x0) ** 2 + (y2 - y0) ** 2 <= close \
+            or (x2 - x1) ** 2 + (y2 - y1) ** 2 <= close:
+        return -1
+    lift0 = (d_i - (a * q0x + b * q0y + c * q0z)) / facing
+    lift1 = (d_i - (a * q1x + b * q1y + c * q1z)) / facing
+    lift2 = (d_i - (a * q2x + b * q2y + c * q2z)) / facing
+    # Z: the lifted point's height over the reference plane (the corner is on it: the lift itself)
+    z0 = nx * (q0x + lift0 * nx) + ny * (q0y + lift0 * ny) + nz * (q0z + lift0 * nz) - d_ref
+    z1 = nx * (q1x + lift1 * nx) + ny * (q1y + lift1 * ny) + nz * (q1z + lift1 * nz) - d_ref
+    z2 = nx * (q2x + lift2 * nx) + ny * (q2y + lift2 * ny) + nz * (q2z + lift2 * nz) - d_ref
+    g0, g1, g2 = z0, z1, z2
+    # the clipping's lowering when apart (to the reference face's SAT separation), before and after the margin
+    if best > 0.0:
+        shift = max(min(z0, z1, z2) - best, 0.0)
+        z0, z1, z2 = z0 - shift, z1 - shift, z2 - shift
+        nearest = min(z0 if z0 < margin else np.inf, z1 if z1 < margin else np.inf, z2 if z2 < margin else np.inf)
+        if nearest < np.inf:
+            shift = max(nearest - best, 0.0)
+            z0, z1, z2 = z0 - shift, z1 - shift, z2 - shift
+    base = FACE_FEATURE | (np.int64(face_r) << np.int64(40)) | (np.int64(face_i) << np.int64(20))
+    for j in range(2, -1, -1):  # (the clipping's order for a loop inside a clockwise face)
+        if j == 0:
+            qx, qy, qz, lift, z, g = q0x, q0y, q0z, lift0, z0, g0
+        elif j == 1:
+            qx, qy, qz, lift, z, g = q1x, q1y, q1z, lift1, z1, g1
+        else:
+            qx, qy, qz, lift, z, g = q2x, q2y, q2z, lift2, z2, g2
+        if z < margin:
+            half = 0.5 * g
+            label = (_REFERENCE_SIDE + j) * 512 + _REFERENCE_SIDE + (j + 2 if j == 0 else j - 1)
+            m = write_point(out, m, nx, ny, nz, z, qx + lift * nx - half * nx, qy + lift * ny - half * ny,
+                            qz + lift * nz - half * nz, base | label)
+    return m
+
+
+@njit(inline="always")  # (one caller, per triangle: a call passes every array of the hull; issue 38)
+def _best_face_over_triangle(hull, triangle, stop):
+    """:func:`best_face` of ``hull`` against ``triangle (3, 3)`` (world corners) without its work arrays (three
+    allocations per triangle): the same arithmetic term by term — the corners turned into the hull's frame as
+    t + M v with M = Rᵀ I and t = Rᵀ (0 − p), the flat triangle's frame being the identity — so the same bits."""
+    face_plane = hull.face_plane
+    x0, y0, z0 = _in_hull_frame(hull, triangle, 0)
+    x1, y1, z1 = _in_hull_frame(hull, triangle, 1)
+    x2, y2, z2 = _in_hull_frame(hull, triangle, 2)
+    best_f, best = np.int64(0), -np.inf
+    for f in range(len(face_plane)):
+        nx, ny, nz, d = face_plane[f, 0], face_plane[f, 1], face_plane[f, 2], face_plane[f, 3]
+        low = min(np.inf, nx * x0 + ny * y0 + nz * z0)
+        low = min(low, nx * x1 + ny * y1 + nz * z1)
+        low = min(low, nx * x2 + ny * y2 + nz * z2)
+        s = low - d
+        if s > best:
+            best_f, best = f, s
+            if s > stop:
+                return best_f, best
+    return best_f, best
+
+
+@njit(inline="always")
+def _in_hull_frame(hull, triangle, v):
+    """Corner ``v`` of ``triangle`` in ``hull``'s frame as :func:`best_face` computes it (t + M v, M = Rᵀ I)."""
+    R, p = hull.rotation, hull.position
+    x, y, z = triangle[v, 0], triangle[v, 1], triangle[v, 2]
+    out0 = R[0, 0] * (0.0 - p[0]) + R[1, 0] * (0.0 - p[1]) + R[2, 0] * (0.0 - p[2]) \
+        + (R[0, 0] * 1.0 + R[1, 0] * 0.0 + R[2, 0] * 0.0) * x + (R[0, 0] * 0.0 + R[1, 0] * 1.0 + R[2, 0] * 0.0) * y \
+        + (R[0, 0] * 0.0 + R[1, 0] * 0.0 + R[2, 0] * 1.0) * z
+    out1 = R[0, 1] * (0.0 - p[0]) + R[1, 1] * (0.0 - p[1]) + R[2, 1] * (0.0 - p[2]) \
+        + (R[0, 1] * 1.0 + R[1, 1] * 0.0 + R[2, 1] * 0.0) * x + (R[0, 1] * 0.0 + R[1, 1] * 1.0 + R[2, 1] * 0.0) * y \
+        + (R[0, 1] * 0.0 + R[1, 1] * 0.0 + R[2, 1] * 1.0) * z
+    out2 = R[0, 2] * (0.0 - p[0]) + R[1, 2] * (0.0 - p[1]) + R[2, 2] * (0.0 - p[2]) \
+        + (R[0, 2] * 1.0 + R[1, 2] * 0.0 + R[2, 2] * 0.0) * x + (R[0, 2] * 0.0 + R[1, 2] * 1.0 + R[2, 2] * 0.0) * y \
+        + (R[0, 2] * 0.0 + R[1, 2] * 0.0 + R[2, 2] * 1.0) * z
+    return out0, out1, out2
+
+
 @njit
 def triangle_hull_contacts(triangle, active_edges, two_sided, hull, margin, out, m):
+    """:func:`triangle_contacts_into` with work space of its own."""
+    return triangle_contacts_into(triangle, active_edges, two_sided, hull, margin, out, m, triangle_scratch(hull))
+
+
+@njit(inline="always")  # (per triangle: a call passes every array of the hull and the scratch; issue 38)
+def triangle_contacts_into(triangle, active_edges, two_sided, hull, margin, out, m, scratch):
     """A static mesh's triangle (A: ``triangle (3, 3)`` world vertices, counter-clockwise seen from its front) vs
     hull B (a :class:`.convex.PosedHull`).  The triangle is a flat hull with two faces (front and back) and the contact
     is :func:`hull_hull_contacts`'s, except for internal edges ("ghost" collisions: a hull sliding across a flat mesh
@@ -622,7 +840,8 @@ def triangle_hull_contacts(triangle, active_edges, two_sided, hull, margin, out,
     of the triangle's face normal, the contact becomes a face contact with the triangle's face as reference (Jolt's
     "active edges"; Bullet's internal-edge utility does the same with the normal).  A one-sided triangle (``two_sided``
     False: a closed mesh or a terrain) always pushes towards its front (an edge contact whose normal points behind it
-    becomes a face contact too); a two-sided one towards the side the hull's centre is on."""
+    becomes a face contact too); a two-sided one towards the side the hull's centre is on.  ``scratch``: a
+    :class:`TriangleScratch` for ``hull`` (:func:`triangle_scratch`; one serves every triangle of a mesh–hull pair)."""
     face_plane, position, rotation = hull.face_plane, hull.position, hull.rotation
     ex, ey, ez = triangle[1, 0] - triangle[0, 0], triangle[1, 1] - triangle[0, 1], triangle[1, 2] - triangle[0, 2]
     fx, fy, fz = triangle[2, 0] - triangle[0, 0], triangle[2, 1] - triangle[0, 1], triangle[2, 2] - triangle[0, 2]
@@ -635,16 +854,11 @@ def triangle_hull_contacts(triangle, active_edges, two_sided, hull, margin, out,
     front = 0
     if two_sided and nx * position[0] + ny * position[1] + nz * position[2] < d:
         front = 1
-    # the triangle as a flat hull in world coordinates: face 0 = front, face 1 = back
-    planes = np.empty((2, 4))
+    # the triangle as a flat hull in world coordinates: face 0 = front, face 1 = back (its loops, the adjacency it
+    # does not use and its frame are the scratch's constants)
+    planes, indices, frame = scratch.planes, scratch.indices, scratch.frame
     planes[0, 0], planes[0, 1], planes[0, 2], planes[0, 3] = nx, ny, nz, d
     planes[1, 0], planes[1, 1], planes[1, 2], planes[1, 3] = -nx, -ny, -nz, -d
-    # its loops (front, back) and the adjacency it does not use in one allocation, its frame in another
-    indices = np.zeros(13, np.int64)
-    indices[1], indices[2] = 3, 6
-    indices[4], indices[5], indices[7], indices[8] = 1, 2, 2, 1
-    frame = np.zeros((4, 3))
-    frame[0, 0] = frame[1, 1] = frame[2, 2] = 1.0
     flat = PosedHull(triangle, indices[9:13], indices[9:9], planes, indices[0:3], indices[3:9], frame[3], frame[0:3])
     core, flat_core = core_of(hull), core_of(flat)
     # the front face's SAT separation (one-sided: the only face of the triangle that counts)
@@ -652,7 +866,7 @@ def triangle_hull_contacts(triangle, active_edges, two_sided, hull, margin, out,
     front_sep = planes[front, 0] * sx + planes[front, 1] * sy + planes[front, 2] * sz - planes[front, 3]
     if not front_sep < margin:
         return m
-    fb, best_b = best_face(hull, flat_core, margin)
+    fb, best_b = _best_face_over_triangle(hull, triangle, margin)
     if not best_b < margin:
         return m
     use_b = best_b > front_sep + AXIS_ABSOLUTE_TOLERANCE + AXIS_RELATIVE_TOLERANCE * abs(front_sep)
@@ -668,12 +882,34 @@ def triangle_hull_contacts(triangle, active_edges, two_sided, hull, margin, out,
         nx_b, ny_b, nz_b, _ = _world_plane(face_plane, fb, position, rotation)
         witness_needed = -(nx_b * planes[front, 0] + ny_b * planes[front, 1] + nz_b * planes[front, 2]) \
             < math.cos(GHOST_NORMAL_ANGLE)
+    face = False  # the face contact decided without GJK / EPA
     if not witness_needed:
         bound = _separation_at_most(triangle, hull, planes[front], sx, sy, sz, front_sep) + SEPARATION_BOUND_SLACK
-        if bound <= edge_above and bound < margin:
-            if use_b:
-                return face_contact(hull, fb, flat, FLIPPED, best_b, margin, out, m)
-            return face_contact(flat, front, hull, NOT_FLIPPED, front_sep, margin, out, m)
+        face = bound <= edge_above and bound < margin
+    if not face:
+        sep, cx, cy, cz, ax, ay, az, bx, by, bz, edge_feature = signed_distance(flat_core, core)
+        if not sep < margin:
+            return m
+        edge = sep > edge_above
+        if edge or use_b:
+            # the contact normal (A to B) and how far it is from the triangle's face normal
+            if not edge:
+                cx, cy, cz, _ = _world_plane(face_plane, fb, position, rotation)
+                cx, cy, cz = -cx, -cy, -cz
+            along = cx * planes[front, 0] + cy * planes[front, 1] + cz * planes[front, 2]
+            if along < math.cos(GHOST_NORMAL_ANGLE) or (not two_sided and along <= 0.0):
+                # the triangle's feature in the contact (EPA / GJK witness a): a ghost unless an active edge
+                if not two_sided and along <= 0.0 or not on_active_feature(triangle, active_edges, ax, ay, az):
+                    edge = use_b = False  # the triangle's face instead
+            elif edge:
+                edge = False  # nearly the face normal: the face contact
+        if edge:
+            return write_point(out, m, cx, cy, cz, sep, 0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * (az + bz),
+                               edge_feature)
+    # (one call of each way round: the clipping is compiled into this kernel, once per call site; issue 38)
+    if use_b:
+        return _clip_triangle(hull, fb, flat, FLIPPED, best_b, margin, out, m, scratch.faces)
+    return _clip_triangle(flat, front, hull, NOT_FLIPPED, front_sep, margin, out, m, scratch.faces)
     sep, cx, cy, cz, ax, ay, az, bx, by, bz, edge_feature = signed_distance(flat_core, core)
     if not sep < margin:
         return m
@@ -694,5 +930,5 @@ def triangle_hull_contacts(triangle, active_edges, two_sided, hull, margin, out,
         return write_point(out, m, cx, cy, cz, sep, 0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * (az + bz),
                            edge_feature)
     if use_b:
-        return face_contact(hull, fb, flat, FLIPPED, best_b, margin, out, m)
-    return face_contact(flat, front, hull, NOT_FLIPPED, front_sep, margin, out, m)
+        return _clip_triangle(hull, fb, flat, FLIPPED, best_b, margin, out, m, scratch.faces)
+    return _clip_triangle(flat, front, hull, NOT_FLIPPED, front_sep, margin, out, m, scratch.faces)

@@ -30,7 +30,7 @@ import numpy as np
 from ..jit import njit
 from .bvh import bvh_overlap
 from .convex import PosedHull
-from .manifold import hull_capsule_contacts, on_active_feature, triangle_hull_contacts
+from .manifold import hull_capsule_contacts, on_active_feature, triangle_contacts_into, triangle_scratch
 
 _LOW_32 = np.int64(0xFFFFFFFF)
 
@@ -205,22 +205,42 @@ def _repeat_grid(mesh_position, mesh_rotation, lo, hi, rows):
 
 
 @njit
+def _hull_in_mesh_frame(mesh_position, mesh_rotation, hull):
+    """``hull`` posed in the mesh's frame with its axes turned into its vertices and face planes: at its origin
+    there, the rotation the identity.  Issue 38: the hull–triangle kernel turns the hull's vertices and planes by its
+    rotation at every use, once per triangle under it — here once per pair (exactly so: the identity's products add
+    only zeros)."""
+    p, R = relative_pose(mesh_position, mesh_rotation, hull.position, hull.rotation)
+    vertices, planes = hull.vertices, hull.face_plane
+    turned = np.empty((len(vertices), 3))
+    for i in range(len(vertices)):
+        for r in range(3):
+            turned[i, r] = R[r, 0] * vertices[i, 0] + R[r, 1] * vertices[i, 1] + R[r, 2] * vertices[i, 2]
+    turned_planes = np.empty((len(planes), 4))
+    for f in range(len(planes)):
+        for r in range(3):
+            turned_planes[f, r] = R[r, 0] * planes[f, 0] + R[r, 1] * planes[f, 1] + R[r, 2] * planes[f, 2]
+        turned_planes[f, 3] = planes[f, 3]  # (the offset from the hull's origin, which the turn keeps)
+    return PosedHull(turned, hull.adjacency_start, hull.adjacency, turned_planes, hull.face_vertex_start,
+                     hull.face_vertices, p, np.eye(3))
+
+
+@njit
 def mesh_hull_contacts(mesh, mesh_position, mesh_rotation, two_sided, hull, margin, candidates, out, m):
     """Static mesh (A) vs hull (B): every nearby triangle's :func:`.manifold.triangle_hull_contacts`."""
-    vertices = hull.vertices
-    p, R = relative_pose(mesh_position, mesh_rotation, hull.position, hull.rotation)
-    local_hull = PosedHull(vertices, hull.adjacency_start, hull.adjacency, hull.face_plane, hull.face_vertex_start,
-                           hull.face_vertices, p, R)
+    local_hull = _hull_in_mesh_frame(mesh_position, mesh_rotation, hull)
+    vertices, p = local_hull.vertices, local_hull.position
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
     for i in range(len(vertices)):  # the hull's box in the mesh frame, grown by the margin
         for r in range(3):
-            x = p[r] + R[r, 0] * vertices[i, 0] + R[r, 1] * vertices[i, 1] + R[r, 2] * vertices[i, 2]
+            x = p[r] + vertices[i, r]
             lo[r] = min(lo[r], x - max(margin, 0.0))
             hi[r] = max(hi[r], x + max(margin, 0.0))
     found = bvh_overlap(mesh, lo, hi, candidates)
     if found > len(candidates):
         return m, False  # (before any triangle's work: the caller calls again with room for them all)
+    scratch = triangle_scratch(local_hull)
     triangle = np.empty((3, 3))
     start = m
     grid = _repeat_grid(mesh_position, mesh_rotation, lo, hi, min(4 * found, len(out.separation) - m))
@@ -231,7 +251,7 @@ def mesh_hull_contacts(mesh, mesh_position, mesh_rotation, two_sided, hull, marg
         t = candidates[c]
         _triangle(mesh.vertices, mesh.triangles, t, triangle)
         first = m
-        m = triangle_hull_contacts(triangle, mesh.active_edges[t], two_sided, local_hull, margin, out, m)
+        m = triangle_contacts_into(triangle, mesh.active_edges[t], two_sided, local_hull, margin, out, m, scratch)
         _to_world(mesh_position, mesh_rotation, out, t, first, m)
         m = _drop_repeats(out, grid, start, first, m, cells)
     return m, True
