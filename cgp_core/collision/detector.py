@@ -101,6 +101,9 @@ MAX_POINTS_PER_PAIR = 4
 
 SPHERE, BOX, CAPSULE = int(Shape.SPHERE), int(Shape.BOX), int(Shape.CAPSULE)
 
+#: an empty pair list (the broad phase's result when no pair can be found)
+_NO_PAIR = np.zeros(0, np.int64)
+
 #: the stages of :attr:`CollisionDetector.profile`, in order
 STAGES = ("bounds", "broad_phase", "narrow_phase", "convex_phase", "time_of_impact")
 BOUNDS, BROAD_PHASE, NARROW_PHASE, CONVEX_PHASE, TIME_OF_IMPACT = range(len(STAGES))
@@ -153,6 +156,7 @@ class CollisionDetector:
         self._sweeps = None  # what sweep_fast_rotation needs from the last detect
         #: body pairs never tested (the robots' jointed links, :meth:`exclude`), or None
         self.excluded = None
+        self._possible = None  # (model, excluded, whether a pair can be found): _pairs_possible's cache
         #: whether the last broad phase found the scene too dense for the sweep and ran the grid (the default
         #: broad phase only; see SWEEP_TESTS_PER_BOX)
         self.dense = False
@@ -190,6 +194,11 @@ class CollisionDetector:
         self.touched_sleeping = np.zeros(0, np.intp)
         self._sweeps = None
         if cm.count == 0 and self._shapes is None:
+            return ContactSet.empty()
+        if ground is None and not self._pairs_possible():
+            # nothing to detect: no ground, and every pair of bodies the broad phase could find is excluded (a lone
+            # robot without self-collision and nothing else) — the stages below would find no contact
+            self.profile.calls += 1
             return ContactSet.empty()
         if velocity is None:
             velocity = state.linear_velocity(model)
@@ -230,6 +239,29 @@ class CollisionDetector:
         not jointed (``jointed (n,)``: the body each is jointed to, −1: none).  A robot's links overlap their
         parents' at every joint: their hulls' GJK / EPA would be most of a robot's detection time."""
         self.excluded = (np.asarray(group, np.int64), np.asarray(jointed, np.int64), np.asarray(self_collision, bool))
+        self._possible = None
+
+    def _pairs_possible(self) -> bool:
+        """Whether the broad phase could find a pair that is not excluded (conservative: True unless sure), for the
+        current collision model and :attr:`excluded`: False when the bodies with a primitive are all fixed, or all
+        of one group without self-collision (:meth:`exclude`), or fewer than two.  Cached until either changes."""
+        key = (self._model, self.excluded)
+        cached = self._possible
+        if cached is not None and cached[0] is key[0] and cached[1] is key[1]:
+            return cached[2]
+        body = self._shapes.primitives.body if self._shapes is not None else self._cmodel.body
+        bodies = np.unique(body)
+        fixed = self._cmodel.fixed_body
+        possible = bool(len(bodies) >= 2 and (~fixed[bodies]).any())
+        if possible and self.excluded is not None:
+            group, _, self_collision = self.excluded
+            if len(group) > int(bodies.max()):
+                g = group[bodies]
+                one = int(g[0])
+                if one >= 0 and (g == one).all() and not self_collision[one]:
+                    possible = False  # every pair is two bodies of one group without self-collision: all excluded
+        self._possible = (key[0], key[1], possible)
+        return possible
 
     def _drop_excluded(self, i, j, prim_body):
         group, jointed, self_collision = self.excluded
@@ -246,6 +278,8 @@ class CollisionDetector:
 
     def _candidate_pairs(self, lo, hi, prim_body, active):
         """The broad phase: primitive pairs ``i, j`` whose AABBs overlap (less those :meth:`exclude` names)."""
+        if not self._pairs_possible():  # every pair would be excluded: none to look for
+            return _NO_PAIR, _NO_PAIR
         i, j = self._broad_pairs(lo, hi, prim_body, active)
         if self.excluded is not None:
             i, j = self._drop_excluded(i, j, prim_body)
