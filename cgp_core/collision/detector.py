@@ -61,6 +61,7 @@ from .convex_phase import (
     fast_turn_pairs,
     pose_shapes,
     sweep_times,
+    tighten_hull_bounds,
 )
 from .materials import Ground, combine_friction, combine_restitution
 from .narrowphase import (
@@ -325,6 +326,11 @@ class CollisionDetector:
         profile.add(BOUNDS, now - start)
         start = now
         i, j = self._candidate_pairs(every.lo, every.hi, shapes.primitives.body, active)
+        # the hulls' exact bounds where a pair or the ground is near (pose_shapes bounds them by their turned local
+        # boxes): the pairs and ground tests of exact bounds, each hull's vertices turned only there
+        prims, hulls = shapes.primitives, shapes.hulls
+        i, j = tighten_hull_bounds(prims.kind, prims.hull, hulls.vertex_start, hulls.vertices, prims.first_new,
+                                   tuple(every), i, j, ground is not None)
         now = clock()
         profile.add(BROAD_PHASE, now - start)
         start = now
