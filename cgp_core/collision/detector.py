@@ -158,6 +158,7 @@ class CollisionDetector:
         #: body pairs never tested (the robots' jointed links, :meth:`exclude`), or None
         self.excluded = None
         self._possible = None  # (model, excluded, whether a pair can be found): _pairs_possible's cache
+        self._groups = None  # (primitive bodies, excluded, the broad phase's groups): _broad_groups' cache
         #: whether the last broad phase found the scene too dense for the sweep and ran the grid (the default
         #: broad phase only; see SWEEP_TESTS_PER_BOX)
         self.dense = False
@@ -286,11 +287,31 @@ class CollisionDetector:
             i, j = self._drop_excluded(i, j, prim_body)
         return i, j
 
+    def _broad_groups(self, prim_body):
+        """The broad phase's group of each primitive (it pairs no two of one group): its body, or one group for all
+        the bodies of an :meth:`exclude` group without self-collision (every pair of them excluded), so that the
+        sweep skips a robot's links among themselves rather than find every pair of them to drop it.  Cached for
+        ``prim_body`` and :attr:`excluded`."""
+        cached = self._groups
+        if cached is not None and cached[0] is prim_body and cached[1] is self.excluded:
+            return cached[2]
+        groups = prim_body
+        if self.excluded is not None:
+            group, _, self_collision = self.excluded
+            n = len(group)
+            if len(prim_body) and n > int(prim_body.max()):
+                merged = (group >= 0) & ~self_collision[np.maximum(group, 0)]
+                body_group = np.where(merged, n + group, np.arange(n))
+                groups = np.ascontiguousarray(body_group[prim_body], np.int64)
+        self._groups = (prim_body, self.excluded, groups)
+        return groups
+
     def _broad_pairs(self, lo, hi, prim_body, active):
         """The broad phase: primitive pairs ``i, j`` whose AABBs overlap."""
         count = len(lo)
         if count <= SMALL_SCENE:
             return small_scene_pairs(lo, hi, prim_body, active)
+        prim_body = self._broad_groups(prim_body)  # (the sweep's, the grid's and the others' groups)
         if self.broad_phase is sweep_and_prune_pairs:
             # one compiled call, no same-body pair; the order of the pairs does not matter here.  A scene too
             # dense for the sweep goes to the grid (SWEEP_TESTS_PER_BOX) for GRID_CALLS calls
