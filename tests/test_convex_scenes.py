@@ -122,3 +122,59 @@ def test_a_plank_turning_a_quarter_turn_per_step_is_stopped_by_the_time_of_impac
     assert deepest > -0.005 and through < 0.79 + 0.005, (deepest, through)
     deepest, through = run(False)
     assert deepest < -0.05 or through > 0.81, (deepest, through)
+
+
+def test_hull_bounds_are_the_turned_local_box_then_exact_where_a_pair_or_the_ground_is_near():
+    """pose_shapes bounds a hull by its local box turned (|R| e, Bullet's and PhysX's bound: it holds the exact AABB);
+    tighten_hull_bounds gives the hulls in a candidate pair or near the ground their exact AABB (their turned
+    vertices') and keeps the pairs whose exact AABBs overlap: the pairs of exact bounds, as before the cheap bound."""
+    from cgp_core.collision.convex_phase import HULL, ShapePoses, pose_shapes, tighten_hull_bounds
+    from cgp_core.collision.primitives import primitive_bounds
+
+    world = World.from_scene("convex_pile")
+    for _ in range(20):
+        world.step()
+    model, state, det = world.body_model, world.body_state, world.solver.detector
+    shapes = det.shape_model(model)
+    p, P = det.collision_model(model).count, shapes.count
+    R = state.rotation_matrices()
+    rng = np.random.default_rng(3)
+    motion = (state.position, np.ascontiguousarray(R), rng.normal(size=(model.count, 3)),
+              rng.normal(size=(model.count, 3)))
+    h, spec = 1 / 240, det.speculative_distance
+    first = primitive_bounds(tuple(det.collision_model(model)), motion, h, spec)
+    poses = ShapePoses(np.empty((P, 3)), np.empty((P, 3, 3)), np.empty((P, 3)), np.empty((P, 3)), np.empty(P))
+    poses.centre[:p], poses.lo[:p], poses.hi[:p], poses.margin[:p] = first.centre, first.lo, first.hi, first.margin
+    pose_shapes(shapes.plain(), motion, h, spec, tuple(poses))
+    prims, hulls = shapes.primitives, shapes.hulls
+    exact_lo, exact_hi = poses.lo.copy(), poses.hi.copy()
+    hull_rows = [k for k in range(p, P) if prims.kind[k] == HULL]
+    assert len(hull_rows) >= 10
+    for k in hull_rows:
+        v = hulls.vertices[hulls.vertex_start[prims.hull[k]]:hulls.vertex_start[prims.hull[k] + 1]]
+        turned = v @ poses.rotation[k].T
+        exact_lo[k] = poses.centre[k] + turned.min(0) - poses.margin[k]
+        exact_hi[k] = poses.centre[k] + turned.max(0) + poses.margin[k]
+    cheap_lo, cheap_hi = poses.lo.copy(), poses.hi.copy()
+    assert (cheap_lo <= exact_lo + 1e-12).all() and (cheap_hi >= exact_hi - 1e-12).all()
+
+    def overlapping(lo, hi):
+        i, j = np.triu_indices(P, 1)
+        keep = (prims.body[i] != prims.body[j]) & np.all((lo[i] <= hi[j]) & (lo[j] <= hi[i]), axis=1)
+        return i[keep].astype(np.int64), j[keep].astype(np.int64)
+
+    i, j = overlapping(cheap_lo, cheap_hi)
+    ki, kj = tighten_hull_bounds(prims.kind, prims.hull, hulls.vertex_start, hulls.vertices, prims.first_new,
+                                 tuple(poses), i, j, True)
+    ei, ej = overlapping(exact_lo, exact_hi)
+    assert len(ei) < len(i)  # the cheap bound is looser: some of its pairs are not pairs of exact bounds
+    assert list(zip(ki, kj)) == list(zip(ei, ej))
+    near = np.zeros(P, bool)
+    near[i], near[j] = True, True
+    near |= cheap_lo[:, 2] < poses.margin
+    for k in hull_rows:
+        if near[k]:
+            np.testing.assert_allclose(poses.lo[k], exact_lo[k], rtol=0, atol=1e-12)
+            np.testing.assert_allclose(poses.hi[k], exact_hi[k], rtol=0, atol=1e-12)
+        else:
+            assert (poses.lo[k] == cheap_lo[k]).all() and (poses.hi[k] == cheap_hi[k]).all()

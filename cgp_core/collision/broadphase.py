@@ -146,24 +146,55 @@ def sweep_and_prune_kernel(lo, hi, group, max_tests):
     pj = np.empty(cap, np.int64)
     count = 0
     tests = 0
+    sweep = (order, next_other, group, axis)
     for a in range(p):
-        i = order[a]
-        end = hi[i, axis]
-        b = a + 1
-        while b < p:
-            j = order[b]
-            if not lo[j, axis] <= end:
-                break  # sorted by lower bound: no later box starts before this one ends (or a bound is NaN)
-            if group[j] == group[i]:
-                b = next_other[b]  # the rest of this run of i's own group
-                continue
-            tests += 1
-            if max_tests >= 0 and tests > max_tests:
-                return pi[:0], pj[:0], False
-            if _overlap(lo, hi, i, j):
-                pi, pj, count = _add_pair(pi, pj, count, i, j)
-            b += 1
+        status = FULL
+        while status == FULL:
+            count, tests, status = _sweep_box(a, sweep, lo, hi, pi, pj, count, tests, max_tests)
+            if status == FULL:  # no room for this box's pairs: the arrays doubled, the box swept again
+                pi = _grow(pi, 2 * len(pi))
+                pj = _grow(pj, 2 * len(pj))
+        if status == GAVE_UP:
+            return pi[:0], pj[:0], False
     return pi[:count], pj[:count], True
+
+
+#: what :func:`_sweep_box` says of the box it swept
+SWEPT, FULL, GAVE_UP = 0, 1, 2
+
+
+@njit
+def _sweep_box(a, sweep, lo, hi, pi, pj, count, tests, max_tests):
+    """The pairs of the box at position ``a`` of the sweep order with the boxes after it that start before it ends,
+    written into ``pi, pj`` from ``count``; ``sweep``: ``(order, next_other, group, axis)`` of
+    :func:`sweep_and_prune_kernel`.  Returns the new count and tests, and :data:`SWEPT`; or the count and tests as
+    they were and :data:`FULL` when ``pi`` has no room left; or :data:`GAVE_UP` past ``max_tests``.  (A function of
+    its own so that ``pi, pj`` are never reassigned inside the sweep's inner loop: numba would count references of
+    such a loop-carried array at every test, which cost ten times the tests themselves.)"""
+    order, next_other, group, axis = sweep
+    p = len(order)
+    i = order[a]
+    end = hi[i, axis]
+    start_count, start_tests = count, tests
+    b = a + 1
+    while b < p:
+        j = order[b]
+        if not lo[j, axis] <= end:
+            break  # sorted by lower bound: no later box starts before this one ends (or a bound is NaN)
+        if group[j] == group[i]:
+            b = next_other[b]  # the rest of this run of i's own group
+            continue
+        tests += 1
+        if max_tests >= 0 and tests > max_tests:
+            return count, tests, GAVE_UP
+        if _overlap(lo, hi, i, j):
+            if count == len(pi):
+                return start_count, start_tests, FULL
+            pi[count] = min(i, j)
+            pj[count] = max(i, j)
+            count += 1
+        b += 1
+    return count, tests, SWEPT
 
 
 @njit

@@ -13,9 +13,11 @@ stage's follow, ``p .. P − 1``:
 - a ``mesh`` body (fixed): one MESH primitive (an index into the packed static meshes, :class:`MeshSet`).
 
 Every primitive of every body is posed here each sub-step (:func:`pose_shapes`: world centre and world rotation
-``R_body · R_part``) and bounded like the others (an AABB grown by the body's speculative margin): a hull's AABB from
-its vertices turned (exact: tighter than the bounding sphere's or the turned local box's, so fewer candidate pairs
-reach GJK), a mesh's as its local box turned (its vertices are many and it never moves in a step).
+``R_body · R_part``) and bounded like the others (an AABB grown by the body's speculative margin): a hull's AABB as
+its local box (its vertices' bounding box in its own frame) turned, world half sizes |R| e, as Bullet and PhysX bound
+a hull: O(1) per hull where turning every vertex cost most of a robot world's detection (512 link hulls of ~330
+vertices), a little looser than the turned vertices' own box (a few more candidate pairs reach GJK, whose contacts
+are the same); a mesh's the same way.
 
 **Pairs** (side A first; a mesh or the ground is always A), one compiled stage, :func:`convex_phase`:
 
@@ -144,9 +146,10 @@ class ShapePrimitives(NamedTuple):
     offset: np.ndarray    # (P, 3) centre in the body frame
     rotation: np.ndarray  # (P, 3, 3) the primitive's axes in body axes (identity but for compound parts)
     radius: np.ndarray    # (P,) sphere / capsule radius
-    half: np.ndarray      # (P, 3) box half sizes; capsule (0, 0, half length)
+    half: np.ndarray      # (P, 3) box half sizes; capsule (0, 0, half length); a HULL's box (below): its half sizes
     hull: np.ndarray      # (P,) int64 a HULL's hull in the :class:`.convex.HullSet`, a BOX's 8-corner hull, else −1
     mesh: np.ndarray      # (P,) int64 a MESH's mesh in the :class:`MeshSet`, else −1
+    box_centre: np.ndarray  # (P, 3) a HULL's box (its vertices' bounding box in the primitive's frame): its centre
     first_new: np.int64   # the first primitive of this stage (= the detector's count p)
 
 
@@ -238,7 +241,7 @@ def build_shape_model(model: BodyModel, cm: CollisionModel) -> ShapeModel:
     for i in range(model.count):
         s = int(model.shape[i])
         if s == Shape.CONVEX:
-            add(i, HULL, np.zeros(3), eye, 0.0, np.zeros(3), len(hulls), -1)
+            add(i, HULL, np.zeros(3), eye, 0.0, _box_half(model.hulls[i]), len(hulls), -1)
             hulls.append(model.hulls[i])
         elif s == Shape.COMPOUND:
             parts = model.parts[i]
@@ -246,7 +249,7 @@ def build_shape_model(model: BodyModel, cm: CollisionModel) -> ShapeModel:
                 ks = int(parts.shape[k])
                 he = np.asarray(parts.half_extents[k], float)
                 if ks == Shape.CONVEX:
-                    add(i, HULL, parts.position[k], parts.rotation[k], 0.0, np.zeros(3), len(hulls), -1)
+                    add(i, HULL, parts.position[k], parts.rotation[k], 0.0, _box_half(parts.hulls[k]), len(hulls), -1)
                     hulls.append(parts.hulls[k])
                 else:
                     add(i, ks, parts.position[k], parts.rotation[k], float(parts.radius[k]), he,
@@ -268,7 +271,11 @@ def build_shape_model(model: BodyModel, cm: CollisionModel) -> ShapeModel:
         half=np.ascontiguousarray(np.concatenate([cm.half_extents, np.array(half, float).reshape(-1, 3)])),
         hull=np.array(old_hull + hull, np.int64),
         mesh=np.concatenate([np.full(p, -1, np.int64), np.array(mesh, np.int64)]),
+        box_centre=np.zeros((p + len(body), 3)),
         first_new=np.int64(p))
+    for q in range(p, len(prims.body)):  # a hull's box: its centre (its half sizes are in ``half``)
+        if prims.kind[q] == HULL:
+            prims.box_centre[q] = 0.5 * (hulls[prims.hull[q]].vertices.min(0) + hulls[prims.hull[q]].vertices.max(0))
     hull_tuple = HullSet.from_hulls(hulls)
     # reach: the detector's, and this stage's primitives' farthest points from their bodies' COMs
     reach = cm.body_reach.copy() if len(cm.body_reach) == model.count else np.zeros(model.count)
@@ -289,18 +296,24 @@ def build_shape_model(model: BodyModel, cm: CollisionModel) -> ShapeModel:
                       cm.body_restitution, cm.fixed_body)
 
 
+def _box_half(hull: ConvexPolyhedron) -> np.ndarray:
+    """The half sizes of the bounding box of ``hull``'s vertices, in its own frame."""
+    return 0.5 * (hull.vertices.max(0) - hull.vertices.min(0))
+
+
 # ---- poses and bounds --------------------------------------------------------------------------------------
 
 @njit
 def pose_shapes(shapes, motion, h, speculative_distance, poses):
     """World pose of every primitive of the :class:`ShapeModel` ``shapes`` moving with the
-    :class:`.primitives.BodyMotion` ``motion``, written into the :class:`ShapePoses` ``poses`` (P rows, whose
-    first ``first_new`` rows of centre, lo, hi and margin already hold the detector's
+    :class:`.primitives.BodyMotion` ``motion``, written into the :class:`ShapePoses` ``poses`` (P rows, whose first
+    ``first_new`` rows of centre, lo, hi and margin already hold the detector's
     :func:`.primitives.primitive_bounds`): the rotation R_body · R_part of all; the centre, the AABB grown by the
-    margin and the margin of this stage's primitives.  A primitive whose body's state or speed is not finite gets
-    NaN bounds (it overlaps nothing), as there.  Bundles as plain tuples from Python (see :mod:`cgp_core.jit`)."""
+    margin and the margin of this stage's primitives (a hull's AABB: its local box turned, not its vertices'). A
+    primitive whose body's state or speed is not finite gets NaN bounds (it overlaps nothing), as there. Bundles as
+    plain tuples from Python (see :mod:`cgp_core.jit`)."""
     shapes, motion, poses = ShapeModel(*shapes), BodyMotion(*motion), ShapePoses(*poses)
-    prims, hulls, meshes = ShapePrimitives(*shapes.primitives), HullSet(*shapes.hulls), MeshSet(*shapes.meshes)
+    prims, meshes = ShapePrimitives(*shapes.primitives), MeshSet(*shapes.meshes)
     body_reach, position, rotation = shapes.body_reach, motion.position, motion.rotation
     velocity, angular_velocity = motion.velocity, motion.angular_velocity
     centre, prim_rotation, lo, hi, margin = poses
@@ -324,36 +337,78 @@ def pose_shapes(shapes, motion, h, speculative_distance, poses):
             centre[k, r] = position[b, r] + R[r, 0] * prims.offset[k, 0] + R[r, 1] * prims.offset[k, 1] \
                 + R[r, 2] * prims.offset[k, 2]
         kind = prims.kind[k]
-        if kind == HULL:
-            h0, h1 = hulls.vertex_start[prims.hull[k]], hulls.vertex_start[prims.hull[k] + 1]
-            for r in range(3):
-                low, high = np.inf, -np.inf
-                for i in range(h0, h1):
-                    x = Rk[r, 0] * hulls.vertices[i, 0] + Rk[r, 1] * hulls.vertices[i, 1] \
-                        + Rk[r, 2] * hulls.vertices[i, 2]
-                    low = min(low, x)
-                    high = max(high, x)
-                lo[k, r] = centre[k, r] + low - margin[k]
-                hi[k, r] = centre[k, r] + high + margin[k]
-        else:
-            if kind == MESH:  # its local box, turned
-                mk = prims.mesh[k]
-                cx, cy, cz = meshes.centre[mk, 0], meshes.centre[mk, 1], meshes.centre[mk, 2]
-                ex, ey, ez, rad = meshes.half[mk, 0], meshes.half[mk, 1], meshes.half[mk, 2], 0.0
-            else:
-                cx = cy = cz = 0.0
-                ex, ey, ez, rad = prims.half[k, 0], prims.half[k, 1], prims.half[k, 2], prims.radius[k]
-            for r in range(3):
-                mid = centre[k, r] + Rk[r, 0] * cx + Rk[r, 1] * cy + Rk[r, 2] * cz
-                extent = abs(Rk[r, 0]) * ex + abs(Rk[r, 1]) * ey + abs(Rk[r, 2]) * ez + rad
-                lo[k, r] = mid - extent - margin[k]
-                hi[k, r] = mid + extent + margin[k]
+        # the primitive's local box, turned (world half sizes |R| e: Bullet's and PhysX's bound of a hull, O(1) and
+        # a little looser than the turned vertices' own box)
+        if kind == MESH:
+            mk = prims.mesh[k]
+            cx, cy, cz = meshes.centre[mk, 0], meshes.centre[mk, 1], meshes.centre[mk, 2]
+            ex, ey, ez, rad = meshes.half[mk, 0], meshes.half[mk, 1], meshes.half[mk, 2], 0.0
+        else:  # a hull's box (its vertices'), a box, a sphere's or a capsule's core
+            cx, cy, cz = prims.box_centre[k, 0], prims.box_centre[k, 1], prims.box_centre[k, 2]
+            ex, ey, ez, rad = prims.half[k, 0], prims.half[k, 1], prims.half[k, 2], prims.radius[k]
+        for r in range(3):
+            mid = centre[k, r] + Rk[r, 0] * cx + Rk[r, 1] * cy + Rk[r, 2] * cz
+            extent = abs(Rk[r, 0]) * ex + abs(Rk[r, 1]) * ey + abs(Rk[r, 2]) * ez + rad
+            lo[k, r] = mid - extent - margin[k]
+            hi[k, r] = mid + extent + margin[k]
         sane = math.isfinite(margin[k])
         for r in range(3):
             sane = sane and math.isfinite(lo[k, r]) and math.isfinite(hi[k, r])
         if not sane:
             lo[k, :] = np.nan
             hi[k, :] = np.nan
+
+
+@njit
+def tighten_hull_bounds(kind, hull, vertex_start, vertices, first_new, poses, pair_i, pair_j, ground):
+    """The exact AABB (its turned vertices' extremes, grown by the margin) of every hull that the cheap bound of
+    :func:`pose_shapes` (its local box turned) puts in a candidate pair ``pair_i, pair_j`` (q,) int64 or, with
+    ``ground``, near the ground; written into ``poses`` (:class:`ShapePoses`, in place); and the pairs whose exact
+    AABBs still overlap, in the order given.  So the pairs and the ground tests that reach the narrow phase are those
+    of exact bounds, and only the hulls near something turn their vertices.  ``kind``, ``hull``, ``first_new``: those
+    of :class:`ShapePrimitives`; ``vertex_start``, ``vertices``: those of the :class:`.convex.HullSet` (a few arrays,
+    not the bundles: this is a call of its own, whose arguments numba unboxes each time).  ``poses`` as a plain
+    tuple from Python."""
+    centre, prim_rotation, lo, hi, margin = poses
+    P = len(kind)
+    near = np.zeros(P, np.bool_)
+    for q in range(len(pair_i)):
+        near[pair_i[q]] = True
+        near[pair_j[q]] = True
+    if ground:
+        for k in range(first_new, P):
+            if lo[k, 2] < margin[k]:
+                near[k] = True
+    for k in range(first_new, P):
+        if not near[k] or kind[k] != HULL or not math.isfinite(lo[k, 0]):
+            continue
+        Rk = prim_rotation[k]
+        h0, h1 = vertex_start[hull[k]], vertex_start[hull[k] + 1]
+        for r in range(3):
+            low, high = np.inf, -np.inf
+            for i in range(h0, h1):
+                x = Rk[r, 0] * vertices[i, 0] + Rk[r, 1] * vertices[i, 1] + Rk[r, 2] * vertices[i, 2]
+                low = min(low, x)
+                high = max(high, x)
+            lo[k, r] = centre[k, r] + low - margin[k]
+            hi[k, r] = centre[k, r] + high + margin[k]
+        sane = True
+        for r in range(3):
+            sane = sane and math.isfinite(lo[k, r]) and math.isfinite(hi[k, r])
+        if not sane:
+            lo[k, :] = np.nan
+            hi[k, :] = np.nan
+    keep_i = np.empty(len(pair_i), np.int64)
+    keep_j = np.empty(len(pair_i), np.int64)
+    count = 0
+    for q in range(len(pair_i)):
+        i, j = pair_i[q], pair_j[q]
+        if lo[i, 0] <= hi[j, 0] and lo[j, 0] <= hi[i, 0] and lo[i, 1] <= hi[j, 1] and lo[j, 1] <= hi[i, 1] \
+                and lo[i, 2] <= hi[j, 2] and lo[j, 2] <= hi[i, 2]:
+            keep_i[count] = i
+            keep_j[count] = j
+            count += 1
+    return keep_i[:count], keep_j[:count]
 
 
 # ---- the stage -------------------------------------------------------------------------------------------------

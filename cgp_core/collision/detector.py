@@ -62,6 +62,7 @@ from .convex_phase import (
     fast_turn_pairs,
     pose_shapes,
     sweep_times,
+    tighten_hull_bounds,
 )
 from .materials import Ground, combine_friction, combine_restitution
 from .narrowphase import (
@@ -101,6 +102,9 @@ GRID_CALLS = 240
 MAX_POINTS_PER_PAIR = 4
 
 SPHERE, BOX, CAPSULE = int(Shape.SPHERE), int(Shape.BOX), int(Shape.CAPSULE)
+
+#: an empty pair list (the broad phase's result when no pair can be found)
+_NO_PAIR = np.zeros(0, np.int64)
 
 #: the stages of :attr:`CollisionDetector.profile`, in order
 STAGES = ("bounds", "broad_phase", "narrow_phase", "convex_phase", "time_of_impact")
@@ -156,6 +160,8 @@ class CollisionDetector:
         self._candidates = np.empty(MESH_CANDIDATES, np.int64)
         #: body pairs never tested (the robots' jointed links, :meth:`exclude`), or None
         self.excluded = None
+        self._possible = None  # (model, excluded, whether a pair can be found): _pairs_possible's cache
+        self._groups = None  # (primitive bodies, excluded, the broad phase's groups): _broad_groups' cache
         #: whether the last broad phase found the scene too dense for the sweep and ran the grid (the default
         #: broad phase only; see SWEEP_TESTS_PER_BOX)
         self.dense = False
@@ -193,6 +199,11 @@ class CollisionDetector:
         self.touched_sleeping = np.zeros(0, np.intp)
         self._sweeps = None
         if cm.count == 0 and self._shapes is None:
+            return ContactSet.empty()
+        if ground is None and not self._pairs_possible():
+            # nothing to detect: no ground, and every pair of bodies the broad phase could find is excluded (a lone
+            # robot without self-collision and nothing else) — the stages below would find no contact
+            self.profile.calls += 1
             return ContactSet.empty()
         if velocity is None:
             velocity = state.linear_velocity(model)
@@ -233,6 +244,29 @@ class CollisionDetector:
         not jointed (``jointed (n,)``: the body each is jointed to, −1: none).  A robot's links overlap their
         parents' at every joint: their hulls' GJK / EPA would be most of a robot's detection time."""
         self.excluded = (np.asarray(group, np.int64), np.asarray(jointed, np.int64), np.asarray(self_collision, bool))
+        self._possible = None
+
+    def _pairs_possible(self) -> bool:
+        """Whether the broad phase could find a pair that is not excluded (conservative: True unless sure), for the
+        current collision model and :attr:`excluded`: False when the bodies with a primitive are all fixed, or all
+        of one group without self-collision (:meth:`exclude`), or fewer than two.  Cached until either changes."""
+        key = (self._model, self.excluded)
+        cached = self._possible
+        if cached is not None and cached[0] is key[0] and cached[1] is key[1]:
+            return cached[2]
+        body = self._shapes.primitives.body if self._shapes is not None else self._cmodel.body
+        bodies = np.unique(body)
+        fixed = self._cmodel.fixed_body
+        possible = bool(len(bodies) >= 2 and (~fixed[bodies]).any())
+        if possible and self.excluded is not None:
+            group, _, self_collision = self.excluded
+            if len(group) > int(bodies.max()):
+                g = group[bodies]
+                one = int(g[0])
+                if one >= 0 and (g == one).all() and not self_collision[one]:
+                    possible = False  # every pair is two bodies of one group without self-collision: all excluded
+        self._possible = (key[0], key[1], possible)
+        return possible
 
     def _drop_excluded(self, i, j, prim_body):
         group, jointed, self_collision = self.excluded
@@ -249,16 +283,38 @@ class CollisionDetector:
 
     def _candidate_pairs(self, lo, hi, prim_body, active):
         """The broad phase: primitive pairs ``i, j`` whose AABBs overlap (less those :meth:`exclude` names)."""
+        if not self._pairs_possible():  # every pair would be excluded: none to look for
+            return _NO_PAIR, _NO_PAIR
         i, j = self._broad_pairs(lo, hi, prim_body, active)
         if self.excluded is not None:
             i, j = self._drop_excluded(i, j, prim_body)
         return i, j
+
+    def _broad_groups(self, prim_body):
+        """The broad phase's group of each primitive (it pairs no two of one group): its body, or one group for all
+        the bodies of an :meth:`exclude` group without self-collision (every pair of them excluded), so that the
+        sweep skips a robot's links among themselves rather than find every pair of them to drop it.  Cached for
+        ``prim_body`` and :attr:`excluded`."""
+        cached = self._groups
+        if cached is not None and cached[0] is prim_body and cached[1] is self.excluded:
+            return cached[2]
+        groups = prim_body
+        if self.excluded is not None:
+            group, _, self_collision = self.excluded
+            n = len(group)
+            if len(prim_body) and n > int(prim_body.max()):
+                merged = (group >= 0) & ~self_collision[np.maximum(group, 0)]
+                body_group = np.where(merged, n + group, np.arange(n))
+                groups = np.ascontiguousarray(body_group[prim_body], np.int64)
+        self._groups = (prim_body, self.excluded, groups)
+        return groups
 
     def _broad_pairs(self, lo, hi, prim_body, active):
         """The broad phase: primitive pairs ``i, j`` whose AABBs overlap."""
         count = len(lo)
         if count <= SMALL_SCENE:
             return small_scene_pairs(lo, hi, prim_body, active)
+        prim_body = self._broad_groups(prim_body)  # (the sweep's, the grid's and the others' groups)
         if self.broad_phase is sweep_and_prune_pairs:
             # one compiled call, no same-body pair; the order of the pairs does not matter here.  A scene too
             # dense for the sweep goes to the grid (SWEEP_TESTS_PER_BOX) for GRID_CALLS calls
@@ -294,6 +350,11 @@ class CollisionDetector:
         profile.add(BOUNDS, now - start)
         start = now
         i, j = self._candidate_pairs(every.lo, every.hi, shapes.primitives.body, active)
+        # the hulls' exact bounds where a pair or the ground is near (pose_shapes bounds them by their turned local
+        # boxes): the pairs and ground tests of exact bounds, each hull's vertices turned only there
+        prims, hulls = shapes.primitives, shapes.hulls
+        i, j = tighten_hull_bounds(prims.kind, prims.hull, hulls.vertex_start, hulls.vertices, prims.first_new,
+                                   tuple(every), i, j, ground is not None)
         now = clock()
         profile.add(BROAD_PHASE, now - start)
         start = now

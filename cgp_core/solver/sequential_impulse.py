@@ -913,6 +913,13 @@ class SequentialImpulseSolver:
         if model is not self._warm_model or n != self._warm_count:
             self.reset()
             self._warm_model, self._warm_count = model, n
+        if not contacts.count and coupled is None and not self._reporting:
+            # no contact (a lone robot in the air, bodies in free flight): solve_step would add zero impulses and
+            # hand back an empty memory; its compiled call and its arguments cost more than the sub-step's rest
+            self._memory = WarmStart.empty()
+            self.profile.calls += 1
+            self.stats = {"contacts": 0, "manifolds": 0, "sweeps": 0, "max_penetration": 0.0}
+            return
         if inv_inertia is None:
             inv_inertia = state.inv_inertia_world(model)
         movable = model.inv_mass > 0.0 if active is None else (model.inv_mass > 0.0) & active
