@@ -176,12 +176,8 @@ def _joint_frame(parent, joint_rotation, joint_position, rotation, position, i, 
     update per array per call (~20 arrays: more than this helper's arithmetic, measured)."""
     p = parent[i]
     if p < 0:
-        # (element by element: numba compiles its shape-mismatch message for each array slice copy, ~1 s of CPU
-        # with the string formatting it calls)
-        for r in range(3):
-            frame_origin[r] = joint_position[i, r]
-            for c in range(3):
-                frame_rotation[r, c] = joint_rotation[i, r, c]
+        frame_rotation[:] = joint_rotation[i]
+        frame_origin[:] = joint_position[i]
         return
     _mat_mul(rotation[p], joint_rotation[i], frame_rotation)
     _mat_vec(rotation[p], joint_position[i], frame_origin)
@@ -791,10 +787,11 @@ def robot_view(models, starts, k):
     b0, b1 = starts.body[k], starts.body[k + 1]
     f0, f1 = starts.frame[k], starts.frame[k + 1]
     d0, d1 = starts.dof[k], starts.dof[k + 1]
-    return (m.parent[b0:b1], m.joint_type[b0:b1], m.joint_rotation[b0:b1], m.joint_position[b0:b1],
-            m.joint_axis[b0:b1], m.plane_u[b0:b1], m.plane_v[b0:b1], m.dof_start[b0:b1], m.dof_count[b0:b1],
-            m.q_start[b0:b1], m.q_count[b0:b1], m.mass[b0:b1], m.com[b0:b1], m.inertia[b0:b1], m.frame_body[f0:f1],
-            m.frame_rotation[f0:f1], m.frame_position[f0:f1], m.dof_body[d0:d1], d1 - d0, starts.q[k + 1] - starts.q[k])
+    return RobotArrays(m.parent[b0:b1], m.joint_type[b0:b1], m.joint_rotation[b0:b1], m.joint_position[b0:b1],
+                       m.joint_axis[b0:b1], m.plane_u[b0:b1], m.plane_v[b0:b1], m.dof_start[b0:b1],
+                       m.dof_count[b0:b1], m.q_start[b0:b1], m.q_count[b0:b1], m.mass[b0:b1], m.com[b0:b1],
+                       m.inertia[b0:b1], m.frame_body[f0:f1], m.frame_rotation[f0:f1], m.frame_position[f0:f1],
+                       m.dof_body[d0:d1], d1 - d0, starts.q[k + 1] - starts.q[k])[:]
 
 
 @njit

@@ -1005,9 +1005,9 @@ def robot_properties(properties, starts, k):
     m0, m1 = starts.mimic[k], starts.mimic[k + 1]
     e0, e1 = starts.equality[k], starts.equality[k + 1]
     jacobian = p.equality_jacobian[starts.equality_entry[k]:starts.equality_entry[k + 1]].reshape((e1 - e0, d1 - d0))
-    return (p.lower[d0:d1], p.upper[d0:d1], p.effort_limit[d0:d1], p.velocity_limit[d0:d1], p.damping[d0:d1],
-            p.friction[d0:d1], p.mimic_follower[m0:m1], p.mimic_leader[m0:m1], p.mimic_multiplier[m0:m1],
-            p.mimic_offset[m0:m1], jacobian, p.equality_error[e0:e1])
+    return JointProperties(p.lower[d0:d1], p.upper[d0:d1], p.effort_limit[d0:d1], p.velocity_limit[d0:d1],
+                           p.damping[d0:d1], p.friction[d0:d1], p.mimic_follower[m0:m1], p.mimic_leader[m0:m1],
+                           p.mimic_multiplier[m0:m1], p.mimic_offset[m0:m1], jacobian, p.equality_error[e0:e1])[:]
 
 
 @njit
@@ -1015,8 +1015,8 @@ def robot_drives(drives, starts, k):
     """Robot ``k``'s :class:`JointDrives` as views into every dof's (a plain tuple: see :func:`robot_properties`)."""
     d = JointDrives(*drives)
     d0, d1 = starts.dof[k], starts.dof[k + 1]
-    return (d.mode[d0:d1], d.target_position[d0:d1], d.target_velocity[d0:d1], d.target_effort[d0:d1],
-            d.stiffness[d0:d1], d.damping[d0:d1])
+    return JointDrives(d.mode[d0:d1], d.target_position[d0:d1], d.target_velocity[d0:d1], d.target_effort[d0:d1],
+                       d.stiffness[d0:d1], d.damping[d0:d1])[:]
 
 
 @njit
@@ -1024,7 +1024,7 @@ def robot_memory(memories, k):
     """Robot ``k``'s :class:`JointSolverMemory` as views into :class:`RobotMemories` (a plain tuple: see
     :func:`robot_properties`)."""
     a, b = memories.start[k], memories.start[k + 1]
-    return memories.key[a:b], memories.impulse[a:b]
+    return JointSolverMemory(memories.key[a:b], memories.impulse[a:b])[:]
 
 
 @njit
