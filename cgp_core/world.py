@@ -838,8 +838,8 @@ class World:
         robots = self.robots
         r = robots.robot(name)
         q, qd = robots.q[r.q_slice], robots.qd[r.dof_slice]
-        rotation, position = algorithms.forward_kinematics(r.arrays, q)
-        linear, angular = algorithms.body_velocities(r.arrays, q, qd, rotation, position)
+        rotation, position = algorithms.forward_kinematics(r.kernel_arrays, q)
+        linear, angular = algorithms.body_velocities(r.kernel_arrays, q, qd, rotation, position)
         return algorithms.BodyMotion(rotation[0], position[0], linear[0], angular[0])
 
     def _set_robot_state(self, name: str, position, orientation, v, w) -> None:

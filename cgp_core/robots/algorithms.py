@@ -40,8 +40,11 @@ Functions (n bodies, f frames, n_dofs velocities, n_q positions; world frame, SI
 
 Each takes the bundle as it is or as a plain tuple (``tuple(model.arrays)``, named again first thing): the rule of
 :mod:`cgp_core.jit` for kernels Python calls every sub-step (numba's dispatcher types a plain tuple faster: 6.0 µs
-against 7.4 µs per ``mass_matrix`` call of a 3-dof arm, measured).  All run as plain Python under
-``NUMBA_DISABLE_JIT=1`` with the same results.
+against 7.4 µs per ``mass_matrix`` call of a 3-dof arm, measured).  The world calls them with the plain tuple
+only, and they hand it on to each other as one again (``arrays[:]``: a namedtuple's fields as a plain tuple):
+numba compiles a function once per argument type, and the namedtuple was a second compile of each function called
+both ways (~1-2 s of CPU each, issue 34).  All run as plain Python under ``NUMBA_DISABLE_JIT=1`` with the same
+results.
 
 The lecture's rigid body keeps momenta in its state (``P``, ``L``; ``ω = J⁻¹ L``); a tree's state here is ``(q,
 qd)`` and its momentum ``M(q) qd`` is not integrated directly: forward dynamics solves ``M qdd = τ − b`` each
@@ -136,7 +139,8 @@ def _quat_matrix(x, y, z, w, R):
     R[2, 2] = 1.0 - 2.0 * (x * x + y * y)
 
 
-@njit
+# (inlined: its callers pass literal offsets, and numba compiled a separate function for each combination of them)
+@njit(inline="always")
 def _cross_into(a, i, b, j, out, k):
     """``out[k:k+3] = a[i:i+3] × b[j:j+3]`` (no temporaries: see :func:`_rnea`)."""
     out[k] = a[i + 1] * b[j + 2] - a[i + 2] * b[j + 1]
@@ -447,7 +451,7 @@ def mass_matrix(arrays, q):
     ``½ qdᵀ M qd``), by the composite-rigid-body algorithm (Featherstone §6.2; MuJoCo ``mj_crb``).  Units: kg m²
     on revolute rows/columns, kg on prismatic ones, kg m mixed."""
     arrays = RobotArrays(*arrays)
-    rotation, position = forward_kinematics(arrays, q)
+    rotation, position = forward_kinematics(arrays[:], q)
     S = motion_subspace(arrays, rotation, position)
     return _mass_matrix(arrays, S, spatial_inertias(arrays, rotation, position))
 
@@ -559,7 +563,7 @@ def inverse_dynamics(arrays, q, qd, qdd, gravity, f_ext=None):
     Returns: τ (n_dofs,) [N m or N; the floating root: world force at its origin and world torque].
     """
     arrays = RobotArrays(*arrays)
-    rotation, position = forward_kinematics(arrays, q)
+    rotation, position = forward_kinematics(arrays[:], q)
     S = motion_subspace(arrays, rotation, position)
     inertias = spatial_inertias(arrays, rotation, position)
     n = len(arrays.parent)
@@ -574,7 +578,7 @@ def inverse_dynamics(arrays, q, qd, qdd, gravity, f_ext=None):
 def bias_forces(arrays, q, qd, gravity):
     """``b(q, qd)`` (n_dofs,): Coriolis, centrifugal and gravity forces, :func:`inverse_dynamics` with qdd = 0."""
     arrays = RobotArrays(*arrays)
-    return inverse_dynamics(arrays, q, qd, np.zeros(arrays.n_dofs), gravity)
+    return inverse_dynamics(arrays[:], q, qd, np.zeros(arrays.n_dofs), gravity)
 
 
 @njit
@@ -583,7 +587,7 @@ def joint_space_terms(arrays, q, qd, gravity):
     poses, motion subspaces and spatial inertias the two would each compute (the robot stage needs both every
     sub-step); the same numbers as the two calls."""
     arrays = RobotArrays(*arrays)
-    rotation, position = forward_kinematics(arrays, q)
+    rotation, position = forward_kinematics(arrays[:], q)
     S = motion_subspace(arrays, rotation, position)
     inertias = spatial_inertias(arrays, rotation, position)
     M = _mass_matrix(arrays, S, inertias)
@@ -623,9 +627,9 @@ def advance(arrays, q, moving, qd, h):
     poses there (:func:`forward_kinematics`) and their velocities with ``qd`` (:func:`body_velocities`):
     ``(q_new, BodyMotion)``."""
     arrays = RobotArrays(*arrays)
-    q_new = integrate_positions(arrays, q, moving, h)
-    rotation, position = forward_kinematics(arrays, q_new)
-    linear, angular = body_velocities(arrays, q_new, qd, rotation, position)
+    q_new = integrate_positions(arrays[:], q, moving, h)
+    rotation, position = forward_kinematics(arrays[:], q_new)
+    linear, angular = body_velocities(arrays[:], q_new, qd, rotation, position)
     return q_new, BodyMotion(rotation, position, linear, angular)
 
 
@@ -667,7 +671,7 @@ def forward_dynamics(arrays, q, qd, tau, gravity):
 
     Args: q (n_q,), qd (n_dofs,), tau (n_dofs,) [N m or N], gravity (3,) [m/s²]."""
     arrays = RobotArrays(*arrays)
-    rotation, position = forward_kinematics(arrays, q)
+    rotation, position = forward_kinematics(arrays[:], q)
     S = motion_subspace(arrays, rotation, position)
     inertias = spatial_inertias(arrays, rotation, position)
     M = _mass_matrix(arrays, S, inertias)
@@ -778,7 +782,7 @@ def write_link_bodies(rows, body, motion, links, out):
 def robot_view(models, starts, k):
     """Robot ``k``'s :class:`RobotArrays` as views into ``models``, every robot's bundle stacked
     (:func:`~cgp_core.robots.model.stack_robot_arrays`), at its :class:`~cgp_core.robots.model.RobotStarts`
-    ``starts`` (slices: nothing copied)."""
+    ``starts`` (slices: nothing copied), a plain tuple (the module docstring)."""
     m = RobotArrays(*models)
     b0, b1 = starts.body[k], starts.body[k + 1]
     f0, f1 = starts.frame[k], starts.frame[k + 1]
@@ -787,7 +791,7 @@ def robot_view(models, starts, k):
                        m.joint_axis[b0:b1], m.plane_u[b0:b1], m.plane_v[b0:b1], m.dof_start[b0:b1],
                        m.dof_count[b0:b1], m.q_start[b0:b1], m.q_count[b0:b1], m.mass[b0:b1], m.com[b0:b1],
                        m.inertia[b0:b1], m.frame_body[f0:f1], m.frame_rotation[f0:f1], m.frame_position[f0:f1],
-                       m.dof_body[d0:d1], d1 - d0, starts.q[k + 1] - starts.q[k])
+                       m.dof_body[d0:d1], d1 - d0, starts.q[k + 1] - starts.q[k])[:]
 
 
 @njit

@@ -82,10 +82,11 @@ class LoopClosure:
         largest is zeroed (inert)."""
         pa, pb = self.points(rotation, position)
         J = np.zeros((3, arrays.n_dofs))
+        kernel = tuple(arrays)  # (the plain tuple the world's every call passes: one compile of the kernel)
         if self.a >= 0:
-            J += algorithms.point_jacobian(arrays, rotation, position, self.a, pa)
+            J += algorithms.point_jacobian(kernel, rotation, position, self.a, pa)
         if self.b >= 0:
-            J -= algorithms.point_jacobian(arrays, rotation, position, self.b, pb)
+            J -= algorithms.point_jacobian(kernel, rotation, position, self.b, pb)
         C = pa - pb
         norms = np.linalg.norm(J, axis=1)
         small = norms <= DEGENERATE_ROW * max(float(norms.max()), 1e-300)
@@ -314,7 +315,7 @@ def _build_one(root_top, names, joints, tree_joint, loops, by_name, grounded_par
     q = neutral_positions(model)
     if not grounded:
         q[0:3], q[3:7] = position0, orientation0
-    arrays = model.arrays
+    arrays = tuple(model.arrays)  # (the plain tuple the world's kernels are called with: compiled once)
     rotation, position = algorithms.forward_kinematics(arrays, q)
     rows, targets = [], []
     for i, b in enumerate(ordered):

@@ -210,6 +210,7 @@ def _stage_velocities(a, h, qd, K, V):
 def _stage_displacements(arrays, a, h, theta, V, rates):
     """rates_i = dexp⁻¹_{Θ_i}(V_i), then Θ_i = h Σ_j a_ij rates_j (in place)."""
     s, n = V.shape
+    arrays = RobotArrays(*arrays)
     for i in range(s):
         local_rates(arrays.joint_type, arrays.dof_start, theta[i], V[i], rates[i])
     for i in range(s):
@@ -310,6 +311,7 @@ def _newton_matrix(arrays, q, a, h, theta, V, tau, gravity):
 def _displacement_between(arrays, q0, q1, h):
     """The D (n_dofs,) with q₀ ⊕ h D = q₁ (:func:`integrate_positions`' ⊕: a quaternion by the logarithm of
     quat₁ ⊗ quat₀⁻¹, every other coordinate by its difference)."""
+    arrays = RobotArrays(*arrays)
     D = np.empty(arrays.n_dofs)
     for i in range(len(arrays.parent)):
         s, d, kind = arrays.q_start[i], arrays.dof_start[i], arrays.joint_type[i]
@@ -335,8 +337,7 @@ def collocation_step(arrays, q, start, tau, gravity, method):
     (a light chain whipping at ~100 rad/s: h ω ~ 0.4, measured) — 2, 4, … up to :data:`MAX_PIECES` steps of h / m
     in turn, the method unchanged at a smaller step.  Args: ``arrays`` :class:`RobotArrays`, q (n_q,), start and τ
     (n_dofs,), gravity (3,).  Returns the :class:`SmoothStep` (not converged: the caller keeps the default step)."""
-    arrays = RobotArrays(*arrays)
-    method = Collocation(*method)
+    method = Collocation(*method)  # (arrays handed on as the plain tuple: see cgp_core.robots.algorithms)
     n, h = len(start), method.h
     iterations = 0
     pieces = 1

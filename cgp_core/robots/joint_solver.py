@@ -462,7 +462,9 @@ def _empty_rows(R, n):
                      np.zeros(R), np.zeros(R), np.zeros(R), np.zeros(R), np.zeros(R), np.full(R, -1, np.int64))
 
 
-@njit
+# (inlined: its callers pass literal kinds and a row counter that starts as the literal 0, and numba compiled a
+# separate function for each such combination of literal types, ten of them; inlined, none)
+@njit(inline="always")
 def _dof_row(kinds, keys, dofs, J, r, kind, index, dof, sign):
     """Row r (of the rows' ``kind``, ``key``, ``dof`` and ``J`` arrays: not the bundle, see :class:`DriveTerms`):
     kind, key, J = sign · e_dof (bounds and target left to the caller)."""
@@ -677,7 +679,7 @@ def sweep_joints(rows, lam, v, V):
     R = len(rows.kind)
     J, W, Jb, Wb, body = rows.J, rows.W, rows.Jb, rows.Wb, rows.body
     change = 0.0
-    r = 0
+    r = np.int64(0)  # (not the literal 0: numba would compile the row helpers once more for a literal row index)
     while r < R:
         if rows.kind[r] == ROW_TANGENT:  # t₁ and t₂ of a point together, clamped to its cone
             b = body[r]
@@ -996,7 +998,8 @@ def stack_properties(properties: list) -> tuple[JointProperties, np.ndarray, np.
 
 @njit
 def robot_properties(properties, starts, k):
-    """Robot ``k``'s :class:`JointProperties` as views into the stacked ones (:attr:`RobotStack.properties`)."""
+    """Robot ``k``'s :class:`JointProperties` as views into the stacked ones (:attr:`RobotStack.properties`), a
+    plain tuple as Python passes it to :func:`step_joints` (a namedtuple there compiled step_joints twice)."""
     p = JointProperties(*properties)
     d0, d1 = starts.dof[k], starts.dof[k + 1]
     m0, m1 = starts.mimic[k], starts.mimic[k + 1]
@@ -1004,23 +1007,24 @@ def robot_properties(properties, starts, k):
     jacobian = p.equality_jacobian[starts.equality_entry[k]:starts.equality_entry[k + 1]].reshape((e1 - e0, d1 - d0))
     return JointProperties(p.lower[d0:d1], p.upper[d0:d1], p.effort_limit[d0:d1], p.velocity_limit[d0:d1],
                            p.damping[d0:d1], p.friction[d0:d1], p.mimic_follower[m0:m1], p.mimic_leader[m0:m1],
-                           p.mimic_multiplier[m0:m1], p.mimic_offset[m0:m1], jacobian, p.equality_error[e0:e1])
+                           p.mimic_multiplier[m0:m1], p.mimic_offset[m0:m1], jacobian, p.equality_error[e0:e1])[:]
 
 
 @njit
 def robot_drives(drives, starts, k):
-    """Robot ``k``'s :class:`JointDrives` as views into every dof's."""
+    """Robot ``k``'s :class:`JointDrives` as views into every dof's (a plain tuple: see :func:`robot_properties`)."""
     d = JointDrives(*drives)
     d0, d1 = starts.dof[k], starts.dof[k + 1]
     return JointDrives(d.mode[d0:d1], d.target_position[d0:d1], d.target_velocity[d0:d1], d.target_effort[d0:d1],
-                       d.stiffness[d0:d1], d.damping[d0:d1])
+                       d.stiffness[d0:d1], d.damping[d0:d1])[:]
 
 
 @njit
 def robot_memory(memories, k):
-    """Robot ``k``'s :class:`JointSolverMemory` as views into :class:`RobotMemories`."""
+    """Robot ``k``'s :class:`JointSolverMemory` as views into :class:`RobotMemories` (a plain tuple: see
+    :func:`robot_properties`)."""
     a, b = memories.start[k], memories.start[k + 1]
-    return JointSolverMemory(memories.key[a:b], memories.impulse[a:b])
+    return JointSolverMemory(memories.key[a:b], memories.impulse[a:b])[:]
 
 
 @njit
@@ -1034,7 +1038,7 @@ def replace_memories(memories, stepped, fresh):
         start[k + 1] = start[k] + size
     key, impulse = np.empty(start[count], np.int64), np.empty(start[count])
     for k in range(count):
-        memory = robot_memory(memories, k) if stepped[k] < 0 else fresh[stepped[k]]
+        memory = JointSolverMemory(*robot_memory(memories, k)) if stepped[k] < 0 else fresh[stepped[k]]
         for i in range(len(memory.key)):
             key[start[k] + i] = memory.key[i]
             impulse[start[k] + i] = memory.impulse[i]

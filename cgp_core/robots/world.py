@@ -103,7 +103,7 @@ class RobotInstance:
         self.model = place_root(spec.model, self.base_rotation, self.base_position)
         self.arrays = self.model.arrays
         #: the bundle as a plain tuple: what the compiled kernels are called with every sub-step (numba types a
-        #: tuple faster than the NamedTuple)
+        #: tuple faster than the NamedTuple), and by Python everywhere, so that each kernel compiles for one type
         self.kernel_arrays = tuple(self.arrays)
         self.q_slice = slice(q_offset, q_offset + self.model.n_q)
         self.dof_slice = slice(dof_offset, dof_offset + self.model.n_dofs)
@@ -451,7 +451,7 @@ class Robots:
         for r in self.robots:
             if r.spec.articulation is not None:  # its links are the scene's own bodies
                 continue
-            rotation, position = algorithms.forward_kinematics(r.arrays, self.q0[r.q_slice])
+            rotation, position = algorithms.forward_kinematics(r.kernel_arrays, self.q0[r.q_slice])
             found, _ = link_body_specs(r.model, r.name, rotation, position, friction=r.spec.friction,
                                        restitution=r.spec.restitution)
             specs += found
@@ -682,7 +682,7 @@ class Robots:
         out = {}
         for k in self._looped:
             r = self.robots[k]
-            rotation, position = algorithms.forward_kinematics(r.arrays, self.q[r.q_slice])
+            rotation, position = algorithms.forward_kinematics(r.kernel_arrays, self.q[r.q_slice])
             for loop in r.spec.articulation.loops:
                 pa, pb = loop.points(rotation, position)
                 out[loop.name] = float(np.linalg.norm(pa - pb))
@@ -1125,15 +1125,15 @@ class Robots:
             r = self.robots[k]
             q = self.q[r.q_slice]
             for _ in range(iterations):
-                rotation, position = algorithms.forward_kinematics(r.arrays, q)
+                rotation, position = algorithms.forward_kinematics(r.kernel_arrays, q)
                 rows = [loop.rows(r.arrays, rotation, position) for loop in r.spec.articulation.loops]
                 J = np.vstack([j for j, _ in rows])
                 C = np.concatenate([c for _, c in rows])
                 if np.abs(C).max() <= tolerance:
                     break
-                W = np.linalg.solve(algorithms.mass_matrix(r.arrays, q), J.T)
+                W = np.linalg.solve(algorithms.mass_matrix(r.kernel_arrays, q), J.T)
                 dq = -W @ (np.linalg.pinv(J @ W, rcond=1e-10) @ C)
-                q = algorithms.integrate_positions(r.arrays, q, dq, 1.0)
+                q = algorithms.integrate_positions(r.kernel_arrays, q, dq, 1.0)
             self.q[r.q_slice] = q
 
     def write_bodies(self, body_model, state) -> None:
@@ -1226,7 +1226,7 @@ class Robots:
         r = self.robot(name)
         k = self.robots.index(r)
         rotation, position = self._poses[k] if hasattr(self, "_poses") else algorithms.forward_kinematics(
-            r.arrays, self.q[r.q_slice])
+            r.kernel_arrays, self.q[r.q_slice])
         m = r.model
         R = rotation[m.frame_body] @ m.frame_rotation
         p = position[m.frame_body] + np.einsum("kij,kj->ki", rotation[m.frame_body], m.frame_position)
@@ -1245,7 +1245,7 @@ class Robots:
         r = self.robot(name)
         k = self.robots.index(r)
         rotation, position = self._poses[k] if hasattr(self, "_poses") else algorithms.forward_kinematics(
-            r.arrays, self.q[r.q_slice])
+            r.kernel_arrays, self.q[r.q_slice])
         m = r.model
         if m.__dict__.get("_visual_frames") is None:  # (v,) body, (v, 3, 3) and (v, 3) origin: made once
             body = np.array([b for b, per_body in enumerate(m.visuals) for _ in per_body], np.int64)
