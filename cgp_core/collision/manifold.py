@@ -910,25 +910,3 @@ def triangle_contacts_into(triangle, active_edges, two_sided, hull, margin, out,
     if use_b:
         return _clip_triangle(hull, fb, flat, FLIPPED, best_b, margin, out, m, scratch.faces)
     return _clip_triangle(flat, front, hull, NOT_FLIPPED, front_sep, margin, out, m, scratch.faces)
-    sep, cx, cy, cz, ax, ay, az, bx, by, bz, edge_feature = signed_distance(flat_core, core)
-    if not sep < margin:
-        return m
-    edge = sep > edge_above
-    if edge or use_b:
-        # the contact normal (A to B) and how far it is from the triangle's face normal
-        if not edge:
-            cx, cy, cz, _ = _world_plane(face_plane, fb, position, rotation)
-            cx, cy, cz = -cx, -cy, -cz
-        along = cx * planes[front, 0] + cy * planes[front, 1] + cz * planes[front, 2]
-        if along < math.cos(GHOST_NORMAL_ANGLE) or (not two_sided and along <= 0.0):
-            # the triangle's feature in the contact (EPA / GJK witness a): a ghost unless an active edge
-            if not two_sided and along <= 0.0 or not on_active_feature(triangle, active_edges, ax, ay, az):
-                edge = use_b = False  # the triangle's face instead
-        elif edge:
-            edge = False  # nearly the face normal: the face contact
-    if edge:
-        return write_point(out, m, cx, cy, cz, sep, 0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * (az + bz),
-                           edge_feature)
-    if use_b:
-        return _clip_triangle(hull, fb, flat, FLIPPED, best_b, margin, out, m, scratch.faces)
-    return _clip_triangle(flat, front, hull, NOT_FLIPPED, front_sep, margin, out, m, scratch.faces)
