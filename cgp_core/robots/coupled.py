@@ -57,6 +57,7 @@ from ..solver.sequential_impulse import (
     _solve_manifold,
     apply_impulses,
     bounce_time_shift,
+    impact_manifolds,
     prepare_bodies,
     prepare_contacts,
     store_impulses,
@@ -125,14 +126,7 @@ def solve_together(joint_rows, joint_lam, v, manifolds, rows, targets, lam, bodi
     V = bodies.velocity
     lam_n = np.empty(m)
     scratch = Scratch(np.empty((2, MAX_BLOCK)), np.zeros(MAX_BLOCK, np.bool_), np.empty((m, 2)))
-    impact = np.zeros(G, np.bool_)
-    any_impact = False
-    for g in range(G):
-        if group_start[g + 1] - group_start[g] > 1:
-            for c in range(group_start[g], group_start[g + 1]):
-                if targets.bounce[c]:
-                    impact[g] = True
-                    any_impact = True
+    impact, any_impact = impact_manifolds(manifolds, targets)
     cap = max(joint_settings.velocity_iterations, settings.velocity_iterations)
     rounds = 0
     impact_done = 0

@@ -414,6 +414,23 @@ def warm_start_contacts(manifolds, rows, bodies, memory, warm_start):
 # ---- 4. solve: the sweeps ---------------------------------------------------------------------------------
 
 @njit(inline="always")
+def impact_manifolds(manifolds, targets):
+    """(G,) bool: the multi-point manifolds holding a bouncing point, which get the impact sweeps; and whether
+    any does (shared with the robots' coupled loop, cgp_core.robots.coupled.solve_together)."""
+    group_start = manifolds.group_start
+    G = len(group_start) - 1
+    impact = np.zeros(G, np.bool_)
+    any_impact = False
+    for g in range(G):
+        if group_start[g + 1] - group_start[g] > 1:
+            for c in range(group_start[g], group_start[g + 1]):
+                if targets.bounce[c]:
+                    impact[g] = True
+                    any_impact = True
+    return impact, any_impact
+
+
+@njit(inline="always")
 def solve_contacts(manifolds, rows, targets, lam, bodies, settings):
     """The sweeps: manifold after manifold (:func:`_solve_manifold`), updating ``lam`` and ``bodies.velocity``
     in place, until a whole sweep changed no row velocity by more than ``velocity_tolerance`` (a warm-started
@@ -427,14 +444,7 @@ def solve_contacts(manifolds, rows, targets, lam, bodies, settings):
     # impacts: manifolds (multi-point groups) converge slowest exactly when the impulse changes most, so the
     # manifolds holding a bouncing point get up to ``impact_sweeps`` extra sweeps after the regular ones
     # (impacts are rare; resting manifolds are warm)
-    impact = np.zeros(G, np.bool_)
-    any_impact = False
-    for g in range(G):
-        if group_start[g + 1] - group_start[g] > 1:
-            for c in range(group_start[g], group_start[g + 1]):
-                if targets.bounce[c]:
-                    impact[g] = True
-                    any_impact = True
+    impact, any_impact = impact_manifolds(manifolds, targets)
     sweeps = 0
     impact_done = 0
     regular = True  # the regular sweeps over every manifold first, then the impact sweeps
