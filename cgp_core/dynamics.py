@@ -113,10 +113,11 @@ def step_bodies(model: BodyModel, state: BodyState, integrator: Integrator, solv
     if robots is not None and robots.n_dofs:
         robots.integrate(h)
         robots.write_bodies(model, state)  # the links where the joints put them, whatever the integrator did
-        robots.displace_free_bodies(model, state)  # the links' position stage pushed free bodies out of them
+        robots.displace_free_bodies(model, state)  # the position stage of a sub-step with coupled robots (3b)
     solver.detector.sweep_fast_rotation(model, state, h)
 
-    # 5. recover penetration (moves bodies apart; momenta untouched: adds no kinetic energy)
+    # 5. recover penetration (moves bodies apart; momenta untouched: adds no kinetic energy); nothing to do after a
+    #    sub-step with coupled robots, whose one position loop corrected the contacts between free bodies too
     solver.recover_penetration(model, state, h)
 
     # 6. clear accumulators

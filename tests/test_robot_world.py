@@ -209,6 +209,47 @@ def test_a_crate_started_inside_a_link_is_pushed_out_without_gaining_energy():
     assert world.body_state.position[box][2] > top + 0.03 - 1e-3  # it went up, out of the arm
 
 
+@pytest.mark.parametrize("crates", [1, 2])
+def test_crates_squeezed_between_a_link_and_a_shelf_are_pushed_out_of_both(crates):
+    """Issue 35's one position loop (cgp_core.robots.coupled.relax_together): a 6 cm crate started 1 cm deep in
+    the held upper arm, under a fixed shelf it touches (``crates`` = 2: a second crate on it, the shelf on that),
+    without gravity.  The shelf holds the crates, so only the arm can make room.  With two position stages (the
+    joint solver's for the link's contacts, the body solver's recovery for the others) the link's stage pushed the
+    crate into the shelf (or the other crate) and the recovery pushed it back into the link, the heavy arm taking
+    almost none of it: after 1–2 s the link contact stayed 5.4 mm deep and the shelf's 4.4 mm (one crate; two:
+    the link's 4.8 mm, the crates' 4.6 mm).  In one loop every contact ends within the slop (0.5 mm; measured
+    0.50 mm with one crate, at most 0.50 mm with two) — asserted with 0.1 mm to spare — and the crates at rest."""
+    joints = {"shoulder_lift": np.pi / 2, "elbow": -np.pi / 2, "wrist": 0.0}  # the upper arm along +x
+    z = 0.2 + 0.025 - 0.01  # the upper arm's top face, 1 cm into it
+    bodies = []
+    for i in range(crates):
+        bodies.append({"name": f"crate{i}", "shape": "box", "size": [0.06, 0.06, 0.06], "mass": 0.4,
+                       "position": [0.25, 0.0, z + 0.03]})
+        z += 0.06
+    bodies.append({"name": "shelf", "shape": "box", "size": [0.2, 0.2, 0.02], "fixed": True, "mass": 1.0,
+                   "position": [0.25, 0.0, z + 0.01]})
+    world = World(arm_scene(joints=joints, bodies=bodies, gravity=(0, 0, 0), ground=False))
+    world.report_contacts = True
+    links = world.robots.body_robot >= 0
+    deepest = {}
+
+    def check(w):
+        if w.time < 1.0:
+            return
+        c = w.contacts
+        for a, b, s in zip(c.body_a, c.body_b, c.separation):
+            kind = "-".join(sorted("link" if links[i] else w.body_model.names[i] for i in (a, b)))
+            deepest[kind] = min(deepest.get(kind, 0.0), float(s))
+
+    run(world, 2.0, check)
+    kinds = {"crate0-link", "crate0-shelf"} if crates == 1 else {"crate0-link", "crate0-crate1", "crate1-shelf"}
+    assert set(deepest) == kinds, deepest
+    assert min(deepest.values()) > -0.6e-3, deepest
+    for i in range(crates):
+        k = world.body_model.index(f"crate{i}")
+        assert np.linalg.norm(world.body_state.linear_momentum[k]) / 0.4 < 1e-3
+
+
 def test_two_arms_each_holding_a_crate_of_its_own_step_exactly_as_one_alone():
     """The robots whose links touch free bodies are solved as one system in the body solver's loop (block-diagonal
     M, their warm-start memories merged and split again): two arms 2 m apart, each with a crate resting on its

@@ -106,8 +106,9 @@ it over a tick's sub-steps.
 :func:`step_joints` sees a free body only through the robot's rows, not the body's own contacts.  In a World, a
 robot whose links touch a free body is therefore not stepped by it: its rows and the body solver's contact rows
 are solved in ONE loop, each sweep visiting both on the free bodies' shared velocities
-(:func:`cgp_core.robots.coupled.step_coupled`, built from this module's stages and :func:`sweep_joints`), so a
-body pressed between a link and the ground converges within the sub-step.
+(:func:`cgp_core.robots.coupled.step_coupled`, built from this module's stages, :func:`sweep_joints` and, for the
+position stage, :func:`position_goals` and :func:`relax_sweep`), so a body pressed between a link and the ground
+converges within the sub-step, and a body squeezed between a link and a shelf is pushed out of both.
 
 **The stages** (:data:`STAGES`, timed into a :class:`~cgp_core.jit.StageProfile`), run by :func:`step_joints`:
 
@@ -737,8 +738,23 @@ def relax_positions(rows, v, V, settings):
     n, R, h = len(v), len(rows.kind), settings.h
     d = np.zeros(n)
     D = np.zeros((len(V), 6))
-    goal = np.zeros(R)
+    goal = position_goals(rows, v, V, settings)
     lam = np.zeros(R)
+    for _ in range(settings.position_iterations):
+        if relax_sweep(rows, goal, lam, d, D) <= POSITION_TOLERANCE:  # nothing (more) to correct: the usual
+            break                                                     # case, one sweep
+    for i in range(n):
+        d[i] /= h
+    return d, D
+
+
+@njit
+def position_goals(rows, v, V, settings):
+    """(R,) what the position stage asks of each row's displacement J Δq + J_b D (0 for the rows without a
+    position error): −β times the error predicted after the velocity step (v (n,), the free bodies' V (b, 6)); a
+    contact's penetration beyond the slop, at most ``max_correction`` (see :func:`relax_positions`)."""
+    R, h = len(rows.kind), settings.h
+    goal = np.zeros(R)
     for r in range(R):
         if _positional(rows.kind[r]):
             predicted = rows.error[r] + h * _row_velocity(rows.J, rows.Jb, rows.body[r], r, v, V)
@@ -747,22 +763,26 @@ def relax_positions(rows, v, V, settings):
                               settings.max_correction)
             else:
                 goal[r] = -settings.position_correction * predicted
-    for _ in range(settings.position_iterations):
-        change = 0.0
-        for r in range(R):
-            if not _positional(rows.kind[r]) or rows.stiff[r] <= 0.0:
-                continue
-            delta = (goal[r] - _row_velocity(rows.J, rows.Jb, rows.body[r], r, d, D)) / rows.stiff[r]
-            if rows.kind[r] != ROW_MIMIC and rows.kind[r] != ROW_EQUALITY:  # one-sided
-                delta = max(lam[r] + delta, 0.0) - lam[r]
-            lam[r] += delta
-            _apply_row(rows.W, rows.Wb, rows.body[r], r, delta, d, D)
-            change = max(change, abs(delta) * rows.stiff[r])
-        if change <= POSITION_TOLERANCE:  # nothing (more) to correct: the usual case, one sweep
-            break
-    for i in range(n):
-        d[i] /= h
-    return d, D
+    return goal
+
+
+@njit
+def relax_sweep(rows, goal, lam, d, D):
+    """One Gauss–Seidel sweep of the position stage over the rows with a position error towards ``goal``
+    (:func:`position_goals`), in place on their accumulated λ (R,), the robot's displacement d (n,) and the free
+    bodies' D (b, 6) (also a sweep of the one position loop of :mod:`cgp_core.robots.coupled`); returns the
+    largest change of a row's displacement it made."""
+    change = 0.0
+    for r in range(len(rows.kind)):
+        if not _positional(rows.kind[r]) or rows.stiff[r] <= 0.0:
+            continue
+        delta = (goal[r] - _row_velocity(rows.J, rows.Jb, rows.body[r], r, d, D)) / rows.stiff[r]
+        if rows.kind[r] != ROW_MIMIC and rows.kind[r] != ROW_EQUALITY:  # one-sided
+            delta = max(lam[r] + delta, 0.0) - lam[r]
+        lam[r] += delta
+        _apply_row(rows.W, rows.Wb, rows.body[r], r, delta, d, D)
+        change = max(change, abs(delta) * rows.stiff[r])
+    return change
 
 
 # ---- 5. store: impulses to the free bodies, the effort, the memory -------------------------------------------

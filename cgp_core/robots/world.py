@@ -36,16 +36,16 @@ written from the robot's state after every sub-step (:meth:`Robots.write_bodies`
    (a robot whose ``joint_integrator`` is a Gauss–Legendre method has its smooth flow stepped first in step 3,
    :mod:`.joint_integrators`: the joint solver then takes the flow's velocity as an equivalent effort, and the
    position update adds the flow's own displacement);
-5. write the link bodies' poses and momenta from q, q̇; move the free bodies the links' position stage pushed
-   out of them (:meth:`displace_free_bodies`).
+5. write the link bodies' poses and momenta from q, q̇; move the free bodies the position stage pushed (out of
+   the links, and in a sub-step where a link touches a free body out of each other too: :meth:`displace_free_bodies`).
 
 A contact between a link and a free body is solved in ONE loop with the free bodies' own contacts
 (:mod:`cgp_core.robots.coupled`, as Bullet's btMultiBody constraint solver): every sweep visits the robot rows and
 the body rows on one shared velocity of the free bodies, so a link pushing a crate that the ground's friction
-holds back (or a box resting on another box) converges within the sub-step, not over sub-steps.  Its penetration
-is corrected by the joint solver's position stage (split impulses: the robot by a pseudo-velocity, the body by a
-displacement; no energy added).  The position stages are still two: the joint solver's before the integrator, the
-body solver's penetration recovery of the body–body contacts after it.
+holds back (or a box resting on another box) converges within the sub-step, not over sub-steps.  The
+penetration of both kinds of contacts is corrected in one position loop too (split impulses: the robot by
+a pseudo-velocity, the free bodies by a displacement after the integrator; no energy added), so that a crate
+squeezed between a link and a shelf is not pushed out of one into the other.
 """
 
 from __future__ import annotations
@@ -924,7 +924,8 @@ class Robots:
         self._island_solved(island, step, solver.memory, solver.profile.seconds, state)
 
     def displace_free_bodies(self, body_model, state) -> None:
-        """After the integrator: move the free bodies the links' contacts pushed in the position stage by their
+        """After the integrator: move the free bodies the position stage pushed (the links' contacts; with the
+        contacts between free bodies too in a coupled sub-step, :func:`~.coupled.relax_together`) by their
         displacement (:attr:`~.joint_solver.JointStep.body_displacement`), positions and orientations only — the
         angular momentum turned with the body, so that neither momentum nor kinetic energy changes (split
         impulses, as the body solver's penetration recovery)."""

@@ -917,7 +917,9 @@ class SequentialImpulseSolver:
         ``coupled``: None, or rows of other solvers that act on the same bodies and are to be solved in the same
         loop as the contacts (the robots whose links touch free bodies: :class:`cgp_core.robots.world.
         CoupledRobots`): its ``solve`` is called instead of :func:`solve_step`, with the same arguments, and
-        returns what ``solve_step`` returns (this module does not know the robots)."""
+        returns what ``solve_step`` returns (this module does not know the robots); it corrects these contacts'
+        penetration too, in one position loop with its own rows (applied after the integrator by its owner), so
+        :meth:`recover_penetration` has nothing to do after it."""
         n = model.count
         self._pending = None
         if model is not self._warm_model or n != self._warm_count:
@@ -951,7 +953,7 @@ class SequentialImpulseSolver:
         self.profile.calls += 1
         self.stats = {"contacts": contacts.count, "manifolds": len(handover.group_start) - 1,
                       "sweeps": handover.sweeps, "max_penetration": handover.deepest}
-        if len(handover.a):
+        if len(handover.a) and coupled is None:
             plain = handover[:4] + (tuple(handover.rows),) + handover[5:]  # plain tuples at the border (cgp_core.jit)
             self._pending = PendingRecovery(model, plain, state.position.copy(), state.orientation.copy(), movable,
                                             settings)
