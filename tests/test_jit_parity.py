@@ -64,6 +64,37 @@ for _ in range(int(sys.argv[3])):
 np.save(sys.argv[1], np.array(out))
 """
 
+#: issue 35's one position loop (cgp_core.robots.coupled.relax_together): two crates started 1 cm deep in the held
+#: upper arm, under a fixed shelf, no gravity (tests/test_robot_world.py's squeeze): the crate–crate and crate–shelf
+#: rows are corrected in the robot's position loop, from the first tick
+SQUEEZE_SCRIPT = r"""
+import sys
+import numpy as np
+from cgp_core import World
+from cgp_core.jit import JIT_DISABLED
+from cgp_core.scene import scene_from_dict
+
+assert JIT_DISABLED == (sys.argv[2] == "plain"), "NUMBA_DISABLE_JIT did not reach the child"
+z = 0.2 + 0.025 - 0.01
+bodies = []
+for i in range(2):
+    bodies.append({"name": f"crate{i}", "shape": "box", "size": [0.06, 0.06, 0.06], "mass": 0.4,
+                   "position": [0.25, 0.0, z + 0.03]})
+    z += 0.06
+bodies.append({"name": "shelf", "shape": "box", "size": [0.2, 0.2, 0.02], "fixed": True, "mass": 1.0,
+               "position": [0.25, 0.0, z + 0.01]})
+arm = {"name": "arm", "urdf": "arm.urdf", "hold": True,
+       "joints": {"shoulder_lift": float(np.pi / 2), "elbow": float(-np.pi / 2), "wrist": 0.0}}
+w = World(scene_from_dict({"world": {"gravity": [0, 0, 0], "ground": False, "substeps": 4}, "robots": [arm],
+                           "bodies": bodies}, "<parity>"))
+s = w.body_state
+out = []
+for _ in range(int(sys.argv[3])):
+    w.step()
+    out.append(np.concatenate((s.position, s.orientation, s.linear_momentum, s.angular_momentum), axis=1).ravel())
+np.save(sys.argv[1], np.array(out))
+"""
+
 
 def run(tmp_path, mode: str, ticks: int, script: str = SCRIPT) -> np.ndarray:
     env = os.environ.copy()
@@ -93,4 +124,14 @@ def test_the_one_loop_of_robot_and_body_rows_gives_the_same_bits_compiled_and_pl
     plain = run(tmp_path, "plain", ticks, ROBOT_SCRIPT)
     crate = compiled[:, 0:13]  # the crate is the scene's first body
     assert np.linalg.norm(crate[-1, :2] - crate[0, :2]) > 0.01  # the arm reached it and pushed it
+    np.testing.assert_array_equal(compiled, plain)
+
+
+def test_the_one_position_loop_gives_the_same_bits_compiled_and_plain(tmp_path):
+    ticks = 8
+    compiled = run(tmp_path, "compiled", ticks, SQUEEZE_SCRIPT)
+    plain = run(tmp_path, "plain", ticks, SQUEEZE_SCRIPT)
+    lower, upper = compiled[:, 2], compiled[:, 13 + 2]  # the crates' heights
+    # the loop moved both crates (measured: the lower one up by 1.9 mm by the 4th tick, the upper one by 0.2 mm)
+    assert np.abs(lower - lower[0]).max() > 1e-3 and upper[-1] - upper[0] > 1e-4
     np.testing.assert_array_equal(compiled, plain)
