@@ -1156,38 +1156,46 @@ def step_lone_robots(which, stack, memories, state, starts, gravity, settings, p
     ``k`` its M and bias (:func:`~cgp_core.robots.algorithms.joint_space_terms`), :func:`step_joints` without
     contact rows, q̇ written into ``qd``, the pseudo-velocity into ``pseudo``, the effort added to
     ``effort_sum``.  Bundles as plain tuples: :class:`RobotStack`, :class:`RobotMemories`, :class:`RobotsState`,
-    :class:`~cgp_core.robots.model.RobotStarts`.  Returns the new :class:`RobotMemories` (the robots not stepped
-    keep theirs)."""
+    :class:`~cgp_core.robots.model.RobotStarts`.  Returns the :class:`RobotMemories`: the same arrays, written in
+    place, when every robot's new memory has as many rows as its old one (the usual case: the same rows every
+    sub-step), new ones otherwise (the robots not stepped keep theirs).  Robot ``k``'s q, q̇ and applied efforts
+    are handed on as views (read only: q̇ is written after its step)."""
     models, properties, drives = stack
     memories = RobotMemories(*memories)
     q, qd, applied, pseudo, effort_sum, q_of_dof = state
     starts = RobotStarts(*starts)
-    stepped = np.full(len(starts.body) - 1, -1, np.int64)  # robot k's entry in `fresh`, −1: not stepped
+    stepped = np.full(len(starts.body) - 1, -1, np.int64)  # robot k's entry in `fresh`, −1: kept or written in place
     bodies = (np.zeros(0), np.zeros((0, 3, 3)), np.zeros((0, 6)), np.zeros((0, 3)), np.zeros((0, 3)))  # none touched
-    fresh = []
+    no_body, no_body_jacobian = np.zeros(0, np.int64), np.zeros((0, 3, 6))  # contacts: none (one set for all robots)
+    no_number, no_key = np.zeros(0), np.zeros(0, np.int64)
+    fresh = []  # the new memories of a changed size
     for w in range(len(which)):
         k = which[w]
         qs, qe, ds, de = starts.q[k], starts.q[k + 1], starts.dof[k], starts.dof[k + 1]
         n = de - ds
-        qk = q[qs:qe].copy()
-        qdk = qd[ds:de].copy()
+        qk, qdk = q[qs:qe], qd[ds:de]
         M, bias = joint_space_terms(robot_view(models, starts, k), qk, qdk, gravity)
         coordinate = np.zeros(n)
         for i in range(n):
             j = q_of_dof[ds + i]
             if j >= 0:
                 coordinate[i] = qk[j]
-        system = (M, bias, applied[ds:de].copy(), coordinate, qdk)
-        contacts = (np.zeros((0, 3, n)), np.zeros(0, np.int64), np.zeros((0, 3, 6)), np.zeros(0), np.zeros(0),
-                    np.zeros(0, np.int64))
+        system = (M, bias, applied[ds:de], coordinate, qdk)
+        contacts = (np.zeros((0, 3, n)), no_body, no_body_jacobian, no_number, no_number, no_key)
         step, memory = step_joints(system, robot_properties(properties, starts, k), robot_drives(drives, starts, k),
                                    contacts, bodies, robot_memory(memories, k), settings, profile)
-        stepped[k] = len(fresh)
-        fresh.append(memory)
         for i in range(n):
             qd[ds + i] = step.velocity[i]
             pseudo[ds + i] = step.pseudo_velocity[i]
             effort_sum[ds + i] += step.effort[i]
+        first = memories.start[k]
+        if len(memory.key) == memories.start[k + 1] - first:
+            for i in range(len(memory.key)):
+                memories.key[first + i] = memory.key[i]
+                memories.impulse[first + i] = memory.impulse[i]
+        else:
+            stepped[k] = len(fresh)
+            fresh.append(memory)
     if len(fresh) == 0:
         return memories
     return replace_memories(memories, stepped, fresh)
