@@ -309,6 +309,40 @@ def test_velocity_drive_is_backward_euler_in_its_damping():
     assert abs(steps[0].effort[0] - kd * (target - qds[0, 0])) < 1e-12
 
 
+def test_a_sub_step_at_rest_against_its_rows_is_what_the_stages_give():
+    """A sub-step whose rows all stay at zero is answered without building them (joint_solver.rows_at_rest,
+    rest_step): the same bits as the stages.  Each random 3-link chain (joint and velocity limits, position drives
+    of random effort limits, sometimes friction; some near a limit, some fast, some saturated) is stepped twice
+    from the same state: once as it is, and once with a warm-start memory holding an impulse for a row no
+    sub-step has — which the stages ignore but rows_at_rest refuses, so that run always takes the stages."""
+    from cgp_core.robots.joint_solver import KEY_SLOTS, ROW_MIMIC, SOLVE, JointSolverMemory
+
+    rng = np.random.default_rng(35)
+    masses, lengths = np.array([1.5, 1.0, 0.5]), np.array([0.4, 0.35, 0.3])
+    rested = 0
+    for trial in range(60):
+        lower, upper = -rng.uniform(0.3, 1.5, 3), rng.uniform(0.3, 1.5, 3)
+        q = rng.uniform(lower - 0.02, upper + 0.02)  # some past a limit, some near one
+        qd = rng.normal(0.0, 0.3 if trial % 2 else 4.0, 3)
+        joints = JointProperties.free(3)._replace(
+            lower=lower, upper=upper, velocity_limit=np.full(3, 3.0),
+            effort_limit=np.where(rng.random(3) < 0.1, 5.0, 1e4), friction=np.where(rng.random(3) < 0.1, 0.2, 0.0))
+        target = q + rng.normal(0.0, 1e-3, 3)  # held near where it is
+        kp, kd = position_gains(chain(target, np.zeros(3), masses, lengths)[0], H)
+        M, bias = chain(q, qd, masses, lengths)
+        system = JointSystem(M, bias, np.zeros(3), q, qd)
+        solvers = JointSolver(H), JointSolver(H)
+        solvers[1].memory = JointSolverMemory(np.array([ROW_MIMIC * KEY_SLOTS + 99]), np.array([1.0]))
+        shortcut, stages = (s.step(system, joints, position_drives(target, kp, kd)) for s in solvers)
+        assert solvers[1].profile.seconds[SOLVE] > 0.0  # the stages ran
+        rested += solvers[0].profile.seconds[SOLVE] == 0.0
+        for a, b in zip(shortcut, stages):
+            assert np.array_equal(np.asarray(a), np.asarray(b)) and np.shape(a) == np.shape(b), trial
+        for a, b in zip(solvers[0].memory, solvers[1].memory):
+            assert np.array_equal(a, b) and a.dtype == b.dtype, trial
+    assert 15 <= rested <= 45  # both kinds of sub-step were compared
+
+
 def test_stiff_drive_is_stable():
     kp, inertia = 1e6, 1.0
     drives = position_drives([0.0], [kp], [0.0])
