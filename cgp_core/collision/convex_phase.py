@@ -227,6 +227,18 @@ def build_shape_model(model: BodyModel, cm: CollisionModel) -> ShapeModel:
             hulls.append(box_hull(h))
         return box_hulls[ident]
 
+    distinct: dict[tuple, int] = {}
+
+    def hull_index(h: ConvexPolyhedron) -> int:
+        # one entry per distinct hull: the copies of one mesh (a pile of them) share their arrays, so the kernels
+        # walk one hull's vertices and edges, not each copy's (issue 38: 300 copies of a 1,000-vertex hull)
+        ident = tuple(np.ascontiguousarray(a).tobytes() for a in (h.vertices, h.face_plane, h.face_vertex_start,
+                                                                   h.face_vertices, h.adjacency_start, h.adjacency))
+        if ident not in distinct:
+            distinct[ident] = len(hulls)
+            hulls.append(h)
+        return distinct[ident]
+
     def add(b, k, o, R, r, he, hi, mi):
         body.append(b)
         kind.append(k)
@@ -241,16 +253,15 @@ def build_shape_model(model: BodyModel, cm: CollisionModel) -> ShapeModel:
     for i in range(model.count):
         s = int(model.shape[i])
         if s == Shape.CONVEX:
-            add(i, HULL, np.zeros(3), eye, 0.0, _box_half(model.hulls[i]), len(hulls), -1)
-            hulls.append(model.hulls[i])
+            add(i, HULL, np.zeros(3), eye, 0.0, _box_half(model.hulls[i]), hull_index(model.hulls[i]), -1)
         elif s == Shape.COMPOUND:
             parts = model.parts[i]
             for k in range(parts.count):
                 ks = int(parts.shape[k])
                 he = np.asarray(parts.half_extents[k], float)
                 if ks == Shape.CONVEX:
-                    add(i, HULL, parts.position[k], parts.rotation[k], 0.0, _box_half(parts.hulls[k]), len(hulls), -1)
-                    hulls.append(parts.hulls[k])
+                    add(i, HULL, parts.position[k], parts.rotation[k], 0.0, _box_half(parts.hulls[k]),
+                        hull_index(parts.hulls[k]), -1)
                 else:
                     add(i, ks, parts.position[k], parts.rotation[k], float(parts.radius[k]), he,
                         box_index(he) if ks == BOX else -1, -1)
