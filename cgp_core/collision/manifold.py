@@ -107,6 +107,12 @@ ALL_EDGES_ACTIVE = np.uint8(7)
 
 # ---- the reduction to 4 points ---------------------------------------------------------------------------
 
+#: a hull–ground candidate this much [m] below every point the reduction kept replaces the nearest of them
+#: (:func:`keep_deepest`); a fifth of the solver's penetration slop, far above the depth differences round-off and
+#: a resting face's micro-tilt give its corners
+DEEPEST_TOLERANCE = 1e-4
+
+
 @njit
 def reduce_to_four(X, Y, hu, hv, valid):
     """Keep at most 4 of the ``valid`` candidates (in place): those extreme along the diagonal directions
@@ -518,11 +524,37 @@ def plane_hull_contacts(hull, margin, start, out, m):
             xmin, xmax, ymin, ymax = min(xmin, X[s]), max(xmax, X[s]), min(ymin, Y[s]), max(ymax, Y[s])
     hu = max(0.5 * (xmax - xmin), 1e-12)
     hv = max(0.5 * (ymax - ymin), 1e-12)
+    deepest = -1
+    for s in range(n):
+        if valid[s] and (deepest < 0 or Z[s] < Z[deepest]):
+            deepest = s
     reduce_to_four(X, Y, hu, hv, valid)
+    keep_deepest(X, Y, Z, hu, hv, valid, deepest)
     for s in range(n):
         if valid[s]:
             m = write_point(out, m, 0.0, 0.0, 1.0, Z[s], X[s], Y[s], 0.5 * Z[s], candidates[s])
     return m
+
+
+@njit
+def keep_deepest(X, Y, Z, hu, hv, valid, deepest):
+    """After :func:`reduce_to_four`: if the candidate ``deepest`` (the lowest, Z its separation) was dropped and lies
+    more than :data:`DEEPEST_TOLERANCE` below every kept point, it replaces the kept point nearest to it (in units of
+    the half spans ``hu``, ``hv``).  The diagonal extremes are the corners of a flat contact, but of a round one
+    (a 1,000-vertex sphere hull: the vertices below the margin a cap) they are on its rim, up to the margin above
+    its lowest vertex: resting on them, the hull sank until they touched — 6 mm into the ground (issue 38)."""
+    if deepest < 0 or valid[deepest]:
+        return
+    nearest, best, shallowest = -1, np.inf, np.inf
+    for s in range(len(valid)):
+        if valid[s]:
+            shallowest = min(shallowest, Z[s])
+            d = ((X[s] - X[deepest]) / hu) ** 2 + ((Y[s] - Y[deepest]) / hv) ** 2
+            if d < best:
+                nearest, best = s, d
+    if Z[deepest] < shallowest - DEEPEST_TOLERANCE:
+        valid[nearest] = False
+        valid[deepest] = True
 
 
 # ---- hull–sphere / capsule ------------------------------------------------------------------------------
