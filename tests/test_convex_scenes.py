@@ -164,8 +164,8 @@ def test_hull_bounds_are_the_turned_local_box_then_exact_where_a_pair_or_the_gro
         return i[keep].astype(np.int64), j[keep].astype(np.int64)
 
     i, j = overlapping(cheap_lo, cheap_hi)
-    ki, kj = tighten_hull_bounds(prims.kind, prims.hull, hulls.vertex_start, hulls.vertices, prims.first_new,
-                                 tuple(poses), i, j, True)
+    ki, kj = tighten_hull_bounds(prims.kind, prims.hull, tuple(hulls), prims.first_new, tuple(poses), i, j, True,
+                                 np.zeros((P, 6), np.int64))
     ei, ej = overlapping(exact_lo, exact_hi)
     assert len(ei) < len(i)  # the cheap bound is looser: some of its pairs are not pairs of exact bounds
     assert list(zip(ki, kj)) == list(zip(ei, ej))

@@ -53,7 +53,7 @@ for i in range(len(hulls)):
         m = hull_hull_contacts(posed(hulls[i], np.zeros(3), rotations[i]), posed(hulls[j], pb, rotations[j]), 0.05,
                                out_buffer, 0)
         out += [[*n[k], s[k], *q[k], float(f[k])] for k in range(m)]
-    m = plane_hull_contacts(posed(hulls[i], np.array([0, 0, 0.1]), rotations[i]), 0.05, out_buffer, 0)
+    m = plane_hull_contacts(posed(hulls[i], np.array([0, 0, 0.1]), rotations[i]), 0.05, 0, out_buffer, 0)
     out += [[*n[k], s[k], *q[k], float(f[k])] for k in range(m)]
     m = hull_capsule_contacts(posed(hulls[i], np.zeros(3), rotations[i]), np.array([[0.0, 0, 0.2], [0.3, 0, 0.25]]),
                               0.05, 0.05, out_buffer, 0)

@@ -126,13 +126,13 @@ def test_a_hull_on_the_ground_gets_at_most_four_equally_deep_points():
     hexagon = prism()
     n, s, p, f = buffers()
     m = plane_hull_contacts(posed(hexagon, [1.0, 2.0, 0.05 - 2e-3], Rotation.from_euler("z", 0.4).as_matrix()), 0.01,
-                            ContactBuffer(n, s, p, f), 0)
+                            0, ContactBuffer(n, s, p, f), 0)
     assert m == 4
     np.testing.assert_allclose(s[:m], -2e-3, atol=1e-14)
     np.testing.assert_allclose(p[:m, 2], -1e-3, atol=1e-14)
     # tilted: only the low corners are within the margin
     m = plane_hull_contacts(posed(hexagon, [0.0, 0.0, 0.2], Rotation.from_euler("x", 0.6).as_matrix()), 0.01,
-                            ContactBuffer(n, s, p, f), 0)
+                            0, ContactBuffer(n, s, p, f), 0)
     world_z = (hexagon.vertices @ Rotation.from_euler("x", 0.6).as_matrix().T)[:, 2] + 0.2
     assert m == np.count_nonzero(world_z < 0.01)
     np.testing.assert_allclose(np.sort(s[:m]), np.sort(world_z[world_z < 0.01]), atol=1e-14)

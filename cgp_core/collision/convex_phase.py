@@ -74,7 +74,7 @@ from ..jit import njit
 from .box_box import box_box_contacts
 from .bvh import StaticMesh, TriangleMesh, bvh_overlap
 from .contacts import FEATURE_SLOTS, GROUND, ContactSet
-from .convex import ConvexPolyhedron, HullSet, box_hull, hull_of, posed
+from .convex import BRUTE_FORCE_SUPPORT_VERTICES, ConvexPolyhedron, HullSet, box_hull, hull_of, posed, support_index
 from .manifold import hull_capsule_contacts, hull_hull_contacts, plane_hull_contacts, reduce_to_four
 from .materials import combine_friction, combine_restitution
 from .mesh_contacts import add_point, cells_near, first_item, mesh_capsule_contacts, mesh_hull_contacts, near_points
@@ -227,6 +227,18 @@ def build_shape_model(model: BodyModel, cm: CollisionModel) -> ShapeModel:
             hulls.append(box_hull(h))
         return box_hulls[ident]
 
+    distinct: dict[tuple, int] = {}
+
+    def hull_index(h: ConvexPolyhedron) -> int:
+        # one entry per distinct hull: the copies of one mesh (a pile of them) share their arrays, so the kernels
+        # walk one hull's vertices and edges, not each copy's (issue 38: 300 copies of a 1,000-vertex hull)
+        ident = tuple(np.ascontiguousarray(a).tobytes() for a in (h.vertices, h.face_plane, h.face_vertex_start,
+                                                                   h.face_vertices, h.adjacency_start, h.adjacency))
+        if ident not in distinct:
+            distinct[ident] = len(hulls)
+            hulls.append(h)
+        return distinct[ident]
+
     def add(b, k, o, R, r, he, hi, mi):
         body.append(b)
         kind.append(k)
@@ -241,16 +253,15 @@ def build_shape_model(model: BodyModel, cm: CollisionModel) -> ShapeModel:
     for i in range(model.count):
         s = int(model.shape[i])
         if s == Shape.CONVEX:
-            add(i, HULL, np.zeros(3), eye, 0.0, _box_half(model.hulls[i]), len(hulls), -1)
-            hulls.append(model.hulls[i])
+            add(i, HULL, np.zeros(3), eye, 0.0, _box_half(model.hulls[i]), hull_index(model.hulls[i]), -1)
         elif s == Shape.COMPOUND:
             parts = model.parts[i]
             for k in range(parts.count):
                 ks = int(parts.shape[k])
                 he = np.asarray(parts.half_extents[k], float)
                 if ks == Shape.CONVEX:
-                    add(i, HULL, parts.position[k], parts.rotation[k], 0.0, _box_half(parts.hulls[k]), len(hulls), -1)
-                    hulls.append(parts.hulls[k])
+                    add(i, HULL, parts.position[k], parts.rotation[k], 0.0, _box_half(parts.hulls[k]),
+                        hull_index(parts.hulls[k]), -1)
                 else:
                     add(i, ks, parts.position[k], parts.rotation[k], float(parts.radius[k]), he,
                         box_index(he) if ks == BOX else -1, -1)
@@ -360,16 +371,22 @@ def pose_shapes(shapes, motion, h, speculative_distance, poses):
 
 
 @njit
-def tighten_hull_bounds(kind, hull, vertex_start, vertices, first_new, poses, pair_i, pair_j, ground):
+def tighten_hull_bounds(kind, hull, hulls, first_new, poses, pair_i, pair_j, ground, extreme):
     """The exact AABB (its turned vertices' extremes, grown by the margin) of every hull that the cheap bound of
     :func:`pose_shapes` (its local box turned) puts in a candidate pair ``pair_i, pair_j`` (q,) int64 or, with
     ``ground``, near the ground; written into ``poses`` (:class:`ShapePoses`, in place); and the pairs whose exact
     AABBs still overlap, in the order given.  So the pairs and the ground tests that reach the narrow phase are those
-    of exact bounds, and only the hulls near something turn their vertices.  ``kind``, ``hull``, ``first_new``: those
-    of :class:`ShapePrimitives`; ``vertex_start``, ``vertices``: those of the :class:`.convex.HullSet` (a few arrays,
-    not the bundles: this is a call of its own, whose arguments numba unboxes each time).  ``poses`` as a plain
-    tuple from Python."""
+    of exact bounds, and only the hulls near something look at their vertices.  ``kind``, ``hull``, ``first_new``:
+    those of :class:`ShapePrimitives`; ``hulls``: the :class:`.convex.HullSet`; ``poses`` as a plain tuple from
+    Python.
+
+    Each extreme is a support point (:func:`.convex.support_index`): a hull of more than
+    :data:`.convex.BRUTE_FORCE_SUPPORT_VERTICES` vertices climbs its edge graph from ``extreme (P, 6)`` int64 — the
+    local vertex found last time per primitive and direction (−x, +x, −y, +y, −z, +z), updated here — so a hull's
+    bound costs a few steps, not all its vertices (issue 38: 300 hulls of 1,000 vertices on the ground).  The
+    extreme's coordinate is the same product as the brute-force maximum's, so the bound is the same."""
     centre, prim_rotation, lo, hi, margin = poses
+    vertex_start, vertices, adjacency_start, adjacency = hulls[0], hulls[1], hulls[2], hulls[3]
     P = len(kind)
     near = np.zeros(P, np.bool_)
     for q in range(len(pair_i)):
@@ -384,14 +401,26 @@ def tighten_hull_bounds(kind, hull, vertex_start, vertices, first_new, poses, pa
             continue
         Rk = prim_rotation[k]
         h0, h1 = vertex_start[hull[k]], vertex_start[hull[k] + 1]
-        for r in range(3):
-            low, high = np.inf, -np.inf
-            for i in range(h0, h1):
-                x = Rk[r, 0] * vertices[i, 0] + Rk[r, 1] * vertices[i, 1] + Rk[r, 2] * vertices[i, 2]
-                low = min(low, x)
-                high = max(high, x)
-            lo[k, r] = centre[k, r] + low - margin[k]
-            hi[k, r] = centre[k, r] + high + margin[k]
+        if h1 - h0 > BRUTE_FORCE_SUPPORT_VERTICES and len(adjacency) > 0:
+            local, starts = vertices[h0:h1], adjacency_start[h0:h1 + 1]
+            for r in range(3):
+                i = support_index(local, starts, adjacency, -Rk[r, 0], -Rk[r, 1], -Rk[r, 2], extreme[k, 2 * r])
+                extreme[k, 2 * r] = i
+                low = Rk[r, 0] * local[i, 0] + Rk[r, 1] * local[i, 1] + Rk[r, 2] * local[i, 2]
+                i = support_index(local, starts, adjacency, Rk[r, 0], Rk[r, 1], Rk[r, 2], extreme[k, 2 * r + 1])
+                extreme[k, 2 * r + 1] = i
+                high = Rk[r, 0] * local[i, 0] + Rk[r, 1] * local[i, 1] + Rk[r, 2] * local[i, 2]
+                lo[k, r] = centre[k, r] + low - margin[k]
+                hi[k, r] = centre[k, r] + high + margin[k]
+        else:
+            for r in range(3):
+                low, high = np.inf, -np.inf
+                for i in range(h0, h1):
+                    x = Rk[r, 0] * vertices[i, 0] + Rk[r, 1] * vertices[i, 1] + Rk[r, 2] * vertices[i, 2]
+                    low = min(low, x)
+                    high = max(high, x)
+                lo[k, r] = centre[k, r] + low - margin[k]
+                hi[k, r] = centre[k, r] + high + margin[k]
         sane = True
         for r in range(3):
             sane = sane and math.isfinite(lo[k, r]) and math.isfinite(hi[k, r])
@@ -610,20 +639,20 @@ def rank_features(feature, start, m):
         feature[start + s] = rank[s]
 
 
-@njit
+@njit(inline="always")  # (passed the bundles by value as a call: ~50 arrays increfed per hull; issue 38)
 def _posed_hull(shapes, poses, k):
     """Primitive ``k``'s hull (a HULL's, or a BOX's 8 corners) as a :class:`.convex.PosedHull` at its pose."""
     return posed(hull_of(shapes.hulls, shapes.primitives.hull[k]), poses.centre[k], poses.rotation[k])
 
 
-@njit
-def _ground_contacts(k, shapes, poses, axis, out, m):
+@njit(inline="always")  # (as _posed_hull)
+def _ground_contacts(k, shapes, poses, axis, start, out, m):
     """The ground (A) against this stage's primitive ``k`` (B, not a mesh), written into ``out`` from row ``m``;
-    returns the next free row.  ``axis (3,)``: work space."""
+    returns the next free row.  ``axis (3,)``: work space; ``start``: a hull's vertex to look for its lowest from."""
     prims = shapes.primitives
     kind, centre, R, margin = prims.kind[k], poses.centre[k], poses.rotation[k], poses.margin[k]
     if kind == HULL:
-        m = plane_hull_contacts(_posed_hull(shapes, poses, k), margin, out, m)
+        m = plane_hull_contacts(_posed_hull(shapes, poses, k), margin, start, out, m)
     elif kind == SPHERE:
         nx, ny, nz, s, px, py, pz = sphere_plane_point(centre, prims.radius[k])
         if s < margin:
@@ -701,14 +730,15 @@ def _mesh_contacts(a, b, shapes, poses, candidates, work, out, m):
 
 
 @njit
-def convex_phase(shapes, poses, pairs, active, ground, key_base, candidates):
+def convex_phase(shapes, poses, pairs, active, ground, key_base, candidates, extreme):
     """Contact points of this stage's active primitives with the ground and of the candidate pairs (primitive
     indices, AABBs overlapping) that this stage's primitives take part in (pairs of two of the detector's
     primitives are skipped: :func:`.detector.narrow_phase` has them): the :class:`.ContactSet` (ground contacts
     first, then the pairs in the order given), ``touched (n,)``: the sleeping bodies in a contact, and the BVH
     query's scratch ``candidates (c,)`` int64 (the one given, or a bigger one if a mesh pair needed it: the caller
     passes it to the next call, so a big query is not run twice every sub-step, once to learn its size; issue 38).
-    Keys: pair ids from ``key_base`` (see the module docstring).
+    Keys: pair ids from ``key_base`` (see the module docstring).  ``extreme (P, 6)`` int64: each hull's lowest vertex
+    found by :func:`tighten_hull_bounds` (column 4), where its ground manifold's search starts.
 
     ``shapes``: :class:`ShapeModel`; ``poses``: :class:`ShapePoses`; ``pairs``: :class:`.detector.Pairs`;
     ``active (n,)`` bool: the bodies being stepped; ``ground``: :class:`.detector.GroundPlane` — bundles as plain
@@ -734,7 +764,7 @@ def convex_phase(shapes, poses, pairs, active, ground, key_base, candidates):
                 continue
             out, prim_a, prim_b = _grown(out, prim_a, prim_b, m, PAIR_ROWS)
             start = m
-            m = _ground_contacts(k, shapes, poses, work[0], out, m)
+            m = _ground_contacts(k, shapes, poses, work[0], extreme[k, 4], out, m)
             rank_features(out.feature, start, m)
             prim_a[start:m] = -1
             prim_b[start:m] = k

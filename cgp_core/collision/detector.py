@@ -158,6 +158,7 @@ class CollisionDetector:
         self._sweeps = None  # what sweep_fast_rotation needs from the last detect
         #: the convex stage's BVH query scratch, kept from sub-step to sub-step (grown when a mesh pair needs it)
         self._candidates = np.empty(MESH_CANDIDATES, np.int64)
+        self._extreme = np.zeros((0, 6), np.int64)  # (P, 6): tighten_hull_bounds' warm starts
         #: body pairs never tested (the robots' jointed links, :meth:`exclude`), or None
         self.excluded = None
         self._possible = None  # (model, excluded, whether a pair can be found): _pairs_possible's cache
@@ -352,9 +353,11 @@ class CollisionDetector:
         i, j = self._candidate_pairs(every.lo, every.hi, shapes.primitives.body, active)
         # the hulls' exact bounds where a pair or the ground is near (pose_shapes bounds them by their turned local
         # boxes): the pairs and ground tests of exact bounds, each hull's vertices turned only there
-        prims, hulls = shapes.primitives, shapes.hulls
-        i, j = tighten_hull_bounds(prims.kind, prims.hull, hulls.vertex_start, hulls.vertices, prims.first_new,
-                                   tuple(every), i, j, ground is not None)
+        prims = shapes.primitives
+        if len(self._extreme) != P:  # each hull's extreme vertices per direction, where the bounds' search starts
+            self._extreme = np.zeros((P, 6), np.int64)
+        i, j = tighten_hull_bounds(prims.kind, prims.hull, self._plain_shapes[1], prims.first_new, tuple(every), i, j,
+                                   ground is not None, self._extreme)
         now = clock()
         profile.add(BROAD_PHASE, now - start)
         start = now
@@ -372,7 +375,8 @@ class CollisionDetector:
         profile.add(NARROW_PHASE, now - start)
         start = now
         contacts, touched_new, self._candidates = convex_phase(self._plain_shapes, tuple(every), (i, j), active,
-                                                               ground_plane, np.int64((p + 1) ** 2), self._candidates)
+                                                               ground_plane, np.int64((p + 1) ** 2), self._candidates,
+                                                               self._extreme)
         parts.append(contacts)
         touched |= touched_new
         if self.continuous:

@@ -57,7 +57,7 @@ import numpy as np
 
 from ..jit import njit
 from .box_box import AXIS_ABSOLUTE_TOLERANCE, AXIS_RELATIVE_TOLERANCE
-from .convex import BRUTE_FORCE_SUPPORT_VERTICES, PosedHull
+from .convex import BRUTE_FORCE_SUPPORT_VERTICES, PosedHull, support_index
 from .epa import epa
 from .gjk import Core, empty_simplex, gjk, support_point
 from .narrowphase import CAPSULE_PARALLEL_SINE, write_point
@@ -106,6 +106,12 @@ ALL_EDGES_ACTIVE = np.uint8(7)
 
 
 # ---- the reduction to 4 points ---------------------------------------------------------------------------
+
+#: a hull–ground candidate this much [m] below every point the reduction kept replaces the nearest of them
+#: (:func:`keep_deepest`); a fifth of the solver's penetration slop, far above the depth differences round-off and
+#: a resting face's micro-tilt give its corners
+DEEPEST_TOLERANCE = 1e-4
+
 
 @njit
 def reduce_to_four(X, Y, hu, hv, valid):
@@ -466,28 +472,89 @@ def hull_hull_contacts(hull_a, hull_b, margin, out, m):
 # ---- hull–plane --------------------------------------------------------------------------------------------
 
 @njit
-def plane_hull_contacts(hull, margin, out, m):
+def plane_hull_contacts(hull, margin, start, out, m):
     """Ground z = 0 (A) vs hull (B, a :class:`.convex.PosedHull`): the hull's vertices below ``margin``, at most 4
     (:func:`reduce_to_four` in the world's x, y over the candidates' half spans); normal +z, feature = vertex
-    index."""
+    index.
+
+    A hull of more than :data:`.convex.BRUTE_FORCE_SUPPORT_VERTICES` vertices finds them from its lowest vertex
+    (:func:`.convex.support_index`, climbing from vertex ``start``: the caller's warm start) over its edges, never
+    looking past a vertex at or above the margin: the vertices of a convex polytope below a plane are connected
+    through each other (from each, an edge leads down, to the lowest), so these are all of them, and the cost
+    follows the contact, not the vertex count (issue 38).  They are taken in index order, as the brute-force scan
+    of the small hulls does, so the points are the same."""
     vertices, position, rotation = hull.vertices, hull.position, hull.rotation
     k = len(vertices)
-    X, Y, Z = np.empty(k), np.empty(k), np.empty(k)
-    valid = np.zeros(k, np.bool_)
+    if k > BRUTE_FORCE_SUPPORT_VERTICES and len(hull.adjacency) > 0:
+        starts, adjacency = hull.adjacency_start, hull.adjacency
+        lowest = support_index(vertices, starts, adjacency, -rotation[2, 0], -rotation[2, 1], -rotation[2, 2],
+                               start)
+        seen = np.zeros(k, np.bool_)
+        stack = np.empty(k, np.int64)
+        below = np.empty(k, np.int64)
+        seen[lowest] = True
+        stack[0] = lowest
+        top = 1
+        count = 0
+        while top > 0:
+            top -= 1
+            i = stack[top]
+            if not _world_vertex(vertices, i, position, rotation)[2] < margin:
+                continue
+            below[count] = i
+            count += 1
+            for e in range(starts[i], starts[i + 1]):
+                j = adjacency[e]
+                if not seen[j]:
+                    seen[j] = True
+                    stack[top] = j
+                    top += 1
+        candidates = np.sort(below[:count])
+    else:
+        candidates = np.arange(k)
+    n = len(candidates)
+    X, Y, Z = np.empty(n), np.empty(n), np.empty(n)
+    valid = np.zeros(n, np.bool_)
     xmin = ymin = np.inf
     xmax = ymax = -np.inf
-    for i in range(k):
-        X[i], Y[i], Z[i] = _world_vertex(vertices, i, position, rotation)
-        if Z[i] < margin:
-            valid[i] = True
-            xmin, xmax, ymin, ymax = min(xmin, X[i]), max(xmax, X[i]), min(ymin, Y[i]), max(ymax, Y[i])
+    for s in range(n):
+        X[s], Y[s], Z[s] = _world_vertex(vertices, candidates[s], position, rotation)
+        if Z[s] < margin:
+            valid[s] = True
+            xmin, xmax, ymin, ymax = min(xmin, X[s]), max(xmax, X[s]), min(ymin, Y[s]), max(ymax, Y[s])
     hu = max(0.5 * (xmax - xmin), 1e-12)
     hv = max(0.5 * (ymax - ymin), 1e-12)
+    deepest = -1
+    for s in range(n):
+        if valid[s] and (deepest < 0 or Z[s] < Z[deepest]):
+            deepest = s
     reduce_to_four(X, Y, hu, hv, valid)
-    for i in range(k):
-        if valid[i]:
-            m = write_point(out, m, 0.0, 0.0, 1.0, Z[i], X[i], Y[i], 0.5 * Z[i], i)
+    keep_deepest(X, Y, Z, hu, hv, valid, deepest)
+    for s in range(n):
+        if valid[s]:
+            m = write_point(out, m, 0.0, 0.0, 1.0, Z[s], X[s], Y[s], 0.5 * Z[s], candidates[s])
     return m
+
+
+@njit
+def keep_deepest(X, Y, Z, hu, hv, valid, deepest):
+    """After :func:`reduce_to_four`: if the candidate ``deepest`` (the lowest, Z its separation) was dropped and lies
+    more than :data:`DEEPEST_TOLERANCE` below every kept point, it replaces the kept point nearest to it (in units of
+    the half spans ``hu``, ``hv``).  The diagonal extremes are the corners of a flat contact, but of a round one
+    (a 1,000-vertex sphere hull: the vertices below the margin a cap) they are on its rim, up to the margin above
+    its lowest vertex: resting on them, the hull sank until they touched — 6 mm into the ground (issue 38)."""
+    if deepest < 0 or valid[deepest]:
+        return
+    nearest, best, shallowest = -1, np.inf, np.inf
+    for s in range(len(valid)):
+        if valid[s]:
+            shallowest = min(shallowest, Z[s])
+            d = ((X[s] - X[deepest]) / hu) ** 2 + ((Y[s] - Y[deepest]) / hv) ** 2
+            if d < best:
+                nearest, best = s, d
+    if Z[deepest] < shallowest - DEEPEST_TOLERANCE:
+        valid[nearest] = False
+        valid[deepest] = True
 
 
 # ---- hull–sphere / capsule ------------------------------------------------------------------------------

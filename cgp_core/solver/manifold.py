@@ -46,6 +46,10 @@ MAX_BLOCK = 4
 #: relative cut-off of the pseudo-inverses (see the module docstring)
 RCOND = 1e-9
 
+#: :func:`solve_manifold_lcp`: a point where the guessed solution's w exceeds this fraction of the largest |b| is in
+#: no solution (1e6 times the tolerance of w ≥ 0, 1e3 times that of w = 0 on the active set)
+W_PRUNE = 1e-3
+
 #: Jacobi sweeps of the eigen-decomposition (a 4 × 4 converges to round-off in 4–6)
 _JACOBI_SWEEPS = 12
 
@@ -124,46 +128,99 @@ def symmetric_pinv(A, mask, P, out):
                 out[idx[r], idx[c]] += V[r, e] * V[c, e] / lam
 
 
+@njit(inline="always")
+def _subset_solves(A, P, b, must, cache, cached, s, tol_w, x):
+    """Whether subset ``SUBSETS[P, s]`` solves the LCP (λ = −A_SS⁺ b_S ≥ 0 on it, w ≥ 0 off it, w = 0 on it, up to
+    the tolerances; two-sided rows inside it): λ written into ``x`` (unclamped), its pseudo-inverse cached."""
+    mask = SUBSETS[P, s]
+    for i in range(P):
+        if must[i] and not mask & (1 << i):
+            return False  # a two-sided row must be in the active set
+    if not cached[s]:
+        symmetric_pinv(A, mask, P, cache[s])
+        cached[s] = True
+    inv = cache[s]
+    biggest = 0.0
+    for i in range(P):
+        acc = 0.0
+        for j in range(P):
+            acc -= inv[i, j] * b[j]
+        x[i] = acc
+        biggest = max(biggest, abs(acc))
+    tol_x = 1e-9 * (biggest + 1e-12)
+    ok = True
+    for i in range(P):
+        w = b[i]
+        for j in range(P):
+            w += A[i, j] * x[j]
+        if mask & (1 << i):
+            if not ((x[i] >= -tol_x or must[i]) and abs(w) <= 1e3 * tol_w):
+                ok = False
+        elif not w >= -tol_w:
+            ok = False
+    return ok
+
+
 @njit
-def solve_manifold_lcp(A, P, b, must, cache, cached, x):
+def solve_manifold_lcp(A, P, b, must, cache, cached, guess, x):
     """The manifold LCP ``w = A λ + b, λ ≥ 0, w ≥ 0, λ·w = 0`` of ``P`` points (``A (4, 4)``, ``b (4,)``;
     ``must (4,)`` bool marks two-sided rows: any sign, w = 0).  ``cache (16, 4, 4)`` / ``cached (16,)`` bool hold
     the pseudo-inverses of the subsets already computed (in :data:`SUBSETS` order).  Writes λ into ``x`` and
-    returns whether an exact solution was found (where not, the caller falls back to one point at a time)."""
+    returns whether an exact solution was found (where not, the caller falls back to one point at a time).
+
+    The answer is the first subset, in :data:`SUBSETS` order, that solves it.  Two guesses are tried first:
+    ``guess`` (a bit mask of points: the current impulses' support, i.e. the last update's active set), then the
+    points approaching at λ = 0 (b < 0; the position stage starts from λ = 0).  If one solves the LCP, its w tells
+    which points can be in *no* solution — A is J M⁻¹ Jᵀ, positive semi-definite, so every solution has the same
+    w (that of the guess, up to round-off), and a subset holding a point where w is clearly positive (above
+    :data:`W_PRUNE` of the largest |b|) fails — and only the subsets of the other points are enumerated, in
+    order.  The answer is the same; what it saves is the pseudo-inverses and tests of the subsets that fail: a
+    manifold resting on one of its 4 points (a round hull on the ground: the others speculative, a few mm up)
+    reached its answer after 11 failing subsets, computing 12 pseudo-inverses a sub-step (issue 38's 300
+    hulls)."""
     tol_w = 0.0
     for i in range(P):
         tol_w = max(tol_w, abs(b[i]))
+    scale = tol_w
     tol_w = 1e-9 * (tol_w + 1e-12)
+    full = (1 << P) - 1
+    forced = 0  # the two-sided rows, in every subset tried
+    violated = 0  # the points approaching at λ = 0 (w = b < 0): the second guess
+    for i in range(P):
+        if must[i]:
+            forced |= 1 << i
+        if b[i] < 0.0:
+            violated |= 1 << i
+    allowed = full
+    found = -1
+    for attempt in range(2):
+        mask = ((guess if attempt == 0 else violated) & full) | forced
+        if attempt == 1 and mask == (guess & full) | forced:
+            break  # the same guess again
+        g = 0
+        while SUBSETS[P, g] != mask:
+            g += 1
+        if _subset_solves(A, P, b, must, cache, cached, g, tol_w, x):
+            found = g
+            allowed = 0
+            cut = W_PRUNE * (scale + 1e-12)
+            for i in range(P):
+                w = b[i]
+                for j in range(P):
+                    w += A[i, j] * x[j]
+                if w <= cut:
+                    allowed |= 1 << i
+            break
+    dirty = False  # whether x was overwritten since the guess that solved it
     for s in range(1 << P):
         mask = SUBSETS[P, s]
-        skip = False
-        for i in range(P):
-            if must[i] and not mask & (1 << i):
-                skip = True  # a two-sided row must be in the active set
-        if skip:
-            continue
-        if not cached[s]:
-            symmetric_pinv(A, mask, P, cache[s])
-            cached[s] = True
-        inv = cache[s]
-        biggest = 0.0
-        for i in range(P):
-            acc = 0.0
-            for j in range(P):
-                acc -= inv[i, j] * b[j]
-            x[i] = acc
-            biggest = max(biggest, abs(acc))
-        tol_x = 1e-9 * (biggest + 1e-12)
-        ok = True
-        for i in range(P):
-            w = b[i]
-            for j in range(P):
-                w += A[i, j] * x[j]
-            if mask & (1 << i):
-                if not ((x[i] >= -tol_x or must[i]) and abs(w) <= 1e3 * tol_w):
-                    ok = False
-            elif not w >= -tol_w:
-                ok = False
+        if mask & ~allowed:
+            continue  # a point where the solution's w is clearly positive: this subset fails
+        if s == found and not dirty:
+            ok = True
+        else:
+            ok = _subset_solves(A, P, b, must, cache, cached, s, tol_w, x)
+            dirty = True
         if ok:
             for i in range(P):
                 if not must[i]:

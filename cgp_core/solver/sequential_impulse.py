@@ -481,6 +481,12 @@ def _solve_manifold(g, manifolds, rows, targets, lam, lam_n, V, scratch):
     jacobi = P > 1
     split = 1.0 / P  # Jacobi with mass splitting within a manifold (see _solve_normal_rows)
     for c in range(lo, hi):
+        if mu[c] * lam[c, 0] == 0.0 and lam[c, 1] == 0.0 and lam[c, 2] == 0.0:
+            # no cone (a speculative point: λₙ = 0) and no friction impulse: the step would clamp to zero again
+            # (3 of the 4 points of a round hull on the ground; issue 38)
+            if jacobi:
+                scratch.big[c - lo, 0], scratch.big[c - lo, 1] = 0.0, 0.0
+            continue
         v1 = _row_velocity(J, c, TANGENT_1, V, a[c], b[c])
         v2 = _row_velocity(J, c, TANGENT_2, V, a[c], b[c])
         t1 = lam[c, 1] - split * eff[c, 1] * v1
@@ -498,8 +504,9 @@ def _solve_manifold(g, manifolds, rows, targets, lam, lam_n, V, scratch):
         change = max(change, abs(d1) / eff[c, 1], abs(d2) / eff[c, 2])
     if jacobi:
         for c in range(lo, hi):
-            _apply(MJ, c, TANGENT_1, scratch.big[c - lo, 0], V, a[c], b[c])
-            _apply(MJ, c, TANGENT_2, scratch.big[c - lo, 1], V, a[c], b[c])
+            if scratch.big[c - lo, 0] != 0.0 or scratch.big[c - lo, 1] != 0.0:  # (adding zeros changes nothing)
+                _apply(MJ, c, TANGENT_1, scratch.big[c - lo, 0], V, a[c], b[c])
+                _apply(MJ, c, TANGENT_2, scratch.big[c - lo, 1], V, a[c], b[c])
     for c in range(lo, hi):
         lam_n[c] = lam[c, 0]
     if P == 1:  # the common case, without the call
@@ -527,13 +534,16 @@ def _solve_normal_rows(g, manifolds, rows, lam, target, lower, V, scratch):
     change = 0.0
     if 1 < P <= MAX_BLOCK:
         bvec, x, must = scratch.block[0], scratch.block[1], scratch.must
+        support = 0  # the points pushing now (the last update's active set): the LCP's first guess
         for i in range(P):
             c = lo + i
             bvec[i] = _row_velocity(J, c, NORMAL, V, a[c], b[c]) - target[c]
             for j in range(P):
                 bvec[i] -= rows.A[g, i, j] * lam[lo + j]
             must[i] = lower[c] == -np.inf
-        if solve_manifold_lcp(rows.A[g], P, bvec, must, rows.cache[g], rows.cached[g], x):
+            if lam[c] != 0.0:
+                support |= 1 << i
+        if solve_manifold_lcp(rows.A[g], P, bvec, must, rows.cache[g], rows.cached[g], support, x):
             for i in range(P):
                 c = lo + i
                 delta = x[i] - lam[c]
