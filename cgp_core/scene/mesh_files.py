@@ -125,7 +125,8 @@ def read_mesh(v: Validator, raw: dict, key: str, *, solid: bool) -> MeshRead | N
     except MeshFileError as exc:
         v.fail(f"{key}.mesh", str(exc))
         return None
-    scaled = vertices * scale
+    with np.errstate(over="ignore", invalid="ignore"):  # a product past float64 is inf, refused just below
+        scaled = vertices * scale
     problem = scaled_points_problem(scaled, solid=solid)
     if problem:
         v.fail(f"{key}.scale" if "scale" in raw else f"{key}.mesh", f"{path.name}: {problem}")
