@@ -432,3 +432,19 @@ def test_random_marker_bytes_are_markers_or_a_cdr_error_and_draw_without_error(d
             marker_set.apply(markers)
             primitives(marker_set)
             extent_points(marker_set)
+
+
+@pytest.mark.parametrize("size", [2.0 ** 32, 1e300, np.inf, np.nan, -5.0])
+def test_a_cube_marker_of_any_size_draws_with_a_bounded_number_of_triangles(size):
+    """``make fuzz`` found a cube marker (a bag's bytes) 2³² m long: the renderer cut its faces into 1 m checker
+    tiles, 4·10⁹ of them (MemoryError).  A face side is cut into at most MAX_TILES_PER_SIDE tiles, and a side that
+    is not finite into one."""
+    from cgp_sim_ros.render.primitives import MAX_TILES_PER_SIDE, MarkerSet, primitives
+
+    cube = cdr.marker(cdr.MarkerFields(marker_type=cdr.CUBE, ns="bodies/a", id=0, scale=(size, size, 1.0),
+                                       color=(0, 1, 0, 1), position=(0, 0, 0)))
+    marker_set = MarkerSet()
+    with np.errstate(all="ignore"):
+        marker_set.apply(cdr.read_marker_array(cdr.marker_array([cube])))
+        drawn = primitives(marker_set)
+    assert 12 <= len(drawn.triangles) <= 6 * 2 * MAX_TILES_PER_SIDE ** 2

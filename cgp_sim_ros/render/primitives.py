@@ -138,15 +138,27 @@ def _rgb(color: np.ndarray, n: int) -> np.ndarray:
     return np.broadcast_to(np.asarray(color, dtype=np.float64)[:3], (n, 3))
 
 
+#: tiles along one side of a box face at most: a face longer than this many ``tile`` gets larger tiles (a marker's
+#: scale comes from a bag, any float: make fuzz found a 2³² m cube asking for 4·10⁹ tiles)
+MAX_TILES_PER_SIDE = 64
+
+
+def _tiles(extent: float, tile: float) -> int:
+    """How many tiles a face side of length ``extent`` is cut into: ⌈extent / tile⌉, 1 for a side no longer than a
+    tile or not finite, at most :data:`MAX_TILES_PER_SIDE`."""
+    if not (np.isfinite(extent) and extent > tile):
+        return 1
+    return int(min(MAX_TILES_PER_SIDE, np.ceil(extent / tile)))
+
+
 def _box_triangles(half: np.ndarray, tile: float) -> tuple[np.ndarray, np.ndarray]:
     """Triangles of an axis-aligned box of half extents ``half`` about the origin, wound counter-clockwise
     seen from outside, and a per-triangle checker sign (+1 / -1; 0 where the face is one tile).  Faces are cut
-    into tiles when larger than ``tile``."""
+    into tiles when larger than ``tile`` (:func:`_tiles`)."""
     tris, signs = [], []
     for axis in range(3):
         u, v = (axis + 1) % 3, (axis + 2) % 3
-        nu = max(1, int(np.ceil(2 * half[u] / tile))) if 2 * half[u] > tile else 1
-        nv = max(1, int(np.ceil(2 * half[v] / tile))) if 2 * half[v] > tile else 1
+        nu, nv = _tiles(2 * half[u], tile), _tiles(2 * half[v], tile)
         gu = np.linspace(-half[u], half[u], nu + 1)
         gv = np.linspace(-half[v], half[v], nv + 1)
         iu, iv = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
