@@ -1,11 +1,15 @@
-"""Issue 37: the node's own cost per body — what the node adds to ``World.step`` per tick, with 100 convex bodies
-(``bench_convex_pile``'s pile) and with the default scene, recording on, with and without a subscriber to
-``~/markers`` in another process.
+"""Issues 37 and 38: the node's own cost per body — what the node adds to ``World.step`` per tick, with issue 38's
+300 hulls of 1,000 vertices (``bench_spawn_rows``' ``hulls_300`` scene), 100 convex bodies (``bench_convex_pile``'s
+pile) and the default scene, recording on, with and without a subscriber to ``~/markers`` in another process.
 
 Each configuration runs in a child process that builds the node as ``cgp-sim`` does (``SimNode`` with the scene, a
-bag, ``realtime: false``) and calls ``node.tick()`` back to back; ``World.step`` is timed inside the tick, and the
-node's cost is the tick minus the step (commands, serializing, publishing, recording).  The pile: ticks 10–180
-while it falls and piles up (0–3 s), then ticks 300–420 (5–7 s) when it is asleep; the default scene: ticks 10–300.
+bag, ``realtime: false``) and spins the executor ``cgp-sim`` spins (its zero-period timer calls ``node.tick()``
+back to back); ``World.step`` is timed inside the tick, and the node's cost is the spin minus the step (the
+executor's own work, commands, serializing, publishing, recording), also per body (µs), split per stage (building
+odometry, contacts, TF, markers, poses, /clock; DDS publish of the odometry and of the rest; ``recorder.write``),
+with the bag writer thread's CPU per tick (it runs beside the tick, under the GIL).  The hulls: ticks 1–170 while
+they drop and land (from the first tick), then 200–320 asleep; the pile: ticks 10–180 while it falls and piles up
+(0–3 s), then ticks 300–420 (5–7 s) when it is asleep; the default scene: ticks 10–300.
 The subscriber (``--subscriber``, its own process) takes ``~/markers`` and ``~/static_markers`` raw and counts
 their bytes; the node's side counts the bytes it hands to each topic per tick.
 
@@ -13,7 +17,8 @@ their bytes; the node's side counts the bytes it hands to each topic per tick.
 main branch before a change), interleaved with this one — before, after, before, after — so that both see the same
 phases of the shared machine.  The speed probe (``common.speed_probe``) is taken before and after each child.
 
-    .venv/bin/python benchmarks/bench_node_cost.py [--quick] [--before /work/main]
+    .venv/bin/python benchmarks/bench_node_cost.py [--quick] [--before /work/main] [--only hulls300 pile default]
+        [--no-subscriber-runs]
 
 Writes ``benchmarks/results/node_cost.json``.
 """
@@ -41,6 +46,9 @@ if "CGP_SIM_BENCH_DOMAIN" not in os.environ:
 os.environ["ROS_DOMAIN_ID"] = os.environ["CGP_SIM_BENCH_DOMAIN"]
 
 PILE_WINDOWS = {"piling": (10, 180), "at rest": (300, 420)}
+# issue 38's 300 hulls of 1,000 vertices drop 5 cm and are all asleep from tick ~176: moving from the first tick
+HULLS_WINDOWS = {"moving": (1, 170), "asleep": (200, 320)}
+HULLS_WINDOWS_QUICK = {"moving": (1, 170), "asleep": (200, 260)}
 PILE_WINDOWS_QUICK = {"piling": (10, 150), "at rest": (270, 330)}
 DEFAULT_WINDOWS = {"running": (10, 300)}
 DEFAULT_WINDOWS_QUICK = {"running": (10, 150)}
@@ -59,6 +67,19 @@ def pile_scene(path: Path) -> Path:
         lines.append(f"  - {{name: h{n}, shape: convex, mass: 1.0, friction: {FRICTION}, restitution: 0.0, "
                      f"position: [{x[0]}, {x[1]}, {x[2]}], orientation: {q.tolist()}, points: [{pts}]}}")
     path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def hulls_scene(directory: Path) -> Path:
+    """bench_spawn_rows' ``hulls_300`` scene: 300 convex bodies of a 1,000-vertex sphere hull (an STL beside it)."""
+    sys.path.insert(1, str(HERE))
+    from bench_spawn_rows import hull_sphere_stl
+
+    stl = hull_sphere_stl(directory / "ball1000.stl")
+    bodies = "\n".join(f"  - {{name: b{k}, shape: convex, mesh: {stl.name}, mass: 1, "
+                       f"position: [{(k % 20) * 0.6 - 6}, {(k // 20) * 0.6 - 4}, 0.25]}}" for k in range(300))
+    path = directory / "hulls300.yaml"
+    path.write_text(f"description: 300 hulls of 1,000 vertices\nbodies:\n{bodies}\n")
     return path
 
 
@@ -87,6 +108,16 @@ def subscriber(out_path: str) -> int:
     return 0
 
 
+def thread_cpu_s(thread) -> float:
+    """CPU seconds of another thread of this process (Linux: /proc/self/task/<tid>/stat), 0 if unknown."""
+    try:
+        with open(f"/proc/self/task/{thread.native_id}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, AttributeError, IndexError, ValueError):
+        return 0.0
+
+
 # ---- the child: one node, one configuration ------------------------------------------------------------------
 
 def child(args) -> int:
@@ -94,6 +125,7 @@ def child(args) -> int:
     sys.path.insert(1, str(HERE))
     import rclpy
     from common import speed_probe
+    from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
     import cgp_sim_ros
@@ -117,28 +149,74 @@ def child(args) -> int:
             time.sleep(0.05)
     probe_before = speed_probe()
     world, outputs = node.world, node.outputs
-    step, publish = world.step, outputs.publish
+    step = world.step
     step_s: list[float] = []
     sent: dict[str, int] = {}
+    stage: dict[str, float] = {}
+
+    def add(key, seconds):
+        stage[key] = stage.get(key, 0.0) + seconds
 
     def timed_step():
         t0 = time.perf_counter()
         step()
         step_s.append(time.perf_counter() - t0)
 
+    def timed(bound, key):
+        def call(*a, **kw):
+            t0 = time.perf_counter()
+            try:
+                return bound(*a, **kw)
+            finally:
+                add(key, time.perf_counter() - t0)
+        return call
+
+    for name in ("clock", "body_poses", "body_odometry", "contacts", "markers"):
+        setattr(outputs.messages, name, timed(getattr(outputs.messages, name), "build " + name.replace("body_", "")))
+    outputs.tf.dynamic = timed(outputs.tf.dynamic, "build tf")
+    recorder = node.recorder
+    recorder.write = timed(recorder.write, "recorder.write")
+    writer_thread = recorder.writer._thread
+
     def counted_publish(publisher, data, stamp_ns, record=True):
         sent[publisher.topic_name] = sent.get(publisher.topic_name, 0) + len(data)
-        publish(publisher, data, stamp_ns, record)
+        t0 = time.perf_counter()
+        publisher.publish(data)
+        add("DDS publish odom" if publisher.topic_name.endswith("/odom") else "DDS publish other",
+            time.perf_counter() - t0)
+        if record and recorder is not None:
+            recorder.write(publisher.topic_name, data, stamp_ns)
 
     world.step, outputs.publish = timed_step, counted_publish
+    # driven as cgp-sim drives it: its executor's spin_once (the zero-period timer of realtime false calls
+    # node.tick), so the executor's own work per tick (its wait set) is in the figures
+    try:
+        from cgp_sim_ros.ros.cli import make_executor
+        executor = make_executor(SingleThreadedExecutor)
+    except ImportError:  # a checkout before make_executor: cgp-sim's SingleThreadedExecutor
+        executor = SingleThreadedExecutor()
+    executor.add_node(node)
     last = max(end for _, end in windows.values())
-    tick_s, marker_bytes = [], []
-    for _ in range(last):
+    tick_s, marker_bytes, stages, writer_cpu, asleep_at = [], [], [], [], []
+    while world.ticks < last:
         sent.clear()
+        stage.clear()
+        ticks_before, steps_before = world.ticks, len(step_s)
         t0 = time.perf_counter()
-        node.tick()
-        tick_s.append(time.perf_counter() - t0)
+        executor.spin_once(timeout_sec=0.05)
+        spun = time.perf_counter() - t0
+        if world.ticks == ticks_before:  # a spin that ran something else (a service, a discovery event)
+            if tick_s:
+                tick_s[-1] += spun
+            continue
+        if len(step_s) == steps_before:
+            step_s.append(0.0)
+        tick_s.append(spun)
+        writer_cpu.append(thread_cpu_s(writer_thread))  # cumulative (the clock ticks are 10 ms: per window)
+        stages.append(dict(stage))
         marker_bytes.append(sent.get("/cgp_sim/markers", 0) + sent.get("/cgp_sim/static_markers", 0))
+        asleep_at.append(bool(world.bodies_asleep))
+    executor.remove_node(node)
     probe_after = speed_probe()
     asleep = bool(world.bodies_asleep)
     received = None
@@ -150,6 +228,7 @@ def child(args) -> int:
     node.destroy_node()
     rclpy.shutdown()
     tick_ms, step_ms = np.array(tick_s) * 1e3, np.array(step_s) * 1e3
+    keys = sorted({k for row in stages for k in row})
     out = {"bodies": int(world.body_model.count), "asleep_at_end": asleep, "probe_before": probe_before,
            "probe_after": probe_after, "windows": {}}
     for name, (first, end) in windows.items():
@@ -160,6 +239,10 @@ def child(args) -> int:
                         "p99": float(np.percentile(tick_ms[first:end], 99))},
             "step_ms": {"median": float(np.median(step_ms[first:end]))},
             "node_ms": {"median": float(np.median(cost)), "p99": float(np.percentile(cost, 99))},
+            "node_us_per_body": float(np.median(cost)) * 1e3 / max(1, int(world.body_model.count)),
+            "stages_ms": {k: float(np.median([row.get(k, 0.0) for row in stages[first:end]])) * 1e3 for k in keys},
+            "writer_thread_ms": (writer_cpu[end - 1] - writer_cpu[first]) * 1e3 / max(1, end - 1 - first),
+            "asleep_ticks": int(sum(asleep_at[first:end])),
             "marker_bytes_per_tick": {"median": float(np.median(marker_bytes[first:end])),
                                       "max": int(max(marker_bytes[first:end]))}}
     if received is not None:
@@ -194,6 +277,8 @@ def main(argv=None) -> int:
     parser.add_argument("--scene", default="default", help=argparse.SUPPRESS)
     parser.add_argument("--windows", default="{}", help=argparse.SUPPRESS)
     parser.add_argument("--with-subscriber", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--only", nargs="*", default=None, help="scenes of hulls300, pile, default")
+    parser.add_argument("--no-subscriber-runs", action="store_true", help="only the runs with a subscriber")
     args = parser.parse_args(argv)
     if args.subscriber:
         return subscriber(args.subscriber)
@@ -207,12 +292,15 @@ def main(argv=None) -> int:
     scene = str(pile_scene(workdir / "convex_pile.yaml"))
     versions = [("after", ROOT)] + ([("before", args.before.resolve())] if args.before else [])
     versions.reverse()  # before, then after, in each configuration
-    configs = [("pile", scene, PILE_WINDOWS_QUICK if args.quick else PILE_WINDOWS),
+    configs = [("hulls300", str(hulls_scene(workdir)), HULLS_WINDOWS_QUICK if args.quick else HULLS_WINDOWS),
+               ("pile", scene, PILE_WINDOWS_QUICK if args.quick else PILE_WINDOWS),
                ("default", "default", DEFAULT_WINDOWS_QUICK if args.quick else DEFAULT_WINDOWS)]
+    if args.only:
+        configs = [c for c in configs if c[0] in args.only]
     rows = []
     print(f"speed probe before: {speed_probe()}", flush=True)
     for name, scene_arg, windows in configs:
-        for with_subscriber in (False, True):
+        for with_subscriber in ((True,) if args.no_subscriber_runs else (False, True)):
             for version, code_root in versions:
                 label = f"{name}_{'sub' if with_subscriber else 'nosub'}_{version}"
                 result = run_child(code_root, scene_arg, windows, with_subscriber, workdir, label)
@@ -226,33 +314,33 @@ def main(argv=None) -> int:
                           f"{w['node_ms']['p99']:5.2f} ms  markers {w['marker_bytes_per_tick']['median'] / 1e3:7.1f} kB"
                           f"/tick  probe python {result['probe_before']['python_ms']:.0f} -> "
                           f"{result['probe_after']['python_ms']:.0f} ms", flush=True)
-    print("\nThe node's own cost (tick - World.step), ms per tick, median / p99; recording on:")
+                    print(f"{'':31s} {w['node_us_per_body']:.1f} us/body; bag writer thread "
+                          f"{w['writer_thread_ms']:.2f} ms/tick; stages (ms, median): "
+                          + ", ".join(f"{k} {v:.2f}" for k, v in w["stages_ms"].items() if v >= 0.01), flush=True)
+    print("\nThe node's own cost (the executor's spin - World.step), ms per tick, median / p99; recording on:")
     print(f"  {'scene':8s} {'window':8s} {'subscriber':10s} " + " ".join(f"{v:>18s}" for v, _ in versions)
+          + "  us/body " + " / ".join(v for v, _ in versions)
           + "  markers kB/tick " + " / ".join(v for v, _ in versions))
     for name, _, windows in configs:
         for window in windows:
-            for with_subscriber in (False, True):
+            for with_subscriber in ((True,) if args.no_subscriber_runs else (False, True)):
                 cells = [r for r in rows if r["scene"] == name and r["window"] == window
                          and r["subscriber"] == with_subscriber]
                 by_version = {r["version"]: r for r in cells}
                 print(f"  {name:8s} {window:8s} {'yes' if with_subscriber else 'no':10s} "
                       + " ".join(f"{by_version[v]['node_ms']['median']:8.2f} / {by_version[v]['node_ms']['p99']:6.2f}"
                                  for v, _ in versions)
+                      + "  " + " / ".join(f"{by_version[v]['node_us_per_body']:.1f}" for v, _ in versions)
                       + "  " + " / ".join(f"{by_version[v]['marker_bytes_per_tick']['median'] / 1e3:.1f}"
                                          for v, _ in versions))
-    for version, _ in versions:
-        for with_subscriber in (False, True):
-            for window in configs[0][2]:
-                r = next(r for r in rows if r["scene"] == "pile" and r["window"] == window
-                         and r["subscriber"] == with_subscriber and r["version"] == version)
-                per_100 = r["node_ms"]["median"] * 100 / r["bodies"]
-                heard = "sub" if with_subscriber else "nosub"
-                out.figure(f"node_cost_pile_{window.replace(' ', '_')}_{heard}_{version}",
-                           f"node's own cost per 100 convex bodies ({window}, recording, "
-                           f"{'a' if with_subscriber else 'no'} ~/markers subscriber; {version})",
-                           per_100, "ms", "(reference)", None, p99_ms=r["node_ms"]["p99"],
-                           marker_kb_per_tick=r["marker_bytes_per_tick"]["median"] / 1e3,
-                           probe_python_ms=r["probe_before"]["python_ms"])
+    for r in rows:
+        heard = "sub" if r["subscriber"] else "nosub"
+        out.figure(f"node_cost_{r['scene']}_{r['window'].replace(' ', '_')}_{heard}_{r['version']}",
+                   f"node's own cost per body, {r['scene']} ({r['bodies']} bodies, {r['window']}, recording, "
+                   f"{'a' if r['subscriber'] else 'no'} ~/markers subscriber; {r['version']})",
+                   r["node_us_per_body"], "us", "(reference)", None, node_ms=r["node_ms"]["median"],
+                   p99_ms=r["node_ms"]["p99"], marker_kb_per_tick=r["marker_bytes_per_tick"]["median"] / 1e3,
+                   probe_python_ms=r["probe_before"]["python_ms"])
     out.data["rows"] = rows
     print(f"speed probe after: {speed_probe()}")
     print(f"wrote {out.write()}")
