@@ -41,6 +41,17 @@ print(w.solver.stats)
 """
 
 
+#: the end of the robot scripts below: step ``w`` argv[3] ticks, each tick's position, orientation and momenta of every
+#: body saved to argv[1]
+RECORD_BODIES = r"""
+s = w.body_state
+out = []
+for _ in range(int(sys.argv[3])):
+    w.step()
+    out.append(np.concatenate((s.position, s.orientation, s.linear_momentum, s.angular_momentum), axis=1).ravel())
+np.save(sys.argv[1], np.array(out))
+"""
+
 #: issue 35's one loop: an arm turning into a crate that the ground's friction holds back (the robot's rows and the
 #: body rows solved together from the 21st tick on: cgp_core.robots.coupled)
 ROBOT_SCRIPT = r"""
@@ -56,13 +67,7 @@ crate = {"name": "crate", "shape": "box", "size": [0.1, 0.1, 0.3], "mass": 0.3, 
 arm = {"name": "arm", "urdf": "arm.urdf", "joints": {"shoulder_lift": 1.2, "elbow": 1.3, "wrist": -0.3}}
 w = World(scene_from_dict({"world": {"substeps": 4}, "robots": [arm], "bodies": [crate]}, "<parity>"))
 w.robots.command("arm", ["shoulder_pan"], velocity=[1.0])
-s = w.body_state
-out = []
-for _ in range(int(sys.argv[3])):
-    w.step()
-    out.append(np.concatenate((s.position, s.orientation, s.linear_momentum, s.angular_momentum), axis=1).ravel())
-np.save(sys.argv[1], np.array(out))
-"""
+""" + RECORD_BODIES
 
 #: issue 35's one position loop (cgp_core.robots.coupled.relax_together): two crates started 1 cm deep in the held
 #: upper arm, under a fixed shelf, no gravity (tests/test_robot_world.py's squeeze): the crate–crate and crate–shelf
@@ -87,13 +92,7 @@ arm = {"name": "arm", "urdf": "arm.urdf", "hold": True,
        "joints": {"shoulder_lift": float(np.pi / 2), "elbow": float(-np.pi / 2), "wrist": 0.0}}
 w = World(scene_from_dict({"world": {"gravity": [0, 0, 0], "ground": False, "substeps": 4}, "robots": [arm],
                            "bodies": bodies}, "<parity>"))
-s = w.body_state
-out = []
-for _ in range(int(sys.argv[3])):
-    w.step()
-    out.append(np.concatenate((s.position, s.orientation, s.linear_momentum, s.angular_momentum), axis=1).ravel())
-np.save(sys.argv[1], np.array(out))
-"""
+""" + RECORD_BODIES
 
 
 def run(tmp_path, mode: str, ticks: int, script: str = SCRIPT) -> np.ndarray:
