@@ -19,6 +19,13 @@ from pathlib import Path
 
 import pytest
 
+# Ctrl-C as a terminal sends it, whatever this process inherited: a shell starts a background job (`make test &`,
+# `nohup`) with SIGINT ignored, and an ignored signal stays ignored in every process started from here, so the tests
+# that send SIGINT to a node, a sweep or a compile (and expect it to stop) would see it do nothing.  A handler set
+# here is reset to the default in each child at exec.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
 REPO = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
 
