@@ -57,7 +57,6 @@ no velocity, and the two solvers run on their own (:func:`~.joint_solver.step_jo
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
@@ -73,14 +72,14 @@ from ..solver.sequential_impulse import (
     NORMAL,
     RECOVER,
     STORE_IMPULSES,
-    _push_normal_row,
     _solve_manifold,
-    _solve_normal_rows,
     apply_impulses,
     bounce_time_shift,
     impact_manifolds,
+    position_target,
     prepare_bodies,
     prepare_contacts,
+    relax_normal_rows,
     store_impulses,
     warm_start_contacts,
 )
@@ -193,19 +192,15 @@ def relax_together(joint_rows, v, manifolds, rows, targets, bodies, joint_settin
     0.  Returns the robot's pseudo-velocity
     d / h and D, which the caller applies to the free bodies' poses after the integrator (never to the momenta)."""
     V, h = bodies.velocity, joint_settings.h
-    a, b, group_start, separation = manifolds.a, manifolds.b, manifolds.group_start, manifolds.separation
+    a, b, separation = manifolds.a, manifolds.b, manifolds.separation
     m = len(a)
-    G = len(group_start) - 1 if settings.position_iterations > 0 else 0
+    relax_bodies = settings.position_iterations > 0
     goal = position_goals(joint_rows, v, V, joint_settings)
     target = np.empty(m)
     lower = np.zeros(m)
     for c in range(m):
         predicted = separation[c] + h * body_row_velocity(rows.J, c, NORMAL, V, a[c], b[c])
-        target[c] = min(settings.position_correction * (-predicted - settings.penetration_slop),
-                        settings.max_correction)
-        if not math.isnan(targets.toi_shift[c]):
-            target[c] = targets.toi_shift[c]
-            lower[c] = -np.inf
+        target[c], lower[c] = position_target(predicted, targets.toi_shift[c], settings)
     d = np.zeros(len(v))
     D = np.zeros((len(V), 6))
     joint_lam = np.zeros(len(joint_rows.kind))
@@ -215,12 +210,8 @@ def relax_together(joint_rows, v, manifolds, rows, targets, bodies, joint_settin
                  settings.position_iterations)
     for _ in range(sweeps):
         change = relax_sweep(joint_rows, goal, joint_lam, d, D)
-        for g in range(G):
-            lo = group_start[g]
-            if group_start[g + 1] - lo == 1:
-                change = max(change, _push_normal_row(lo, rows, lam, target, lower, D, a[lo], b[lo]))
-            else:
-                change = max(change, _solve_normal_rows(g, manifolds, rows, lam, target, lower, D, scratch))
+        if relax_bodies:
+            change = max(change, relax_normal_rows(manifolds, rows, lam, target, lower, D, scratch))
         if change <= POSITION_TOLERANCE:
             break
     for i in range(len(d)):

@@ -772,9 +772,37 @@ def recover_penetration_kernel(handover, bodies, settings, profile):
 
 
 @njit(inline="always")
+def position_target(separation, toi_shift, settings):
+    """A contact normal row's goal in the position stage, from its separation ``separation`` [m] after the
+    sub-step's motion: ``(target, lower)`` — the displacement β (−s − slop) asked of it, at most ``max_correction``,
+    one-sided (λ ≥ 0); a bounce placed at its time of impact (``toi_shift`` not NaN: see
+    :func:`bounce_time_shift`) is moved by that shift exactly instead, two-sided.  (This recovery's and the robots'
+    one position loop's, :func:`cgp_core.robots.coupled.relax_together`.)"""
+    if not math.isnan(toi_shift):
+        return toi_shift, -np.inf
+    return min(settings.position_correction * (-separation - settings.penetration_slop), settings.max_correction), 0.0
+
+
+@njit(inline="always")
+def relax_normal_rows(runs, rows, lam, target, lower, D, scratch):
+    """One Gauss–Seidel sweep of the position stage over every manifold's normal rows towards ``target``
+    (:func:`position_target`), in place on their λ (m,) and the bodies' displacement ``D`` (n + 1, 6); ``runs``:
+    anything with the manifolds' ``a``, ``b`` and ``group_start`` (a :class:`Handover`, :class:`Manifolds`).
+    Returns the largest |Δλ| / eff."""
+    a, b, group_start = runs.a, runs.b, runs.group_start
+    change = 0.0
+    for g in range(len(group_start) - 1):
+        lo = group_start[g]
+        if group_start[g + 1] - lo == 1:
+            change = max(change, _push_normal_row(lo, rows, lam, target, lower, D, a[lo], b[lo]))
+        else:
+            change = max(change, _solve_normal_rows(g, runs, rows, lam, target, lower, D, scratch))
+    return change
+
+
+@njit(inline="always")
 def _recover_penetration(handover, bodies, settings):
-    a, b, group_start, separation, rows = (handover.a, handover.b, handover.group_start, handover.separation,
-                                           handover.rows)
+    a, b, separation, rows = handover.a, handover.b, handover.separation, handover.rows
     position, orientation = bodies.position, bodies.orientation
     n = len(position)
     m = len(a)
@@ -793,13 +821,8 @@ def _recover_penetration(handover, bodies, settings):
     for c in range(m):
         s = separation[c] + _row_velocity(rows.J, c, NORMAL, disp, a[c], b[c])
         deepest = max(deepest, -s)
-        target[c] = min(settings.position_correction * (-s - settings.penetration_slop), settings.max_correction)
-        if not math.isnan(handover.toi_shift[c]):
-            target[c] = handover.toi_shift[c]
-            lower[c] = -np.inf
-            needed = True
-        elif target[c] > 0.0:
-            needed = True
+        target[c], lower[c] = position_target(s, handover.toi_shift[c], settings)
+        needed = needed or lower[c] == -np.inf or target[c] > 0.0
     turn = np.zeros((n, 4))
     turn[:, 3] = 1.0
     if not needed:
@@ -808,12 +831,7 @@ def _recover_penetration(handover, bodies, settings):
     lam = np.zeros(m)
     scratch = Scratch(np.empty((2, MAX_BLOCK)), np.zeros(MAX_BLOCK, np.bool_), np.empty((m, 2)))
     for _ in range(settings.position_iterations):
-        for g in range(len(group_start) - 1):
-            lo, hi = group_start[g], group_start[g + 1]
-            if hi - lo == 1:
-                _push_normal_row(lo, rows, lam, target, lower, correction, a[lo], b[lo])
-            else:
-                _solve_normal_rows(g, handover, rows, lam, target, lower, correction, scratch)  # (its a, b, runs)
+        relax_normal_rows(handover, rows, lam, target, lower, correction, scratch)  # (its a, b, group_start)
     for i in range(n):
         if not bodies.dynamic[i]:
             continue
