@@ -44,7 +44,7 @@ from ..jit import njit
 MAX_BLOCK = 4
 
 #: relative cut-off of the pseudo-inverses (see the module docstring)
-RCOND = 1e-9
+RCOND = 1e-6
 
 #: :func:`solve_manifold_lcp`: a point where the guessed solution's w exceeds this fraction of the largest |b| is in
 #: no solution (1e6 times the tolerance of w ≥ 0, 1e3 times that of w = 0 on the active set)

@@ -372,17 +372,18 @@ def velocity_targets(manifolds, rows, bodies, settings):
     lower = np.zeros(m)
     vn_before = np.empty(m)
     bounce = np.zeros(m, np.bool_)
+    impact = np.zeros(m, np.bool_)
     for c in range(m):
         bias[c] = -max(separation[c], 0.0) / h
         vn_before[c] = _row_velocity(J, c, NORMAL, V_before, a[c], b[c])
         vn_free = _row_velocity(J, c, NORMAL, V, a[c], b[c])
-        # restitution: a contact approaching faster than the threshold before the sub-step whose gap closes
-        # within it (at the contact-free velocity) bounces: its target is −e times the approach speed
-        if restitution[c] > 0.0 and vn_before[c] < -settings.restitution_threshold \
-                and separation[c] + h * vn_free < 0.0:
+        # an impact: a contact approaching faster than the threshold before the sub-step whose gap closes within it
+        # (at the contact-free velocity); with restitution it bounces: its target is −e times the approach speed
+        impact[c] = vn_before[c] < -settings.restitution_threshold and separation[c] + h * vn_free < 0.0
+        if restitution[c] > 0.0 and impact[c]:
             bounce[c] = True
             bias[c] = max(bias[c], -restitution[c] * vn_before[c])
-    return Targets(bias, lower, vn_before, bounce, np.full(m, np.nan))
+    return Targets(bias, lower, vn_before, bounce, impact, np.full(m, np.nan))
 
 
 # ---- 3. warm start ----------------------------------------------------------------------------------------
@@ -479,7 +480,25 @@ def _solve_manifold(g, manifolds, rows, targets, lam, lam_n, V, scratch):
     change = 0.0
     P = hi - lo
     jacobi = P > 1
-    split = 1.0 / P  # Jacobi with mass splitting within a manifold (see _solve_normal_rows)
+    # Jacobi with mass splitting within a manifold (Tonge et al. 2012; see _solve_normal_rows), among the points that
+    # act: a point without a cone (λₙ = 0) and without a friction impulse would clamp its step to zero, so it
+    # takes no share of the bodies' mass.  A round hull on the ground touches with one of its 4 points (the others
+    # speculative): split four ways, that point got a quarter of its step per sweep and the sweeps ran to their
+    # cap (issue 38).  A point that touches (separation ≤ 0) counts as acting even before its cone opens, so that
+    # a settling manifold keeps the cautious share while its normal impulses grow.
+    # An impact (a point closing fast: targets.impact) keeps the split among all P points: its normal impulses
+    # grow from zero within the sweeps and the cone with them, and the friction iterate at the sweep cap is far
+    # from converged (the bullet scene's hull, 300 m/s into a wall at 30 Hz, left the impact at 6.2 m/s sideways
+    # with the acting-points split, 0.97 m/s with 500 sweeps either way, −2.3 m/s with 1/P: the cautious step is
+    # the nearer one at 8 sweeps).
+    acting = 0
+    impact = False
+    for c in range(lo, hi):
+        if manifolds.separation[c] <= 0.0 or mu[c] * lam[c, 0] != 0.0 or lam[c, 1] != 0.0 or lam[c, 2] != 0.0:
+            acting += 1
+        impact = impact or targets.impact[c]
+    block = jacobi and not impact
+    split = 1.0 / (max(acting, 1) if block else P)
     for c in range(lo, hi):
         if mu[c] * lam[c, 0] == 0.0 and lam[c, 1] == 0.0 and lam[c, 2] == 0.0:
             # no cone (a speculative point: λₙ = 0) and no friction impulse: the step would clamp to zero again
