@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from _bodies import box, capsule, make_bodies, mechanical_energy, particles, sphere
 
-from cgp_core.collision import CollisionDetector, Ground
+from cgp_core.collision import CollisionDetector, ContactSet, Ground
 from cgp_core.dynamics import step_bodies
 from cgp_core.integrators import make_integrator
 from cgp_core.rotation import quat_from_rotvec, quat_rotate, quat_to_matrix
@@ -208,7 +208,12 @@ def test_resting_pile_never_gains_energy():
     assert kinetic.max() < 1e-3  # resting (a ball may still roll or spin slowly: no rolling resistance)
     micron = G * model.mass[movable].sum() * 1e-6  # the whole pile lifted by 1 µm
     assert np.all(energy - energy[0] <= micron)
-    assert energy[-1] <= energy[0]
+    # and ends no higher than it started, up to the pile lifted by 10 nm: a ball still rolling at ~6 mm/s over
+    # the pile (no rolling resistance) moves its load across the boxes below, which sag and rise by tens of nm
+    # (the slop's compliance), the potential energy with them (±8e-8 J over the 240 steps, 1.4e-8 J up at the end
+    # of the settled state reached since bounces take one time of impact per manifold; its kinetic energy is
+    # constant to 1e-15 J)
+    assert energy[-1] <= energy[0] + 0.01 * micron
 
 
 def test_penetration_recovery_adds_no_kinetic_energy():
@@ -232,6 +237,37 @@ def test_penetration_recovery_adds_no_kinetic_energy():
     assert np.abs(state.position - before.position).max() > 1e-4  # it did move them
     assert state.kinetic_energy(model).sum() == pytest.approx(kinetic, rel=1e-13)
     np.testing.assert_array_equal(state.linear_momentum, before.linear_momentum)
+
+
+@pytest.mark.parametrize("gaps, xs, tilt", [
+    ((0.0037, 0.0014, 0.0015), (-0.035, -0.0327, -0.0308), (-0.0187, -0.0187, -0.0141)),  # convex_pile's rock_5
+    ((0.0037, 0.0014, 0.0015), (0.0, 0.0, 0.0), (-0.0187, -0.0187, -0.0141)),
+    ((0.0037, 0.0014, 0.0025), (0.0, 0.0005, 0.0), (0.0, 0.0, 0.005)),
+])
+def test_a_bounce_at_its_time_of_impact_moves_the_body_by_its_gaps_not_metres(gaps, xs, tilt):
+    """A box falls at 2 m/s onto three speculative points of the static world (restitution 0.1) that lie nearly
+    on a line, with nearly parallel normals and different gaps (a hull landing on terrain triangles): its normal
+    block is nearly singular.  The bounce happens when the first point arrives, and the position stage's shift
+    that puts it there is one rigid motion of the box, no bigger than the gaps (≤ (1 + e) × the gap each); taken
+    per point from its own gap, the three shifts fitted no rigid motion and the block met them through its
+    near-null mode: the box moved 0.1–0.6 m and turned ~3 rad at 4 mm from the ground."""
+    model, state = make_bodies([box((0.1, 0.1, 0.1), position=(0, 0, 0.1 + max(gaps)), velocity=(0, 0, -2.0),
+                                    restitution=0.1)])
+    normal = np.array([[0.0, t, 1.0] for t in tilt])
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    point = np.array([[x, y, 0.0] for x, y in zip(xs, (-0.035, 0.0, 0.035))])
+    contacts = ContactSet(np.full(3, -1, np.intp), np.zeros(3, np.intp), normal, np.array(gaps), point,
+                          np.arange(3, dtype=np.int64), np.full(3, 0.6), np.full(3, 0.1))
+    solver, h = make_solver(), 1 / 240
+    solver.solve_velocities(model, state, contacts, h)
+    assert state.linear_momentum[0, 2] > 0.0  # it bounced
+    make_integrator("symplectic_euler").step(model, state, h)
+    before = state.copy()
+    solver.recover_penetration(model, state, h)
+    moved = np.linalg.norm(state.position[0] - before.position[0])
+    turned = 2.0 * np.arccos(min(abs(float(state.orientation[0] @ before.orientation[0])), 1.0))
+    assert 0.0 < moved <= 2.0 * max(gaps), moved  # it was moved back towards the impact, by about a gap
+    assert turned * np.sqrt(3) * 0.1 <= 2.0 * max(gaps), turned  # no corner moved by more either
 
 
 def test_resting_contacts_keep_penetration_near_the_slop():

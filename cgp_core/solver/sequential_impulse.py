@@ -613,18 +613,42 @@ def bounce_time_shift(manifolds, rows, targets, bodies, h):
     (:func:`velocity_targets`); what is left after them — Box2D's place for it — is *when* a bounce off the static
     world (ground, fixed bodies) happens.  A speculative contact (gap s > 0) that bounced did so
     t* = s / |vₙ before| into the sub-step, not at its start.  The velocity is right (e times the impact speed),
-    but moving with it for the whole sub-step would leave the body s (1 + vₙ after / |vₙ before|) too far from the
+    but moving with it for the whole sub-step would leave the body t* (vₙ after + |vₙ before|) too far from the
     surface, which the position stage takes back with a two-sided row: writes that target into
     ``targets.toi_shift``.  This is what makes a dropped ball rebound to e² of its height instead of bouncing
     early by up to one step of travel.  Not done between two moving bodies: the shift is not an impulse, so it
-    would spoil their total angular momentum; they bounce at the start of the sub-step, as in Box2D."""
+    would spoil their total angular momentum; they bounce at the start of the sub-step, as in Box2D.
+
+    One time of impact per manifold, the earliest of its impact points (0 — no shift — if one of them touches
+    already): the body hits when its *first* point arrives, and the shift is then one rigid motion of the body,
+    t* (V before − V after), whose row i is t* (vₙ,i before − vₙ,i after).  Each point's own t* instead asks the
+    rows for displacements no rigid motion has: two-sided rows (exact, any sign) at nearly collinear points of a
+    hull on the terrain (a block condition number of 10⁴–10⁶) were then met through the block's near-null mode —
+    a turn of up to 4 rad, convex_pile's rock_5 moved 0.53 m, hull_7 0.31 m in one sub-step at ≤ 1 mm
+    penetration (7.8 m before RCOND was 1e-6)."""
     a, b, separation, dynamic = manifolds.a, manifolds.b, manifolds.separation, bodies.dynamic
-    for c in range(len(a)):
-        if targets.bounce[c] and separation[c] > 0.0 and not (dynamic[a[c]] and dynamic[b[c]]):
-            approach = -targets.approach[c]
-            gap = min(separation[c], approach * h)
-            vn_after = max(_row_velocity(rows.J, c, NORMAL, bodies.velocity, a[c], b[c]), 0.0)
-            targets.toi_shift[c] = -gap * (1.0 + vn_after / approach)
+    group_start = manifolds.group_start
+    for g in range(len(group_start) - 1):
+        lo, hi = group_start[g], group_start[g + 1]
+        if dynamic[a[lo]] and dynamic[b[lo]]:
+            continue  # (one body pair per manifold)
+        # the manifold's time of impact (its earliest impact point's), that point's gap and approach speed
+        first, gap, approach = np.inf, 0.0, 1.0
+        bouncing = False
+        for c in range(lo, hi):
+            if targets.impact[c]:
+                speed = -targets.approach[c]
+                closing = min(max(separation[c], 0.0), speed * h)
+                if closing / speed < first:
+                    first, gap, approach = closing / speed, closing, speed
+            bouncing = bouncing or (targets.bounce[c] and separation[c] > 0.0)
+        if not bouncing or gap <= 0.0:
+            continue
+        for c in range(lo, hi):
+            if targets.bounce[c] and separation[c] > 0.0:
+                vn_after = max(_row_velocity(rows.J, c, NORMAL, bodies.velocity, a[c], b[c]), 0.0)
+                # = −t* (|vₙ before| + vₙ after), written so that the earliest point's is its own gap (1 + ...) exactly
+                targets.toi_shift[c] = -gap * (-targets.approach[c] / approach + vn_after / approach)
 
 
 # ---- 6. impulses → momenta ---------------------------------------------------------------------------------
