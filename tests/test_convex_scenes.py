@@ -62,14 +62,16 @@ def test_convex_pile_bodies_never_jump_further_than_their_velocity_carries_them(
     world = World.from_scene("convex_pile")
     model, state = world.body_model, world.body_state
     moving = model.inv_mass > 0.0
+
+    def speed_and_spin():
+        return (np.linalg.norm(state.linear_velocity(model), axis=1),
+                np.linalg.norm(state.angular_velocity(model), axis=1))
+
     for tick in range(60):
         position, orientation = state.position.copy(), state.orientation.copy()
-        speed = np.linalg.norm(state.linear_momentum * model.inv_mass[:, None], axis=1)
-        spin = np.linalg.norm(np.einsum("nij,nj->ni", state.inv_inertia_world(model), state.angular_momentum), axis=1)
+        speed, spin = speed_and_spin()
         world.step()
-        speed = np.maximum(speed, np.linalg.norm(state.linear_momentum * model.inv_mass[:, None], axis=1))
-        spin = np.maximum(spin, np.linalg.norm(np.einsum("nij,nj->ni", state.inv_inertia_world(model),
-                                                         state.angular_momentum), axis=1))
+        speed, spin = np.maximum((speed, spin), speed_and_spin())
         moved = np.linalg.norm(state.position - position, axis=1)
         turned = 2.0 * np.arccos(np.minimum(np.abs(np.einsum("ni,ni->n", state.orientation, orientation)), 1.0))
         for i in np.flatnonzero(moving):

@@ -81,7 +81,8 @@ class Targets(NamedTuple):
     approach: np.ndarray   # (m,) normal velocity J V before the sub-step's forces [m/s] (< 0: approaching)
     bounce: np.ndarray     # (m,) bool: the contact bounces (restitution) this sub-step
     impact: np.ndarray     # (m,) bool: an impact: it approaches faster than the restitution threshold and its gap
-    # closes within the sub-step (a bounce, or an inelastic impact); its manifold gets the impact sweeps
+    # closes within the sub-step (a bounce, or an inelastic impact); its manifold's friction step stays split among
+    # all its points, and its earliest impact is the manifold's time of impact (see bounce_time_shift)
     toi_shift: np.ndarray  # (m,) the position stage's target for a bounce placed at its time of impact [m], NaN
     # where none (see bounce_time_shift)
 

@@ -491,14 +491,15 @@ def _solve_manifold(g, manifolds, rows, targets, lam, lam_n, V, scratch):
     # from converged (the bullet scene's hull, 300 m/s into a wall at 30 Hz, left the impact at 6.2 m/s sideways
     # with the acting-points split, 0.97 m/s with 500 sweeps either way, −2.3 m/s with 1/P: the cautious step is
     # the nearer one at 8 sweeps).
-    acting = 0
-    impact = False
-    for c in range(lo, hi):
-        if manifolds.separation[c] <= 0.0 or mu[c] * lam[c, 0] != 0.0 or lam[c, 1] != 0.0 or lam[c, 2] != 0.0:
-            acting += 1
-        impact = impact or targets.impact[c]
-    block = jacobi and not impact
-    split = 1.0 / (max(acting, 1) if block else P)
+    split = 1.0
+    if jacobi:  # (one point: its whole step)
+        acting = 0
+        impact = False
+        for c in range(lo, hi):
+            if manifolds.separation[c] <= 0.0 or mu[c] * lam[c, 0] != 0.0 or lam[c, 1] != 0.0 or lam[c, 2] != 0.0:
+                acting += 1
+            impact = impact or targets.impact[c]
+        split = 1.0 / (P if impact else max(acting, 1))
     for c in range(lo, hi):
         if mu[c] * lam[c, 0] == 0.0 and lam[c, 1] == 0.0 and lam[c, 2] == 0.0:
             # no cone (a speculative point: λₙ = 0) and no friction impulse: the step would clamp to zero again
