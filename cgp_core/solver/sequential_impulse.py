@@ -635,16 +635,14 @@ def bounce_time_shift(manifolds, rows, targets, bodies, h):
             continue  # (one body pair per manifold)
         # the manifold's time of impact (its earliest impact point's), that point's gap and approach speed
         first, gap, approach = np.inf, 0.0, 1.0
-        bouncing = False
         for c in range(lo, hi):
             if targets.impact[c]:
                 speed = -targets.approach[c]
                 closing = min(max(separation[c], 0.0), speed * h)
                 if closing / speed < first:
                     first, gap, approach = closing / speed, closing, speed
-            bouncing = bouncing or (targets.bounce[c] and separation[c] > 0.0)
-        if not bouncing or gap <= 0.0:
-            continue
+        if gap <= 0.0:
+            continue  # no impact, or one that touches already: no shift
         for c in range(lo, hi):
             if targets.bounce[c] and separation[c] > 0.0:
                 vn_after = max(_row_velocity(rows.J, c, NORMAL, bodies.velocity, a[c], b[c]), 0.0)
