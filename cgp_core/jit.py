@@ -65,6 +65,7 @@ every kernel the argument types the real run gives it) without compiling what an
 
 from __future__ import annotations
 
+import copy
 import functools
 import os
 import re
@@ -81,6 +82,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
 from numba.core import caching, cgutils  # noqa: E402
+from numba.core import ir as _ir  # noqa: E402
 from numba.extending import intrinsic, overload  # noqa: E402
 
 #: numba's own switch: with NUMBA_DISABLE_JIT=1 every kernel runs as plain Python
@@ -236,6 +238,106 @@ if _TypedListHook.name in sys.modules:
     _cache_typed_list_functions(sys.modules[_TypedListHook.name])
 else:
     sys.meta_path.insert(0, _TypedListHook())
+
+
+# ---- inline="always": the callee's IR copied once per call site, not once per block ------------------------------
+#
+# numba inlines an ``inline="always"`` callee by copying its IR (``InlineWorker.inline_ir``: twice, a working copy
+# and an untouched one) block by block, each block with ``copy.deepcopy`` of its own: every block's copy copies the
+# function's whole scope (every variable of the function) again, so a copy costs blocks × variables.  The solver's
+# big inlined bodies (``_solve_normal_rows``, ``_solve_manifold`` ... inlined into ``solve_step`` and the position
+# stage) made that ~15 % of the solver's compile (cProfile of its compile worker: ``copy_ir`` 7.5 s of 45 s;
+# issue 34).  Here the blocks of one copy share one deepcopy memo, so the scope and its variables are copied once
+# per copy.  The copy is the same IR (numba dedupes the blocks' scopes to one anyway — ``_get_all_scopes`` — and
+# renames the variables by name), so the same machine code: only numba's time changes.  The memo lives for one
+# ``inline_ir`` call (started afresh at each call and for each IR copied: a block whose scope differs from the
+# last one's, or a block already copied, starts a new memo).  Left as numba has it where numba's internals differ.
+
+class _BlockCopier:
+    """Stands for the ``copy`` module inside ``numba.core.inline_closurecall`` (which uses ``copy.deepcopy`` only
+    to copy IR blocks): while :func:`_inline_ir` runs, consecutive blocks of one IR share a memo."""
+
+    def __init__(self):
+        self.active = 0
+        self._scope = None
+        self._memo = None
+
+    def reset(self) -> None:
+        self._scope = self._memo = None
+
+    def deepcopy(self, x, memo=None):
+        if memo is not None or not self.active or not isinstance(x, _ir.Block):
+            return copy.deepcopy(x, memo)
+        if self._memo is None or x.scope is not self._scope or id(x) in self._memo:
+            self._scope, self._memo = x.scope, {}  # (the scope held: its id cannot be reused meanwhile)
+        return copy.deepcopy(x, self._memo)
+
+    def __getattr__(self, name):
+        return getattr(copy, name)
+
+
+def _share_block_copies() -> None:
+    from numba.core import inline_closurecall
+
+    worker = getattr(inline_closurecall, "InlineWorker", None)
+    if getattr(inline_closurecall, "copy", None) is not copy or worker is None or not hasattr(worker, "inline_ir"):
+        return  # a numba whose inliner differs: left alone
+    copier = _BlockCopier()
+    original = worker.inline_ir
+
+    @functools.wraps(original)
+    def inline_ir(self, *args, **kwargs):
+        copier.active += 1
+        copier.reset()
+        try:
+            return original(self, *args, **kwargs)
+        finally:
+            copier.active -= 1
+            copier.reset()
+
+    inline_closurecall.copy = copier
+    worker.inline_ir = inline_ir
+
+
+_share_block_copies()
+
+
+# ---- numba's compile flags: their values read without a property call per option ------------------------------
+#
+# numba keys its cache of typed overload implementations on the compile flags (``templates._get_impl``), so every
+# call it types hashes and compares a ``Flags``: ``TargetConfig.values()``, a dict of its ~40 options each read
+# through a property.  That was ~7 % of the solver's compile (cProfile of its worker: 135k calls, 3M property reads;
+# issue 34).  The same dict, built from the class's defaults and the set values at C speed; left to numba for a
+# config holding anything else than its options.
+
+def _fast_config_values() -> None:
+    from numba.core import targetconfig
+
+    config = getattr(targetconfig, "TargetConfig", None)
+    if config is None or not hasattr(config, "values") or not hasattr(config, "options"):
+        return
+    original = config.values
+    defaults: dict = {}
+
+    def values(self):
+        mine = self._values
+        known = defaults.get(type(self))
+        if known is None:
+            known = defaults[type(self)] = {name: option.default for name, option in type(self).options.items()}
+        if mine.keys() <= known.keys():
+            return {**known, **mine}
+        return original(self)
+
+    from numba.core.compiler import Flags
+
+    probe = Flags()
+    probe.nrt, probe.error_model = True, "numpy"
+    if values(probe) != original(probe) or list(values(probe)) != list(original(probe)):
+        return  # not the dict numba builds: left alone
+    config.values = values
+
+
+_fast_config_values()
 
 
 def njit(*args, **options):

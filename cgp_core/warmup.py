@@ -101,6 +101,13 @@ def warm_up_robots(ticks: int = 4) -> World:
                          effort=[0.0, 0.0, 1.0])
     for _ in range(ticks):  # a robot that touches nothing: the robots' batched kernels (step_lone_robots, ...)
         world.step()
+    # the joint-space mass matrix alone (the projection onto closed loops' constraints calls it; the arm has none):
+    # the robots part's sentinel, which no tick compiled — every warm start of `make setup` found the part missing
+    # and ran its compile worker again (~1.7 s; issue 34)
+    from .robots import algorithms
+
+    for r in world.robots.robots:
+        algorithms.mass_matrix(r.kernel_arrays, world.robots.q[r.q_slice])
     # a robot whose link touches a body (a crate resting on its level upper arm): its contact rows, its rows and the
     # body rows in one loop (Robots.solve, robots.coupled.step_coupled)
     from .scene import scene_from_dict

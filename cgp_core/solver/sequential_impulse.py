@@ -554,7 +554,9 @@ def _solve_normal_rows(g, manifolds, rows, lam, target, lower, V, scratch):
     change = 0.0
     if 1 < P <= MAX_BLOCK:
         bvec, x, must = scratch.block[0], scratch.block[1], scratch.must
-        support = 0  # the points pushing now (the last update's active set): the LCP's first guess
+        # the points pushing now (the last update's active set): the LCP's first guess (an int64 from the start: a
+        # literal 0 had numba compile solve_manifold_lcp a second time, for the constant, while typing solve_step)
+        support = np.int64(0)
         for i in range(P):
             c = lo + i
             bvec[i] = _row_velocity(J, c, NORMAL, V, a[c], b[c]) - target[c]
