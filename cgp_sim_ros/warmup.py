@@ -5,9 +5,9 @@ installed package, whose ``__pycache__`` is where the node will look).  It steps
 bodies placed so that every contact kernel runs (:func:`cgp_core.warmup.warm_up`; the flock kernels and its
 obstacle query too) and draws its markers (the fish kernel, the rounding of sphere lists), compiling in
 parallel worker processes (:func:`cgp_core.warmup.compile_in_parallel`): measured on a 2-core machine when
-nothing is cached (``benchmarks/bench_compile.py``, issue 34, on a shared machine), ~90-100 s of wall and
-~175-185 s of CPU for every kernel (the default scene's own, ``--default-scene``: ~24 s and ~47 s), and ~4 s when
-everything is.
+nothing is cached (``benchmarks/bench_compile.py``, issue 34, on a shared machine), ~95-105 s of wall and
+~180-200 s of CPU for every kernel (the default scene's own, ``--default-scene``: ~24-26 s and ~46-48 s), and ~2 s
+when everything is.
 
 The node does the same at start-up (:func:`compile_missing_kernels`, called by ``cgp-sim`` before it builds
 the node) for the parts it finds uncompiled — a start right after an install or an edit of the kernels'

@@ -438,3 +438,50 @@ def test_every_kernel_a_part_compiles_calls_only_kernels_that_part_compiles():
                     if source is not None and not _covers(part.modules, source):
                         missing.append(f"part {part.name}: {name}.{function.name} calls {source}.{node.id}")
     assert not missing, "\n".join(sorted(set(missing)))
+
+
+INLINED = r"""
+import numpy as np
+from numba import njit
+
+
+@njit(inline="always")
+def _body(x, k):
+    total = 0.0
+    for i in range(len(x)):
+        if x[i] > k:
+            total += x[i] * k
+        elif x[i] < -k:
+            total -= x[i]
+        else:
+            total += 1.0
+    return total
+
+
+@njit
+def twice(x):
+    return _body(x, 0.5) + _body(x, 1.5)
+"""
+
+
+def test_numbas_inliner_and_flags_patches_keep_numbas_results(tmp_path):
+    """cgp_core.jit's two compile-time patches of numba (issue 34): the inliner's block copies share a memo (the
+    same IR, so the same results), and a Flags' values() is the dict numba builds."""
+    import copy as copy_module
+
+    from numba.core import inline_closurecall
+    from numba.core.compiler import Flags
+
+    assert inline_closurecall.copy is not copy_module  # the copier is in place (numba 0.68's inliner)
+    flags = Flags()
+    flags.nrt, flags.error_model, flags.boundscheck = True, "numpy", False
+    by_properties = {name: getattr(flags, name) for name in type(flags).options}
+    assert flags.values() == by_properties and list(flags.values()) == list(by_properties)
+    (tmp_path / "inlined_twice.py").write_text(INLINED)
+    sys.path.insert(0, str(tmp_path))
+    try:
+        from inlined_twice import twice  # compiled with the patched inliner (cgp_core.jit is imported)
+    finally:
+        sys.path.remove(str(tmp_path))
+    x = np.array([-2.0, -1.0, 0.0, 0.7, 1.0, 2.0])
+    assert twice(x) == twice.py_func(x)
