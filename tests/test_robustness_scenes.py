@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import ast
 import math
+import os
 from pathlib import Path
 
 import pytest
@@ -375,3 +376,21 @@ def test_cgp_sim_refuses_bad_scenes_before_it_starts(start_node, probe, tmp_path
     probe.spin_for(0.2)
     assert not poses.messages
     assert not marker.exists()
+
+
+def test_a_bad_scene_on_the_command_line_is_refused_before_the_kernels_compile(start_node, tmp_path):
+    """Right after an install or an edit nothing is cached and `cgp-sim` compiles its kernels first (half a minute
+    and more on 2 cores): a scene named on the command line that does not load is refused before that, as
+    `--scene` and as `--ros-args -p [node:]scene:=...` (an empty numba cache stands for the fresh install)."""
+    cache = tmp_path / "empty_numba_cache"
+    cache.mkdir()
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
+    cases = [(("--scene", str(tmp_path / "typo.yaml")), "typo.yaml: no such scene file"),
+             (("--ros-args", "-p", "scene:=zero-g"), "zero-g: no built-in scene of that name"),
+             (("--ros-args", "-p", "cgp_sim:scene:=zero-g"), "zero-g: no built-in scene of that name")]
+    nodes = [start_node(*args, env=env) for args, _ in cases]
+    for node, (args, says) in zip(nodes, cases):
+        assert node.wait(60) == 2, (args, node.log())
+        log = node.log()
+        assert log.startswith("cgp-sim: scene: ") and says in log, (args, log)
+        assert "compiling the simulation kernels" not in log, (args, log)

@@ -154,6 +154,26 @@ def _ros_argument_errors() -> tuple[type[Exception], ...]:
                  if hasattr(_rclpy, name))
 
 
+def _scene_argument(flag: str | None, argv: list[str]) -> str | None:
+    """The scene the node will load, as the command line names it: ``--scene`` (which wins, as the node's
+    parameter override), else the last ``-p scene:=...`` / ``--param scene:=...`` (also ``-p <node>:scene:=...``)
+    among the ROS arguments; None when neither names one (the default scene, or a --params-file)."""
+    if flag is not None:
+        return flag
+    found = None
+    ros_arguments = False
+    for word, following in zip(argv, argv[1:] + [""]):
+        if word == "--ros-args":
+            ros_arguments = True
+        elif word == "--":
+            ros_arguments = False
+        elif ros_arguments and word in ("-p", "--param"):
+            name, separator, value = following.partition(":=")
+            if separator and name.rpartition(":")[2] == "scene":
+                found = value
+    return found
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv if argv is None else argv)
     import rclpy
@@ -178,6 +198,19 @@ def main(argv: list[str] | None = None) -> int:
     if args.list_scenes:
         print(_scene_list())
         return 0
+    # A scene named on the command line is read before anything slow happens: right after an install or an edit
+    # the kernels' compile below takes half a minute or more, and a typo in a path should not wait for it.  (The
+    # node reads it again: this check is the parse alone, milliseconds for the built-in scenes.  A scene set in
+    # a --params-file is checked by the node, after the compile.)
+    scene = _scene_argument(args.scene, argv)
+    if scene is not None:
+        from cgp_core.scene import SceneError, load_scene
+
+        try:
+            load_scene(scene)
+        except SceneError as exc:
+            print(f"cgp-sim: scene: {exc}", file=sys.stderr)
+            return 2
     # Right after an install or an edit of the kernels' sources numba has nothing cached: compile the kernels
     # in parallel processes now (24 s on 2 cores, benchmarks/bench_compile.py), not one by one in the first tick
     # (about 40 s of CPU).
