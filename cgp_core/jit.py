@@ -190,6 +190,45 @@ class _InTreeLocator(_DependencyStamp, caching.InTreeCacheLocator):
 caching.CacheImpl._locator_classes[:0] = [_UserDirLocator, _InTreeLocator]
 
 
+# ---- numba's cache: one process at a time adds an entry to a kernel's index ------------------------------------
+#
+# numba saves a new signature's machine code as "load the kernel's index, take the first free data-file number, write
+# the index, write the data file" (``IndexDataCacheFile.save``), each file replaced atomically but the whole unlocked.
+# Two processes adding different signatures of one kernel at once (the test suite's two workers, the compile workers,
+# a node beside a test run) both take the same number: the index that is written last keeps one signature (the others
+# are compiled again by every later process), and the data file written last may hold the *other* signature's code —
+# which the next process loads for the one the index names (``Dispatcher.compile`` does not check the loaded code's
+# signature against the one it asked for: code for other argument types runs, garbage or a crash, not an error).  Here
+# a save holds an exclusive ``flock`` on ``<index>.lock`` beside the index, so the index it loads is the last one
+# written and the number it takes is free.  Readers need no lock: every file is still replaced atomically.  Where the
+# lock file cannot be made (a read-only cache), numba's own save runs, as before.
+
+def _lock_cache_saves() -> None:
+    import fcntl
+
+    files = getattr(caching, "IndexDataCacheFile", None)
+    if files is None or not hasattr(files, "save") or not hasattr(files, "_load_index"):
+        return  # a numba whose cache files differ: left alone
+    original = files.save
+
+    @functools.wraps(original)
+    def save(self, key, data):
+        try:
+            descriptor = os.open(f"{self._index_path}.lock", os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError:
+            return original(self, key, data)
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX)
+            return original(self, key, data)
+        finally:
+            os.close(descriptor)  # (closing releases the lock)
+
+    files.save = save
+
+
+_lock_cache_saves()
+
+
 # ---- numba's typed lists: their functions cached too ------------------------------------------------------------
 #
 # A ``numba.typed.List`` (the robots' kernels take their per-robot bundles in one) is driven from Python by numba's

@@ -485,3 +485,66 @@ def test_numbas_inliner_and_flags_patches_keep_numbas_results(tmp_path):
         sys.path.remove(str(tmp_path))
     x = np.array([-2.0, -1.0, 0.0, 0.7, 1.0, 2.0])
     assert twice(x) == twice.py_func(x)
+
+
+SAVER = r"""
+import os, sys, time
+sys.path[:0] = [sys.argv[1], sys.argv[2]]
+import numpy as np
+import cgp_core.jit  # noqa: F401 - its cache patches
+from numba.core import caching
+
+if sys.argv[4] == "save":
+    real = caching.IndexDataCacheFile._save_index
+
+    def slow(self, overloads):  # widen the window between loading the index and writing it
+        time.sleep(1.0)
+        real(self, overloads)
+
+    caching.IndexDataCacheFile._save_index = slow
+    go = os.path.join(sys.argv[2], "go")
+    while not os.path.exists(go):
+        time.sleep(0.005)
+from racing.kernel import scaled
+
+value = {"i8": np.arange(3, dtype=np.int64), "f8": np.arange(3.0), "c16": np.arange(3) + 1j,
+         "f4": np.arange(3, dtype=np.float32)}
+if sys.argv[4] == "save":
+    print(scaled(value[sys.argv[3]]).tolist())
+else:
+    import json
+    print(json.dumps({"results": {kind: repr(scaled(x).tolist()) for kind, x in value.items()},
+                      "loaded": sum(scaled.stats.cache_hits.values()),
+                      "compiled": sum(scaled.stats.cache_misses.values())}))
+"""
+
+
+def test_concurrent_saves_of_one_kernels_signatures_keep_each_with_its_own_code(tmp_path):
+    """numba adds a signature to a kernel's cache as load index / take a free data-file number / write both,
+    unlocked: two processes adding signatures at once take the same number, and the next process can load one
+    signature's machine code for the other (cgp_core.jit locks the save).  Four processes compile four signatures
+    of one kernel and save them at the same moment (each save held open 1 s); then a fifth loads all four from
+    the cache — no compile — and each computes its own type's result."""
+    import json
+
+    package = tmp_path / "src" / "racing"
+    package.mkdir(parents=True)
+    (package / "__init__.py").write_text("")
+    (package / "kernel.py").write_text("from cgp_core.jit import njit\n\n\n@njit\ndef scaled(x):\n"
+                                       "    return x * 2 + 1\n")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    env.pop("NUMBA_DISABLE_JIT", None)
+    args = [sys.executable, "-c", SAVER, str(REPO), str(tmp_path / "src")]
+    savers = [subprocess.Popen([*args, kind, "save"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True) for kind in ("i8", "f8", "c16", "f4")]
+    (tmp_path / "src" / "go").write_text("")
+    for saver in savers:
+        out, err = saver.communicate(timeout=120)
+        assert saver.returncode == 0, err[-3000:]
+    done = subprocess.run([*args, "-", "load"], env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-3000:]
+    report = json.loads(done.stdout.strip().splitlines()[-1])
+    x = {"i8": np.arange(3, dtype=np.int64), "f8": np.arange(3.0), "c16": np.arange(3) + 1j,
+         "f4": np.arange(3, dtype=np.float32)}
+    assert report["results"] == {kind: repr((v * 2 + 1).tolist()) for kind, v in x.items()}, report
+    assert (report["loaded"], report["compiled"]) == (4, 0), report
