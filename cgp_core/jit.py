@@ -389,9 +389,12 @@ def njit(*args, **options):
 
 def _compiled(function, settings):
     module = function.__module__
+    # twin=False: a parallel kernel that compiled code calls (a ParallelKernel's choice of twin is Python's); its
+    # caller decides when to go wide (e.g. the solver's sweep over a colour of the contact graph)
+    twin = settings.pop("twin", True)
     if JIT_DISABLED or (JIT_ONLY and not any(module == m or module.startswith(m + ".") for m in JIT_ONLY)):
         return function  # plain Python: the JIT is off, or this is another compile worker's kernel
-    if settings.get("parallel"):
+    if settings.get("parallel") and twin:
         return ParallelKernel(function, settings)
     return numba.njit(**settings)(function)
 
@@ -427,6 +430,7 @@ _calling = _Calling()
 
 #: ``numba.prange`` (a plain ``range`` when the JIT is disabled); only meaningful inside ``njit(parallel=True)``
 prange = numba.prange
+
 
 #: a parallel kernel over fewer items than this runs on one thread: waking the pool's other workers for each
 #: kernel costs more than they save (measured: a 300-boid flock step takes 0.2 ms on one thread, 0.3-0.6 ms

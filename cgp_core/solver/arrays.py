@@ -124,6 +124,30 @@ class Scratch(NamedTuple):
     big: np.ndarray    # (m, 2) per-point increments of a Jacobi step (big groups, friction of multi-point groups)
 
 
+class Solving(NamedTuple):
+    """What the sweeps take from the stages before them (:func:`.sequential_impulse.solve_step`'s middle)."""
+
+    bodies: SolverBodies   # the n + 1 body rows; their velocity is solved for
+    manifolds: Manifolds   # the contacts, by body pair
+    rows: Rows             # their constraint rows
+    targets: Targets       # what the normal rows are driven to
+    lam: np.ndarray        # (m, 3) accumulated impulses (normal, t₁, t₂), warm-started [N s]
+    deepest: float         # the deepest penetration at the start of the sub-step [m]
+
+
+class ColourSweep(NamedTuple):
+    """The sweeps over a big contact graph colour by colour (:func:`.sequential_impulse.solve_contacts`, colourings
+    from :func:`.colouring.colour_manifolds`), and each manifold's scratch (a manifold updated on the thread pool
+    must not share it with one on another thread)."""
+
+    order: np.ndarray         # (G,) int64 the manifolds colour by colour
+    colour_start: np.ndarray  # (C + 2,) int64 colour k: order[colour_start[k] : colour_start[k + 1]]; last: overflow
+    change: np.ndarray        # (G,) the last update's largest |Δλ| / eff of each manifold, by its place in ``order``
+    block: np.ndarray         # (G, 2, 4) per manifold: Scratch.block
+    must: np.ndarray          # (G, 4) bool per manifold: Scratch.must
+    big: np.ndarray           # (m, 2) Scratch.big of the sweeps: manifold g uses its own run of rows
+
+
 class Handover(NamedTuple):
     """What the velocity stage hands back to Python: the position stage's inputs (the manifolds' body pairs, runs
     and gaps, their rows, the time-of-impact targets) and the statistics.  Narrower than everything the stage ends

@@ -88,7 +88,7 @@ import numpy as np
 from ..bodies import BodyModel, BodyState, tensor_times
 from ..collision import CollisionDetector, ContactSet
 from ..collision.detector import FEATURE_SLOTS
-from ..jit import StageProfile, clock, lap, njit
+from ..jit import StageProfile, clock, lap, njit, prange
 from ..rotation import (
     quat_multiply_scalar,
     quat_rotate_scalar,
@@ -98,22 +98,35 @@ from ..rotation import (
 )
 from .arrays import (
     BodyArrays,
+    ColourSweep,
     Handover,
     Manifolds,
     RecoveryBodies,
     Rows,
     Scratch,
     SolverBodies,
+    Solving,
     StepSettings,
     Targets,
     WarmStart,
 )
 from .base import SolverSettings
+from .colouring import colour_manifolds
 from .manifold import MAX_BLOCK, solve_manifold_lcp
 from .report import ContactReport, ContactTally, finish_report, tally_contacts
 
 #: extra sweeps over the manifolds holding a bouncing point (see solve_contacts)
 IMPACT_SWEEPS = 16
+
+#: from this many manifolds on, the sweeps go colour by colour of the contact graph (:mod:`.colouring`) and a
+#: colour of at least :data:`PARALLEL_COLOUR` manifolds is updated on numba's thread pool; below, in the plain
+#: order (measured: see solve_contacts)
+COLOUR_MIN_MANIFOLDS = 256
+PARALLEL_COLOUR = 64
+
+#: numba's ``parallel`` options that turn ``prange`` loops alone into parallel loops
+PRANGE_ONLY = {"prange": True, "comprehension": False, "reduction": False, "inplace_binop": False, "setitem": False,
+               "numpy": False, "stencil": False, "fusion": False}
 
 #: the stages of :attr:`SequentialImpulseSolver.profile`, in order (the velocity stage's, then the position stage)
 STAGES = ("prepare", "warm_start", "solve", "bounce_time_shift", "apply_impulses", "store_impulses",
@@ -436,7 +449,13 @@ def solve_contacts(manifolds, rows, targets, lam, bodies, settings):
     """The sweeps: manifold after manifold (:func:`_solve_manifold`), updating ``lam`` and ``bodies.velocity``
     in place, until a whole sweep changed no row velocity by more than ``velocity_tolerance`` (a warm-started
     resting stack is converged after one) or ``velocity_iterations`` sweeps; then the impact sweeps.  Returns
-    the number of sweeps run."""
+    the number of sweeps run.
+
+    From :data:`COLOUR_MIN_MANIFOLDS` manifolds on, a sweep visits them colour by colour of the contact graph
+    (:func:`.colouring.colour_manifolds`: no two of a colour share a moving body) and updates the manifolds of a
+    colour of :data:`PARALLEL_COLOUR` or more on numba's thread pool (:func:`_update_colour`) — Box2D v3's solver
+    on its constraint graph.  Same bits on any number of threads (the colouring never depends on it); other bits
+    than the plain order, which smaller worlds keep."""
     group_start = manifolds.group_start
     m = len(manifolds.a)
     G = len(group_start) - 1
@@ -446,15 +465,22 @@ def solve_contacts(manifolds, rows, targets, lam, bodies, settings):
     # manifolds holding a bouncing point get up to ``impact_sweeps`` extra sweeps after the regular ones
     # (impacts are rare; resting manifolds are warm)
     impact, any_impact = impact_manifolds(manifolds, targets)
+    coloured = G >= COLOUR_MIN_MANIFOLDS
+    sweep = _colour_sweep(manifolds, bodies.dynamic, coloured, scratch)
+    every = np.ones(G if coloured else 0, np.bool_)
     sweeps = 0
     impact_done = 0
     regular = True  # the regular sweeps over every manifold first, then the impact sweeps
     while True:
-        change = 0.0
-        for g in range(G):
-            if regular or impact[g]:
-                change = max(change, _solve_manifold(g, manifolds, rows, targets, lam, lam_n, bodies.velocity,
-                                                     scratch))
+        if coloured:
+            change = _sweep_colours(sweep, every if regular else impact, manifolds, rows, targets, lam, lam_n,
+                                    bodies.velocity, scratch)
+        else:
+            change = 0.0
+            for g in range(G):
+                if regular or impact[g]:
+                    change = max(change, _solve_manifold(g, manifolds, rows, targets, lam, lam_n, bodies.velocity,
+                                                         scratch))
         # each kind stops once a whole sweep changed no row velocity by more than the tolerance (a warm-started
         # resting stack is converged after one), or after its number of sweeps
         if regular:
@@ -468,6 +494,65 @@ def solve_contacts(manifolds, rows, targets, lam, bodies, settings):
             if change <= settings.velocity_tolerance or impact_done >= settings.impact_sweeps:
                 break
     return sweeps
+
+
+@njit(inline="always")
+def _colour_sweep(manifolds, dynamic, coloured, scratch):
+    """The :class:`ColourSweep` of the manifolds (empty arrays unless ``coloured``); ``scratch``: the sweeps'
+    :class:`Scratch`, whose per-point rows the manifolds share (each its own run)."""
+    G = len(manifolds.group_start) - 1
+    if not coloured:
+        return ColourSweep(np.zeros(0, np.int64), np.zeros(2, np.int64), np.zeros(0), np.zeros((0, 2, MAX_BLOCK)),
+                           np.zeros((0, MAX_BLOCK), np.bool_), scratch.big)
+    order, colour_start = colour_manifolds(manifolds.a, manifolds.b, manifolds.group_start, dynamic)
+    return ColourSweep(order, colour_start, np.zeros(G), np.empty((G, 2, MAX_BLOCK)),
+                       np.zeros((G, MAX_BLOCK), np.bool_), scratch.big)
+
+
+@njit(inline="always")
+def _sweep_colours(sweep, visit, manifolds, rows, targets, lam, lam_n, V, scratch):
+    """One sweep colour by colour over the manifolds ``visit (G,)`` bool marks.  A colour of :data:`PARALLEL_COLOUR`
+    manifolds or more is updated on numba's thread pool (no two share a moving body, so each sees the same
+    velocities in any order; the static row n is written by many at once — M⁻¹ = 0 there: adding zeros), each
+    manifold with scratch of its own (no thread ids: nothing in the result depends on which thread ran what); a
+    small colour and the overflow here, in order.  Returns the largest change (as
+    the plain sweep).  (The loop is parallel in :func:`solve_step`, compiled with ``prange`` on; in a kernel
+    compiled without it, a plain loop: the same bits.)"""
+    order, colour_start, changes, block, must, big = sweep[0], sweep[1], sweep[2], sweep[3], sweep[4], sweep[5]
+    # the parallel loop's body sees arrays only, and names its bundles inside (numba cannot hand a loop run on the
+    # pool a named tuple made outside it)
+    a, b, group_start, normal, separation, point, friction, restitution, key, previous = (
+        manifolds[0], manifolds[1], manifolds[2], manifolds[3], manifolds[4], manifolds[5], manifolds[6],
+        manifolds[7], manifolds[8], manifolds[9])
+    J, MJ, eff, lever, A, cache, cached = rows[0], rows[1], rows[2], rows[3], rows[4], rows[5], rows[6]
+    bias, lower, approach, bounce, toi_shift = targets[0], targets[1], targets[2], targets[3], targets[4]
+    C = len(colour_start) - 2
+    for k in range(C + 1):
+        lo, hi = colour_start[k], colour_start[k + 1]
+        if k < C and hi - lo >= PARALLEL_COLOUR:
+            for q in prange(lo, hi):
+                g = order[q]
+                if visit[g]:
+                    changes[q] = _solve_manifold(
+                        g, Manifolds(a, b, group_start, normal, separation, point, friction, restitution, key,
+                                     previous),
+                        Rows(J, MJ, eff, lever, A, cache, cached), Targets(bias, lower, approach, bounce, toi_shift),
+                        lam, lam_n, V, Scratch(block[g], must[g], big[group_start[g]:]))
+                else:
+                    changes[q] = 0.0
+        else:
+            for q in range(lo, hi):
+                g = order[q]
+                # (an if statement, not `x if visit[g] else 0.0`: numba's inlining of _solve_manifold into a
+                # conditional expression lost its return value — every change read 0, the sweeps stopped after one)
+                if visit[g]:
+                    changes[q] = _solve_manifold(g, manifolds, rows, targets, lam, lam_n, V, scratch)
+                else:
+                    changes[q] = 0.0
+    change = 0.0
+    for q in range(len(order)):
+        change = max(change, changes[q])
+    return change
 
 
 @njit(inline="always")
@@ -770,20 +855,40 @@ def solve_step(contacts, bodies, memory, settings, tally, report, profile):
 
     One compiled entry for both cases, ``report`` an argument and not a literal: numba compiles each entry point
     with the whole tree of functions it calls, so two entries sharing this body (with and without the report)
-    cost the solver's compile twice (issue 34).
+    cost the solver's compile twice (issue 34).  A big world's contacts take three calls instead, the sweeps on
+    the thread pool (:func:`solve_head`, :func:`solve_sweeps_wide`, :func:`solve_tail`): the same stages, the
+    same bits.
 
     Returns what the position stage needs (:class:`Handover`), the new warm-start memory and the new tally (None
     without ``report``)."""
     contacts, bodies, memory, settings = (ContactSet(*contacts), BodyArrays(*bodies), WarmStart(*memory),
                                           StepSettings(*settings))
+    solving = _velocity_head(contacts, bodies, memory, settings, profile)
+    start = clock()
+    sweeps = solve_contacts(solving.manifolds, solving.rows, solving.targets, solving.lam, solving.bodies, settings)
+    lap(profile, SOLVE, start)
+    return _velocity_tail(solving, bodies, settings, sweeps, tally, report, profile)
+
+
+@njit(inline="always")
+def _velocity_head(contacts, bodies, memory, settings, profile):
+    """Stages 1–3 (prepare the bodies and the contacts, warm start): the :class:`Solving` the sweeps take."""
     start = clock()
     solver_bodies = prepare_bodies(bodies, settings.h)
     manifolds, rows, targets, deepest = prepare_contacts(contacts, solver_bodies, memory, settings)
     start = lap(profile, PREPARE, start)
     lam = warm_start_contacts(manifolds, rows, solver_bodies, memory, settings.warm_start)
-    start = lap(profile, WARM_START, start)
-    sweeps = solve_contacts(manifolds, rows, targets, lam, solver_bodies, settings)
-    start = lap(profile, SOLVE, start)
+    lap(profile, WARM_START, start)
+    return Solving(solver_bodies, manifolds, rows, targets, lam, deepest)
+
+
+@njit(inline="always")
+def _velocity_tail(solving, bodies, settings, sweeps, tally, report, profile):
+    """Stages 5–7 after the sweeps (bounce time shift, impulses to momenta, the warm-start memory): what
+    :func:`solve_step` returns."""
+    solver_bodies, manifolds, rows, targets, lam = (solving.bodies, solving.manifolds, solving.rows, solving.targets,
+                                                    solving.lam)
+    start = clock()
     bounce_time_shift(manifolds, rows, targets, solver_bodies, settings.h)
     start = lap(profile, BOUNCE_TIME_SHIFT, start)
     impulse = apply_impulses(manifolds, rows, lam, solver_bodies, bodies, settings.rolling_resistance)
@@ -791,10 +896,46 @@ def solve_step(contacts, bodies, memory, settings, tally, report, profile):
     memory = store_impulses(manifolds, rows, lam)
     lap(profile, STORE_IMPULSES, start)
     handover = Handover(manifolds.a, manifolds.b, manifolds.group_start, manifolds.separation, rows,
-                        targets.toi_shift, sweeps, deepest)
+                        targets.toi_shift, sweeps, solving.deepest)
     # (None without a report, not the tally handed back: numba boxes None for nothing, the tally's 9 arrays for
     # ~2 µs, which at 4 sub-steps a tick is 3 % of the 5-body default scene's tick)
     return handover, memory, (tally_contacts(manifolds, rows, lam, impulse, tally) if report else None)
+
+
+@njit
+def solve_head(contacts, bodies, memory, settings, profile):
+    """A big world's :func:`solve_step`, first call: stages 1–3; returns the :class:`Solving` (boxed for Python:
+    ~30 arrays, some tens of µs, against the milliseconds of a big world's sweeps)."""
+    return _velocity_head(ContactSet(*contacts), BodyArrays(*bodies), WarmStart(*memory), StepSettings(*settings),
+                          profile)
+
+
+# parallel: the prange loop of the colours only (_sweep_colours) — not numpy's array expressions.  (A parallel
+# kernel cannot be called from solve_step: numba then refuses to cache the caller, "dynamic globals"; and compiled
+# with prange on, solve_step's stages trip numba's array analysis)
+@njit(parallel=PRANGE_ONLY, twin=False)
+def solve_sweeps_wide(solving, settings, profile):
+    """A big world's :func:`solve_step`, second call: the sweeps (:func:`solve_contacts`), the colours on the
+    thread pool; returns the number of sweeps."""
+    settings = StepSettings(*settings)
+    start = clock()
+    sweeps = solve_contacts(solving.manifolds, solving.rows, solving.targets, solving.lam, solving.bodies, settings)
+    lap(profile, SOLVE, start)
+    return sweeps
+
+
+@njit
+def solve_tail(solving, bodies, settings, sweeps, tally, report, profile):
+    """A big world's :func:`solve_step`, third call: stages 5–7; returns what :func:`solve_step` returns."""
+    return _velocity_tail(solving, BodyArrays(*bodies), StepSettings(*settings), sweeps, tally, report, profile)
+
+
+def _solve_wide(contacts, bodies, memory, settings, tally, report, profile):
+    """:func:`solve_step` in three calls, the sweeps on the thread pool: what a world of
+    :data:`COLOUR_MIN_MANIFOLDS` contacts or more runs (see :func:`solve_contacts`)."""
+    solving = solve_head(contacts, bodies, memory, settings, profile)
+    sweeps = solve_sweeps_wide(solving, settings, profile)
+    return solve_tail(solving, bodies, settings, sweeps, tally, report, profile)
 
 
 # ---- the position stage ("recover penetration") --------------------------------------------------------------
@@ -1011,6 +1152,8 @@ class SequentialImpulseSolver:
         bodies = (model.inv_mass, movable, np.ascontiguousarray(inv_inertia), state.position, state.linear_momentum,
                   state.angular_momentum, state.force, state.torque)  # a BodyArrays, as a plain tuple
         solve = solve_step if coupled is None else coupled.solve
+        if coupled is None and contacts.count >= COLOUR_MIN_MANIFOLDS:
+            solve = _solve_wide
         if self._reporting:
             tally = self._tally
             if tally is None or len(tally.touched) != n + 1:

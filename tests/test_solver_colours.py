@@ -1,0 +1,166 @@
+"""Issue 37: a big world's contact sweeps colour by colour of the contact graph, the colours on numba's thread pool
+(cgp_core.solver.colouring, sequential_impulse.solve_contacts): a colouring no two manifolds of a colour share a
+moving body in; the same bits on one thread and on two, compiled and as plain Python, and through solve_step as
+through the three calls big worlds take; and the physics of the resting pile (its weight carried, no sinking)."""
+
+from __future__ import annotations
+
+import inspect
+
+import numba
+import numpy as np
+import pytest
+from test_jit_parity import RECORD_BODIES, run
+
+from cgp_core import World, parse_scene
+from cgp_core.solver import sequential_impulse as si
+from cgp_core.solver.colouring import MAX_COLOURS, colour_manifolds
+
+G_ACCEL = 9.81
+
+
+def check_colouring(a, b, group_start, dynamic):
+    order, colour_start = colour_manifolds(a, b, group_start, dynamic)
+    G = len(group_start) - 1
+    assert sorted(order.tolist()) == list(range(G)) and colour_start[-1] == G
+    for k in range(len(colour_start) - 2):  # the colours (not the overflow, the last run)
+        members = order[colour_start[k]:colour_start[k + 1]]
+        assert (np.diff(members) > 0).all()  # in the manifolds' own order
+        moving = [x for g in members for x in (a[group_start[g]], b[group_start[g]]) if dynamic[x]]
+        assert len(moving) == len(set(moving)), f"colour {k} shares a moving body"
+    return order, colour_start
+
+
+def test_no_two_manifolds_of_a_colour_share_a_moving_body():
+    rng = np.random.default_rng(37)
+    for _ in range(30):
+        n = int(rng.integers(2, 60))
+        G = int(rng.integers(1, 200))
+        dynamic = np.append(rng.random(n) < 0.8, False)  # row n: the ground
+        a = rng.integers(0, n + 1, size=G)
+        b = (a + rng.integers(1, n + 1, size=G)) % (n + 1)  # (two different rows: a manifold joins two bodies)
+        points = rng.integers(1, 5, size=G)
+        group_start = np.concatenate(([0], np.cumsum(points))).astype(np.int64)
+        check_colouring(np.repeat(a, points).astype(np.int64), np.repeat(b, points).astype(np.int64), group_start,
+                        dynamic)
+
+
+def test_the_ground_joins_no_colour_and_a_crowded_body_overflows():
+    # 300 bodies on the ground: one colour (the static row takes part in none)
+    n = 300
+    dynamic = np.append(np.ones(n, np.bool_), False)
+    ground = np.full(n, n, np.int64)
+    order, colour_start = check_colouring(ground, np.arange(n, dtype=np.int64), np.arange(n + 1, dtype=np.int64),
+                                          dynamic)
+    assert len(colour_start) == 3 and colour_start[1] == n  # one colour, an empty overflow
+    # one body touching 70 others: 63 colours, then the overflow (updated one after another)
+    a = np.zeros(70, np.int64)
+    b = np.arange(1, 71, dtype=np.int64)
+    order, colour_start = check_colouring(a, b, np.arange(71, dtype=np.int64), np.append(np.ones(71, np.bool_), False))
+    assert len(colour_start) == MAX_COLOURS + 2 and colour_start[-1] - colour_start[-2] == 70 - MAX_COLOURS
+    assert order[colour_start[-2]:].tolist() == list(range(MAX_COLOURS, 70))
+
+
+def pile_scene(layers: int = 3, side: int = 10) -> str:
+    """layers × side² spheres (r 0.1, 1 kg) stacked in a square box of fixed walls, touching: a contact graph of
+    more than COLOUR_MIN_MANIFOLDS contacts from the first tick."""
+    bodies = [f"  - {{name: wall_{k}, shape: box, size: {size}, position: {pos}, fixed: true}}" for k, (size, pos) in
+              enumerate((([0.2, 2.4, 1], [-0.1, 1.0, 0.5]), ([0.2, 2.4, 1], [2.1, 1.0, 0.5]),
+                         ([2.4, 0.2, 1], [1.0, -0.1, 0.5]), ([2.4, 0.2, 1], [1.0, 2.1, 0.5])))]
+    for z in range(layers):
+        shift = 0.1 if z % 2 else 0.0
+        for i in range(side - (1 if shift else 0)):
+            for j in range(side - (1 if shift else 0)):
+                bodies.append(f"  - {{name: s{z}_{i}_{j}, shape: sphere, radius: 0.1, mass: 1, "
+                              f"position: [{0.1 + 0.2 * i + shift}, {0.1 + 0.2 * j + shift}, {0.1 + 0.15 * z}]}}")
+    return "world: {sleep: false, substeps: 4}\nbodies:\n" + "\n".join(bodies) + "\n"
+
+
+def step_pile(threads: int, ticks: int) -> np.ndarray:
+    previous = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        world = World(parse_scene(pile_scene()))
+        out = []
+        for _ in range(ticks):
+            world.step()
+            assert world.solver.stats["contacts"] >= si.COLOUR_MIN_MANIFOLDS
+            s = world.body_state
+            out.append(np.concatenate((s.position, s.orientation, s.linear_momentum, s.angular_momentum), axis=1))
+        return np.array(out)
+    finally:
+        numba.set_num_threads(previous)
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs numba's pool of 2 threads or more")
+def test_the_same_bits_on_one_thread_and_on_two():
+    one = step_pile(1, 30)
+    two = step_pile(2, 30)
+    assert np.abs(one[-1, :, 2] - one[0, :, 2]).max() > 1e-3  # the pile moved (the spheres settled into it)
+    np.testing.assert_array_equal(one, two)
+
+
+def test_solve_step_and_the_three_calls_of_a_big_world_give_the_same_bits():
+    world = World(parse_scene(pile_scene()))
+    for _ in range(10):
+        world.step()
+    seen = {}
+    solve_velocities = world.solver.solve_velocities
+
+    def capture(model, state, contacts, h, **kw):
+        seen["args"] = (model, state, contacts, h, kw)
+        return solve_velocities(model, state, contacts, h, **kw)
+
+    world.solver.solve_velocities = capture
+    world.step()
+    model, state, contacts, h, kw = seen["args"]
+    solver = world.solver
+    settings = solver._settings_for(float(h))
+    results = []
+    for solve in (si.solve_step, si._solve_wide):
+        P, L = state.linear_momentum.copy(), state.angular_momentum.copy()
+        bodies = (model.inv_mass, model.inv_mass > 0.0, np.ascontiguousarray(state.inv_inertia_world(model)),
+                  state.position, P, L, state.force, state.torque)
+        handover, memory, _ = solve(tuple(contacts), bodies, tuple(solver._memory), settings, si._NO_TALLY, False,
+                                    np.zeros(len(si.STAGES)))
+        results.append((P, L, handover.rows.J, memory.normal, memory.friction))
+    assert contacts.count >= si.COLOUR_MIN_MANIFOLDS
+    for x, y in zip(*results):
+        np.testing.assert_array_equal(x, y)
+
+
+PILE_SCRIPT = r"""
+import sys
+import numpy as np
+from cgp_core.jit import JIT_DISABLED
+from cgp_core import World, parse_scene
+
+assert JIT_DISABLED == (sys.argv[2] == "plain"), "NUMBA_DISABLE_JIT did not reach the child"
+w = World(parse_scene(pile_scene(layers=1, side=17)))
+"""
+
+
+def test_the_coloured_sweeps_give_the_same_bits_compiled_and_as_plain_python(tmp_path):
+    ticks = 3
+    script = PILE_SCRIPT.replace("w = World(", inspect.getsource(pile_scene) + "\nw = World(") + RECORD_BODIES
+    compiled = run(tmp_path, "compiled", ticks, script)
+    plain = run(tmp_path, "plain", ticks, script)
+    np.testing.assert_array_equal(compiled, plain)
+
+
+def test_a_coloured_pile_carries_its_weight_and_does_not_sink():
+    """Resting spheres: the contact forces on them (the contact report) add up to their weight — the spheres'
+    forces on each other cancel, what is left is the ground's and the walls' — and no contact ends deeper than the
+    solver's penetration slop."""
+    world = World(parse_scene(pile_scene()))
+    for _ in range(150):
+        world.step()
+    world.report_contacts = True
+    world.step()
+    report = world.contacts
+    spheres = np.array([name.startswith("s") for name in world.body_model.names])
+    assert world.solver.stats["contacts"] >= si.COLOUR_MIN_MANIFOLDS
+    assert np.linalg.norm(world.body_state.linear_momentum, axis=1).max() < 0.02  # at rest (1 kg spheres)
+    on_spheres = spheres[report.body]
+    assert report.force[on_spheres, 2].sum() == pytest.approx(spheres.sum() * G_ACCEL, rel=1e-3)
+    assert world.solver.stats["max_penetration"] < world.solver.settings.penetration_slop + 1e-4
