@@ -445,15 +445,16 @@ def impact_manifolds(manifolds, targets):
 
 
 @njit(inline="always")
-def solve_contacts(manifolds, rows, targets, lam, bodies, settings):
+def solve_contacts(manifolds, rows, targets, lam, bodies, settings, update):
     """The sweeps: manifold after manifold (:func:`_solve_manifold`), updating ``lam`` and ``bodies.velocity``
     in place, until a whole sweep changed no row velocity by more than ``velocity_tolerance`` (a warm-started
     resting stack is converged after one) or ``velocity_iterations`` sweeps; then the impact sweeps.  Returns
-    the number of sweeps run.
+    the number of sweeps run.  ``update``: the update of one manifold, :func:`_solve_manifold` (inlined: the
+    serial kernels) or :func:`_solve_manifold_call` (a call: :func:`solve_sweeps_wide`, compiled with ``prange``).
 
     From :data:`COLOUR_MIN_MANIFOLDS` manifolds on, a sweep visits them colour by colour of the contact graph
     (:func:`.colouring.colour_manifolds`: no two of a colour share a moving body) and updates the manifolds of a
-    colour of :data:`PARALLEL_COLOUR` or more on numba's thread pool (:func:`_update_colour`) — Box2D v3's solver
+    colour of :data:`PARALLEL_COLOUR` or more on numba's thread pool (:func:`_sweep_colours`) — Box2D v3's solver
     on its constraint graph.  Same bits on any number of threads (the colouring never depends on it); other bits
     than the plain order, which smaller worlds keep."""
     group_start = manifolds.group_start
@@ -474,13 +475,12 @@ def solve_contacts(manifolds, rows, targets, lam, bodies, settings):
     while True:
         if coloured:
             change = _sweep_colours(sweep, every if regular else impact, manifolds, rows, targets, lam, lam_n,
-                                    bodies.velocity, scratch)
+                                    bodies.velocity, scratch, update)
         else:
             change = 0.0
             for g in range(G):
                 if regular or impact[g]:
-                    change = max(change, _solve_manifold(g, manifolds, rows, targets, lam, lam_n, bodies.velocity,
-                                                         scratch))
+                    change = max(change, update(g, manifolds, rows, targets, lam, lam_n, bodies.velocity, scratch))
         # each kind stops once a whole sweep changed no row velocity by more than the tolerance (a warm-started
         # resting stack is converged after one), or after its number of sweeps
         if regular:
@@ -510,7 +510,7 @@ def _colour_sweep(manifolds, dynamic, coloured, scratch):
 
 
 @njit(inline="always")
-def _sweep_colours(sweep, visit, manifolds, rows, targets, lam, lam_n, V, scratch):
+def _sweep_colours(sweep, visit, manifolds, rows, targets, lam, lam_n, V, scratch, update):
     """One sweep colour by colour over the manifolds ``visit (G,)`` bool marks.  A colour of :data:`PARALLEL_COLOUR`
     manifolds or more is updated on numba's thread pool (no two share a moving body, so each sees the same
     velocities in any order; the static row n is written by many at once — M⁻¹ = 0 there: adding zeros), each
@@ -533,7 +533,7 @@ def _sweep_colours(sweep, visit, manifolds, rows, targets, lam, lam_n, V, scratc
             for q in prange(lo, hi):
                 g = order[q]
                 if visit[g]:
-                    changes[q] = _solve_manifold_apart(
+                    changes[q] = _solve_manifold_call(
                         g, Manifolds(a, b, group_start, normal, separation, point, friction, restitution, key,
                                      previous),
                         Rows(J, MJ, eff, lever, A, cache, cached), Targets(bias, lower, approach, bounce, toi_shift),
@@ -546,105 +546,7 @@ def _sweep_colours(sweep, visit, manifolds, rows, targets, lam, lam_n, V, scratc
                 # (an if statement, not `x if visit[g] else 0.0`: numba's inlining of _solve_manifold into a
                 # conditional expression lost its return value — every change read 0, the sweeps stopped after one)
                 if visit[g]:
-                    changes[q] = _solve_manifold(g, manifolds, rows, targets, lam, lam_n, V, scratch)
-                else:
-                    changes[q] = 0.0
-    change = 0.0
-    for q in range(len(order)):
-        change = max(change, changes[q])
-    return change
-
-
-@njit(inline="always")
-def solve_contacts_wide(manifolds, rows, targets, lam, bodies, settings):
-    """The sweeps: manifold after manifold (:func:`_solve_manifold`), updating ``lam`` and ``bodies.velocity``
-    in place, until a whole sweep changed no row velocity by more than ``velocity_tolerance`` (a warm-started
-    resting stack is converged after one) or ``velocity_iterations`` sweeps; then the impact sweeps.  Returns
-    the number of sweeps run.
-
-    From :data:`COLOUR_MIN_MANIFOLDS` manifolds on, a sweep visits them colour by colour of the contact graph
-    (:func:`.colouring.colour_manifolds`: no two of a colour share a moving body) and updates the manifolds of a
-    colour of :data:`PARALLEL_COLOUR` or more on numba's thread pool (:func:`_update_colour`) — Box2D v3's solver
-    on its constraint graph.  Same bits on any number of threads (the colouring never depends on it); other bits
-    than the plain order, which smaller worlds keep."""
-    group_start = manifolds.group_start
-    m = len(manifolds.a)
-    G = len(group_start) - 1
-    lam_n = np.empty(m)
-    scratch = Scratch(np.empty((2, MAX_BLOCK)), np.zeros(MAX_BLOCK, np.bool_), np.empty((m, 2)))
-    # impacts: manifolds (multi-point groups) converge slowest exactly when the impulse changes most, so the
-    # manifolds holding a bouncing point get up to ``impact_sweeps`` extra sweeps after the regular ones
-    # (impacts are rare; resting manifolds are warm)
-    impact, any_impact = impact_manifolds(manifolds, targets)
-    coloured = G >= COLOUR_MIN_MANIFOLDS
-    sweep = _colour_sweep(manifolds, bodies.dynamic, coloured, scratch)
-    every = np.ones(G if coloured else 0, np.bool_)
-    sweeps = 0
-    impact_done = 0
-    regular = True  # the regular sweeps over every manifold first, then the impact sweeps
-    while True:
-        if coloured:
-            change = _sweep_colours_wide(sweep, every if regular else impact, manifolds, rows, targets, lam, lam_n,
-                                    bodies.velocity, scratch)
-        else:
-            change = 0.0
-            for g in range(G):
-                if regular or impact[g]:
-                    change = max(change, _solve_manifold_apart(g, manifolds, rows, targets, lam, lam_n, bodies.velocity,
-                                                         scratch))
-        # each kind stops once a whole sweep changed no row velocity by more than the tolerance (a warm-started
-        # resting stack is converged after one), or after its number of sweeps
-        if regular:
-            sweeps += 1
-            if change <= settings.velocity_tolerance or sweeps >= settings.velocity_iterations:
-                regular = False
-                if not any_impact or settings.impact_sweeps == 0:
-                    break
-        else:
-            impact_done += 1
-            if change <= settings.velocity_tolerance or impact_done >= settings.impact_sweeps:
-                break
-    return sweeps
-
-
-@njit(inline="always")
-def _sweep_colours_wide(sweep, visit, manifolds, rows, targets, lam, lam_n, V, scratch):
-    """One sweep colour by colour over the manifolds ``visit (G,)`` bool marks.  A colour of :data:`PARALLEL_COLOUR`
-    manifolds or more is updated on numba's thread pool (no two share a moving body, so each sees the same
-    velocities in any order; the static row n is written by many at once — M⁻¹ = 0 there: adding zeros), each
-    manifold with scratch of its own (no thread ids: nothing in the result depends on which thread ran what); a
-    small colour and the overflow here, in order.  Returns the largest change (as
-    the plain sweep).  (The loop is parallel in :func:`solve_step`, compiled with ``prange`` on; in a kernel
-    compiled without it, a plain loop: the same bits.)"""
-    order, colour_start, changes, block, must, big = sweep[0], sweep[1], sweep[2], sweep[3], sweep[4], sweep[5]
-    # the parallel loop's body sees arrays only, and names its bundles inside (numba cannot hand a loop run on the
-    # pool a named tuple made outside it)
-    a, b, group_start, normal, separation, point, friction, restitution, key, previous = (
-        manifolds[0], manifolds[1], manifolds[2], manifolds[3], manifolds[4], manifolds[5], manifolds[6],
-        manifolds[7], manifolds[8], manifolds[9])
-    J, MJ, eff, lever, A, cache, cached = rows[0], rows[1], rows[2], rows[3], rows[4], rows[5], rows[6]
-    bias, lower, approach, bounce, toi_shift = targets[0], targets[1], targets[2], targets[3], targets[4]
-    C = len(colour_start) - 2
-    for k in range(C + 1):
-        lo, hi = colour_start[k], colour_start[k + 1]
-        if k < C and hi - lo >= PARALLEL_COLOUR:
-            for q in prange(lo, hi):
-                g = order[q]
-                if visit[g]:
-                    changes[q] = _solve_manifold_apart(
-                        g, Manifolds(a, b, group_start, normal, separation, point, friction, restitution, key,
-                                     previous),
-                        Rows(J, MJ, eff, lever, A, cache, cached), Targets(bias, lower, approach, bounce, toi_shift),
-                        lam, lam_n, V, Scratch(block[g], must[g], big[group_start[g]:]))
-                else:
-                    changes[q] = 0.0
-        else:
-            for q in range(lo, hi):
-                g = order[q]
-                # (an if statement, not `x if visit[g] else 0.0`: numba's inlining of _solve_manifold into a
-                # conditional expression lost its return value — every change read 0, the sweeps stopped after one)
-                if visit[g]:
-                    changes[q] = _solve_manifold_apart(g, manifolds, rows, targets, lam, lam_n, V, scratch)
+                    changes[q] = update(g, manifolds, rows, targets, lam, lam_n, V, scratch)
                 else:
                     changes[q] = 0.0
     change = 0.0
@@ -654,8 +556,13 @@ def _sweep_colours_wide(sweep, visit, manifolds, rows, targets, lam, lam_n, V, s
 
 
 @njit
-def _solve_manifold_apart(g, manifolds, rows, targets, lam, lam_n, V, scratch):
-    """DEBUG: _solve_manifold as a call."""
+def _solve_manifold_call(g, manifolds, rows, targets, lam, lam_n, V, scratch):
+    """:func:`_solve_manifold` as a call, not inlined: what the sweeps of :func:`solve_sweeps_wide` update with.
+    Inlined into a function that numba compiles with ``prange`` on, its body read garbage — nondeterministically,
+    on one thread as on two: a 64-box pile's captured sweep input gave λ sums of 57,361, 128 and 124.6 on three
+    calls, plain Python and the serial compile 124.6 — the kind of parfor miscompile numba's tracker holds for
+    functions with a prange in one branch (numba#7630, #9829).  As a call, the parallel function holds only the
+    loops and the pool's bodies only the call: bit-identical to the serial compile (tests/test_solver_colours.py)."""
     return _solve_manifold(g, manifolds, rows, targets, lam, lam_n, V, scratch)
 
 
@@ -969,7 +876,8 @@ def solve_step(contacts, bodies, memory, settings, tally, report, profile):
                                           StepSettings(*settings))
     solving = _velocity_head(contacts, bodies, memory, settings, profile)
     start = clock()
-    sweeps = solve_contacts(solving.manifolds, solving.rows, solving.targets, solving.lam, solving.bodies, settings)
+    sweeps = solve_contacts(solving.manifolds, solving.rows, solving.targets, solving.lam, solving.bodies, settings,
+                            _solve_manifold)
     lap(profile, SOLVE, start)
     return _velocity_tail(solving, bodies, settings, sweeps, tally, report, profile)
 
@@ -1023,7 +931,8 @@ def solve_sweeps_wide(solving, settings, profile):
     thread pool; returns the number of sweeps."""
     settings = StepSettings(*settings)
     start = clock()
-    sweeps = solve_contacts_wide(solving.manifolds, solving.rows, solving.targets, solving.lam, solving.bodies, settings)
+    sweeps = solve_contacts(solving.manifolds, solving.rows, solving.targets, solving.lam, solving.bodies, settings,
+                            _solve_manifold_call)
     lap(profile, SOLVE, start)
     return sweeps
 
