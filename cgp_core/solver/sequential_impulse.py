@@ -525,7 +525,8 @@ def _sweep_colours(sweep, visit, manifolds, rows, targets, lam, lam_n, V, scratc
         manifolds[0], manifolds[1], manifolds[2], manifolds[3], manifolds[4], manifolds[5], manifolds[6],
         manifolds[7], manifolds[8], manifolds[9])
     J, MJ, eff, lever, A, cache, cached = rows[0], rows[1], rows[2], rows[3], rows[4], rows[5], rows[6]
-    bias, lower, approach, bounce, toi_shift = targets[0], targets[1], targets[2], targets[3], targets[4]
+    bias, lower, approach, bounce, impact, toi_shift = (targets[0], targets[1], targets[2], targets[3], targets[4],
+                                                   targets[5])
     C = len(colour_start) - 2
     for k in range(C + 1):
         lo, hi = colour_start[k], colour_start[k + 1]
@@ -536,7 +537,8 @@ def _sweep_colours(sweep, visit, manifolds, rows, targets, lam, lam_n, V, scratc
                     changes[q] = _solve_manifold_call(
                         g, Manifolds(a, b, group_start, normal, separation, point, friction, restitution, key,
                                      previous),
-                        Rows(J, MJ, eff, lever, A, cache, cached), Targets(bias, lower, approach, bounce, toi_shift),
+                        Rows(J, MJ, eff, lever, A, cache, cached), Targets(bias, lower, approach, bounce, impact,
+                                                                                  toi_shift),
                         lam, lam_n, V, Scratch(block[g], must[g], big[group_start[g]:]))
                 else:
                     changes[q] = 0.0
