@@ -124,8 +124,11 @@ def test_a_box_pile_steps_to_the_same_bits_on_one_thread_and_on_two_and_stays_st
     assert np.abs(one[-1, :, 2] - one[0, :, 2]).max() < 1e-3
 
 
-def test_solve_step_and_the_three_calls_of_a_big_world_give_the_same_bits():
-    world = World(parse_scene(pile_scene()))
+@pytest.mark.parametrize("scene", [pile_scene, lambda: box_pile_scene(layers=2, side=8)], ids=["coloured", "plain"])
+def test_solve_step_and_the_three_calls_of_a_big_world_give_the_same_bits(scene):
+    """``plain``: 512 contacts in 128 four-point manifolds — the three calls, but too few manifolds for the
+    regions: one run in the plain order, as solve_step's plain loop."""
+    world = World(parse_scene(scene()))
     for _ in range(10):
         world.step()
     seen = {}
@@ -151,6 +154,32 @@ def test_solve_step_and_the_three_calls_of_a_big_world_give_the_same_bits():
     assert contacts.count >= si.COLOUR_MIN_MANIFOLDS
     for x, y in zip(*results):
         np.testing.assert_array_equal(x, y)
+
+
+def test_the_two_regions_share_no_moving_body():
+    rng = np.random.default_rng(38)
+    for _ in range(20):
+        n = int(rng.integers(4, 80))
+        G = int(rng.integers(2, 300))
+        dynamic = np.append(rng.random(n) < 0.8, False)  # row n: the ground
+        position = np.vstack((rng.normal(size=(n, 3)), np.zeros((1, 3))))
+        a = rng.integers(0, n + 1, size=G)
+        b = (a + rng.integers(1, n + 1, size=G)) % (n + 1)
+        keep = dynamic[a] | dynamic[b]  # (a manifold moves something)
+        a, b = a[keep], b[keep]
+        points = rng.integers(1, 5, size=len(a))
+        group_start = np.concatenate(([0], np.cumsum(points))).astype(np.int64)
+        manifolds = si.Manifolds(np.repeat(a, points).astype(np.int64), np.repeat(b, points).astype(np.int64),
+                                 group_start, *([None] * 7))
+        bodies = si.SolverBodies(None, None, position, dynamic, None, None)
+        order, start, _, _ = si._split_regions.py_func(manifolds, bodies, 1)
+        assert sorted(order.tolist()) == list(range(len(a))) and start[-1] == len(a)
+        sides = []
+        for r in range(2):
+            members = order[start[r]:start[r + 1]]
+            assert (np.diff(members) > 0).all()
+            sides.append({x for g in members for x in (a[g], b[g]) if dynamic[x]})
+        assert not sides[0] & sides[1]
 
 
 PILE_SCRIPT = r"""

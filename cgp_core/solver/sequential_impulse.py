@@ -124,6 +124,11 @@ IMPACT_SWEEPS = 16
 COLOUR_MIN_MANIFOLDS = 256
 PARALLEL_COLOUR = 64
 
+#: how a big world's sweeps are split (experiment, issue 37): True — two regions (the bodies on either side of the
+#: plane through the median of the manifolds' positions along the widest axis; each region's manifolds on a thread
+#: of its own, one pool launch per sweep, then the manifolds joining the two regions); False — the colours
+SPLIT_REGIONS = True
+
 #: numba's ``parallel`` options that turn ``prange`` loops alone into parallel loops
 PRANGE_ONLY = {"prange": True, "comprehension": False, "reduction": False, "inplace_binop": False, "setitem": False,
                "numpy": False, "stencil": False, "fusion": False}
@@ -445,7 +450,7 @@ def impact_manifolds(manifolds, targets):
 
 
 @njit(inline="always")
-def solve_contacts(manifolds, rows, targets, lam, bodies, settings, update):
+def solve_contacts(manifolds, rows, targets, lam, bodies, settings, update, wide):
     """The sweeps: manifold after manifold (:func:`_solve_manifold`), updating ``lam`` and ``bodies.velocity``
     in place, until a whole sweep changed no row velocity by more than ``velocity_tolerance`` (a warm-started
     resting stack is converged after one) or ``velocity_iterations`` sweeps; then the impact sweeps.  Returns
@@ -456,7 +461,10 @@ def solve_contacts(manifolds, rows, targets, lam, bodies, settings, update):
     (:func:`.colouring.colour_manifolds`: no two of a colour share a moving body) and updates the manifolds of a
     colour of :data:`PARALLEL_COLOUR` or more on numba's thread pool (:func:`_sweep_colours`) — Box2D v3's solver
     on its constraint graph.  Same bits on any number of threads (the colouring never depends on it); other bits
-    than the plain order, which smaller worlds keep."""
+    than the plain order, which smaller worlds keep.  With :data:`SPLIT_REGIONS` (the experiment in use), two
+    regions and their border instead of the colours (:func:`_split_regions`, :func:`_sweep_regions`): one pool
+    launch per sweep instead of one per wide colour, the update inlined in :func:`_solve_region`.  ``wide``: this
+    is :func:`solve_sweeps_wide` (there even a small world's plain order goes through :func:`_solve_region`)."""
     group_start = manifolds.group_start
     m = len(manifolds.a)
     G = len(group_start) - 1
@@ -467,13 +475,20 @@ def solve_contacts(manifolds, rows, targets, lam, bodies, settings, update):
     # (impacts are rare; resting manifolds are warm)
     impact, any_impact = impact_manifolds(manifolds, targets)
     coloured = G >= COLOUR_MIN_MANIFOLDS
-    sweep = _colour_sweep(manifolds, bodies.dynamic, coloured, scratch)
-    every = np.ones(G if coloured else 0, np.bool_)
+    # ``wide`` (the kernel compiled with prange): the sweeps go through _solve_region even when not coloured (one
+    # run in the plain order, the same bits as the plain loop) — there, a call per manifold costs ~200 ns more
+    by_regions = SPLIT_REGIONS and (coloured or wide)
+    sweep = _colour_sweep(manifolds, bodies.dynamic, coloured and not SPLIT_REGIONS, scratch)
+    regions = _split_regions(manifolds, bodies, (1 if coloured else 2) if by_regions else 0)
+    every = np.ones(G if coloured or by_regions else 0, np.bool_)
     sweeps = 0
     impact_done = 0
     regular = True  # the regular sweeps over every manifold first, then the impact sweeps
     while True:
-        if coloured:
+        if by_regions:
+            change = _sweep_regions(regions, every if regular else impact, manifolds, rows, targets, lam, lam_n,
+                                    bodies.velocity)
+        elif coloured:
             change = _sweep_colours(sweep, every if regular else impact, manifolds, rows, targets, lam, lam_n,
                                     bodies.velocity, scratch, update)
         else:
@@ -494,6 +509,119 @@ def solve_contacts(manifolds, rows, targets, lam, bodies, settings, update):
             if change <= settings.velocity_tolerance or impact_done >= settings.impact_sweeps:
                 break
     return sweeps
+
+
+@njit(inline="always")
+def _split_regions(manifolds, bodies, mode):
+    """Two regions of the contact graph and their border: ``order (G,)`` int64, the manifolds of region 0, of
+    region 1, then those joining a body of each (each run in the manifolds' own order); ``region_start (4,)``;
+    ``changes (3,)``; ``bigs (2, m, 2)``, each region's Scratch.big.  A moving body is in region 1 if its position
+    along the widest axis of the moving bodies is at least the median of the manifolds' positions (a manifold's:
+    its moving body's, or the mean of its two); a manifold touching moving bodies of one region only is that
+    region's (the static row is in none: its velocity never changes).  Depends on the manifolds and the positions
+    only, never on the number of threads.  ``mode``: 1 split; 2 no regions, all of them the border in the plain
+    order (the same bits as the plain sweep); 0 nothing (empty arrays)."""
+    G = len(manifolds.group_start) - 1
+    m = len(manifolds.a)
+    if mode == 0:
+        return np.zeros(0, np.int64), np.zeros(4, np.int64), np.zeros(3), np.zeros((2, 0, 2))
+    if mode == 2:
+        region_start = np.zeros(4, np.int64)
+        region_start[3] = G
+        return np.arange(G), region_start, np.zeros(3), np.empty((2, m, 2))
+    position, dynamic = bodies.position, bodies.dynamic
+    n1 = len(dynamic)
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for i in range(n1):
+        if dynamic[i]:
+            for k in range(3):
+                lo[k] = min(lo[k], position[i, k])
+                hi[k] = max(hi[k], position[i, k])
+    axis = 0
+    for k in range(1, 3):
+        if hi[k] - lo[k] > hi[axis] - lo[axis]:
+            axis = k
+    keys = np.empty(G)
+    for g in range(G):
+        first = manifolds.group_start[g]
+        i, j = manifolds.a[first], manifolds.b[first]
+        if dynamic[i] and dynamic[j]:
+            keys[g] = 0.5 * (position[i, axis] + position[j, axis])
+        elif dynamic[i]:
+            keys[g] = position[i, axis]
+        else:
+            keys[g] = position[j, axis]
+    median = np.sort(keys)[G // 2]
+    region = np.empty(G, np.int64)
+    count = np.zeros(3, np.int64)
+    for g in range(G):
+        first = manifolds.group_start[g]
+        i, j = manifolds.a[first], manifolds.b[first]
+        ri = (1 if position[i, axis] >= median else 0) if dynamic[i] else -1
+        rj = (1 if position[j, axis] >= median else 0) if dynamic[j] else -1
+        if ri < 0:
+            r = rj
+        elif rj < 0 or rj == ri:
+            r = ri
+        else:
+            r = 2
+        region[g] = r
+        count[r] += 1
+    region_start = np.zeros(4, np.int64)
+    for r in range(3):
+        region_start[r + 1] = region_start[r] + count[r]
+    order = np.empty(G, np.int64)
+    fill = region_start[:3].copy()
+    for g in range(G):
+        order[fill[region[g]]] = g
+        fill[region[g]] += 1
+    return order, region_start, np.zeros(3), np.empty((2, m, 2))
+
+
+@njit(inline="always")
+def _sweep_regions(regions, visit, manifolds, rows, targets, lam, lam_n, V):
+    """One sweep over the manifolds ``visit (G,)`` marks, by the regions of :func:`_split_regions`: regions 0 and 1
+    at the same time (one launch of numba's pool in :func:`solve_sweeps_wide`; they share no moving body, so each
+    sees what it would see alone — the same bits on any number of threads), then the border.  Each region's run
+    is one call of :func:`_solve_region` (the manifold update inlined there, in a function compiled without
+    prange).  Returns the largest change."""
+    order, region_start, changes, bigs = regions[0], regions[1], regions[2], regions[3]
+    a, b, group_start, normal, separation, point, friction, restitution, key, previous = (
+        manifolds[0], manifolds[1], manifolds[2], manifolds[3], manifolds[4], manifolds[5], manifolds[6],
+        manifolds[7], manifolds[8], manifolds[9])
+    J, MJ, eff, lever, A, cache, cached = rows[0], rows[1], rows[2], rows[3], rows[4], rows[5], rows[6]
+    bias, lower, approach, bounce, impact, toi_shift = (targets[0], targets[1], targets[2], targets[3], targets[4],
+                                                   targets[5])
+    for r in prange(2):
+        changes[r] = _solve_region(order[region_start[r]:region_start[r + 1]], visit, a, b, group_start, normal,
+                                   separation, point, friction, restitution, key, previous, J, MJ, eff, lever, A,
+                                   cache, cached, bias, lower, approach, bounce, impact, toi_shift, lam, lam_n, V,
+                                   bigs[r])
+    changes[2] = _solve_region(order[region_start[2]:region_start[3]], visit, a, b, group_start, normal, separation,
+                               point, friction, restitution, key, previous, J, MJ, eff, lever, A, cache, cached,
+                               bias, lower, approach, bounce, impact, toi_shift, lam, lam_n, V, bigs[0])
+    return max(changes[0], max(changes[1], changes[2]))
+
+
+@njit
+def _solve_region(run, visit, a, b, group_start, normal, separation, point, friction, restitution, key, previous, J,
+                  MJ, eff, lever, A, cache, cached, bias, lower, approach, bounce, impact, toi_shift, lam, lam_n, V,
+                  big):
+    """The manifolds ``run`` that ``visit`` marks, one after another (:func:`_solve_manifold`, inlined here), with
+    scratch of their own; returns the largest change."""
+    manifolds = Manifolds(a, b, group_start, normal, separation, point, friction, restitution, key, previous)
+    rows = Rows(J, MJ, eff, lever, A, cache, cached)
+    targets = Targets(bias, lower, approach, bounce, impact, toi_shift)
+    scratch = Scratch(np.empty((2, MAX_BLOCK)), np.zeros(MAX_BLOCK, np.bool_), big)
+    change = 0.0
+    for q in range(len(run)):
+        g = run[q]
+        if visit[g]:
+            c = _solve_manifold(g, manifolds, rows, targets, lam, lam_n, V, scratch)
+            if c > change:
+                change = c
+    return change
 
 
 @njit(inline="always")
@@ -879,7 +1007,7 @@ def solve_step(contacts, bodies, memory, settings, tally, report, profile):
     solving = _velocity_head(contacts, bodies, memory, settings, profile)
     start = clock()
     sweeps = solve_contacts(solving.manifolds, solving.rows, solving.targets, solving.lam, solving.bodies, settings,
-                            _solve_manifold)
+                            _solve_manifold, False)
     lap(profile, SOLVE, start)
     return _velocity_tail(solving, bodies, settings, sweeps, tally, report, profile)
 
@@ -934,7 +1062,7 @@ def solve_sweeps_wide(solving, settings, profile):
     settings = StepSettings(*settings)
     start = clock()
     sweeps = solve_contacts(solving.manifolds, solving.rows, solving.targets, solving.lam, solving.bodies, settings,
-                            _solve_manifold_call)
+                            _solve_manifold_call, True)
     lap(profile, SOLVE, start)
     return sweeps
 
