@@ -390,7 +390,7 @@ def njit(*args, **options):
 def _compiled(function, settings):
     module = function.__module__
     # twin=False: a parallel kernel that compiled code calls (a ParallelKernel's choice of twin is Python's); its
-    # caller decides when to go wide (e.g. the solver's sweep over a colour of the contact graph)
+    # caller decides when to go wide (e.g. the solver's sweeps by two regions, for big worlds only)
     twin = settings.pop("twin", True)
     if JIT_DISABLED or (JIT_ONLY and not any(module == m or module.startswith(m + ".") for m in JIT_ONLY)):
         return function  # plain Python: the JIT is off, or this is another compile worker's kernel

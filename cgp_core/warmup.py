@@ -78,7 +78,7 @@ def warm_up(ticks: int = 24, *, complete: bool = True, flocks: bool = True) -> W
             warm_up_convex(flocks=flocks)
         _warm_up_grid()
         if _compiles_any("cgp_core.solver"):
-            _warm_up_wide_solver()
+            _warm_up_solver_by_regions()
         if _compiles_any("cgp_core.robots"):
             warm_up_robots()
     return world
@@ -136,16 +136,16 @@ def _warm_up_grid() -> None:
     grid_kernel(lo, lo + 1.0 + 7.0 * (lo < -1.0), np.arange(3, dtype=np.intp), 0.0)
 
 
-def _warm_up_wide_solver() -> None:
-    """The solver's path for big worlds (:func:`cgp_core.solver.sequential_impulse.solve_contacts`: the contact
-    graph's colours on the thread pool), which a world of :data:`~cgp_core.solver.sequential_impulse.
-    COLOUR_MIN_MANIFOLDS` contacts or more takes: that many spheres resting on the ground, with and without the
+def _warm_up_solver_by_regions() -> None:
+    """The solver's path for big worlds (:func:`cgp_core.solver.sequential_impulse.solve_sweeps_by_regions`: the
+    sweeps by two regions on the thread pool), which a sub-step of :data:`~cgp_core.solver.sequential_impulse.
+    SPLIT_MIN_MANIFOLDS` contacts or more takes: that many spheres resting on the ground, with and without the
     contact report."""
     from .scene import parse_scene
-    from .solver.sequential_impulse import COLOUR_MIN_MANIFOLDS
+    from .solver.sequential_impulse import SPLIT_MIN_MANIFOLDS
     from .world import World
 
-    side = int(COLOUR_MIN_MANIFOLDS ** 0.5) + 1
+    side = int(SPLIT_MIN_MANIFOLDS ** 0.5) + 1
     bodies = "\n".join(f"  - {{name: s{i}_{j}, shape: sphere, radius: 0.1, position: [{0.25 * i}, {0.25 * j}, 0.1]}}"
                        for i in range(side) for j in range(side))
     world = World(parse_scene(f"world: {{sleep: false}}\nbodies:\n{bodies}\n"))

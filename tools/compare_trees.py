@@ -21,9 +21,9 @@ every flock's positions, velocities and orientations, and the contact count.
 
 ``speed`` — per round and tree, one child process per case, the rounds interleaved old / new / new / old ...:
 the default scene's bodies (5 bodies, sleep off; the dispatch overhead of the compiled calls matters most there),
-bench_rigid's 200-body pile, and a 15k-boid flock step (bench_boids' scene); the median tick of each, with
-``benchmarks/common.py: speed_probe`` before each child.  ``compile`` — the cold compile (``python -m
-cgp_core.warmup`` with an empty ``NUMBA_CACHE_DIR``), old and new alternately.
+bench_rigid's 200-body pile, the built-in sphere_pile, and a 15k-boid flock step (bench_boids' scene); the
+median tick of each, with ``benchmarks/common.py: speed_probe`` before each child.  ``compile`` — the cold
+compile (``python -m cgp_core.warmup`` with an empty ``NUMBA_CACHE_DIR``), old and new alternately.
 """
 
 from __future__ import annotations
@@ -250,7 +250,7 @@ def compare_bits(old: Path, new: Path, cases: list[str], ticks: int, scratch: Pa
 
 
 # the speed cases (child side): a world and its name; timed tick by tick after a warm-up
-SPEED_CASES = ("default_bodies", "pile", "boids_15k")
+SPEED_CASES = ("default_bodies", "pile", "sphere_pile", "boids_15k")
 
 
 def speed_stepper(case: str):
@@ -266,6 +266,8 @@ def speed_stepper(case: str):
         return world.step, 60, 600
     if case == "pile":
         return World(parse_scene(pile_scene())).step, 0, 240
+    if case == "sphere_pile":  # the built-in scene (~2,500 contacts, one-point manifolds: the regions' case)
+        return World(load_scene("sphere_pile")).step, 0, 240
     if case == "boids_15k":
         # bench_boids' flock: 15,000 default boids spawned in a cube, a soft-walled box three times its size
         side = (15_000 / 0.08) ** (1.0 / 3.0)

@@ -135,19 +135,6 @@ class Solving(NamedTuple):
     deepest: float         # the deepest penetration at the start of the sub-step [m]
 
 
-class ColourSweep(NamedTuple):
-    """The sweeps over a big contact graph colour by colour (:func:`.sequential_impulse.solve_contacts`, colourings
-    from :func:`.colouring.colour_manifolds`), and each manifold's scratch (a manifold updated on the thread pool
-    must not share it with one on another thread)."""
-
-    order: np.ndarray         # (G,) int64 the manifolds colour by colour
-    colour_start: np.ndarray  # (C + 2,) int64 colour k: order[colour_start[k] : colour_start[k + 1]]; last: overflow
-    change: np.ndarray        # (G,) the last update's largest |Δλ| / eff of each manifold, by its place in ``order``
-    block: np.ndarray         # (G, 2, 4) per manifold: Scratch.block
-    must: np.ndarray          # (G, 4) bool per manifold: Scratch.must
-    big: np.ndarray           # (m, 2) Scratch.big of the sweeps: manifold g uses its own run of rows
-
-
 class Handover(NamedTuple):
     """What the velocity stage hands back to Python: the position stage's inputs (the manifolds' body pairs, runs
     and gaps, their rows, the time-of-impact targets) and the statistics.  Narrower than everything the stage ends

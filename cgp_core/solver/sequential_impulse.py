@@ -51,6 +51,21 @@ stop early once one changes no row velocity by more than ``velocity_tolerance``.
 batched the manifolds by graph colouring to vectorize Gauss–Seidel; compiled, the plain order is simpler and
 converges at least as well.)
 
+**Big worlds on two cores** (issue 37): parallelism by a spatial split, like Box2D v3's solver, which splits
+its sweeps among worker threads — but not by its constraint graph's colours.  From :data:`SPLIT_MIN_MANIFOLDS`
+manifolds on, the moving bodies are split in two regions by the plane through the median of the manifolds'
+positions along the widest axis (:func:`_split_regions`); each sweep updates the two regions' manifolds at the
+same time, each region in the plain order on a thread of its own (one launch of numba's pool per sweep), then,
+on one thread, the manifolds joining a body of each region (:func:`_sweep_regions`).  Two regions share no moving
+body, so each sees what it would see alone: the same bits on one thread as on two, compiled or as plain Python.
+It is another order than the plain one (other bits than the serial sweep would give), so worlds below the
+threshold keep the plain order.  Graph colouring was measured first and dropped: on the 200-body pile a
+sweep colour by colour took ~145 pool launches a tick at ~8 µs each, and its colours of ~90 manifolds were too
+small to pay a second thread — 14.6 % slower than the serial sweep (7.78 → 8.92 ms a tick); the two regions make
+it ~11 % faster (7.88 → 7.01 ms; and 3–4 % faster on one thread).  A big world's :func:`solve_step` runs as three
+calls, the sweeps in a kernel of their own compiled with ``prange`` (:func:`solve_sweeps_by_regions`): numba
+refuses to cache a compiled caller of a parallel kernel.
+
 **Penetration recovery** (pipeline stage "recover penetration", after the integrator): split impulses /
 pseudo-velocities (Catto 2006; Bullet's ``splitImpulse``) in the form of Box2D v2's position solver,
 linearized.  The separation after the integrator is estimated from the contact's start value and the
@@ -98,7 +113,6 @@ from ..rotation import (
 )
 from .arrays import (
     BodyArrays,
-    ColourSweep,
     Handover,
     Manifolds,
     RecoveryBodies,
@@ -111,23 +125,17 @@ from .arrays import (
     WarmStart,
 )
 from .base import SolverSettings
-from .colouring import colour_manifolds
 from .manifold import MAX_BLOCK, solve_manifold_lcp
 from .report import ContactReport, ContactTally, finish_report, tally_contacts
 
 #: extra sweeps over the manifolds holding a bouncing point (see solve_contacts)
 IMPACT_SWEEPS = 16
 
-#: from this many manifolds on, the sweeps go colour by colour of the contact graph (:mod:`.colouring`) and a
-#: colour of at least :data:`PARALLEL_COLOUR` manifolds is updated on numba's thread pool; below, in the plain
-#: order (measured: see solve_contacts)
-COLOUR_MIN_MANIFOLDS = 256
-PARALLEL_COLOUR = 64
-
-#: how a big world's sweeps are split (experiment, issue 37): True — two regions (the bodies on either side of the
-#: plane through the median of the manifolds' positions along the widest axis; each region's manifolds on a thread
-#: of its own, one pool launch per sweep, then the manifolds joining the two regions); False — the colours
-SPLIT_REGIONS = True
+#: from this many manifolds on, the sweeps go by two regions of the contact graph, the two on numba's thread pool,
+#: then their border (see the module's docstring); fewer, one after another in the plain order.  A sub-step with
+#: this many contacts or more (its manifolds are counted only inside the compiled stages) takes the three calls of
+#: :func:`_solve_step_by_regions`.  (The colouring's threshold, kept: the regions' break-even was not measured)
+SPLIT_MIN_MANIFOLDS = 256
 
 #: numba's ``parallel`` options that turn ``prange`` loops alone into parallel loops
 PRANGE_ONLY = {"prange": True, "comprehension": False, "reduction": False, "inplace_binop": False, "setitem": False,
@@ -450,21 +458,17 @@ def impact_manifolds(manifolds, targets):
 
 
 @njit(inline="always")
-def solve_contacts(manifolds, rows, targets, lam, bodies, settings, update, wide):
+def solve_contacts(manifolds, rows, targets, lam, bodies, settings, parallel):
     """The sweeps: manifold after manifold (:func:`_solve_manifold`), updating ``lam`` and ``bodies.velocity``
     in place, until a whole sweep changed no row velocity by more than ``velocity_tolerance`` (a warm-started
     resting stack is converged after one) or ``velocity_iterations`` sweeps; then the impact sweeps.  Returns
-    the number of sweeps run.  ``update``: the update of one manifold, :func:`_solve_manifold` (inlined: the
-    serial kernels) or :func:`_solve_manifold_call` (a call: :func:`solve_sweeps_wide`, compiled with ``prange``).
+    the number of sweeps run.
 
-    From :data:`COLOUR_MIN_MANIFOLDS` manifolds on, a sweep visits them colour by colour of the contact graph
-    (:func:`.colouring.colour_manifolds`: no two of a colour share a moving body) and updates the manifolds of a
-    colour of :data:`PARALLEL_COLOUR` or more on numba's thread pool (:func:`_sweep_colours`) — Box2D v3's solver
-    on its constraint graph.  Same bits on any number of threads (the colouring never depends on it); other bits
-    than the plain order, which smaller worlds keep.  With :data:`SPLIT_REGIONS` (the experiment in use), two
-    regions and their border instead of the colours (:func:`_split_regions`, :func:`_sweep_regions`): one pool
-    launch per sweep instead of one per wide colour, the update inlined in :func:`_solve_region`.  ``wide``: this
-    is :func:`solve_sweeps_wide` (there even a small world's plain order goes through :func:`_solve_region`)."""
+    From :data:`SPLIT_MIN_MANIFOLDS` manifolds on, a sweep goes by two regions and their border
+    (:func:`_split_regions`, :func:`_sweep_regions`; the module's docstring says why); fewer, manifold after
+    manifold in the plain order, the update inlined here.  ``parallel``: this is :func:`solve_sweeps_by_regions`,
+    compiled with ``prange`` — there the update must not be inlined (see :func:`_solve_region`), so even the plain
+    order goes through :func:`_solve_region` (one run, all of it the border: the same bits as the plain loop)."""
     group_start = manifolds.group_start
     m = len(manifolds.a)
     G = len(group_start) - 1
@@ -474,13 +478,10 @@ def solve_contacts(manifolds, rows, targets, lam, bodies, settings, update, wide
     # manifolds holding a bouncing point get up to ``impact_sweeps`` extra sweeps after the regular ones
     # (impacts are rare; resting manifolds are warm)
     impact, any_impact = impact_manifolds(manifolds, targets)
-    coloured = G >= COLOUR_MIN_MANIFOLDS
-    # ``wide`` (the kernel compiled with prange): the sweeps go through _solve_region even when not coloured (one
-    # run in the plain order, the same bits as the plain loop) — there, a call per manifold costs ~200 ns more
-    by_regions = SPLIT_REGIONS and (coloured or wide)
-    sweep = _colour_sweep(manifolds, bodies.dynamic, coloured and not SPLIT_REGIONS, scratch)
-    regions = _split_regions(manifolds, bodies, (1 if coloured else 2) if by_regions else 0)
-    every = np.ones(G if coloured or by_regions else 0, np.bool_)
+    split = G >= SPLIT_MIN_MANIFOLDS
+    by_regions = split or parallel
+    regions = _split_regions(manifolds, bodies, (1 if split else 2) if by_regions else 0)
+    every = np.ones(G if by_regions else 0, np.bool_)
     sweeps = 0
     impact_done = 0
     regular = True  # the regular sweeps over every manifold first, then the impact sweeps
@@ -488,14 +489,12 @@ def solve_contacts(manifolds, rows, targets, lam, bodies, settings, update, wide
         if by_regions:
             change = _sweep_regions(regions, every if regular else impact, manifolds, rows, targets, lam, lam_n,
                                     bodies.velocity)
-        elif coloured:
-            change = _sweep_colours(sweep, every if regular else impact, manifolds, rows, targets, lam, lam_n,
-                                    bodies.velocity, scratch, update)
         else:
             change = 0.0
             for g in range(G):
                 if regular or impact[g]:
-                    change = max(change, update(g, manifolds, rows, targets, lam, lam_n, bodies.velocity, scratch))
+                    change = max(change, _solve_manifold(g, manifolds, rows, targets, lam, lam_n, bodies.velocity,
+                                                         scratch))
         # each kind stops once a whole sweep changed no row velocity by more than the tolerance (a warm-started
         # resting stack is converged after one), or after its number of sweeps
         if regular:
@@ -582,7 +581,7 @@ def _split_regions(manifolds, bodies, mode):
 @njit(inline="always")
 def _sweep_regions(regions, visit, manifolds, rows, targets, lam, lam_n, V):
     """One sweep over the manifolds ``visit (G,)`` marks, by the regions of :func:`_split_regions`: regions 0 and 1
-    at the same time (one launch of numba's pool in :func:`solve_sweeps_wide`; they share no moving body, so each
+    at the same time (one launch of numba's pool in :func:`solve_sweeps_by_regions`; they share no moving body, so each
     sees what it would see alone — the same bits on any number of threads), then the border.  Each region's run
     is one call of :func:`_solve_region` (the manifold update inlined there, in a function compiled without
     prange).  Returns the largest change."""
@@ -609,7 +608,12 @@ def _solve_region(run, visit, a, b, group_start, normal, separation, point, fric
                   MJ, eff, lever, A, cache, cached, bias, lower, approach, bounce, impact, toi_shift, lam, lam_n, V,
                   big):
     """The manifolds ``run`` that ``visit`` marks, one after another (:func:`_solve_manifold`, inlined here), with
-    scratch of their own; returns the largest change."""
+    scratch of their own; returns the largest change.  A function of its own, compiled without ``prange``, and
+    called with arrays only (numba cannot hand a loop run on the pool a named tuple made outside it): inlined into
+    the function that numba compiles with ``prange`` on, the manifold update read garbage — nondeterministically,
+    on one thread as on two (a 64-box pile's captured sweep input gave λ sums of 57,361, 128 and 124.6 on three
+    calls; plain Python and the serial compile 124.6), the kind of parfor miscompile numba's tracker holds for
+    functions with a prange in one branch (numba#7630, #9829)."""
     manifolds = Manifolds(a, b, group_start, normal, separation, point, friction, restitution, key, previous)
     rows = Rows(J, MJ, eff, lever, A, cache, cached)
     targets = Targets(bias, lower, approach, bounce, impact, toi_shift)
@@ -622,78 +626,6 @@ def _solve_region(run, visit, a, b, group_start, normal, separation, point, fric
             if c > change:
                 change = c
     return change
-
-
-@njit(inline="always")
-def _colour_sweep(manifolds, dynamic, coloured, scratch):
-    """The :class:`ColourSweep` of the manifolds (empty arrays unless ``coloured``); ``scratch``: the sweeps'
-    :class:`Scratch`, whose per-point rows the manifolds share (each its own run)."""
-    G = len(manifolds.group_start) - 1
-    if not coloured:
-        return ColourSweep(np.zeros(0, np.int64), np.zeros(2, np.int64), np.zeros(0), np.zeros((0, 2, MAX_BLOCK)),
-                           np.zeros((0, MAX_BLOCK), np.bool_), scratch.big)
-    order, colour_start = colour_manifolds(manifolds.a, manifolds.b, manifolds.group_start, dynamic)
-    return ColourSweep(order, colour_start, np.zeros(G), np.empty((G, 2, MAX_BLOCK)),
-                       np.zeros((G, MAX_BLOCK), np.bool_), scratch.big)
-
-
-@njit(inline="always")
-def _sweep_colours(sweep, visit, manifolds, rows, targets, lam, lam_n, V, scratch, update):
-    """One sweep colour by colour over the manifolds ``visit (G,)`` bool marks.  A colour of :data:`PARALLEL_COLOUR`
-    manifolds or more is updated on numba's thread pool (no two share a moving body, so each sees the same
-    velocities in any order; the static row n is written by many at once — M⁻¹ = 0 there: adding zeros), each
-    manifold with scratch of its own (no thread ids: nothing in the result depends on which thread ran what); a
-    small colour and the overflow here, in order.  Returns the largest change (as
-    the plain sweep).  (The loop is parallel in :func:`solve_step`, compiled with ``prange`` on; in a kernel
-    compiled without it, a plain loop: the same bits.)"""
-    order, colour_start, changes, block, must, big = sweep[0], sweep[1], sweep[2], sweep[3], sweep[4], sweep[5]
-    # the parallel loop's body sees arrays only, and names its bundles inside (numba cannot hand a loop run on the
-    # pool a named tuple made outside it)
-    a, b, group_start, normal, separation, point, friction, restitution, key, previous = (
-        manifolds[0], manifolds[1], manifolds[2], manifolds[3], manifolds[4], manifolds[5], manifolds[6],
-        manifolds[7], manifolds[8], manifolds[9])
-    J, MJ, eff, lever, A, cache, cached = rows[0], rows[1], rows[2], rows[3], rows[4], rows[5], rows[6]
-    bias, lower, approach, bounce, impact, toi_shift = (targets[0], targets[1], targets[2], targets[3], targets[4],
-                                                   targets[5])
-    C = len(colour_start) - 2
-    for k in range(C + 1):
-        lo, hi = colour_start[k], colour_start[k + 1]
-        if k < C and hi - lo >= PARALLEL_COLOUR:
-            for q in prange(lo, hi):
-                g = order[q]
-                if visit[g]:
-                    changes[q] = _solve_manifold_call(
-                        g, Manifolds(a, b, group_start, normal, separation, point, friction, restitution, key,
-                                     previous),
-                        Rows(J, MJ, eff, lever, A, cache, cached), Targets(bias, lower, approach, bounce, impact,
-                                                                                  toi_shift),
-                        lam, lam_n, V, Scratch(block[g], must[g], big[group_start[g]:]))
-                else:
-                    changes[q] = 0.0
-        else:
-            for q in range(lo, hi):
-                g = order[q]
-                # (an if statement, not `x if visit[g] else 0.0`: numba's inlining of _solve_manifold into a
-                # conditional expression lost its return value — every change read 0, the sweeps stopped after one)
-                if visit[g]:
-                    changes[q] = update(g, manifolds, rows, targets, lam, lam_n, V, scratch)
-                else:
-                    changes[q] = 0.0
-    change = 0.0
-    for q in range(len(order)):
-        change = max(change, changes[q])
-    return change
-
-
-@njit
-def _solve_manifold_call(g, manifolds, rows, targets, lam, lam_n, V, scratch):
-    """:func:`_solve_manifold` as a call, not inlined: what the sweeps of :func:`solve_sweeps_wide` update with.
-    Inlined into a function that numba compiles with ``prange`` on, its body read garbage — nondeterministically,
-    on one thread as on two: a 64-box pile's captured sweep input gave λ sums of 57,361, 128 and 124.6 on three
-    calls, plain Python and the serial compile 124.6 — the kind of parfor miscompile numba's tracker holds for
-    functions with a prange in one branch (numba#7630, #9829).  As a call, the parallel function holds only the
-    loops and the pool's bodies only the call: bit-identical to the serial compile (tests/test_solver_colours.py)."""
-    return _solve_manifold(g, manifolds, rows, targets, lam, lam_n, V, scratch)
 
 
 @njit(inline="always")
@@ -997,8 +929,7 @@ def solve_step(contacts, bodies, memory, settings, tally, report, profile):
     One compiled entry for both cases, ``report`` an argument and not a literal: numba compiles each entry point
     with the whole tree of functions it calls, so two entries sharing this body (with and without the report)
     cost the solver's compile twice (issue 34).  A big world's contacts take three calls instead, the sweeps on
-    the thread pool (:func:`solve_head`, :func:`solve_sweeps_wide`, :func:`solve_tail`): the same stages, the
-    same bits.
+    the thread pool (:func:`_solve_step_by_regions`): the same stages, the same bits.
 
     Returns what the position stage needs (:class:`Handover`), the new warm-start memory and the new tally (None
     without ``report``)."""
@@ -1007,7 +938,7 @@ def solve_step(contacts, bodies, memory, settings, tally, report, profile):
     solving = _velocity_head(contacts, bodies, memory, settings, profile)
     start = clock()
     sweeps = solve_contacts(solving.manifolds, solving.rows, solving.targets, solving.lam, solving.bodies, settings,
-                            _solve_manifold, False)
+                            False)
     lap(profile, SOLVE, start)
     return _velocity_tail(solving, bodies, settings, sweeps, tally, report, profile)
 
@@ -1052,17 +983,17 @@ def solve_head(contacts, bodies, memory, settings, profile):
                           profile)
 
 
-# parallel: the prange loop of the colours only (_sweep_colours) — not numpy's array expressions.  (A parallel
+# parallel: the prange loop of the two regions only (_sweep_regions) — not numpy's array expressions.  (A parallel
 # kernel cannot be called from solve_step: numba then refuses to cache the caller, "dynamic globals"; and compiled
 # with prange on, solve_step's stages trip numba's array analysis)
 @njit(parallel=PRANGE_ONLY, twin=False)
-def solve_sweeps_wide(solving, settings, profile):
-    """A big world's :func:`solve_step`, second call: the sweeps (:func:`solve_contacts`), the colours on the
-    thread pool; returns the number of sweeps."""
+def solve_sweeps_by_regions(solving, settings, profile):
+    """A big world's :func:`solve_step`, second call: the sweeps (:func:`solve_contacts`), two regions at a time
+    on the thread pool; returns the number of sweeps."""
     settings = StepSettings(*settings)
     start = clock()
     sweeps = solve_contacts(solving.manifolds, solving.rows, solving.targets, solving.lam, solving.bodies, settings,
-                            _solve_manifold_call, True)
+                            True)
     lap(profile, SOLVE, start)
     return sweeps
 
@@ -1073,11 +1004,12 @@ def solve_tail(solving, bodies, settings, sweeps, tally, report, profile):
     return _velocity_tail(solving, BodyArrays(*bodies), StepSettings(*settings), sweeps, tally, report, profile)
 
 
-def _solve_wide(contacts, bodies, memory, settings, tally, report, profile):
-    """:func:`solve_step` in three calls, the sweeps on the thread pool: what a world of
-    :data:`COLOUR_MIN_MANIFOLDS` contacts or more runs (see :func:`solve_contacts`)."""
+def _solve_step_by_regions(contacts, bodies, memory, settings, tally, report, profile):
+    """:func:`solve_step` in three calls (:func:`solve_head`, :func:`solve_sweeps_by_regions`, :func:`solve_tail`),
+    the sweeps on the thread pool: what a sub-step of :data:`SPLIT_MIN_MANIFOLDS` contacts or more runs (with
+    fewer manifolds than that, still the plain order: see :func:`solve_contacts`)."""
     solving = solve_head(contacts, bodies, memory, settings, profile)
-    sweeps = solve_sweeps_wide(solving, settings, profile)
+    sweeps = solve_sweeps_by_regions(solving, settings, profile)
     return solve_tail(solving, bodies, settings, sweeps, tally, report, profile)
 
 
@@ -1295,8 +1227,8 @@ class SequentialImpulseSolver:
         bodies = (model.inv_mass, movable, np.ascontiguousarray(inv_inertia), state.position, state.linear_momentum,
                   state.angular_momentum, state.force, state.torque)  # a BodyArrays, as a plain tuple
         solve = solve_step if coupled is None else coupled.solve
-        if coupled is None and contacts.count >= COLOUR_MIN_MANIFOLDS:
-            solve = _solve_wide
+        if coupled is None and contacts.count >= SPLIT_MIN_MANIFOLDS:
+            solve = _solve_step_by_regions
         if self._reporting:
             tally = self._tally
             if tally is None or len(tally.touched) != n + 1:

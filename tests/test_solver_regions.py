@@ -1,7 +1,8 @@
-"""Issue 37: a big world's contact sweeps colour by colour of the contact graph, the colours on numba's thread pool
-(cgp_core.solver.colouring, sequential_impulse.solve_contacts): a colouring no two manifolds of a colour share a
-moving body in; the same bits on one thread and on two, compiled and as plain Python, and through solve_step as
-through the three calls big worlds take; and the physics of the resting pile (its weight carried, no sinking)."""
+"""Issue 37: a big world's contact sweeps by two regions of the contact graph, the two on numba's thread pool, then
+their border (sequential_impulse.solve_contacts, _split_regions, _sweep_regions): the two regions share no moving
+body; the same bits on one thread and on two, compiled and as plain Python, and through solve_step as through the
+three calls big worlds take (also through impact sweeps); and the physics of the resting pile (its weight carried,
+no sinking)."""
 
 from __future__ import annotations
 
@@ -14,56 +15,13 @@ from test_jit_parity import RECORD_BODIES, run
 
 from cgp_core import World, parse_scene
 from cgp_core.solver import sequential_impulse as si
-from cgp_core.solver.colouring import MAX_COLOURS, colour_manifolds
 
 G_ACCEL = 9.81
 
 
-def check_colouring(a, b, group_start, dynamic):
-    order, colour_start = colour_manifolds(a, b, group_start, dynamic)
-    G = len(group_start) - 1
-    assert sorted(order.tolist()) == list(range(G)) and colour_start[-1] == G
-    for k in range(len(colour_start) - 2):  # the colours (not the overflow, the last run)
-        members = order[colour_start[k]:colour_start[k + 1]]
-        assert (np.diff(members) > 0).all()  # in the manifolds' own order
-        moving = [x for g in members for x in (a[group_start[g]], b[group_start[g]]) if dynamic[x]]
-        assert len(moving) == len(set(moving)), f"colour {k} shares a moving body"
-    return order, colour_start
-
-
-def test_no_two_manifolds_of_a_colour_share_a_moving_body():
-    rng = np.random.default_rng(37)
-    for _ in range(30):
-        n = int(rng.integers(2, 60))
-        G = int(rng.integers(1, 200))
-        dynamic = np.append(rng.random(n) < 0.8, False)  # row n: the ground
-        a = rng.integers(0, n + 1, size=G)
-        b = (a + rng.integers(1, n + 1, size=G)) % (n + 1)  # (two different rows: a manifold joins two bodies)
-        points = rng.integers(1, 5, size=G)
-        group_start = np.concatenate(([0], np.cumsum(points))).astype(np.int64)
-        check_colouring(np.repeat(a, points).astype(np.int64), np.repeat(b, points).astype(np.int64), group_start,
-                        dynamic)
-
-
-def test_the_ground_joins_no_colour_and_a_crowded_body_overflows():
-    # 300 bodies on the ground: one colour (the static row takes part in none)
-    n = 300
-    dynamic = np.append(np.ones(n, np.bool_), False)
-    ground = np.full(n, n, np.int64)
-    order, colour_start = check_colouring(ground, np.arange(n, dtype=np.int64), np.arange(n + 1, dtype=np.int64),
-                                          dynamic)
-    assert len(colour_start) == 3 and colour_start[1] == n  # one colour, an empty overflow
-    # one body touching 70 others: 63 colours, then the overflow (updated one after another)
-    a = np.zeros(70, np.int64)
-    b = np.arange(1, 71, dtype=np.int64)
-    order, colour_start = check_colouring(a, b, np.arange(71, dtype=np.int64), np.append(np.ones(71, np.bool_), False))
-    assert len(colour_start) == MAX_COLOURS + 2 and colour_start[-1] - colour_start[-2] == 70 - MAX_COLOURS
-    assert order[colour_start[-2]:].tolist() == list(range(MAX_COLOURS, 70))
-
-
 def pile_scene(layers: int = 3, side: int = 10) -> str:
     """layers × side² spheres (r 0.1, 1 kg) stacked in a square box of fixed walls, touching: a contact graph of
-    more than COLOUR_MIN_MANIFOLDS contacts from the first tick."""
+    more than SPLIT_MIN_MANIFOLDS contacts from the first tick."""
     bodies = [f"  - {{name: wall_{k}, shape: box, size: {size}, position: {pos}, fixed: true}}" for k, (size, pos) in
               enumerate((([0.2, 2.4, 1], [-0.1, 1.0, 0.5]), ([0.2, 2.4, 1], [2.1, 1.0, 0.5]),
                          ([2.4, 0.2, 1], [1.0, -0.1, 0.5]), ([2.4, 0.2, 1], [1.0, 2.1, 0.5])))]
@@ -78,7 +36,7 @@ def pile_scene(layers: int = 3, side: int = 10) -> str:
 
 def box_pile_scene(layers: int = 5, side: int = 8) -> str:
     """layers × side² boxes (0.2 m, 1 kg) stacked face on face, touching from the first tick: manifolds of four
-    points (the LCP block path), more than COLOUR_MIN_MANIFOLDS of them (a sphere pile has one-point manifolds
+    points (the LCP block path), more than SPLIT_MIN_MANIFOLDS of them (a sphere pile has one-point manifolds
     only).  Each layer is shifted 2 cm so that no two faces coincide exactly."""
     bodies = []
     for z in range(layers):
@@ -97,7 +55,7 @@ def step_pile(threads: int, ticks: int, scene=pile_scene) -> np.ndarray:
         out = []
         for _ in range(ticks):
             world.step()
-            assert world.solver.stats["contacts"] >= si.COLOUR_MIN_MANIFOLDS
+            assert world.solver.stats["contacts"] >= si.SPLIT_MIN_MANIFOLDS
             s = world.body_state
             out.append(np.concatenate((s.position, s.orientation, s.linear_momentum, s.angular_momentum), axis=1))
         return np.array(out)
@@ -115,8 +73,8 @@ def test_the_same_bits_on_one_thread_and_on_two():
 
 @pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs numba's pool of 2 threads or more")
 def test_a_box_pile_steps_to_the_same_bits_on_one_thread_and_on_two_and_stays_stacked():
-    """Four-point manifolds through the coloured sweeps.  (Inlined into the function compiled with prange on,
-    the manifold update had read garbage: this pile flew apart within 2 ticks, differently on each run.)"""
+    """Four-point manifolds through the two regions.  (Inlined into the function compiled with prange on, the
+    manifold update had read garbage: this pile flew apart within 2 ticks, differently on each run.)"""
     one = step_pile(1, 20, box_pile_scene)
     two = step_pile(2, 20, box_pile_scene)
     np.testing.assert_array_equal(one, two)
@@ -124,7 +82,7 @@ def test_a_box_pile_steps_to_the_same_bits_on_one_thread_and_on_two_and_stays_st
     assert np.abs(one[-1, :, 2] - one[0, :, 2]).max() < 1e-3
 
 
-@pytest.mark.parametrize("scene", [pile_scene, lambda: box_pile_scene(layers=2, side=8)], ids=["coloured", "plain"])
+@pytest.mark.parametrize("scene", [pile_scene, lambda: box_pile_scene(layers=2, side=8)], ids=["split", "plain"])
 def test_solve_step_and_the_three_calls_of_a_big_world_give_the_same_bits(scene):
     """``plain``: 512 contacts in 128 four-point manifolds — the three calls, but too few manifolds for the
     regions: one run in the plain order, as solve_step's plain loop."""
@@ -144,14 +102,14 @@ def test_solve_step_and_the_three_calls_of_a_big_world_give_the_same_bits(scene)
     solver = world.solver
     settings = solver._settings_for(float(h))
     results = []
-    for solve in (si.solve_step, si._solve_wide):
+    for solve in (si.solve_step, si._solve_step_by_regions):
         P, L = state.linear_momentum.copy(), state.angular_momentum.copy()
         bodies = (model.inv_mass, model.inv_mass > 0.0, np.ascontiguousarray(state.inv_inertia_world(model)),
                   state.position, P, L, state.force, state.torque)
         handover, memory, _ = solve(tuple(contacts), bodies, tuple(solver._memory), settings, si._NO_TALLY, False,
                                     np.zeros(len(si.STAGES)))
         results.append((P, L, handover.rows.J, memory.normal, memory.friction))
-    assert contacts.count >= si.COLOUR_MIN_MANIFOLDS
+    assert contacts.count >= si.SPLIT_MIN_MANIFOLDS
     for x, y in zip(*results):
         np.testing.assert_array_equal(x, y)
 
@@ -197,7 +155,7 @@ w = World(parse_scene(pile_scene(layers=1, side=17)))
 @pytest.mark.parametrize("scene, make", [(pile_scene, "pile_scene(layers=1, side=17)"),
                                          (box_pile_scene, "box_pile_scene(layers=4, side=8)")],
                          ids=["spheres", "boxes"])
-def test_the_coloured_sweeps_give_the_same_bits_compiled_and_as_plain_python(tmp_path, scene, make):
+def test_the_split_sweeps_give_the_same_bits_compiled_and_as_plain_python(tmp_path, scene, make):
     ticks = 2
     script = PILE_SCRIPT.replace("pile_scene(layers=1, side=17)", make).replace(
         "w = World(", inspect.getsource(scene) + "\nw = World(") + RECORD_BODIES
@@ -206,7 +164,7 @@ def test_the_coloured_sweeps_give_the_same_bits_compiled_and_as_plain_python(tmp
     np.testing.assert_array_equal(compiled, plain)
 
 
-def test_a_coloured_pile_carries_its_weight_and_does_not_sink():
+def test_a_split_pile_carries_its_weight_and_does_not_sink():
     """Resting spheres: the contact forces on them (the contact report) add up to their weight — the spheres'
     forces on each other cancel, what is left is the ground's and the walls' — and no contact ends deeper than the
     solver's penetration slop."""
@@ -217,8 +175,51 @@ def test_a_coloured_pile_carries_its_weight_and_does_not_sink():
     world.step()
     report = world.contacts
     spheres = np.array([name.startswith("s") for name in world.body_model.names])
-    assert world.solver.stats["contacts"] >= si.COLOUR_MIN_MANIFOLDS
+    assert world.solver.stats["contacts"] >= si.SPLIT_MIN_MANIFOLDS
     assert np.linalg.norm(world.body_state.linear_momentum, axis=1).max() < 0.02  # at rest (1 kg spheres)
     on_spheres = spheres[report.body]
     assert report.force[on_spheres, 2].sum() == pytest.approx(spheres.sum() * G_ACCEL, rel=1e-3)
     assert world.solver.stats["max_penetration"] < world.solver.settings.penetration_slop + 1e-4
+
+
+def impact_scene(side: int) -> str:
+    """side² boxes (0.2 m, 1 kg, restitution 0.5) resting on the ground and as many falling onto them face on face
+    at 2 m/s from 4 cm above: four-point manifolds with bouncing points (the impact sweeps) in the second tick."""
+    bodies = []
+    for z, (height, speed) in enumerate(((0.1, 0.0), (0.34, -2.0))):
+        for i in range(side):
+            for j in range(side):
+                bodies.append(f"  - {{name: b{z}_{i}_{j}, shape: box, size: [0.2, 0.2, 0.2], mass: 1, "
+                              f"restitution: 0.5, position: [{0.25 * i + 0.02 * z}, {0.25 * j}, {height}], "
+                              f"linear_velocity: [0, 0, {speed}]}}")
+    return "world: {sleep: false, substeps: 4}\nbodies:\n" + "\n".join(bodies) + "\n"
+
+
+def step_impacts(side: int, ticks: int) -> tuple[np.ndarray, list]:
+    world = World(parse_scene(impact_scene(side)))
+    out, stats = [], []
+    for _ in range(ticks):
+        world.step()
+        s = world.body_state
+        out.append(np.concatenate((s.position, s.orientation, s.linear_momentum, s.angular_momentum), axis=1))
+        stats.append(dict(world.solver.stats))
+    return np.array(out), stats
+
+
+@pytest.mark.parametrize("side, split", [(8, False), (17, True)], ids=["plain", "split"])
+def test_impact_sweeps_give_the_same_bits_through_solve_step_and_the_three_calls(monkeypatch, side, split):
+    """Bouncing four-point manifolds: their impact sweeps (the sweeps over the manifolds ``impact`` marks) give the
+    same bits through the three calls as through solve_step.  ``plain``: 128 manifolds of >= 256 contacts — the
+    three calls with too few manifolds for the regions (the plain order through _solve_region); ``split``: the
+    289 boxes on the ground alone make more than SPLIT_MIN_MANIFOLDS manifolds, the regions.  (Without the impact
+    sweeps the bits differ: they ran.)"""
+    three, stats = step_impacts(side, 4)
+    assert max(s["contacts"] for s in stats) >= si.SPLIT_MIN_MANIFOLDS
+    assert (max(s["manifolds"] for s in stats) >= si.SPLIT_MIN_MANIFOLDS) == split
+    assert np.abs(three[-1, side * side:, 9] - three[0, side * side:, 9]).max() > 1.0  # the falling boxes bounced
+    monkeypatch.setattr(si, "_solve_step_by_regions", si.solve_step)
+    one, _ = step_impacts(side, 4)
+    np.testing.assert_array_equal(three, one)
+    monkeypatch.setattr(si, "IMPACT_SWEEPS", 0)
+    without, _ = step_impacts(side, 4)
+    assert not np.array_equal(three, without)
