@@ -581,11 +581,13 @@ def _split_regions(manifolds, bodies, mode):
 @njit(inline="always")
 def _sweep_regions(regions, visit, manifolds, rows, targets, lam, lam_n, V):
     """One sweep over the manifolds ``visit (G,)`` marks, by the regions of :func:`_split_regions`: regions 0 and 1
-    at the same time (one launch of numba's pool in :func:`solve_sweeps_by_regions`; they share no moving body, so each
-    sees what it would see alone — the same bits on any number of threads), then the border.  Each region's run
-    is one call of :func:`_solve_region` (the manifold update inlined there, in a function compiled without
+    at the same time (one launch of numba's pool in :func:`solve_sweeps_by_regions`; they share no moving body, so
+    each sees what it would see alone — the same bits on any number of threads), then the border.  Each region's
+    run is one call of :func:`_solve_region` (the manifold update inlined there, in a function compiled without
     prange).  Returns the largest change."""
     order, region_start, changes, bigs = regions[0], regions[1], regions[2], regions[3]
+    # the parallel loop's body sees arrays only, and makes its bundles inside (numba cannot hand a loop run on the
+    # pool a named tuple made outside it)
     a, b, group_start, normal, separation, point, friction, restitution, key, previous = (
         manifolds[0], manifolds[1], manifolds[2], manifolds[3], manifolds[4], manifolds[5], manifolds[6],
         manifolds[7], manifolds[8], manifolds[9])
@@ -593,30 +595,24 @@ def _sweep_regions(regions, visit, manifolds, rows, targets, lam, lam_n, V):
     bias, lower, approach, bounce, impact, toi_shift = (targets[0], targets[1], targets[2], targets[3], targets[4],
                                                    targets[5])
     for r in prange(2):
-        changes[r] = _solve_region(order[region_start[r]:region_start[r + 1]], visit, a, b, group_start, normal,
-                                   separation, point, friction, restitution, key, previous, J, MJ, eff, lever, A,
-                                   cache, cached, bias, lower, approach, bounce, impact, toi_shift, lam, lam_n, V,
-                                   bigs[r])
-    changes[2] = _solve_region(order[region_start[2]:region_start[3]], visit, a, b, group_start, normal, separation,
-                               point, friction, restitution, key, previous, J, MJ, eff, lever, A, cache, cached,
-                               bias, lower, approach, bounce, impact, toi_shift, lam, lam_n, V, bigs[0])
+        changes[r] = _solve_region(
+            order[region_start[r]:region_start[r + 1]], visit,
+            Manifolds(a, b, group_start, normal, separation, point, friction, restitution, key, previous),
+            Rows(J, MJ, eff, lever, A, cache, cached), Targets(bias, lower, approach, bounce, impact, toi_shift),
+            lam, lam_n, V, bigs[r])
+    changes[2] = _solve_region(order[region_start[2]:region_start[3]], visit, manifolds, rows, targets, lam, lam_n,
+                               V, bigs[0])
     return max(changes[0], max(changes[1], changes[2]))
 
 
 @njit
-def _solve_region(run, visit, a, b, group_start, normal, separation, point, friction, restitution, key, previous, J,
-                  MJ, eff, lever, A, cache, cached, bias, lower, approach, bounce, impact, toi_shift, lam, lam_n, V,
-                  big):
+def _solve_region(run, visit, manifolds, rows, targets, lam, lam_n, V, big):
     """The manifolds ``run`` that ``visit`` marks, one after another (:func:`_solve_manifold`, inlined here), with
-    scratch of their own; returns the largest change.  A function of its own, compiled without ``prange``, and
-    called with arrays only (numba cannot hand a loop run on the pool a named tuple made outside it): inlined into
-    the function that numba compiles with ``prange`` on, the manifold update read garbage — nondeterministically,
-    on one thread as on two (a 64-box pile's captured sweep input gave λ sums of 57,361, 128 and 124.6 on three
-    calls; plain Python and the serial compile 124.6), the kind of parfor miscompile numba's tracker holds for
-    functions with a prange in one branch (numba#7630, #9829)."""
-    manifolds = Manifolds(a, b, group_start, normal, separation, point, friction, restitution, key, previous)
-    rows = Rows(J, MJ, eff, lever, A, cache, cached)
-    targets = Targets(bias, lower, approach, bounce, impact, toi_shift)
+    scratch of their own; returns the largest change.  A function of its own, compiled without ``prange``: inlined
+    into the function that numba compiles with ``prange`` on, the manifold update read garbage —
+    nondeterministically, on one thread as on two (a 64-box pile's captured sweep input gave λ sums of 57,361, 128
+    and 124.6 on three calls; plain Python and the serial compile 124.6), the kind of parfor miscompile numba's
+    tracker holds for functions with a prange in one branch (numba#7630, #9829)."""
     scratch = Scratch(np.empty((2, MAX_BLOCK)), np.zeros(MAX_BLOCK, np.bool_), big)
     change = 0.0
     for q in range(len(run)):

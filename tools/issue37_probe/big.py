@@ -1,11 +1,8 @@
 # ruff: noqa: E501, E702, UP031  (throwaway probes of issue 37, kept to be rerun, not polished)
-import sys
 import time
 
 import numba
 import numpy as np
-
-sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
 from numba import njit, prange
 
 

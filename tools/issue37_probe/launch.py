@@ -2,12 +2,13 @@
 """Cost of one prange launch from compiled code (numba's pool), vs the same loop serial."""
 import sys
 import time
+from pathlib import Path
 
 import numba
 import numpy as np
 from numba import njit, prange
 
-sys.path.insert(0, str(__import__("pathlib").Path(__file__).parents[2] / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).parents[2] / "benchmarks"))
 from common import speed_probe
 
 
