@@ -51,20 +51,21 @@ stop early once one changes no row velocity by more than ``velocity_tolerance``.
 batched the manifolds by graph colouring to vectorize Gauss–Seidel; compiled, the plain order is simpler and
 converges at least as well.)
 
-**Big worlds on two cores** (issue 37): parallelism by a spatial split, like Box2D v3's solver, which splits
-its sweeps among worker threads — but not by its constraint graph's colours.  From :data:`SPLIT_MIN_MANIFOLDS`
-manifolds on, the moving bodies are split in two regions by the plane through the median of the manifolds'
-positions along the widest axis (:func:`_split_regions`); each sweep updates the two regions' manifolds at the
-same time, each region in the plain order on a thread of its own (one launch of numba's pool per sweep), then,
-on one thread, the manifolds joining a body of each region (:func:`_sweep_regions`).  Two regions share no moving
-body, so each sees what it would see alone: the same bits on one thread as on two, compiled or as plain Python.
-It is another order than the plain one (other bits than the serial sweep would give), so worlds below the
-threshold keep the plain order.  Graph colouring was measured first and dropped: on the 200-body pile a
-sweep colour by colour took ~145 pool launches a tick at ~8 µs each, and its colours of ~90 manifolds were too
-small to pay a second thread — 14.6 % slower than the serial sweep (7.78 → 8.92 ms a tick); the two regions make
-it ~11 % faster (7.88 → 7.01 ms; and 3–4 % faster on one thread).  A big world's :func:`solve_step` runs as three
-calls, the sweeps in a kernel of their own compiled with ``prange`` (:func:`solve_sweeps_by_regions`): numba
-refuses to cache a compiled caller of a parallel kernel.
+**Big worlds on two cores** (issue 37): the sweeps shared among threads, as Box2D v3 shares its solver's — but
+split in space, not by the constraint graph's colours as Box2D v3 does (why: below). From
+:data:`SPLIT_MIN_MANIFOLDS` manifolds on, the moving bodies are split in two regions by the plane through the
+median of the manifolds' positions along the widest axis (:func:`_split_regions`); each sweep updates the two
+regions' manifolds at the same time, each region in the plain order on a thread of its own (one launch of numba's
+pool per sweep), then, on one thread, the manifolds joining a body of each region (:func:`_sweep_regions`). Two
+regions share no moving body, so each sees what it would see alone: the same bits on one thread as on two, compiled
+or as plain Python. It is another order than the plain one (other bits than the serial sweep would give), so worlds
+below the threshold keep the plain order, and so does :func:`solve_step` (the regions' code is kept out of it: it
+is compiled for every world, the default scene's too). Graph colouring was measured first and dropped: on the
+200-body pile a sweep colour by colour took ~145 pool launches a tick at ~8 µs each, and its colours of ~90
+manifolds were too small to pay a second thread — 14.6 % slower than the serial sweep (7.78 → 8.92 ms a tick); the
+two regions make it ~11 % faster (7.88 → 7.01 ms; and 3–4 % faster on one thread). A big world's :func:`solve_step`
+runs as three calls, the sweeps in a kernel of their own compiled with ``prange``
+(:func:`solve_sweeps_by_regions`): numba refuses to cache a compiled caller of a parallel kernel.
 
 **Penetration recovery** (pipeline stage "recover penetration", after the integrator): split impulses /
 pseudo-velocities (Catto 2006; Bullet's ``splitImpulse``) in the form of Box2D v2's position solver,
@@ -458,17 +459,14 @@ def impact_manifolds(manifolds, targets):
 
 
 @njit(inline="always")
-def solve_contacts(manifolds, rows, targets, lam, bodies, settings, parallel):
+def solve_contacts(manifolds, rows, targets, lam, bodies, settings):
     """The sweeps: manifold after manifold (:func:`_solve_manifold`), updating ``lam`` and ``bodies.velocity``
     in place, until a whole sweep changed no row velocity by more than ``velocity_tolerance`` (a warm-started
-    resting stack is converged after one) or ``velocity_iterations`` sweeps; then the impact sweeps.  Returns
-    the number of sweeps run.
-
-    From :data:`SPLIT_MIN_MANIFOLDS` manifolds on, a sweep goes by two regions and their border
-    (:func:`_split_regions`, :func:`_sweep_regions`; the module's docstring says why); fewer, manifold after
-    manifold in the plain order, the update inlined here.  ``parallel``: this is :func:`solve_sweeps_by_regions`,
-    compiled with ``prange`` — there the update must not be inlined (see :func:`_solve_region`), so even the plain
-    order goes through :func:`_solve_region` (one run, all of it the border: the same bits as the plain loop)."""
+    resting stack is converged after one) or ``velocity_iterations`` sweeps; then the impact sweeps
+    (:func:`_sweeps_go_on`).  Returns the number of sweeps run.  (A big world's sweeps take
+    :func:`solve_contacts_by_regions` instead: kept apart, so that this one, compiled into :func:`solve_step` for
+    every world, carries no code of theirs — with it in, the default scene's solver compiled 18 → 26 s of CPU and
+    its tick ran ~2 % slower.)"""
     group_start = manifolds.group_start
     m = len(manifolds.a)
     G = len(group_start) - 1
@@ -478,53 +476,80 @@ def solve_contacts(manifolds, rows, targets, lam, bodies, settings, parallel):
     # manifolds holding a bouncing point get up to ``impact_sweeps`` extra sweeps after the regular ones
     # (impacts are rare; resting manifolds are warm)
     impact, any_impact = impact_manifolds(manifolds, targets)
-    split = G >= SPLIT_MIN_MANIFOLDS
-    by_regions = split or parallel
-    regions = _split_regions(manifolds, bodies, (1 if split else 2) if by_regions else 0)
-    every = np.ones(G if by_regions else 0, np.bool_)
     sweeps = 0
     impact_done = 0
     regular = True  # the regular sweeps over every manifold first, then the impact sweeps
-    while True:
-        if by_regions:
-            change = _sweep_regions(regions, every if regular else impact, manifolds, rows, targets, lam, lam_n,
-                                    bodies.velocity)
-        else:
-            change = 0.0
-            for g in range(G):
-                if regular or impact[g]:
-                    change = max(change, _solve_manifold(g, manifolds, rows, targets, lam, lam_n, bodies.velocity,
-                                                         scratch))
-        # each kind stops once a whole sweep changed no row velocity by more than the tolerance (a warm-started
-        # resting stack is converged after one), or after its number of sweeps
-        if regular:
-            sweeps += 1
-            if change <= settings.velocity_tolerance or sweeps >= settings.velocity_iterations:
-                regular = False
-                if not any_impact or settings.impact_sweeps == 0:
-                    break
-        else:
-            impact_done += 1
-            if change <= settings.velocity_tolerance or impact_done >= settings.impact_sweeps:
-                break
+    go_on = True
+    while go_on:
+        change = 0.0
+        for g in range(G):
+            if regular or impact[g]:
+                change = max(change, _solve_manifold(g, manifolds, rows, targets, lam, lam_n, bodies.velocity,
+                                                     scratch))
+        go_on, regular, sweeps, impact_done = _sweeps_go_on(change, regular, sweeps, impact_done, any_impact,
+                                                            settings)
     return sweeps
 
 
 @njit(inline="always")
-def _split_regions(manifolds, bodies, mode):
+def _sweeps_go_on(change, regular, sweeps, impact_done, any_impact, settings):
+    """The sweeps' stopping rule, after a sweep that changed a row velocity by at most ``change``: each kind of
+    sweep stops once a whole sweep changed no row velocity by more than the tolerance (a warm-started resting stack
+    is converged after one), or after its number of sweeps — the regular ones (``velocity_iterations``), then, if a
+    manifold holds a bouncing point (``any_impact``), the impact sweeps (``impact_sweeps``).  Returns ``(go on,
+    regular, sweeps, impact_done)``."""
+    if regular:
+        sweeps += 1
+        if change <= settings.velocity_tolerance or sweeps >= settings.velocity_iterations:
+            regular = False
+            if not any_impact or settings.impact_sweeps == 0:
+                return False, regular, sweeps, impact_done
+        return True, regular, sweeps, impact_done
+    impact_done += 1
+    if change <= settings.velocity_tolerance or impact_done >= settings.impact_sweeps:
+        return False, regular, sweeps, impact_done
+    return True, regular, sweeps, impact_done
+
+
+@njit(inline="always")
+def solve_contacts_by_regions(manifolds, rows, targets, lam, bodies, settings):
+    """:func:`solve_contacts` for a big world, in :func:`solve_sweeps_by_regions` (compiled with ``prange``): from
+    :data:`SPLIT_MIN_MANIFOLDS` manifolds on, each sweep goes by two regions and their border
+    (:func:`_split_regions`, :func:`_sweep_regions`; the module's docstring says why); fewer (a world of that many
+    contacts in fewer manifolds), one run in the plain order — through :func:`_solve_region` all the same (the
+    update must not be inlined here, see there), so the same bits as :func:`solve_contacts`.  The same stopping
+    rule (:func:`_sweeps_go_on`).  Returns the number of sweeps run."""
+    m = len(manifolds.a)
+    G = len(manifolds.group_start) - 1
+    lam_n = np.empty(m)
+    impact, any_impact = impact_manifolds(manifolds, targets)
+    regions = _split_regions(manifolds, bodies, G >= SPLIT_MIN_MANIFOLDS)
+    every = np.ones(G, np.bool_)
+    sweeps = 0
+    impact_done = 0
+    regular = True
+    go_on = True
+    while go_on:
+        change = _sweep_regions(regions, every if regular else impact, manifolds, rows, targets, lam, lam_n,
+                                bodies.velocity)
+        go_on, regular, sweeps, impact_done = _sweeps_go_on(change, regular, sweeps, impact_done, any_impact,
+                                                            settings)
+    return sweeps
+
+
+@njit(inline="always")
+def _split_regions(manifolds, bodies, split):
     """Two regions of the contact graph and their border: ``order (G,)`` int64, the manifolds of region 0, of
     region 1, then those joining a body of each (each run in the manifolds' own order); ``region_start (4,)``;
     ``changes (3,)``; ``bigs (2, m, 2)``, each region's Scratch.big.  A moving body is in region 1 if its position
     along the widest axis of the moving bodies is at least the median of the manifolds' positions (a manifold's:
     its moving body's, or the mean of its two); a manifold touching moving bodies of one region only is that
     region's (the static row is in none: its velocity never changes).  Depends on the manifolds and the positions
-    only, never on the number of threads.  ``mode``: 1 split; 2 no regions, all of them the border in the plain
-    order (the same bits as the plain sweep); 0 nothing (empty arrays)."""
+    only, never on the number of threads.  Not ``split``: no regions, every manifold the border, in the plain
+    order (the same bits as :func:`solve_contacts`' sweep)."""
     G = len(manifolds.group_start) - 1
     m = len(manifolds.a)
-    if mode == 0:
-        return np.zeros(0, np.int64), np.zeros(4, np.int64), np.zeros(3), np.zeros((2, 0, 2))
-    if mode == 2:
+    if not split:
         region_start = np.zeros(4, np.int64)
         region_start[3] = G
         return np.arange(G), region_start, np.zeros(3), np.empty((2, m, 2))
@@ -924,8 +949,10 @@ def solve_step(contacts, bodies, memory, settings, tally, report, profile):
 
     One compiled entry for both cases, ``report`` an argument and not a literal: numba compiles each entry point
     with the whole tree of functions it calls, so two entries sharing this body (with and without the report)
-    cost the solver's compile twice (issue 34).  A big world's contacts take three calls instead, the sweeps on
-    the thread pool (:func:`_solve_step_by_regions`): the same stages, the same bits.
+    cost the solver's compile twice (issue 34).  A big world's contacts take three calls instead, the sweeps by
+    two regions on the thread pool (:func:`_solve_step_by_regions`): the same stages, but from
+    :data:`SPLIT_MIN_MANIFOLDS` manifolds on the sweeps visit the manifolds in the regions' order, so other bits
+    than this function gives (the same on any number of threads).
 
     Returns what the position stage needs (:class:`Handover`), the new warm-start memory and the new tally (None
     without ``report``)."""
@@ -933,8 +960,7 @@ def solve_step(contacts, bodies, memory, settings, tally, report, profile):
                                           StepSettings(*settings))
     solving = _velocity_head(contacts, bodies, memory, settings, profile)
     start = clock()
-    sweeps = solve_contacts(solving.manifolds, solving.rows, solving.targets, solving.lam, solving.bodies, settings,
-                            False)
+    sweeps = solve_contacts(solving.manifolds, solving.rows, solving.targets, solving.lam, solving.bodies, settings)
     lap(profile, SOLVE, start)
     return _velocity_tail(solving, bodies, settings, sweeps, tally, report, profile)
 
@@ -984,12 +1010,12 @@ def solve_head(contacts, bodies, memory, settings, profile):
 # with prange on, solve_step's stages trip numba's array analysis)
 @njit(parallel=PRANGE_ONLY, twin=False)
 def solve_sweeps_by_regions(solving, settings, profile):
-    """A big world's :func:`solve_step`, second call: the sweeps (:func:`solve_contacts`), two regions at a time
-    on the thread pool; returns the number of sweeps."""
+    """A big world's :func:`solve_step`, second call: the sweeps (:func:`solve_contacts_by_regions`), two regions
+    at a time on the thread pool; returns the number of sweeps."""
     settings = StepSettings(*settings)
     start = clock()
-    sweeps = solve_contacts(solving.manifolds, solving.rows, solving.targets, solving.lam, solving.bodies, settings,
-                            True)
+    sweeps = solve_contacts_by_regions(solving.manifolds, solving.rows, solving.targets, solving.lam, solving.bodies,
+                                       settings)
     lap(profile, SOLVE, start)
     return sweeps
 
@@ -1003,7 +1029,7 @@ def solve_tail(solving, bodies, settings, sweeps, tally, report, profile):
 def _solve_step_by_regions(contacts, bodies, memory, settings, tally, report, profile):
     """:func:`solve_step` in three calls (:func:`solve_head`, :func:`solve_sweeps_by_regions`, :func:`solve_tail`),
     the sweeps on the thread pool: what a sub-step of :data:`SPLIT_MIN_MANIFOLDS` contacts or more runs (with
-    fewer manifolds than that, still the plain order: see :func:`solve_contacts`)."""
+    fewer manifolds than that, still the plain order: see :func:`solve_contacts_by_regions`)."""
     solving = solve_head(contacts, bodies, memory, settings, profile)
     sweeps = solve_sweeps_by_regions(solving, settings, profile)
     return solve_tail(solving, bodies, settings, sweeps, tally, report, profile)
