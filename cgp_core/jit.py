@@ -294,7 +294,7 @@ else:
 
 class _BlockCopier:
     """Stands for the ``copy`` module inside ``numba.core.inline_closurecall`` (which uses ``copy.deepcopy`` only
-    to copy IR blocks): while :func:`_inline_ir` runs, consecutive blocks of one IR share a memo."""
+    to copy IR blocks): while ``InlineWorker.inline_ir`` runs, consecutive blocks of one IR share a memo."""
 
     def __init__(self):
         self.active = 0

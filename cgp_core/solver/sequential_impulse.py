@@ -63,9 +63,9 @@ below the threshold keep the plain order, and so does :func:`solve_step` (the re
 is compiled for every world, the default scene's too). Graph colouring was measured first and dropped: on the
 200-body pile a sweep colour by colour took ~145 pool launches a tick at ~8 µs each, and its colours of ~90
 manifolds were too small to pay a second thread — 14.6 % slower than the serial sweep (7.78 → 8.92 ms a tick); the
-two regions make it ~11 % faster (7.88 → 7.01 ms; and 3–4 % faster on one thread). A big world's :func:`solve_step`
-runs as three calls, the sweeps in a kernel of their own compiled with ``prange``
-(:func:`solve_sweeps_by_regions`): numba refuses to cache a compiled caller of a parallel kernel.
+two regions make it ~12 % faster (8.35 → 7.34 ms a tick; sphere_pile 23.5 → 20.7 ms; and a few % faster on one
+thread). A big world's :func:`solve_step` runs as three calls, the sweeps in a kernel of their own compiled with
+``prange`` (:func:`solve_sweeps_by_regions`): numba refuses to cache a compiled caller of a parallel kernel.
 
 **Penetration recovery** (pipeline stage "recover penetration", after the integrator): split impulses /
 pseudo-velocities (Catto 2006; Bullet's ``splitImpulse``) in the form of Box2D v2's position solver,
