@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 from geometry_msgs.msg import PoseArray
 from rclpy.serialization import deserialize_message, serialize_message
-from ros_probe import pause
 from rosbags.highlevel import AnyReader
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
@@ -85,13 +84,16 @@ def test_stats_over_dds_match_the_poses_and_are_recorded(start_node, probe, tmp_
     bag = tmp_path / "run"
     stats = probe.subscribe("/cgp_sim/flocks/school/stats", FlockStats)
     poses = probe.subscribe("/cgp_sim/flocks/school/poses", PoseArray)
-    node = start_node("--scene", "predator", "--duration", "1.0", "--bag", str(bag), "--start-paused", "true",
-                      "--realtime", "false")
+    node, sim = start_paused(start_node, probe, "predator", "--bag", str(bag))
     probe.wait_until_matched("/cgp_sim/flocks/school/stats", "/cgp_sim/flocks/school/poses")
-    pause(probe, False)
-    probe.spin_until(lambda: not node.alive(), 60, "the node to end after its 1 s")
-    assert node.wait(10) == 0, node.log()
-    probe.spin_for(0.2)
+    # 1 s in steps of 10 ticks, each delivered before the next: the state topics keep the last 10 samples
+    # (KEEP_LAST 10), so 60 ticks in one burst (realtime: false) outran a subscriber slowed by a parallel test run
+    # (32 of 60 stats seen)
+    for k in range(1, 7):
+        assert sim.step(10).result.result == OK
+        probe.spin_until(lambda k=k: len(stats.messages) == len(poses.messages) == 10 * k, 20,
+                         f"the stats and poses of {10 * k} ticks")
+    assert node.stop() == 0, node.log()  # (the bag closed)
 
     by_stamp = {stamp_ns(m.header): m for m in poses.messages}
     assert len(stats.messages) == 60 and len(by_stamp) == 60
