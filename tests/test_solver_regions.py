@@ -84,22 +84,30 @@ def test_a_box_pile_steps_to_the_same_bits_on_one_thread_and_on_two_and_stays_st
 
 @pytest.mark.parametrize("scene, split", [(pile_scene, True), (lambda: box_pile_scene(layers=2, side=8), False)],
                          ids=["split", "plain"])
-def test_the_three_calls_of_a_big_world_keep_solve_steps_bits_below_the_split(scene, split):
-    """``plain``: 512 contacts in 128 four-point manifolds — the three calls, but too few manifolds for the
-    regions: one run in the plain order, the same bits as solve_step's loop.  ``split``: the regions' order, not
-    solve_step's (which keeps the plain order for every world): other bits."""
+def test_the_three_calls_of_a_big_world_keep_solve_steps_bits_below_the_split(scene, split, monkeypatch):
+    """``plain``: 512 contacts in 128 four-point manifolds — too few manifolds for the regions: the world steps
+    them through solve_step (manifold_count, not the three calls' boxing), and the three calls would give the same
+    bits (one run in the plain order).  ``split``: the three calls, in the regions' order, not solve_step's (which
+    keeps the plain order for every world): other bits."""
     world = World(parse_scene(scene()))
     for _ in range(10):
         world.step()
-    seen = {}
-    solve_velocities = world.solver.solve_velocities
+    seen = {"three calls": 0}
+    solve_velocities, by_regions = world.solver.solve_velocities, si._solve_step_by_regions
 
     def capture(model, state, contacts, h, **kw):
         seen["args"] = (model, state, contacts, h, kw)
         return solve_velocities(model, state, contacts, h, **kw)
 
+    def counted(*args):
+        seen["three calls"] += 1
+        return by_regions(*args)
+
     world.solver.solve_velocities = capture
+    monkeypatch.setattr(si, "_solve_step_by_regions", counted)
     world.step()
+    assert seen["three calls"] == (world.substeps if split else 0)
+    monkeypatch.setattr(si, "_solve_step_by_regions", by_regions)
     model, state, contacts, h, kw = seen["args"]
     solver = world.solver
     settings = solver._settings_for(float(h))
@@ -113,6 +121,7 @@ def test_the_three_calls_of_a_big_world_keep_solve_steps_bits_below_the_split(sc
         results.append((P, L, handover.rows.J, memory.normal, memory.friction))
     assert contacts.count >= si.SPLIT_MIN_MANIFOLDS
     assert (len(handover.group_start) - 1 >= si.SPLIT_MIN_MANIFOLDS) == split  # (its manifolds)
+    assert si.manifold_count(contacts, model.inv_mass > 0.0) == len(handover.group_start) - 1
     same = all(np.array_equal(x, y) for x, y in zip(*results))
     assert same != split, "the split changed nothing" if split else "the plain order through the three calls differs"
 

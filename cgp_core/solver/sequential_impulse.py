@@ -134,7 +134,7 @@ IMPACT_SWEEPS = 16
 
 #: from this many manifolds on, the sweeps go by two regions of the contact graph, the two on numba's thread pool,
 #: then their border (see the module's docstring); fewer, one after another in the plain order.  A sub-step with
-#: this many contacts or more (its manifolds are counted only inside the compiled stages) takes the three calls of
+#: this many manifolds or more (:func:`manifold_count`, asked from this many contacts on) takes the three calls of
 #: :func:`_solve_step_by_regions`.  (The colouring's threshold, kept: the regions' break-even was not measured)
 SPLIT_MIN_MANIFOLDS = 256
 
@@ -1026,10 +1026,25 @@ def solve_tail(solving, bodies, settings, sweeps, tally, report, profile):
     return _velocity_tail(solving, BodyArrays(*bodies), StepSettings(*settings), sweeps, tally, report, profile)
 
 
+def manifold_count(contacts, movable: np.ndarray) -> int:
+    """How many manifolds :func:`prepare_contacts` makes of ``contacts`` (a :class:`ContactSet`) with ``movable
+    (n,)`` bool the bodies that can move: the body pairs with a movable body among them.  Python's choice between
+    :func:`solve_step` and the three calls of a big world — asked only from :data:`SPLIT_MIN_MANIFOLDS` contacts on
+    (~15 µs of numpy for 350 contacts): a world of that many contacts in fewer manifolds (the 100-hull pile at rest,
+    ~350 contacts in ~150 manifolds) would pay the three calls' boxing, ~0.1 ms a sub-step, for sweeps in the plain
+    order all the same."""
+    n = len(movable)
+    a = np.where(contacts.body_a < 0, n, contacts.body_a)
+    b = contacts.body_b
+    moving = np.append(movable, False)
+    kept = moving[a] | moving[b]
+    return len(np.unique(a[kept] * (n + 1) + b[kept]))
+
+
 def _solve_step_by_regions(contacts, bodies, memory, settings, tally, report, profile):
     """:func:`solve_step` in three calls (:func:`solve_head`, :func:`solve_sweeps_by_regions`, :func:`solve_tail`),
-    the sweeps on the thread pool: what a sub-step of :data:`SPLIT_MIN_MANIFOLDS` contacts or more runs (with
-    fewer manifolds than that, still the plain order: see :func:`solve_contacts_by_regions`)."""
+    the sweeps on the thread pool: what a sub-step of :data:`SPLIT_MIN_MANIFOLDS` manifolds or more runs
+    (:func:`manifold_count`)."""
     solving = solve_head(contacts, bodies, memory, settings, profile)
     sweeps = solve_sweeps_by_regions(solving, settings, profile)
     return solve_tail(solving, bodies, settings, sweeps, tally, report, profile)
@@ -1249,7 +1264,8 @@ class SequentialImpulseSolver:
         bodies = (model.inv_mass, movable, np.ascontiguousarray(inv_inertia), state.position, state.linear_momentum,
                   state.angular_momentum, state.force, state.torque)  # a BodyArrays, as a plain tuple
         solve = solve_step if coupled is None else coupled.solve
-        if coupled is None and contacts.count >= SPLIT_MIN_MANIFOLDS:
+        if coupled is None and contacts.count >= SPLIT_MIN_MANIFOLDS and manifold_count(contacts, movable) >= \
+                SPLIT_MIN_MANIFOLDS:
             solve = _solve_step_by_regions
         if self._reporting:
             tally = self._tally
