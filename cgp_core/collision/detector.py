@@ -17,7 +17,8 @@ Three compiled stages, called in order from :meth:`CollisionDetector.detect`, wh
    :class:`CollisionModel`'s): :func:`.convex_phase.pose_shapes` poses and bounds them in the ``bounds`` stage, one
    broad phase takes every primitive, the pairs of two of the :class:`CollisionModel`'s primitives go to
    :func:`narrow_phase` unchanged, every other pair and those shapes' ground contacts to
-   :func:`.convex_phase.convex_phase`, whose contacts are appended;
+   :func:`.convex_phase.convex_phase`, whose contacts are appended (from :data:`CONVEX_SPLIT_MIN_PAIRS` pairs on in
+   two calls at once, the second on the machine's second core: the same contacts);
 5. ``time_of_impact`` — after the integrator (:meth:`CollisionDetector.sweep_fast_rotation`): bodies that turned
    fast next to fixed hulls, boxes or meshes are put back at their time of impact (:mod:`.convex_phase`).
 
@@ -111,13 +112,14 @@ _NO_PAIR = np.zeros(0, np.int64)
 #: machine's second core (:func:`cgp_core.second_core.beside`; issue 37): the first takes the ground and the first
 #: part of the pair list, the second the rest, each pair's contacts found exactly as in one call, and the two
 #: contact sets are joined in that order — the same :class:`ContactSet`, bit for bit, as one call gives.  A hull
-#: pair takes ~4 µs here, handing a call to the thread and back ~20-30 µs (measured: :meth:`CollisionDetector.
-#: _convex_contacts`)
-CONVEX_SPLIT_MIN_PAIRS = 32
-#: the same for the narrow phase of spheres, boxes and capsules (:func:`narrow_phase`), whose pairs are cheaper
-NARROW_SPLIT_MIN_PAIRS = 512
-#: what the ground's test of a primitive costs beside a pair's, where the two calls' split is chosen (the first call
-#: takes the ground: its contacts come first)
+#: pair takes ~4 µs here, and the split costs ~80 µs a sub-step (the thread's wake-up and hand-back, each call's
+#: arguments unboxed in turn under the GIL, the join): it pays from ~45 pairs on.  Measured on the 100-hull pile at
+#: rest (106 pairs, a free second core): the convex phase 2.13 -> 1.59-1.73 ms a tick.  Not for the narrow phase
+#: of spheres, boxes and capsules (:func:`narrow_phase`): its pairs are cheap, and split it took longer (bench_rigid's
+#: 200-body pile: 1.11 -> 1.33 ms a tick)
+CONVEX_SPLIT_MIN_PAIRS = 64
+#: what the ground's test of a hull costs beside a pair's, where the two calls' split is chosen (the first call takes
+#: the ground: its contacts come first)
 GROUND_PER_PAIR = 0.2
 
 _NO_GROUND = (False, 0.0, 0.0)
@@ -249,7 +251,7 @@ class CollisionDetector:
         profile.add(BROAD_PHASE, now - start)
         start = now
         ground_plane = (True, ground.friction, ground.restitution) if ground is not None else (False, 0.0, 0.0)
-        contacts, touched = self._narrow_contacts(poses, i, j, active, ground_plane)
+        contacts, touched = narrow_phase(self._plain_cmodel, tuple(poses), (i, j), active, ground_plane)
         profile.add(NARROW_PHASE, clock() - start)
         profile.calls += 1
         if touched.any():
@@ -383,8 +385,9 @@ class CollisionDetector:
         touched = np.zeros(model.count, bool)
         if p:
             old = (i < p) & (j < p)
-            contacts, touched_old = self._narrow_contacts(poses, np.ascontiguousarray(i[old]),
-                                                          np.ascontiguousarray(j[old]), active, ground_plane)
+            contacts, touched_old = narrow_phase(self._plain_cmodel, tuple(poses),
+                                                 (np.ascontiguousarray(i[old]), np.ascontiguousarray(j[old])),
+                                                 active, ground_plane)
             parts.append(contacts)
             touched |= touched_old
         now = clock()
@@ -402,21 +405,6 @@ class CollisionDetector:
         if touched.any():
             self.touched_sleeping = np.flatnonzero(touched)
         return ContactSet.concatenate(parts)
-
-    def _narrow_contacts(self, named: PrimitivePoses, i: np.ndarray, j: np.ndarray, active: np.ndarray,
-                         ground_plane: tuple) -> tuple[ContactSet, np.ndarray]:
-        """:func:`narrow_phase` of the pairs ``i, j``: one call, or from :data:`NARROW_SPLIT_MIN_PAIRS` pairs on two
-        at once (see there)."""
-        cmodel, poses = self._plain_cmodel, tuple(named)
-        if len(i) < NARROW_SPLIT_MIN_PAIRS or not second_core.available():
-            return narrow_phase(cmodel, poses, (i, j), active, ground_plane)
-        cut = _cut(len(i), int(np.count_nonzero(named.lo[:, 2] < named.margin)) if ground_plane[0] else 0)
-        later = second_core.beside(narrow_phase, cmodel, poses, (i[cut:], j[cut:]), active, _NO_GROUND)
-        try:
-            first = narrow_phase(cmodel, poses, (i[:cut], j[:cut]), active, ground_plane)
-        finally:
-            second = later.result()
-        return ContactSet.concatenate([first[0], second[0]]), first[1] | second[1]
 
     def _convex_contacts(self, named: ShapePoses, i: np.ndarray, j: np.ndarray, active: np.ndarray,
                          ground_plane: tuple, key_base: np.int64) -> tuple[ContactSet, np.ndarray]:
@@ -503,9 +491,9 @@ def small_scene_pairs(lo, hi, prim_body, active):
 
 
 def _cut(pairs: int, near_ground: int) -> int:
-    """Where a phase's list of ``pairs`` pairs is cut in two for :func:`cgp_core.second_core.beside`: the first
-    call takes the ground's tests of ``near_ground`` primitives too (:data:`GROUND_PER_PAIR` of a pair's cost each),
-    so about half the work on either side."""
+    """Where the convex phase's list of ``pairs`` pairs is cut in two for :func:`cgp_core.second_core.beside`: the
+    first call takes the ground's tests of ``near_ground`` hulls too (:data:`GROUND_PER_PAIR` of a pair's cost
+    each), so about half the work on either side."""
     return int(min(max((pairs - GROUND_PER_PAIR * near_ground) // 2, 0), pairs))
 
 
