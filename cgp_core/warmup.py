@@ -139,13 +139,13 @@ def _warm_up_grid() -> None:
 def _warm_up_solver_by_regions() -> None:
     """The solver's path for big worlds (:func:`cgp_core.solver.sequential_impulse.solve_sweeps_by_regions`: the
     sweeps by two regions on the thread pool), which a sub-step of :data:`~cgp_core.solver.sequential_impulse.
-    SPLIT_MIN_MANIFOLDS` contacts or more takes: that many spheres resting on the ground, with and without the
+    SPLIT_MIN_CONTACTS` contacts or more takes: that many spheres resting on the ground, with and without the
     contact report."""
     from .scene import parse_scene
-    from .solver.sequential_impulse import SPLIT_MIN_MANIFOLDS
+    from .solver.sequential_impulse import SPLIT_MIN_CONTACTS
     from .world import World
 
-    side = int(SPLIT_MIN_MANIFOLDS ** 0.5) + 1
+    side = int(SPLIT_MIN_CONTACTS ** 0.5) + 1
     bodies = "\n".join(f"  - {{name: s{i}_{j}, shape: sphere, radius: 0.1, position: [{0.25 * i}, {0.25 * j}, 0.1]}}"
                        for i in range(side) for j in range(side))
     world = World(parse_scene(f"world: {{sleep: false}}\nbodies:\n{bodies}\n"))

@@ -21,7 +21,7 @@ G_ACCEL = 9.81
 
 def pile_scene(layers: int = 3, side: int = 10) -> str:
     """layers × side² spheres (r 0.1, 1 kg) stacked in a square box of fixed walls, touching: a contact graph of
-    more than SPLIT_MIN_MANIFOLDS contacts from the first tick."""
+    more than SPLIT_MIN_CONTACTS contacts from the first tick."""
     bodies = [f"  - {{name: wall_{k}, shape: box, size: {size}, position: {pos}, fixed: true}}" for k, (size, pos) in
               enumerate((([0.2, 2.4, 1], [-0.1, 1.0, 0.5]), ([0.2, 2.4, 1], [2.1, 1.0, 0.5]),
                          ([2.4, 0.2, 1], [1.0, -0.1, 0.5]), ([2.4, 0.2, 1], [1.0, 2.1, 0.5])))]
@@ -36,7 +36,7 @@ def pile_scene(layers: int = 3, side: int = 10) -> str:
 
 def box_pile_scene(layers: int = 5, side: int = 8) -> str:
     """layers × side² boxes (0.2 m, 1 kg) stacked face on face, touching from the first tick: manifolds of four
-    points (the LCP block path), more than SPLIT_MIN_MANIFOLDS of them (a sphere pile has one-point manifolds
+    points (the LCP block path), more than SPLIT_MIN_CONTACTS points (a sphere pile has one-point manifolds
     only).  Each layer is shifted 2 cm so that no two faces coincide exactly."""
     bodies = []
     for z in range(layers):
@@ -55,7 +55,7 @@ def step_pile(threads: int, ticks: int, scene=pile_scene) -> np.ndarray:
         out = []
         for _ in range(ticks):
             world.step()
-            assert world.solver.stats["contacts"] >= si.SPLIT_MIN_MANIFOLDS
+            assert world.solver.stats["contacts"] >= si.SPLIT_MIN_CONTACTS
             s = world.body_state
             out.append(np.concatenate((s.position, s.orientation, s.linear_momentum, s.angular_momentum), axis=1))
         return np.array(out)
@@ -82,13 +82,13 @@ def test_a_box_pile_steps_to_the_same_bits_on_one_thread_and_on_two_and_stays_st
     assert np.abs(one[-1, :, 2] - one[0, :, 2]).max() < 1e-3
 
 
-@pytest.mark.parametrize("scene, split", [(pile_scene, True), (lambda: box_pile_scene(layers=2, side=8), False)],
+@pytest.mark.parametrize("scene, split", [(pile_scene, True), (lambda: box_pile_scene(layers=1, side=7), False)],
                          ids=["split", "plain"])
 def test_the_three_calls_of_a_big_world_keep_solve_steps_bits_below_the_split(scene, split, monkeypatch):
-    """``plain``: 512 contacts in 128 four-point manifolds — too few manifolds for the regions: the world steps
-    them through solve_step (manifold_count, not the three calls' boxing), and the three calls would give the same
-    bits (one run in the plain order).  ``split``: the three calls, in the regions' order, not solve_step's (which
-    keeps the plain order for every world): other bits."""
+    """``plain``: 196 contacts in 49 four-point manifolds — too few for the regions: the world steps them through
+    solve_step (moving_contacts: not the three calls' boxing), and the three calls would give the same bits (one
+    run in the plain order).  ``split``: the three calls, in the regions' order, not solve_step's (which keeps the
+    plain order for every world): other bits."""
     world = World(parse_scene(scene()))
     for _ in range(10):
         world.step()
@@ -119,9 +119,9 @@ def test_the_three_calls_of_a_big_world_keep_solve_steps_bits_below_the_split(sc
         handover, memory, _ = solve(tuple(contacts), bodies, tuple(solver._memory), settings, si._NO_TALLY, False,
                                     np.zeros(len(si.STAGES)))
         results.append((P, L, handover.rows.J, memory.normal, memory.friction))
-    assert contacts.count >= si.SPLIT_MIN_MANIFOLDS
-    assert (len(handover.group_start) - 1 >= si.SPLIT_MIN_MANIFOLDS) == split  # (its manifolds)
-    assert si.manifold_count(contacts, model.inv_mass > 0.0) == len(handover.group_start) - 1
+    moving = si.moving_contacts(contacts, model.inv_mass > 0.0)
+    assert moving == len(handover.a)  # the contacts prepare_contacts kept
+    assert (moving >= si.SPLIT_MIN_CONTACTS) == split
     same = all(np.array_equal(x, y) for x, y in zip(*results))
     assert same != split, "the split changed nothing" if split else "the plain order through the three calls differs"
 
@@ -187,7 +187,7 @@ def test_a_split_pile_carries_its_weight_and_does_not_sink():
     world.step()
     report = world.contacts
     spheres = np.array([name.startswith("s") for name in world.body_model.names])
-    assert world.solver.stats["contacts"] >= si.SPLIT_MIN_MANIFOLDS
+    assert world.solver.stats["contacts"] >= si.SPLIT_MIN_CONTACTS
     assert np.linalg.norm(world.body_state.linear_momentum, axis=1).max() < 0.02  # at rest (1 kg spheres)
     on_spheres = spheres[report.body]
     assert report.force[on_spheres, 2].sum() == pytest.approx(spheres.sum() * G_ACCEL, rel=1e-3)
@@ -218,16 +218,23 @@ def step_impacts(side: int, ticks: int) -> tuple[np.ndarray, list]:
     return np.array(out), stats
 
 
-@pytest.mark.parametrize("side, split", [(8, False), (17, True)], ids=["plain", "split"])
+@pytest.mark.parametrize("side, split", [(5, False), (17, True)], ids=["plain", "split"])
 def test_impact_sweeps_through_the_three_calls(monkeypatch, side, split):
     """Bouncing four-point manifolds: their impact sweeps (the sweeps over the manifolds ``impact`` marks) through
-    the three calls.  ``plain``: 128 manifolds of >= 256 contacts — the three calls with too few manifolds for the
-    regions (the plain order through _solve_region): the same bits as solve_step.  ``split``: the 289 boxes on the
-    ground alone make more than SPLIT_MIN_MANIFOLDS manifolds, the regions: the same bits on one thread and on two.
-    (Without the impact sweeps the bits differ: they ran.)"""
+    the three calls.  ``plain``: 50 boxes, fewer than SPLIT_MIN_CONTACTS contacts, made to take the three calls
+    (Python's threshold set to 1): too few contacts for the regions (the plain order through _solve_region) — the
+    same bits as solve_step.  ``split``: the 289 boxes on the ground alone make more than SPLIT_MIN_CONTACTS
+    contacts, the regions: the same bits on one thread and on two.  (Without the impact sweeps the bits differ:
+    they ran.)"""
+    regions_from = si.SPLIT_MIN_CONTACTS  # (the compiled sweeps' threshold)
+    calls = []
+    by_regions = si._solve_step_by_regions
+    monkeypatch.setattr(si, "_solve_step_by_regions", lambda *args: calls.append(1) or by_regions(*args))
+    if not split:
+        monkeypatch.setattr(si, "SPLIT_MIN_CONTACTS", 1)  # Python's choice only: the three calls for every sub-step
     three, stats = step_impacts(side, 4)
-    assert max(s["contacts"] for s in stats) >= si.SPLIT_MIN_MANIFOLDS
-    assert (max(s["manifolds"] for s in stats) >= si.SPLIT_MIN_MANIFOLDS) == split
+    assert calls  # (the three calls ran)
+    assert (max(s["contacts"] for s in stats) >= regions_from) == split
     assert np.abs(three[-1, side * side:, 9] - three[0, side * side:, 9]).max() > 1.0  # the falling boxes bounced
     if split:
         if numba.config.NUMBA_NUM_THREADS < 2:
@@ -239,7 +246,7 @@ def test_impact_sweeps_through_the_three_calls(monkeypatch, side, split):
         finally:
             numba.set_num_threads(previous)
     else:
-        monkeypatch.setattr(si, "_solve_step_by_regions", si.solve_step)
+        monkeypatch.setattr(si, "SPLIT_MIN_CONTACTS", regions_from)  # solve_step
         one, _ = step_impacts(side, 4)
     np.testing.assert_array_equal(three, one)
     monkeypatch.setattr(si, "IMPACT_SWEEPS", 0)
