@@ -122,8 +122,6 @@ CONVEX_SPLIT_MIN_PAIRS = 64
 #: the ground: its contacts come first)
 GROUND_PER_PAIR = 0.2
 
-_NO_GROUND = (False, 0.0, 0.0)
-
 #: the stages of :attr:`CollisionDetector.profile`, in order
 STAGES = ("bounds", "broad_phase", "narrow_phase", "convex_phase", "time_of_impact")
 BOUNDS, BROAD_PHASE, NARROW_PHASE, CONVEX_PHASE, TIME_OF_IMPACT = range(len(STAGES))
@@ -420,7 +418,8 @@ class CollisionDetector:
         near = int(np.count_nonzero(named.lo[first_new:, 2] < named.margin[first_new:])) if ground_plane[0] else 0
         half = _cut(len(own), near)  # of its own pairs; the others are skipped in either call
         cut = int(own[half]) if half < len(own) else len(i)
-        later = second_core.beside(convex_phase, shapes, poses, (i[cut:], j[cut:]), active, _NO_GROUND, key_base,
+        no_ground = (False, *ground_plane[1:])  # (the types of ground_plane's: no second signature to compile)
+        later = second_core.beside(convex_phase, shapes, poses, (i[cut:], j[cut:]), active, no_ground, key_base,
                                    self._candidates_beside, self._extreme)
         try:
             first = convex_phase(shapes, poses, (i[:cut], j[:cut]), active, ground_plane, key_base, self._candidates,
