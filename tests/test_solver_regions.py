@@ -7,6 +7,9 @@ also through impact sweeps); and the physics of the resting pile (its weight car
 from __future__ import annotations
 
 import inspect
+import subprocess
+import sys
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -14,9 +17,11 @@ import pytest
 from test_jit_parity import RECORD_BODIES, run
 
 from cgp_core import World, parse_scene
+from cgp_core.jit import JIT_DISABLED
 from cgp_core.solver import sequential_impulse as si
 
 G_ACCEL = 9.81
+REPO = Path(__file__).resolve().parents[1]
 
 
 def pile_scene(layers: int = 3, side: int = 10) -> str:
@@ -252,3 +257,28 @@ def test_impact_sweeps_through_the_three_calls(monkeypatch, side, split):
     monkeypatch.setattr(si, "IMPACT_SWEEPS", 0)
     without, _ = step_impacts(side, 4)
     assert not np.array_equal(three, without)
+
+
+LOADS = """
+from cgp_core import World, parse_scene
+from cgp_core.solver import sequential_impulse as si
+from cgp_core.warmup import load_kernels_for
+bodies = "".join(f"  - {{name: s{i}, shape: sphere, radius: 0.1, position: [{0.3 * i}, 0, 1]}}\\n" for i in range(N))
+world = World(parse_scene("world: {sleep: false}\\nbodies:\\n" + bodies))
+before = len(si.solve_sweeps_by_regions.signatures)
+load_kernels_for(world)
+print(before, len(si.solve_sweeps_by_regions.signatures))
+"""
+
+
+@pytest.mark.skipif(JIT_DISABLED, reason="numba's kernels are loaded only when compiled")
+@pytest.mark.parametrize("bodies, loaded", [(70, True), (10, False)])
+def test_the_big_worlds_path_is_loaded_before_the_first_tick_of_a_world_that_may_take_it(bodies, loaded):
+    """load_kernels_for (the node's start-up): a world of 70 movable bodies (4 contacts each could make
+    SPLIT_MIN_CONTACTS) has the three calls' parallel kernel loaded (a 115 ms sub-step when the 100-hull pile loaded
+    it itself, mid-run); one of 10 does not pay for it.  In a fresh process: nothing loaded before."""
+    result = subprocess.run([sys.executable, "-c", f"N = {bodies}\n" + LOADS], cwd=REPO, capture_output=True,
+                            text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    before, after = map(int, result.stdout.split())
+    assert before == 0 and (after > 0) == loaded
