@@ -84,6 +84,23 @@ def warm_up(ticks: int = 24, *, complete: bool = True, flocks: bool = True) -> W
     return world
 
 
+def load_kernels_for(world: World) -> None:
+    """Have the compiled kernels ``world`` comes to run loaded from numba's cache before its first tick, beyond
+    those its first instant runs (the caller steps a throwaway copy of it for those: the node's
+    :func:`cgp_sim_ros.ros.process.load_kernels`).  numba loads a kernel at its first call, and a tick that loads
+    some takes that much longer: every rigid-body contact kernel (:func:`warm_up`'s scenario, two ticks: ~0.5 s);
+    for a world of enough movable bodies to make :data:`~cgp_core.solver.sequential_impulse.SPLIT_MIN_CONTACTS`
+    contacts (four a body), the solver's path for big worlds and numba's thread pool (~0.25 s: measured, the
+    100-hull pile's first sub-step of 256 contacts took 115 ms when it loaded them itself)."""
+    import numpy as np
+
+    from .solver.sequential_impulse import SPLIT_MIN_CONTACTS
+
+    warm_up(ticks=2, complete=False, flocks=False)  # two: one with the contact report, one without
+    if 4 * int(np.count_nonzero(world.body_model.inv_mass > 0.0)) >= SPLIT_MIN_CONTACTS:
+        _warm_up_solver_by_regions()
+
+
 def _compiles_any(*modules: str) -> bool:
     """Whether this process compiles kernels of any of these modules or packages: every process but a compile
     worker (``CGP_SIM_JIT_ONLY``, :mod:`cgp_core.jit`), which compiles only its part's."""
@@ -139,13 +156,13 @@ def _warm_up_grid() -> None:
 def _warm_up_solver_by_regions() -> None:
     """The solver's path for big worlds (:func:`cgp_core.solver.sequential_impulse.solve_sweeps_by_regions`: the
     sweeps by two regions on the thread pool), which a sub-step of :data:`~cgp_core.solver.sequential_impulse.
-    SPLIT_MIN_MANIFOLDS` contacts or more takes: that many spheres resting on the ground, with and without the
+    SPLIT_MIN_CONTACTS` contacts or more takes: that many spheres resting on the ground, with and without the
     contact report."""
     from .scene import parse_scene
-    from .solver.sequential_impulse import SPLIT_MIN_MANIFOLDS
+    from .solver.sequential_impulse import SPLIT_MIN_CONTACTS
     from .world import World
 
-    side = int(SPLIT_MIN_MANIFOLDS ** 0.5) + 1
+    side = int(SPLIT_MIN_CONTACTS ** 0.5) + 1
     bodies = "\n".join(f"  - {{name: s{i}_{j}, shape: sphere, radius: 0.1, position: [{0.25 * i}, {0.25 * j}, 0.1]}}"
                        for i in range(side) for j in range(side))
     world = World(parse_scene(f"world: {{sleep: false}}\nbodies:\n{bodies}\n"))

@@ -90,9 +90,15 @@ def test_features_states_and_stepping(start_node, probe):
 
     # exactly `steps` ticks while paused; the reply comes when they are done
     assert sim.step(5).result.result == OK
-    probe.spin_until(lambda: len(clock.messages) >= 5, 10, "5 clock messages")
+    tick_ns = round(1e9 / 60)  # dt in whole ns
+    probe.spin_until(lambda: bool(clock.messages) and clock_ns(clock.messages[-1]) == 5 * tick_ns, 10,
+                     "the clock 5 ticks on")
     probe.spin_for(0.3)
-    assert [clock_ns(m) for m in clock.messages] == [k * round(1e9 / 60) for k in range(1, 6)]  # dt in whole ns
+    # /clock keeps its last sample only (KEEP_LAST 1): a reader may miss some of a burst's ticks, but sees the last,
+    # and none twice or out of order
+    stamps = [clock_ns(m) for m in clock.messages]
+    assert stamps[-1] == 5 * tick_ns and stamps == sorted(set(stamps))
+    assert set(stamps) <= {k * tick_ns for k in range(1, 6)}
     assert sim.simulation_state() == S.STATE_PAUSED
     zero = sim.step(0)
     assert zero.result.result == FAILED and "at least 1" in zero.result.error_message
@@ -177,15 +183,22 @@ def test_simulate_steps_action_feedback_and_cancel(start_node, probe):
             break
         except AssertionError:
             assert warm_up < 5, "no feedback from five one-step goals"
-    probe.spin_until(lambda: len(clock.messages) >= warm_up, 10, "the warm-up ticks")
+    # /clock keeps its last sample only (KEEP_LAST 1): a burst of ticks may reach a reader as its last one, so the
+    # ticks are counted by the clock's time (tick k at k dt, dt in whole ns), not by messages
+    tick_ns = round(1e9 / 60)
+
+    def clock_at(tick: int):
+        return lambda: bool(clock.messages) and clock_ns(clock.messages[-1]) == tick * tick_ns
+
+    probe.spin_until(clock_at(warm_up), 10, "the warm-up ticks' clock")
 
     # 10 steps: feedback after each tick, then the result; exactly 10 ticks
     before = len(wire.messages)
     outcome, feedback = run(10)
     assert outcome.status == 4 and outcome.result.result.result == OK
-    probe.spin_until(lambda: len(clock.messages) >= warm_up + 10, 10, "10 clock messages")
+    probe.spin_until(clock_at(warm_up + 10), 10, "the clock 10 ticks on")
     probe.spin_for(0.3)
-    assert len(clock.messages) == warm_up + 10
+    assert clock_ns(clock.messages[-1]) == (warm_up + 10) * tick_ns  # and no more
     # feedback is a topic, the result a service: the last feedback may arrive after the result
     probe.spin_until(lambda: len(wire.messages) >= before + 10, 10, "10 feedback messages")
     sent = wire.messages[before:]
@@ -200,16 +213,17 @@ def test_simulate_steps_action_feedback_and_cancel(start_node, probe):
     outcome, feedback = run(100_000, cancel_after=3)
     assert outcome.status == 5  # STATUS_CANCELED
     assert outcome.result.result.result == FAILED and "canceled after" in outcome.result.result.error_message
+    done = int(outcome.result.result.error_message.split("canceled after ")[1].split()[0])
+    assert 3 <= done < 100_000
+    ticks = warm_up + 10 + done
+    probe.spin_until(clock_at(ticks), 10, "the clock at the canceled goal's last tick")
     probe.spin_for(0.3)
-    ticks = len(clock.messages)
-    assert warm_up + 10 + 3 <= ticks < warm_up + 10 + 100_000
-    probe.spin_for(0.3)
-    assert len(clock.messages) == ticks and sim.simulation_state() == S.STATE_PAUSED
+    assert clock_ns(clock.messages[-1]) == ticks * tick_ns and sim.simulation_state() == S.STATE_PAUSED
 
     # a second stepping request while one runs is refused at once
     sent = client.send_goal_async(SimulateSteps.Goal(steps=100_000))
     probe.spin_until(sent.done, 30, "the goal to be accepted")
-    probe.spin_until(lambda: len(clock.messages) > ticks + 2, 30, "the goal to tick")
+    probe.spin_until(lambda: clock_ns(clock.messages[-1]) > (ticks + 2) * tick_ns, 30, "the goal to tick")
     busy = sim.step(1)
     assert busy.result.result == FAILED and "another stepping request" in busy.result.error_message
     # playing interrupts it (the steps were to be taken while paused)

@@ -7,6 +7,9 @@ also through impact sweeps); and the physics of the resting pile (its weight car
 from __future__ import annotations
 
 import inspect
+import subprocess
+import sys
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -14,14 +17,16 @@ import pytest
 from test_jit_parity import RECORD_BODIES, run
 
 from cgp_core import World, parse_scene
+from cgp_core.jit import JIT_DISABLED
 from cgp_core.solver import sequential_impulse as si
 
 G_ACCEL = 9.81
+REPO = Path(__file__).resolve().parents[1]
 
 
 def pile_scene(layers: int = 3, side: int = 10) -> str:
     """layers × side² spheres (r 0.1, 1 kg) stacked in a square box of fixed walls, touching: a contact graph of
-    more than SPLIT_MIN_MANIFOLDS contacts from the first tick."""
+    more than SPLIT_MIN_CONTACTS contacts from the first tick."""
     bodies = [f"  - {{name: wall_{k}, shape: box, size: {size}, position: {pos}, fixed: true}}" for k, (size, pos) in
               enumerate((([0.2, 2.4, 1], [-0.1, 1.0, 0.5]), ([0.2, 2.4, 1], [2.1, 1.0, 0.5]),
                          ([2.4, 0.2, 1], [1.0, -0.1, 0.5]), ([2.4, 0.2, 1], [1.0, 2.1, 0.5])))]
@@ -36,7 +41,7 @@ def pile_scene(layers: int = 3, side: int = 10) -> str:
 
 def box_pile_scene(layers: int = 5, side: int = 8) -> str:
     """layers × side² boxes (0.2 m, 1 kg) stacked face on face, touching from the first tick: manifolds of four
-    points (the LCP block path), more than SPLIT_MIN_MANIFOLDS of them (a sphere pile has one-point manifolds
+    points (the LCP block path), more than SPLIT_MIN_CONTACTS points (a sphere pile has one-point manifolds
     only).  Each layer is shifted 2 cm so that no two faces coincide exactly."""
     bodies = []
     for z in range(layers):
@@ -55,7 +60,7 @@ def step_pile(threads: int, ticks: int, scene=pile_scene) -> np.ndarray:
         out = []
         for _ in range(ticks):
             world.step()
-            assert world.solver.stats["contacts"] >= si.SPLIT_MIN_MANIFOLDS
+            assert world.solver.stats["contacts"] >= si.SPLIT_MIN_CONTACTS
             s = world.body_state
             out.append(np.concatenate((s.position, s.orientation, s.linear_momentum, s.angular_momentum), axis=1))
         return np.array(out)
@@ -82,24 +87,32 @@ def test_a_box_pile_steps_to_the_same_bits_on_one_thread_and_on_two_and_stays_st
     assert np.abs(one[-1, :, 2] - one[0, :, 2]).max() < 1e-3
 
 
-@pytest.mark.parametrize("scene, split", [(pile_scene, True), (lambda: box_pile_scene(layers=2, side=8), False)],
+@pytest.mark.parametrize("scene, split", [(pile_scene, True), (lambda: box_pile_scene(layers=1, side=7), False)],
                          ids=["split", "plain"])
-def test_the_three_calls_of_a_big_world_keep_solve_steps_bits_below_the_split(scene, split):
-    """``plain``: 512 contacts in 128 four-point manifolds — the three calls, but too few manifolds for the
-    regions: one run in the plain order, the same bits as solve_step's loop.  ``split``: the regions' order, not
-    solve_step's (which keeps the plain order for every world): other bits."""
+def test_the_three_calls_of_a_big_world_keep_solve_steps_bits_below_the_split(scene, split, monkeypatch):
+    """``plain``: 196 contacts in 49 four-point manifolds — too few for the regions: the world steps them through
+    solve_step (moving_contacts: not the three calls' boxing), and the three calls would give the same bits (one
+    run in the plain order).  ``split``: the three calls, in the regions' order, not solve_step's (which keeps the
+    plain order for every world): other bits."""
     world = World(parse_scene(scene()))
     for _ in range(10):
         world.step()
-    seen = {}
-    solve_velocities = world.solver.solve_velocities
+    seen = {"three calls": 0}
+    solve_velocities, by_regions = world.solver.solve_velocities, si._solve_step_by_regions
 
     def capture(model, state, contacts, h, **kw):
         seen["args"] = (model, state, contacts, h, kw)
         return solve_velocities(model, state, contacts, h, **kw)
 
+    def counted(*args):
+        seen["three calls"] += 1
+        return by_regions(*args)
+
     world.solver.solve_velocities = capture
+    monkeypatch.setattr(si, "_solve_step_by_regions", counted)
     world.step()
+    assert seen["three calls"] == (world.substeps if split else 0)
+    monkeypatch.setattr(si, "_solve_step_by_regions", by_regions)
     model, state, contacts, h, kw = seen["args"]
     solver = world.solver
     settings = solver._settings_for(float(h))
@@ -111,8 +124,9 @@ def test_the_three_calls_of_a_big_world_keep_solve_steps_bits_below_the_split(sc
         handover, memory, _ = solve(tuple(contacts), bodies, tuple(solver._memory), settings, si._NO_TALLY, False,
                                     np.zeros(len(si.STAGES)))
         results.append((P, L, handover.rows.J, memory.normal, memory.friction))
-    assert contacts.count >= si.SPLIT_MIN_MANIFOLDS
-    assert (len(handover.group_start) - 1 >= si.SPLIT_MIN_MANIFOLDS) == split  # (its manifolds)
+    moving = si.moving_contacts(contacts, model.inv_mass > 0.0)
+    assert moving == len(handover.a)  # the contacts prepare_contacts kept
+    assert (moving >= si.SPLIT_MIN_CONTACTS) == split
     same = all(np.array_equal(x, y) for x, y in zip(*results))
     assert same != split, "the split changed nothing" if split else "the plain order through the three calls differs"
 
@@ -178,7 +192,7 @@ def test_a_split_pile_carries_its_weight_and_does_not_sink():
     world.step()
     report = world.contacts
     spheres = np.array([name.startswith("s") for name in world.body_model.names])
-    assert world.solver.stats["contacts"] >= si.SPLIT_MIN_MANIFOLDS
+    assert world.solver.stats["contacts"] >= si.SPLIT_MIN_CONTACTS
     assert np.linalg.norm(world.body_state.linear_momentum, axis=1).max() < 0.02  # at rest (1 kg spheres)
     on_spheres = spheres[report.body]
     assert report.force[on_spheres, 2].sum() == pytest.approx(spheres.sum() * G_ACCEL, rel=1e-3)
@@ -209,16 +223,23 @@ def step_impacts(side: int, ticks: int) -> tuple[np.ndarray, list]:
     return np.array(out), stats
 
 
-@pytest.mark.parametrize("side, split", [(8, False), (17, True)], ids=["plain", "split"])
+@pytest.mark.parametrize("side, split", [(5, False), (17, True)], ids=["plain", "split"])
 def test_impact_sweeps_through_the_three_calls(monkeypatch, side, split):
     """Bouncing four-point manifolds: their impact sweeps (the sweeps over the manifolds ``impact`` marks) through
-    the three calls.  ``plain``: 128 manifolds of >= 256 contacts — the three calls with too few manifolds for the
-    regions (the plain order through _solve_region): the same bits as solve_step.  ``split``: the 289 boxes on the
-    ground alone make more than SPLIT_MIN_MANIFOLDS manifolds, the regions: the same bits on one thread and on two.
-    (Without the impact sweeps the bits differ: they ran.)"""
+    the three calls.  ``plain``: 50 boxes, fewer than SPLIT_MIN_CONTACTS contacts, made to take the three calls
+    (Python's threshold set to 1): too few contacts for the regions (the plain order through _solve_region) — the
+    same bits as solve_step.  ``split``: the 289 boxes on the ground alone make more than SPLIT_MIN_CONTACTS
+    contacts, the regions: the same bits on one thread and on two.  (Without the impact sweeps the bits differ:
+    they ran.)"""
+    regions_from = si.SPLIT_MIN_CONTACTS  # (the compiled sweeps' threshold)
+    calls = []
+    by_regions = si._solve_step_by_regions
+    monkeypatch.setattr(si, "_solve_step_by_regions", lambda *args: calls.append(1) or by_regions(*args))
+    if not split:
+        monkeypatch.setattr(si, "SPLIT_MIN_CONTACTS", 1)  # Python's choice only: the three calls for every sub-step
     three, stats = step_impacts(side, 4)
-    assert max(s["contacts"] for s in stats) >= si.SPLIT_MIN_MANIFOLDS
-    assert (max(s["manifolds"] for s in stats) >= si.SPLIT_MIN_MANIFOLDS) == split
+    assert calls  # (the three calls ran)
+    assert (max(s["contacts"] for s in stats) >= regions_from) == split
     assert np.abs(three[-1, side * side:, 9] - three[0, side * side:, 9]).max() > 1.0  # the falling boxes bounced
     if split:
         if numba.config.NUMBA_NUM_THREADS < 2:
@@ -230,9 +251,34 @@ def test_impact_sweeps_through_the_three_calls(monkeypatch, side, split):
         finally:
             numba.set_num_threads(previous)
     else:
-        monkeypatch.setattr(si, "_solve_step_by_regions", si.solve_step)
+        monkeypatch.setattr(si, "SPLIT_MIN_CONTACTS", regions_from)  # solve_step
         one, _ = step_impacts(side, 4)
     np.testing.assert_array_equal(three, one)
     monkeypatch.setattr(si, "IMPACT_SWEEPS", 0)
     without, _ = step_impacts(side, 4)
     assert not np.array_equal(three, without)
+
+
+LOADS = """
+from cgp_core import World, parse_scene
+from cgp_core.solver import sequential_impulse as si
+from cgp_core.warmup import load_kernels_for
+bodies = "".join(f"  - {{name: s{i}, shape: sphere, radius: 0.1, position: [{0.3 * i}, 0, 1]}}\\n" for i in range(N))
+world = World(parse_scene("world: {sleep: false}\\nbodies:\\n" + bodies))
+before = len(si.solve_sweeps_by_regions.signatures)
+load_kernels_for(world)
+print(before, len(si.solve_sweeps_by_regions.signatures))
+"""
+
+
+@pytest.mark.skipif(JIT_DISABLED, reason="numba's kernels are loaded only when compiled")
+@pytest.mark.parametrize("bodies, loaded", [(70, True), (10, False)])
+def test_the_big_worlds_path_is_loaded_before_the_first_tick_of_a_world_that_may_take_it(bodies, loaded):
+    """load_kernels_for (the node's start-up): a world of 70 movable bodies (4 contacts each could make
+    SPLIT_MIN_CONTACTS) has the three calls' parallel kernel loaded (a 115 ms sub-step when the 100-hull pile loaded
+    it itself, mid-run); one of 10 does not pay for it.  In a fresh process: nothing loaded before."""
+    result = subprocess.run([sys.executable, "-c", f"N = {bodies}\n" + LOADS], cwd=REPO, capture_output=True,
+                            text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    before, after = map(int, result.stdout.split())
+    assert before == 0 and (after > 0) == loaded

@@ -53,7 +53,7 @@ converges at least as well.)
 
 **Big worlds on two cores** (issue 37): the sweeps shared among threads, as Box2D v3 shares its solver's — but
 split in space, not by the constraint graph's colours as Box2D v3 does (why: below). From
-:data:`SPLIT_MIN_MANIFOLDS` manifolds on, the moving bodies are split in two regions by the plane through the
+:data:`SPLIT_MIN_CONTACTS` contacts on, the moving bodies are split in two regions by the plane through the
 median of the manifolds' positions along the widest axis (:func:`_split_regions`); each sweep updates the two
 regions' manifolds at the same time, each region in the plain order on a thread of its own (one launch of numba's
 pool per sweep), then, on one thread, the manifolds joining a body of each region (:func:`_sweep_regions`). Two
@@ -132,11 +132,15 @@ from .report import ContactReport, ContactTally, finish_report, tally_contacts
 #: extra sweeps over the manifolds holding a bouncing point (see solve_contacts)
 IMPACT_SWEEPS = 16
 
-#: from this many manifolds on, the sweeps go by two regions of the contact graph, the two on numba's thread pool,
-#: then their border (see the module's docstring); fewer, one after another in the plain order.  A sub-step with
-#: this many contacts or more (its manifolds are counted only inside the compiled stages) takes the three calls of
-#: :func:`_solve_step_by_regions`.  (The colouring's threshold, kept: the regions' break-even was not measured)
-SPLIT_MIN_MANIFOLDS = 256
+#: from this many contacts (rows of the manifolds: :func:`moving_contacts`) on, the sweeps go by two regions of the
+#: contact graph, the two on numba's thread pool, then their border (see the module's docstring); fewer, one after
+#: another in the plain order, in :func:`solve_step` (a sub-step of this many contacts takes the three calls of
+#: :func:`_solve_step_by_regions`).  Contacts, not manifolds: a manifold's work grows with its points (a block LCP
+#: from two).  Measured with a free second core, two regions against the plain order from 64 manifolds on
+#: (2026-12-07, probe python ~11.5 ms): the 100-hull pile (~350 contacts in ~150 manifolds) 5.9 -> 4.9 ms a tick at
+#: rest; bench_rigid's pile of 100 bodies (~310 contacts, ~190 manifolds) 3.74 -> 3.58 ms; of 50 bodies (~146
+#: contacts, 78 manifolds) 1.63 -> 1.91 ms
+SPLIT_MIN_CONTACTS = 256
 
 #: numba's ``parallel`` options that turn ``prange`` loops alone into parallel loops
 PRANGE_ONLY = {"prange": True, "comprehension": False, "reduction": False, "inplace_binop": False, "setitem": False,
@@ -514,16 +518,16 @@ def _sweeps_go_on(change, regular, sweeps, impact_done, any_impact, settings):
 @njit(inline="always")
 def solve_contacts_by_regions(manifolds, rows, targets, lam, bodies, settings):
     """:func:`solve_contacts` for a big world, in :func:`solve_sweeps_by_regions` (compiled with ``prange``): from
-    :data:`SPLIT_MIN_MANIFOLDS` manifolds on, each sweep goes by two regions and their border
-    (:func:`_split_regions`, :func:`_sweep_regions`; the module's docstring says why); fewer (a world of that many
-    contacts in fewer manifolds), one run in the plain order — through :func:`_solve_region` all the same (the
-    update must not be inlined here, see there), so the same bits as :func:`solve_contacts`.  The same stopping
-    rule (:func:`_sweeps_go_on`).  Returns the number of sweeps run."""
+    :data:`SPLIT_MIN_CONTACTS` contacts on, each sweep goes by two regions and their border
+    (:func:`_split_regions`, :func:`_sweep_regions`; the module's docstring says why); fewer (called so only in
+    tests), one run in the plain order — through :func:`_solve_region` all the same (the update must not be inlined
+    here, see there), so the same bits as :func:`solve_contacts`.  The same stopping rule (:func:`_sweeps_go_on`).
+    Returns the number of sweeps run."""
     m = len(manifolds.a)
     G = len(manifolds.group_start) - 1
     lam_n = np.empty(m)
     impact, any_impact = impact_manifolds(manifolds, targets)
-    regions = _split_regions(manifolds, bodies, G >= SPLIT_MIN_MANIFOLDS)
+    regions = _split_regions(manifolds, bodies, m >= SPLIT_MIN_CONTACTS)
     every = np.ones(G, np.bool_)
     sweeps = 0
     impact_done = 0
@@ -951,7 +955,7 @@ def solve_step(contacts, bodies, memory, settings, tally, report, profile):
     with the whole tree of functions it calls, so two entries sharing this body (with and without the report)
     cost the solver's compile twice (issue 34).  A big world's contacts take three calls instead, the sweeps by
     two regions on the thread pool (:func:`_solve_step_by_regions`): the same stages, but from
-    :data:`SPLIT_MIN_MANIFOLDS` manifolds on the sweeps visit the manifolds in the regions' order, so other bits
+    :data:`SPLIT_MIN_CONTACTS` contacts on the sweeps visit the manifolds in the regions' order, so other bits
     than this function gives (the same on any number of threads).
 
     Returns what the position stage needs (:class:`Handover`), the new warm-start memory and the new tally (None
@@ -1026,10 +1030,20 @@ def solve_tail(solving, bodies, settings, sweeps, tally, report, profile):
     return _velocity_tail(solving, BodyArrays(*bodies), StepSettings(*settings), sweeps, tally, report, profile)
 
 
+def moving_contacts(contacts, movable: np.ndarray) -> int:
+    """How many of ``contacts`` (a :class:`ContactSet`) :func:`prepare_contacts` keeps, ``movable (n,)`` bool the
+    bodies that can move: those with a movable body (a contact of two that cannot move needs no impulse).  Python's
+    choice between :func:`solve_step` and the three calls of a big world (:data:`SPLIT_MIN_CONTACTS`), asked only
+    from that many contacts on: a world of fixed bodies touching each other would pay the three calls' boxing for
+    sweeps in the plain order."""
+    moving = np.append(movable, False)  # (index -1, the ground: not movable)
+    return int(np.count_nonzero(moving[contacts.body_a] | moving[contacts.body_b]))
+
+
 def _solve_step_by_regions(contacts, bodies, memory, settings, tally, report, profile):
     """:func:`solve_step` in three calls (:func:`solve_head`, :func:`solve_sweeps_by_regions`, :func:`solve_tail`),
-    the sweeps on the thread pool: what a sub-step of :data:`SPLIT_MIN_MANIFOLDS` contacts or more runs (with
-    fewer manifolds than that, still the plain order: see :func:`solve_contacts_by_regions`)."""
+    the sweeps on the thread pool: what a sub-step of :data:`SPLIT_MIN_CONTACTS` contacts or more runs
+    (:func:`moving_contacts`)."""
     solving = solve_head(contacts, bodies, memory, settings, profile)
     sweeps = solve_sweeps_by_regions(solving, settings, profile)
     return solve_tail(solving, bodies, settings, sweeps, tally, report, profile)
@@ -1249,7 +1263,8 @@ class SequentialImpulseSolver:
         bodies = (model.inv_mass, movable, np.ascontiguousarray(inv_inertia), state.position, state.linear_momentum,
                   state.angular_momentum, state.force, state.torque)  # a BodyArrays, as a plain tuple
         solve = solve_step if coupled is None else coupled.solve
-        if coupled is None and contacts.count >= SPLIT_MIN_MANIFOLDS:
+        if coupled is None and contacts.count >= SPLIT_MIN_CONTACTS and moving_contacts(contacts, movable) >= \
+                SPLIT_MIN_CONTACTS:
             solve = _solve_step_by_regions
         if self._reporting:
             tally = self._tally

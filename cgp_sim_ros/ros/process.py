@@ -36,15 +36,16 @@ def load_kernels(world, build_tick: Callable, log_debug: Callable[[str], None]) 
     took ~16 ms (the penetration recovery's kernel loading).  So the core's warm-up scenario (its own
     world: bodies of every shape placed in contact, no flock) takes two ticks here too, one with the contact
     report and one without (the solver's two entry points): every rigid-body kernel is loaded before the first
-    tick, also for bodies spawned later (~0.1 s more start-up)."""
-    from cgp_core.warmup import warm_up
+    tick, also for bodies spawned later (~0.1 s more start-up); and for a world big enough to take the solver's
+    path for big worlds, that path and numba's thread pool (:func:`cgp_core.warmup.load_kernels_for`)."""
+    from cgp_core.warmup import load_kernels_for
 
     from ..drawing.bodies import model_shapes
 
     # the hulls and meshes (static data) stay shared with the node's world: their drawings are made already
     world = copy.deepcopy(world, {id(shape): shape for _, shape in model_shapes(world.body_model)})
     try:
-        warm_up(ticks=2, complete=False, flocks=False)  # two: one with the contact report, one without
+        load_kernels_for(world)
         world.step()
         build_tick(world)
     except Exception as exc:  # noqa: BLE001 - the real first tick reports it
