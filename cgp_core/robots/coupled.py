@@ -63,29 +63,20 @@ import numpy as np
 
 from ..collision.contacts import ContactSet
 from ..jit import clock, lap, njit
-from ..solver.arrays import BodyArrays, Handover, Scratch, SolverBodies, StepSettings, WarmStart
+from ..solver.arrays import BodyArrays, Scratch, SolverBodies, StepSettings, WarmStart
 from ..solver.manifold import MAX_BLOCK
-from ..solver.report import tally_contacts
 from ..solver.sequential_impulse import (
-    APPLY_IMPULSES,
-    BOUNCE_TIME_SHIFT,
     NORMAL,
     RECOVER,
-    STORE_IMPULSES,
-    _solve_manifold,
-    apply_impulses,
-    bounce_time_shift,
+    _solve_region,
+    contacts_head,
     impact_manifolds,
     position_target,
     prepare_bodies,
-    prepare_contacts,
     relax_normal_rows,
-    store_impulses,
-    warm_start_contacts,
+    solve_tail,
 )
-from ..solver.sequential_impulse import PREPARE as BODY_PREPARE
 from ..solver.sequential_impulse import SOLVE as BODY_SOLVE
-from ..solver.sequential_impulse import WARM_START as BODY_WARM_START
 from ..solver.sequential_impulse import _row_velocity as body_row_velocity
 from .joint_solver import (
     POSITION_TOLERANCE,
@@ -142,12 +133,13 @@ def solve_together(joint_rows, joint_lam, v, manifolds, rows, targets, lam, bodi
     once neither kind changed a row velocity by more than its own tolerance, or after the larger of the two
     iteration caps.  Then the body solver's impact sweeps over the manifolds holding a bouncing point, each with a
     robot sweep.  Returns the rounds run (impact sweeps not counted, as in ``solve_contacts``)."""
-    group_start = manifolds.group_start
     m = len(manifolds.a)
-    G = len(group_start) - 1
+    G = len(manifolds.group_start) - 1
     V = bodies.velocity
     lam_n = np.empty(m)
-    scratch = Scratch(np.empty((2, MAX_BLOCK)), np.zeros(MAX_BLOCK, np.bool_), np.empty((m, 2)))
+    big = np.empty((m, 2))
+    every = np.ones(G, np.bool_)
+    run = np.arange(G)
     impact, any_impact = impact_manifolds(manifolds, targets)
     cap = max(joint_settings.velocity_iterations, settings.velocity_iterations)
     rounds = 0
@@ -155,10 +147,8 @@ def solve_together(joint_rows, joint_lam, v, manifolds, rows, targets, lam, bodi
     regular = True
     while True:
         joint_change = sweep_joints(joint_rows, joint_lam, v, V)
-        change = 0.0
-        for g in range(G):
-            if regular or impact[g]:
-                change = max(change, _solve_manifold(g, manifolds, rows, targets, lam, lam_n, V, scratch))
+        # (the body solver's sweep, not inlined: compiled once, for the body solver's sweeps and these)
+        change = _solve_region(run, every if regular else impact, manifolds, rows, targets, lam, lam_n, V, big)
         converged = change <= settings.velocity_tolerance and joint_change <= joint_settings.velocity_tolerance
         if regular:
             rounds += 1
@@ -256,27 +246,21 @@ def step_coupled(joint_problem, body_problem, joint_profile, body_profile):
         start = lap(joint_profile, WARM_START, start)
         bodies = SolverBodies(prepared.inv_mass, prepared.inv_inertia, prepared.position, prepared.dynamic, V,
                               prepared.velocity_before)
-        manifolds, rows, targets, deepest = prepare_contacts(body_contacts, bodies, body_memory, body_settings)
-        start = lap(body_profile, BODY_PREPARE, start)
-        lam = warm_start_contacts(manifolds, rows, bodies, body_memory, body_settings.warm_start)
-        start = lap(body_profile, BODY_WARM_START, start)
+        # (the body solver's stages 2-3 as its own kernel, not inlined: compiled once, for it and this loop)
+        solving, start = contacts_head(body_contacts, bodies, body_memory, body_settings, body_profile, start)
+        manifolds, rows, targets, lam = solving.manifolds, solving.rows, solving.targets, solving.lam
         rounds += solve_together(joint_rows, joint_lam, v, manifolds, rows, targets, lam, bodies, settings,
                                  body_settings)
         start = lap(body_profile, BODY_SOLVE, start)
         if not saturated_by_rows(joints, terms, implicit, v, h, allowed):
             break
-    bounce_time_shift(manifolds, rows, targets, bodies, body_settings.h)
-    start = lap(body_profile, BOUNCE_TIME_SHIFT, start)
-    impulse = apply_impulses(manifolds, rows, lam, bodies, body_arrays, body_settings.rolling_resistance)
-    start = lap(body_profile, APPLY_IMPULSES, start)
-    new_body_memory = store_impulses(manifolds, rows, lam)
-    start = lap(body_profile, STORE_IMPULSES, start)
+    # the body solver's stages 5-7 and its report (bounce time shift, impulses to the momenta, warm-start memory):
+    # its own third call, not inlined — compiled once, for the body solver and this loop
+    body = solve_tail(solving, body_problem[1], body_problem[3], rounds, tally, report, body_profile)
+    start = clock()
     pseudo, displacement = relax_together(joint_rows, v, manifolds, rows, targets, bodies, settings, body_settings)
     start = lap(body_profile, RECOVER, start)
     effort, contact_impulse, new_memory = store_joints(joints, terms, implicit, joint_rows, joint_lam, v, free, h)
     lap(joint_profile, STORE, start)
-    handover = Handover(manifolds.a, manifolds.b, manifolds.group_start, manifolds.separation, rows,
-                        targets.toi_shift, rounds, deepest)
     step = JointStep(v, pseudo, effort, contact_impulse, rounds, displacement)
-    return (step, new_memory), (handover, new_body_memory,
-                                (tally_contacts(manifolds, rows, lam, impulse, tally) if report else None))
+    return (step, new_memory), body

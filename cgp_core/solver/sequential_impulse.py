@@ -641,7 +641,10 @@ def _solve_region(run, visit, manifolds, rows, targets, lam, lam_n, V, big):
     into the function that numba compiles with ``prange`` on, the manifold update read garbage —
     nondeterministically, on one thread as on two (a 64-box pile's captured sweep input gave λ sums of 57,361, 128
     and 124.6 on three calls; plain Python and the serial compile 124.6), the kind of parfor miscompile numba's
-    tracker holds for functions with a prange in one branch (numba#7630, #9829)."""
+    tracker holds for functions with a prange in one branch (numba#7630, #9829).  The robots' coupled loop
+    (:func:`cgp_core.robots.coupled.solve_together`) calls it for its body-row sweeps too, so the manifold update is
+    compiled once for both (issue 34: the robots' compile worker −1 s of CPU; a call per sweep there, not per
+    manifold)."""
     scratch = Scratch(np.empty((2, MAX_BLOCK)), np.zeros(MAX_BLOCK, np.bool_), big)
     change = 0.0
     for q in range(len(run)):
@@ -1005,8 +1008,26 @@ def _velocity_tail(solving, bodies, settings, sweeps, tally, report, profile):
 def solve_head(contacts, bodies, memory, settings, profile):
     """A big world's :func:`solve_step`, first call: stages 1–3; returns the :class:`Solving` (boxed for Python:
     ~30 arrays, some tens of µs, against the milliseconds of a big world's sweeps)."""
-    return _velocity_head(ContactSet(*contacts), BodyArrays(*bodies), WarmStart(*memory), StepSettings(*settings),
-                          profile)
+    settings = StepSettings(*settings)
+    start = clock()
+    solver_bodies = prepare_bodies(BodyArrays(*bodies), settings.h)
+    return contacts_head(ContactSet(*contacts), solver_bodies, WarmStart(*memory), settings, profile, start)[0]
+
+
+@njit
+def contacts_head(contacts, bodies, memory, settings, profile, start):
+    """Stages 2–3 (prepare the contacts, warm start) on the prepared :class:`SolverBodies` ``bodies``, timed into
+    ``profile`` from ``start`` on: ``(the Solving, the time it ended)``.  What
+    :func:`_velocity_head` does after :func:`prepare_bodies`, as a kernel of its own (not inlined), compiled once
+    for :func:`solve_head` and the robots' coupled loop (:func:`cgp_core.robots.coupled.step_coupled`, which
+    prepares the bodies itself); :func:`solve_step`, which every world's sub-step calls, keeps its stages inlined
+    (issue 34: solve_step calling :func:`solve_head` and :func:`solve_tail` saved ~3 s of the solver worker's
+    compile CPU but made the 5-body default scene's tick 3–5 % slower — each call increfs and decrefs the ~25–50
+    arrays it is passed)."""
+    manifolds, rows, targets, deepest = prepare_contacts(contacts, bodies, memory, settings)
+    start = lap(profile, PREPARE, start)
+    lam = warm_start_contacts(manifolds, rows, bodies, memory, settings.warm_start)
+    return Solving(bodies, manifolds, rows, targets, lam, deepest), lap(profile, WARM_START, start)
 
 
 # parallel: the prange loop of the two regions only (_sweep_regions) — not numpy's array expressions.  (A parallel
@@ -1026,7 +1047,9 @@ def solve_sweeps_by_regions(solving, settings, profile):
 
 @njit
 def solve_tail(solving, bodies, settings, sweeps, tally, report, profile):
-    """A big world's :func:`solve_step`, third call: stages 5–7; returns what :func:`solve_step` returns."""
+    """A big world's :func:`solve_step`, third call: stages 5–7; returns what :func:`solve_step` returns.  The
+    robots' coupled loop (:func:`cgp_core.robots.coupled.step_coupled`) ends with it too (compiled once for both,
+    issue 34)."""
     return _velocity_tail(solving, BodyArrays(*bodies), StepSettings(*settings), sweeps, tally, report, profile)
 
 
