@@ -144,13 +144,19 @@ def warm_up_robots(ticks: int = 4) -> World:
 def _warm_up_grid() -> None:
     """The broad phase's grid, which the collision detector runs for scenes too dense for the sweep (thousands of
     bodies in a pile: :data:`cgp_core.collision.detector.SWEEP_TESTS_PER_BOX`), with the detector's argument
-    types: (p, 3) float64 bounds, (p,) intp bodies, the cell edge."""
+    types: (p, 3) float64 bounds, (p,) intp bodies, the cell edge; and the sweep as the detector calls it from
+    Python for more than :data:`~cgp_core.collision.detector.SMALL_SCENE` primitives ((p,) int64 groups, an int
+    test budget).  The contacts worker compiles both: no scenario of its own has that many primitives, and the
+    sweep was compiled by the warm-up's own process after every worker, ~2.3 s of CPU on the set-up's critical
+    path (bench_compile: 'main')."""
     import numpy as np
 
-    from .collision.broadphase import grid_kernel
+    from .collision.broadphase import grid_kernel, sweep_and_prune_kernel
 
     lo = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [-4.0, -4.0, -1.0]])
-    grid_kernel(lo, lo + 1.0 + 7.0 * (lo < -1.0), np.arange(3, dtype=np.intp), 0.0)
+    hi = lo + 1.0 + 7.0 * (lo < -1.0)
+    grid_kernel(lo, hi, np.arange(3, dtype=np.intp), 0.0)
+    sweep_and_prune_kernel(lo, hi, np.arange(3, dtype=np.int64), 64 * 3)
 
 
 def _warm_up_solver_by_regions() -> None:
