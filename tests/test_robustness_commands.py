@@ -79,6 +79,20 @@ def odom_array(msg) -> np.ndarray:
                      p.orientation.w, t.linear.x, t.linear.y, t.linear.z, t.angular.x, t.angular.y, t.angular.z])
 
 
+def odom_of_step(probe, messages: list, reply, what: str):
+    """The odometry of the tick a ``~/step`` just took (``reply``: its response, "stepped to t = … s"), found by its
+    stamp among ``messages`` — not the newest one received: one published just before the pause may arrive after
+    the step's reply."""
+    t = float(re.search(r"stepped to t = ([0-9.]+) s", reply.message).group(1))
+
+    def of_step():
+        return next((m for m in reversed(messages)
+                     if abs(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 - t) < 1e-6), None)
+
+    probe.spin_until(lambda: of_step() is not None, 10, what)
+    return of_step()
+
+
 def watch_zero_g(probe):
     """What the zero_g tests watch: /clock, both bodies' odometry and ~/events, and the ~/apply_wrench
     publisher (returned once the node listens on it, with the box's odometry flowing)."""
@@ -343,11 +357,9 @@ def test_bad_commands_are_rejected_naming_the_field_and_nothing_is_lost(zero_g, 
     # and the node still takes a good command
     pause(probe, True)
     good = apply_wrench_msg(force=(6.0, 0, 0))
-    n = len(box.messages)
     probe.publish_acked(apply, good)
-    step(probe)
-    probe.spin_until(lambda: len(box.messages) > n, 10, "odometry after a step")
-    assert odom_array(box.messages[-1])[7] == pytest.approx(6.0 * DT_NS * 1e-9 / BOX_MASS, rel=1e-9)
+    stepped = odom_of_step(probe, box.messages, step(probe), "odometry of the step")
+    assert odom_array(stepped)[7] == pytest.approx(6.0 * DT_NS * 1e-9 / BOX_MASS, rel=1e-9)
 
 
 # ---- node: floods ---------------------------------------------------------------------------------------
@@ -479,10 +491,7 @@ def test_pending_commands_and_active_wrenches_are_bounded(zero_g, probe):
         for _ in range(100):
             pub.publish(msg)
         probe.spin_for(0.0125)
-    n = len(odom.messages)
-    step(probe)
-    probe.spin_until(lambda: len(odom.messages) > n, 10, "odometry after the step")
-    v = odom_array(odom.messages[-1])[7]
+    v = odom_array(odom_of_step(probe, odom.messages, step(probe), "odometry of the step"))[7]
     assert v == pytest.approx(MAX_PENDING_COMMANDS * force * DT_NS * 1e-9 / BOX_MASS, rel=1e-9)
     dropped = sum(map(int, re.findall(r"dropped the (\d+) oldest pending", zero_g.log())))
     assert dropped > 0
