@@ -256,6 +256,7 @@ def step_coupled(joint_problem, body_problem, joint_profile, body_profile):
             break
     # the body solver's stages 5-7 and its report (bounce time shift, impulses to the momenta, warm-start memory):
     # its own third call, not inlined — compiled once, for the body solver and this loop
+    # (its arrays and settings as the plain tuples given: solve_tail's one signature)
     body = solve_tail(solving, body_problem[1], body_problem[3], rounds, tally, report, body_profile)
     start = clock()
     pseudo, displacement = relax_together(joint_rows, v, manifolds, rows, targets, bodies, settings, body_settings)

@@ -976,12 +976,18 @@ def solve_step(contacts, bodies, memory, settings, tally, report, profile):
 def _velocity_head(contacts, bodies, memory, settings, profile):
     """Stages 1–3 (prepare the bodies and the contacts, warm start): the :class:`Solving` the sweeps take."""
     start = clock()
-    solver_bodies = prepare_bodies(bodies, settings.h)
-    manifolds, rows, targets, deepest = prepare_contacts(contacts, solver_bodies, memory, settings)
+    return _contacts_stages(contacts, prepare_bodies(bodies, settings.h), memory, settings, profile, start)[0]
+
+
+@njit(inline="always")
+def _contacts_stages(contacts, bodies, memory, settings, profile, start):
+    """Stages 2–3 (prepare the contacts, warm start) on the prepared :class:`SolverBodies` ``bodies``, timed into
+    ``profile`` from ``start`` on: ``(the Solving, the time it ended)`` — inlined into :func:`solve_step` (through
+    :func:`_velocity_head`), a kernel of its own as :func:`contacts_head`."""
+    manifolds, rows, targets, deepest = prepare_contacts(contacts, bodies, memory, settings)
     start = lap(profile, PREPARE, start)
-    lam = warm_start_contacts(manifolds, rows, solver_bodies, memory, settings.warm_start)
-    lap(profile, WARM_START, start)
-    return Solving(solver_bodies, manifolds, rows, targets, lam, deepest)
+    lam = warm_start_contacts(manifolds, rows, bodies, memory, settings.warm_start)
+    return Solving(bodies, manifolds, rows, targets, lam, deepest), lap(profile, WARM_START, start)
 
 
 @njit(inline="always")
@@ -1016,18 +1022,14 @@ def solve_head(contacts, bodies, memory, settings, profile):
 
 @njit
 def contacts_head(contacts, bodies, memory, settings, profile, start):
-    """Stages 2–3 (prepare the contacts, warm start) on the prepared :class:`SolverBodies` ``bodies``, timed into
-    ``profile`` from ``start`` on: ``(the Solving, the time it ended)``.  What
-    :func:`_velocity_head` does after :func:`prepare_bodies`, as a kernel of its own (not inlined), compiled once
-    for :func:`solve_head` and the robots' coupled loop (:func:`cgp_core.robots.coupled.step_coupled`, which
-    prepares the bodies itself); :func:`solve_step`, which every world's sub-step calls, keeps its stages inlined
+    """:func:`_contacts_stages` (stages 2–3: what :func:`_velocity_head` does after :func:`prepare_bodies`) as a
+    kernel of its own (not inlined), compiled once for :func:`solve_head` and the robots' coupled loop
+    (:func:`cgp_core.robots.coupled.step_coupled`, which prepares the bodies itself); :func:`solve_step`, which
+    every world's sub-step calls, keeps its stages inlined
     (issue 34: solve_step calling :func:`solve_head` and :func:`solve_tail` saved ~3 s of the solver worker's
     compile CPU but made the 5-body default scene's tick 3–5 % slower — each call increfs and decrefs the ~25–50
     arrays it is passed)."""
-    manifolds, rows, targets, deepest = prepare_contacts(contacts, bodies, memory, settings)
-    start = lap(profile, PREPARE, start)
-    lam = warm_start_contacts(manifolds, rows, bodies, memory, settings.warm_start)
-    return Solving(bodies, manifolds, rows, targets, lam, deepest), lap(profile, WARM_START, start)
+    return _contacts_stages(contacts, bodies, memory, settings, profile, start)
 
 
 # parallel: the prange loop of the two regions only (_sweep_regions) — not numpy's array expressions.  (A parallel
