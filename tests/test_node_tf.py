@@ -58,10 +58,17 @@ def test_tf_follows_the_bodies(start_node, probe):
     assert sim.spawn("box1", "body: {shape: box, size: [0.4, 0.4, 0.4], mass: 2.0}",
                      position=(0, 3, 5)).result.result == OK
     assert sim.delete("ball").result.result == OK
-    n = len(tf.messages)
     assert sim.step(1).result.result == OK
-    probe.spin_until(lambda: len(tf.messages) > n, 10, "the next /tf")
-    msg = deserialize_message(tf.messages[-1], TFMessage)
+
+    def of_the_step() -> TFMessage | None:
+        """The newest /tf with box1 on it: not simply the newest /tf received, which may be a late one of the
+        3-tick burst above (a reader waits for 3 messages, not for the burst's last)."""
+        spawned = [m for m in map(lambda raw: deserialize_message(raw, TFMessage), tf.messages)
+                   if "box1" in [t.child_frame_id for t in m.transforms]]
+        return max(spawned, key=lambda m: stamp_ns(m.transforms[0].header), default=None)
+
+    probe.spin_until(lambda: of_the_step() is not None, 10, "the /tf of the step after the spawn")
+    msg = of_the_step()
     assert [t.child_frame_id for t in msg.transforms] == ["crate", "capsule", "tetromino", "box1"]
     box1 = msg.transforms[-1]
     assert pose_of(box1)[:2] == [0.0, 3.0] and pose_of(box1)[2] < 5.0
