@@ -60,9 +60,12 @@ def test_colcon_build_of_a_workspace_holding_the_repo(tmp_path):
                                                          str(install / "cgp_sim_msgs"), str(VENV)]),
                    PYTHONPATH=os.pathsep.join([str(install / "cgp_sim_ros" / site),
                                                str(install / "cgp_sim_msgs" / site)]))
-    # what `ros2 run cgp_sim_ros sim_node` does after sourcing install/setup.bash: exec the file
+    # what `ros2 run cgp_sim_ros sim_node` does after sourcing install/setup.bash: exec the file.  With the kernels
+    # as plain Python (NUMBA_DISABLE_JIT): the workspace's copy of the sources has no compile cache of its own, and
+    # its compile workers took ~32 s of the suite's time here to test the layout, which the JIT does not touch
+    # (the compile on a first start: tests/test_compile_workers.py)
     ran = subprocess.run([str(node), "--scene", "zero_g", "--realtime", "false", "--duration", "0.5"],
-                         env=run_env, capture_output=True, text=True, timeout=120)
+                         env=dict(run_env, NUMBA_DISABLE_JIT="1"), capture_output=True, text=True, timeout=120)
     assert ran.returncode == 0, ran.stdout + ran.stderr
     assert "duration 0.5 s of simulated time reached after 30 ticks" in ran.stdout + ran.stderr
     assert str(install / "cgp_sim_ros") in ran.stdout + ran.stderr  # the workspace's copy ran, not the venv's

@@ -17,7 +17,7 @@ from concurrent.futures import Future
 from types import SimpleNamespace
 
 from cgp_core.bodies import Shape
-from cgp_core.jit import ThreadPlacement, runs_on_pool
+from cgp_core.jit import JIT_DISABLED, ThreadPlacement, runs_on_pool
 
 #: how long a thread that wants the GIL waits before the holder must let go [s] (Python's default: 5 ms)
 GIL_SWITCH_INTERVAL_S = 0.001
@@ -37,8 +37,15 @@ def load_kernels(world, build_tick: Callable, log_debug: Callable[[str], None]) 
     world: bodies of every shape placed in contact, no flock) takes two ticks here too, one with the contact
     report and one without (the solver's two entry points): every rigid-body kernel is loaded before the first
     tick, also for bodies spawned later (~0.1 s more start-up); and for a world big enough to take the solver's
-    path for big worlds, that path and numba's thread pool (:func:`cgp_core.warmup.load_kernels_for`)."""
+    path for big worlds, that path and numba's thread pool (:func:`cgp_core.warmup.load_kernels_for`).
+
+    With the JIT off (``NUMBA_DISABLE_JIT=1``, the debugging mode) there is nothing to load, and the throwaway
+    tick would be one more plain-Python tick before the first: skipped (a 40,000-particle world's start-up took
+    that tick's seconds for nothing)."""
     from cgp_core.warmup import load_kernels_for
+
+    if JIT_DISABLED:
+        return
 
     from ..drawing.bodies import model_shapes
 
