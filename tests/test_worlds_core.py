@@ -13,6 +13,8 @@ from cgp_core import EditError, SceneError, World
 from cgp_core.entities import body_frame_bounds, box_corners
 from cgp_core.rotation import quat_to_matrix
 from cgp_core.scene import available_scenes, builtin_scene_names, load_scene, parse_scene
+from cgp_core.scene.loading import GALLERY_KEYS, gallery_fields
+from cgp_core.user_input import UserInputError, load_yaml
 
 
 def fresh(name: str) -> World:
@@ -216,6 +218,36 @@ def test_scene_tags_and_the_gallery():
         scene = load_scene(name)
         assert (entry.tags, entry.description) == (scene.tags, scene.description), name
         assert entry.tags and len(entry.description) > 80
+
+
+@pytest.mark.parametrize("text", [
+    "tags: [a]\ndescription: d\nbodies: []\n",
+    "# a comment\n---\ndescription: >\n  two\n  lines\ntags:\n- a\n- b\nworld: {substeps: 2}\n",
+    "bodies:\n  - {name: x, shape: sphere}\ndescription: late\ntags: [z]  # after the bodies\n",
+    "description: |\n  kept\n\n  as is\n\ntags: []\n",
+    "{description: flow, tags: [f]}\n",                 # a flow mapping: the whole load
+    "base: &t [x, y]\ntags: *t\ndescription: alias\n",  # an alias the entry needs: the whole load
+    "description: one\n'quoted': 1\ntags: [q]\n",      # a quoted key at column 0: the whole load
+    "world: {}\n",                                     # neither key
+    "- a list\n",                                      # not a mapping
+])
+def test_the_gallery_reads_its_two_keys_as_the_whole_document_has_them(text):
+    """The node lists the gallery at start-up from each scene's top-level description and tags only
+    (gallery_fields), and gets what loading the whole document gives."""
+    whole = load_yaml(text)
+    expected = {k: whole[k] for k in GALLERY_KEYS if k in whole} if isinstance(whole, dict) else {}
+    assert gallery_fields(text) == expected
+    # a mistake after them does not hide them (the scene's load names it); one in them, or a key given twice, is
+    # refused as the whole load refuses it
+    broken_rest = "description: d\ntags: [t]\nbodies: [unclosed\n"
+    assert gallery_fields(broken_rest) == {"description": "d", "tags": ["t"]}
+    with pytest.raises(UserInputError):
+        load_yaml(broken_rest)
+    for bad in ("tags: [a]\ntags: [b]\n", "description: [unclosed\ntags: []\n", "a: 1\n---\nb: 2\n"):
+        with pytest.raises(UserInputError):
+            load_yaml(bad)
+        with pytest.raises(UserInputError):
+            gallery_fields(bad)
 
 
 @pytest.mark.parametrize("entries, problems", [
