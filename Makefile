@@ -103,10 +103,11 @@ run: setup
 # time limit.
 # Two pytest-xdist workers (TEST_WORKERS=1 for one process): most of the suite's wall time is tests waiting on
 # node processes, which two workers overlap; each worker's nodes live in a ROS domain of their own
-# (tests/conftest.py).  Files are the unit of distribution, so a module's shared node starts once.
+# (tests/conftest.py).  Files are the unit of distribution, so a module's shared node starts once; the longest
+# first (tests/conftest.py: pytest_collection_modifyitems), so that no long file is left for the end.
 TEST_WORKERS ?= 2
 test: setup
-	@$(VPY) -m pytest tests $(if $(filter-out 1,$(TEST_WORKERS)),-n $(TEST_WORKERS) --dist loadfile)
+	@$(VPY) -m pytest tests $(if $(filter-out 1,$(TEST_WORKERS)),-n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder)
 
 # The soak test (tests/test_soak.py) runs CGP_SIM_SOAK_SECONDS of wall time (default 900); it is read from the
 # environment: `CGP_SIM_SOAK_SECONDS=60 make soak` or `make soak CGP_SIM_SOAK_SECONDS=60` (issue 27's one-hour

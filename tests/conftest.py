@@ -47,7 +47,38 @@ def pytest_addoption(parser):
     parser.addoption("--run-soak", action="store_true", default=False, help="run the long soak tests")
 
 
+#: the test files that take longest, in seconds (setup + call + teardown of all their tests; a warm `pytest -n 2
+#: --durations=0` run on the 2-core machine, 2026-12-07, with that day's changes to test_colcon and
+#: test_node_interface): only the order in which xdist hands out the files depends on it (below)
+FILE_SECONDS = {
+    "test_compile_workers.py": 75, "test_robustness_commands.py": 68, "test_robustness_node_inputs.py": 63,
+    "test_node_interface.py": 60, "test_node_robots.py": 60, "test_robustness_faults.py": 59, "test_gallery.py": 47,
+    "test_foxglove.py": 45, "test_render.py": 44, "test_sweep.py": 32, "test_node_bag.py": 29,
+    "test_node_sim_services.py": 28, "test_node_graph.py": 25, "test_node_robot_spawn.py": 24,
+    "test_node_bounded_output.py": 23, "test_solver_regions.py": 23, "test_joint_integrators.py": 21,
+    "test_colcon.py": 20, "test_node_worlds.py": 20, "test_jit_parity.py": 15, "test_docs.py": 15,
+    "test_mesh_fast_path.py": 14,
+}
+
+
+def _expected_seconds(file: str, items) -> float:
+    """A file's expected time: :data:`FILE_SECONDS`, else 4 s a test that starts a node and 0.1 s any other."""
+    if Path(file).name in FILE_SECONDS:
+        return FILE_SECONDS[Path(file).name]
+    return sum(4.0 if "start_node" in item.fixturenames else 0.1 for item in items)
+
+
 def pytest_collection_modifyitems(config, items):
+    # The longest files first.  `make test`'s xdist workers take whole files (--dist loadfile, in collection order:
+    # --no-loadscope-reorder), each the next one when it is nearly done; by name, or by xdist's own order (most tests
+    # first), the files of one or two long tests (a colcon build, a compile without cache, 13 gallery nodes) came
+    # last and one worker ran them while the other had nothing left.  Within a file the order is kept.
+    by_file: dict[str, list] = {}
+    for item in items:
+        by_file.setdefault(item.nodeid.split("::")[0], []).append(item)
+    ranked = sorted(by_file, key=lambda f: -_expected_seconds(f, by_file[f]))  # (stable: ties keep their order)
+    items[:] = [item for f in ranked for item in by_file[f]]
+
     if config.getoption("--run-soak"):
         return
     skip = pytest.mark.skip(reason="soak test: run with `make soak`")
