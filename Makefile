@@ -1,9 +1,10 @@
-# cgp_sim — the two commands are `make run` and `make test`; both run `make setup` first.
+# cgp_sim — the two commands are `make run` and `make test`; `make test` runs `make setup` first, `make run` all of
+# it but the compile of every kernel (the node compiles what its scene runs: see `run`).
 #
 # Set-up is incremental: every slow step leaves a stamp in .venv/.stamps and reruns only when its inputs
 # change (requirements files -> pip; msgs_config/cgp_sim_msgs, msgs_config/upstream/<pkg> -> cmake, each interface
 # package rebuilt only when a hash of its own inputs changed; setup.py and the data files -> pip install -e .; the
-# Python sources -> the kernels' warm-up).
+# Python sources -> their bytecode and the kernels' warm-up).
 # The upstream copies (tf2_msgs, simulation_interfaces) are built only where no installed package of that name
 # exists (tools/build_msgs.py says which it uses).
 
@@ -83,19 +84,25 @@ $(STAMPS)/project: $(STAMPS)/msgs $(PROJECT_SRC)
 	@$(VPY) tools/install_data_files.py
 	@touch $@
 
-# First the sources' bytecode: an editable install gets none from pip, and where PYTHONDONTWRITEBYTECODE is set (this
+# The sources' bytecode: an editable install gets none from pip, and where PYTHONDONTWRITEBYTECODE is set (this
 # machine kind's shells, CI's) no import writes it either, so every process (each node start, each test's node,
 # each compile worker) compiled the project's ~110 modules from source again: ~0.3 s of every start, measured.
 # compileall writes it whatever that variable says; an edited source is compiled again (its .pyc is then stale).
-$(STAMPS)/kernels: $(STAMPS)/project $(KERNEL_SRC)
+$(STAMPS)/bytecode: $(STAMPS)/project $(KERNEL_SRC)
 	@$(VPY) -m compileall -q -j 0 cgp_core cgp_sim_ros msgs_config
+	@touch $@
+
+$(STAMPS)/kernels: $(STAMPS)/bytecode $(KERNEL_SRC)
 	@echo "setup: compiling the simulation kernels (numba, cached: only after an install or an edit)"
 	@$(VPY) -m cgp_sim_ros.warmup
 	@touch $@
 
 # The live view is on (the node prints the address to open in the Foxglove app); ARGS="--foxglove false" turns
 # it off, ARGS="--foxglove-port 0" picks a free port.
-run: setup
+# `make run` leaves the kernels to the node: at its start it compiles, in parallel, what its scene runs and the
+# cache lacks (the default scene's: ~30 s on a fresh clone; cgp_sim_ros.warmup.compile_missing_kernels), not every
+# kernel as `make setup` does (~140 s), which a first run would wait for.
+run: $(STAMPS)/bytecode
 	@$(VENV)/bin/cgp-sim --bag "$(BAG_DIR)" --foxglove true $(ARGS)
 
 # The tests import the checkout, which is the installed package (editable): `make setup`'s warm-up compiled

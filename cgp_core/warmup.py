@@ -275,6 +275,10 @@ class CompilePart:
     #: kernel), for the order in which :func:`compile_in_parallel` starts the workers when some wait for others; a
     #: guide only
     cpu_s: float = 0.0
+    #: entry points only the complete scenario compiles (``make setup``'s, not ``--default-scene``'s, which a node
+    #: runs for the default scene's parts): a part a node compiled is not taken for complete by ``make setup``,
+    #: whose own process would otherwise compile the rest one kernel after another (:func:`missing_parts`)
+    complete_sentinels: tuple[str, ...] = ()
 
 
 #: the modules of the sphere / box / capsule contacts (the default scene's), and those of issue 25's shapes
@@ -290,18 +294,21 @@ _CONVEX_MODULES = ("cgp_core.collision.convex_phase", "cgp_core.collision.convex
 PARTS: tuple[CompilePart, ...] = (
     CompilePart("solver", ("cgp_core.solver", "cgp_core.rotation", "cgp_core.bodies"),
                 ("cgp_core.solver.sequential_impulse:solve_step",
-                 "cgp_core.solver.sequential_impulse:recover_penetration_kernel"), steps_flocks=False, cpu_s=15.0),
+                 "cgp_core.solver.sequential_impulse:recover_penetration_kernel"), steps_flocks=False, cpu_s=15.0,
+                complete_sentinels=("cgp_core.solver.sequential_impulse:solve_sweeps_by_regions",)),
     # (rotation's and bodies' few small kernels are compiled by both rigid-body parts: each part's kernels call them)
     CompilePart("contacts", _CONTACT_MODULES + ("cgp_core.integrators", "cgp_core.dynamics", "cgp_core.sleep",
                                                 "cgp_core.rotation", "cgp_core.bodies"),
                 ("cgp_core.collision.detector:narrow_phase", "cgp_core.integrators.implicit_midpoint:_step_kernel",
-                 "cgp_core.dynamics:coming_velocities"), steps_flocks=False, cpu_s=26.0),
+                 "cgp_core.dynamics:coming_velocities"), steps_flocks=False, cpu_s=26.0,
+                complete_sentinels=("cgp_core.collision.broadphase:grid_kernel",)),
     # (the obstacle query of static meshes calls the BVH's closest point, which calls GJK's closest point on a
     # triangle; GJK calls the hulls' support mapping: with gjk compiled here, convex's kernels must be too, or the
     # convex shapes' contacts, plain Python in this worker, reach a compiled GJK calling a plain support_index)
     CompilePart("flock", ("cgp_core.boids", "cgp_core.collision.bvh", "cgp_core.collision.gjk",
                           "cgp_core.collision.convex"),
-                ("cgp_core.boids.rules:_neighbor_sums", "cgp_core.boids.flock:_move"), cpu_s=30.0),
+                ("cgp_core.boids.rules:_neighbor_sums", "cgp_core.boids.flock:_move"), cpu_s=30.0,
+                complete_sentinels=("cgp_core.boids.predators:_flee", "cgp_core.boids.topological:_rank_candidates")),
     # issue 25's shapes: ~60 s of compiling on an idle core (GJK, EPA, the manifolds and the stage that calls them
     # all), more than any other part; it calls the sphere / box / capsule kernels too (compiled here as well)
     # (after "contacts": the sphere / box / capsule kernels it calls are that part's, ~25 s of CPU that both
@@ -337,15 +344,16 @@ def is_cached(kernel) -> bool:
         return True
 
 
-def missing_parts(parts: tuple[CompilePart, ...] = PARTS) -> list[CompilePart]:
-    """The parts whose kernels are not in the cache (none when the JIT is disabled)."""
+def missing_parts(parts: tuple[CompilePart, ...] = PARTS, *, complete: bool = True) -> list[CompilePart]:
+    """The parts whose kernels are not in the cache (none when the JIT is disabled); ``complete``: those of the
+    complete scenario (:attr:`CompilePart.complete_sentinels`), else the default scene's only."""
     from .jit import JIT_DISABLED
 
     if JIT_DISABLED:
         return []
     missing = []
     for part in parts:
-        for sentinel in part.sentinels:
+        for sentinel in part.sentinels + (part.complete_sentinels if complete else ()):
             module, name = sentinel.split(":")
             if not is_cached(getattr(importlib.import_module(module), name)):
                 missing.append(part)
@@ -442,7 +450,7 @@ def compile_in_parallel(parts: list[CompilePart], worker_module: str, *worker_ar
 def compile_missing(parts: tuple[CompilePart, ...], worker_module: str, log, *worker_args: str) -> None:
     """Compile, in parallel worker processes (:func:`compile_in_parallel`), the parts whose kernels are not
     cached yet; ``log(text)`` says what happens (nothing when every part is cached)."""
-    missing = missing_parts(parts)
+    missing = missing_parts(parts, complete="--default-scene" not in worker_args)
     if not missing:
         return
     started = time.perf_counter()

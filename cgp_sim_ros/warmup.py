@@ -20,6 +20,7 @@ import dataclasses
 import sys
 
 from cgp_core import warmup as core
+from cgp_core.bodies import Shape
 from cgp_core.warmup import CompilePart
 
 #: cgp_core's parts, the flock's with the node's marker kernels (fish triangles, sphere lists) added
@@ -56,10 +57,21 @@ def scenario(complete: bool = True, flocks: bool = True) -> None:
             draw()
 
 
-def compile_missing_kernels(log) -> None:
-    """Compile, in parallel, the parts of the default scene's kernels that are not cached yet; ``log(text)``
-    says what happens.  The kernels the default scene does not use (issue 14's flock rules, the parallel twins
-    for big flocks) are left to compile on first use: they would lengthen the flock worker's share."""
+def compile_missing_kernels(log, scene=None) -> None:
+    """Compile, in parallel, the parts of the kernels ``scene`` runs (a :class:`~cgp_core.scene.Scene`; None: the
+    default scene's) that are not cached yet; ``log(text)`` says what happens.
+
+    A scene of the default scene's shapes (spheres, boxes, capsules, particle bodies, flocks) needs the default
+    scene's parts only, and the kernels it does not use (issue 14's flock rules, the parallel twins for big
+    flocks) are left to compile on first use: they would lengthen the flock worker's share.  A scene with hulls,
+    compounds, meshes or robots needs the convex or robots part too, which would otherwise compile in its first
+    tick, one kernel after another (the convex part alone is ~60 s of CPU): then every part is compiled, as
+    ``make setup`` does.  So ``make run``, which leaves the compile to the node, starts the default scene after
+    ~30 s of compiling on a fresh clone instead of every kernel's ~140 s."""
+    if scene is not None and (scene.robots or scene.articulations or any(
+            b.shape in (Shape.CONVEX, Shape.COMPOUND, Shape.MESH) for b in scene.bodies)):
+        core.compile_missing(PARTS, "cgp_sim_ros.warmup", log)
+        return
     core.compile_missing(tuple(p for p in PARTS if p.default_scene), "cgp_sim_ros.warmup", log, "--default-scene")
 
 

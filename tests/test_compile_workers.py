@@ -181,6 +181,18 @@ def test_a_node_without_any_compile_cache_has_its_kernels_compiled_in_parallel(s
     assert not saved, "the node compiled kernels itself:\n" + "\n".join(saved)
     assert len(loaded) >= 20, log[-4000:]  # the workers' kernels: the solver's, the contacts', the flock's
     assert (tmp_path / "bag" / "metadata.yaml").exists()
+    # `make run` leaves the compile to the node; a `make setup` after it must not take those three parts for
+    # complete (its own process would then compile the rest of them — issue 14's flock rules, the solver's path
+    # for big worlds, the grid — one kernel after another): the node's start finds nothing missing, the complete
+    # warm-up finds every part so
+    ask = ("from cgp_core.warmup import PARTS, missing_parts; "
+           "print('missing:', [p.name for p in missing_parts(tuple(p for p in PARTS if p.default_scene), "
+           "complete=False)], "
+           "[p.name for p in missing_parts(complete=True)])")
+    found = subprocess.run([sys.executable, "-c", ask], env=env, capture_output=True, text=True, timeout=60)
+    assert found.returncode == 0, found.stderr[-2000:]
+    answer = next(line for line in found.stdout.splitlines() if line.startswith("missing:"))
+    assert answer == "missing: [] ['solver', 'contacts', 'flock', 'convex', 'robots']", answer
 
 
 def _workers_using(cache: str) -> list[int]:
@@ -548,3 +560,26 @@ def test_concurrent_saves_of_one_kernels_signatures_keep_each_with_its_own_code(
          "f4": np.arange(3, dtype=np.float32)}
     assert report["results"] == {kind: repr((v * 2 + 1).tolist()) for kind, v in x.items()}, report
     assert (report["loaded"], report["compiled"]) == (4, 0), report
+
+
+@pytest.mark.parametrize("scene, parts, args", [
+    ("default", ["solver", "contacts", "flock"], ["--default-scene"]),
+    ("pyramid", ["solver", "contacts", "flock"], ["--default-scene"]),
+    ("convex_pile", ["solver", "contacts", "flock", "convex", "robots"], []),
+    ("arm", ["solver", "contacts", "flock", "convex", "robots"], []),
+    (None, ["solver", "contacts", "flock"], ["--default-scene"]),
+])
+def test_the_node_compiles_the_parts_its_scene_runs(monkeypatch, scene, parts, args):
+    """`cgp-sim` compiles, before its first tick, the parts of the kernels its scene runs (`make run` leaves the
+    compile to it): the default scene's three for a scene of spheres, boxes and capsules; every part, as `make
+    setup` does, for one of hulls (convex_pile) or robots (arm), whose kernels would otherwise compile one by one
+    in the first tick.  (Compiling them in parallel workers: the test above.)"""
+    from cgp_core import warmup as core
+    from cgp_core.scene import load_scene
+    from cgp_sim_ros import warmup
+
+    asked = []
+    monkeypatch.setattr(core, "compile_missing",
+                        lambda parts, module, log, *a: asked.append(([p.name for p in parts], list(a))))
+    warmup.compile_missing_kernels(print, None if scene is None else load_scene(scene))
+    assert asked == [(parts, args)]

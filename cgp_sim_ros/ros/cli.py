@@ -203,19 +203,20 @@ def main(argv: list[str] | None = None) -> int:
     # node reads it again: this check is the parse alone, milliseconds for the built-in scenes.  A scene set in
     # a --params-file is checked by the node, after the compile.)
     scene = _scene_argument(args.scene, argv)
+    loaded = None
     if scene is not None:
         from cgp_core.scene import SceneError, load_scene
 
         try:
-            load_scene(scene)
+            loaded = load_scene(scene)
         except SceneError as exc:
             print(f"cgp-sim: scene: {exc}", file=sys.stderr)
             return 2
     # Right after an install or an edit of the kernels' sources numba has nothing cached: compile the kernels
-    # in parallel processes now (24 s on 2 cores, benchmarks/bench_compile.py), not one by one in the first tick
-    # (about 40 s of CPU).
+    # the scene runs in parallel processes now (the default scene's: 24 s on 2 cores, benchmarks/bench_compile.py),
+    # not one by one in the first tick (about 40 s of CPU; a scene of hulls or robots: every kernel).
     try:
-        compile_missing_kernels(lambda text: print(f"cgp-sim: {text}", file=sys.stderr, flush=True))
+        compile_missing_kernels(lambda text: print(f"cgp-sim: {text}", file=sys.stderr, flush=True), loaded)
     except KeyboardInterrupt:
         print("cgp-sim: interrupted while compiling the kernels (the next start compiles what is missing)",
               file=sys.stderr)
