@@ -1,5 +1,5 @@
-# cgp_sim — the two commands are `make run` and `make test`; `make test` runs `make setup` first, `make run` all of
-# it but the compile of every kernel (the node compiles what its scene runs: see `run`).
+# cgp_sim — the two commands are `make run` and `make test`; `make test` runs `make setup` first, `make run` too but
+# on a fresh clone only the default scene's kernels (see `run`).
 #
 # Set-up is incremental: every slow step leaves a stamp in .venv/.stamps and reruns only when its inputs
 # change (requirements files -> pip; msgs_config/cgp_sim_msgs, msgs_config/upstream/<pkg> -> cmake, each interface
@@ -97,12 +97,19 @@ $(STAMPS)/kernels: $(STAMPS)/bytecode $(KERNEL_SRC)
 	@$(VPY) -m cgp_sim_ros.warmup
 	@touch $@
 
+# The default scene's kernels alone (its three compile workers, ~30 s on a fresh clone), for `make run`.
+$(STAMPS)/kernels-default: $(STAMPS)/bytecode $(KERNEL_SRC)
+	@echo "setup: compiling the default scene's kernels (numba, cached: only after an install or an edit)"
+	@$(VPY) -m cgp_sim_ros.warmup --default-scene
+	@touch $@
+
 # The live view is on (the node prints the address to open in the Foxglove app); ARGS="--foxglove false" turns
 # it off, ARGS="--foxglove-port 0" picks a free port.
-# `make run` leaves the kernels to the node: at its start it compiles, in parallel, what its scene runs and the
-# cache lacks (the default scene's: ~30 s on a fresh clone; cgp_sim_ros.warmup.compile_missing_kernels), not every
-# kernel as `make setup` does (~140 s), which a first run would wait for.
-run: $(STAMPS)/bytecode
+# Before a set-up has compiled every kernel (a fresh clone), `make run` compiles the default scene's only, not every
+# kernel (~140 s) that a first run would wait for; a scene of hulls or robots has the node compile the rest at its
+# start (cgp_sim_ros.warmup.compile_missing_kernels).  Once `make setup` or `make test` has, every kernel again
+# after an edit, as before.
+run: $(if $(wildcard $(STAMPS)/kernels),$(STAMPS)/kernels,$(STAMPS)/kernels-default)
 	@$(VENV)/bin/cgp-sim --bag "$(BAG_DIR)" --foxglove true $(ARGS)
 
 # The tests import the checkout, which is the installed package (editable): `make setup`'s warm-up compiled

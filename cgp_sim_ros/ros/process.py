@@ -42,10 +42,9 @@ def load_kernels(world, build_tick: Callable, log_debug: Callable[[str], None]) 
     With the JIT off (``NUMBA_DISABLE_JIT=1``, the debugging mode) there is nothing to load, and the throwaway
     tick would be one more plain-Python tick before the first: skipped (a 40,000-particle world's start-up took
     that tick's seconds for nothing)."""
-    from cgp_core.warmup import load_kernels_for
-
     if JIT_DISABLED:
         return
+    from cgp_core.warmup import load_kernels_for
 
     from ..drawing.bodies import model_shapes
 
