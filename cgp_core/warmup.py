@@ -112,7 +112,8 @@ def _compiles_any(*modules: str) -> bool:
 
 def warm_up_robots(ticks: int = 4) -> World:
     """Step the built-in ``arm`` scene: the robots' kernels (kinematics, Jacobians, CRBA, RNEA, the joint solver
-    with position, velocity and effort drives, limits, a mimic coupling and link contacts)."""
+    with position, velocity and effort drives, limits, a mimic coupling and link contacts), and the arm with a
+    Gauss–Legendre joint integrator."""
     from .world import World
 
     world = World.from_scene("arm")
@@ -138,6 +139,12 @@ def warm_up_robots(ticks: int = 4) -> World:
                         "position": [0.25, 0.0, 0.247]}]}, "<warm-up>"))
         for _ in range(ticks):
             touching.step()
+    # the Gauss–Legendre joint integrators (a scene's `joint_integrator`; both methods share one compile): ~21 s of
+    # CPU that a scene choosing one waited for in its first tick, measured in a cold suite
+    smooth = World(scene_from_dict({"world": {"joint_integrator": "gauss_legendre_4"},
+                                    "robots": [{"name": "arm", "urdf": "arm.urdf"}]}, "<warm-up>"))
+    for _ in range(2):
+        smooth.step()
     return world
 
 
@@ -324,7 +331,8 @@ PARTS: tuple[CompilePart, ...] = (
     # kernels not inlined into step_coupled load from the cache instead of being compiled twice
     CompilePart("robots", ("cgp_core.robots", "cgp_core.rotation", "cgp_core.solver", "cgp_core.bodies"),
                 ("cgp_core.robots.algorithms:mass_matrix", "cgp_core.robots.joint_solver:step_joints",
-                 "cgp_core.robots.joint_solver:step_lone_robots", "cgp_core.robots.coupled:step_coupled"),
+                 "cgp_core.robots.joint_solver:step_lone_robots", "cgp_core.robots.coupled:step_coupled",
+                 "cgp_core.robots.joint_integrators:smooth_steps"),
                 steps_flocks=False, default_scene=False, after=("solver",), cpu_s=55.0),  # (+~12 s: robots.coupled)
 )
 
