@@ -455,16 +455,22 @@ def compile_in_parallel(parts: list[CompilePart], worker_module: str, *worker_ar
     return failed
 
 
-def compile_missing(parts: tuple[CompilePart, ...], worker_module: str, log, *worker_args: str) -> None:
+def compile_missing(parts: tuple[CompilePart, ...], worker_module: str, log, *, default_scene: bool = False) -> None:
     """Compile, in parallel worker processes (:func:`compile_in_parallel`), the parts whose kernels are not
-    cached yet; ``log(text)`` says what happens (nothing when every part is cached)."""
-    missing = missing_parts(parts, complete="--default-scene" not in worker_args)
+    cached yet; ``log(text)`` says what happens (nothing when every part is cached).  ``default_scene``: only the
+    default scene's parts and kernels (the workers' ``--default-scene``; a part counts as cached by its
+    :attr:`~CompilePart.sentinels` alone), else every kernel of ``parts`` (its
+    :attr:`~CompilePart.complete_sentinels` too)."""
+    if default_scene:
+        parts = tuple(p for p in parts if p.default_scene)
+    missing = missing_parts(parts, complete=not default_scene)
     if not missing:
         return
     started = time.perf_counter()
     log(f"compiling the simulation kernels ({', '.join(p.name for p in missing)}: no compile cache for them yet, "
         f"as at the first start after an install or an edit) in {len(missing)} processes …")
-    failed = compile_in_parallel(missing, worker_module, *worker_args)
+    # (the workers get --default-scene too: without it they compiled every kernel but the convex part's)
+    failed = compile_in_parallel(missing, worker_module, *(["--default-scene"] if default_scene else []))
     for name, output in failed.items():
         tail = "\n".join(output.strip().splitlines()[-20:])
         log(f"the {name} compile worker failed (its kernels compile at first use instead):\n{tail}")
@@ -495,11 +501,8 @@ def main(argv: list[str], *, name: str, parts: tuple[CompilePart, ...], worker_m
         scenario(complete=not args.default_scene, flocks=part.steps_flocks)
         return 0
     started = time.perf_counter()
-    if args.default_scene:
-        parts = tuple(p for p in parts if p.default_scene)
-    # (the workers get --default-scene too: without it they compiled every kernel but the convex part's)
     compile_missing(parts, worker_module, lambda text: print(f"{name}: {text}", file=sys.stderr, flush=True),
-                    *(["--default-scene"] if args.default_scene else []))
+                    default_scene=args.default_scene)
     scenario(complete=not args.default_scene)
     print(f"{name}: simulation kernels compiled and cached ({time.perf_counter() - started:.1f} s)")
     return 0

@@ -68,11 +68,9 @@ def compile_missing_kernels(log, scene=None) -> None:
     tick, one kernel after another (the convex part alone is ~60 s of CPU): then every part is compiled, as
     ``make setup`` does.  So ``make run``, which leaves the compile to the node, starts the default scene after
     ~30 s of compiling on a fresh clone instead of every kernel's ~140 s."""
-    if scene is not None and (scene.robots or scene.articulations or any(
-            b.shape in (Shape.CONVEX, Shape.COMPOUND, Shape.MESH) for b in scene.bodies)):
-        core.compile_missing(PARTS, "cgp_sim_ros.warmup", log)
-        return
-    core.compile_missing(tuple(p for p in PARTS if p.default_scene), "cgp_sim_ros.warmup", log, "--default-scene")
+    beyond_default = scene is not None and (scene.robots or scene.articulations or any(
+        b.shape in (Shape.CONVEX, Shape.COMPOUND, Shape.MESH) for b in scene.bodies))
+    core.compile_missing(PARTS, "cgp_sim_ros.warmup", log, default_scene=not beyond_default)
 
 
 def main(argv: list[str] | None = None) -> int:

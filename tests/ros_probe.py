@@ -174,6 +174,22 @@ def step(probe: Probe, node: str = "/cgp_sim"):
     return response
 
 
+def odom_of_step(probe: Probe, messages: list, reply, what: str):
+    """The odometry of the tick a ``~/step`` just took (``reply``: its response, "stepped to t = … s"), found by its
+    stamp among ``messages`` — not the newest one received: one published just before the pause may arrive after
+    the step's reply."""
+    import re
+
+    t = float(re.search(r"stepped to t = ([0-9.]+) s", reply.message).group(1))
+
+    def of_step():
+        return next((m for m in reversed(messages)
+                     if abs(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 - t) < 1e-6), None)
+
+    probe.spin_until(lambda: of_step() is not None, 10, what)
+    return of_step()
+
+
 class PeerProcess:
     """Another ROS process a test starts (a command flooder, a reader that stalls...): ``python -c code args``
     with its output in ``log_path``, which the test polls for the marker lines the code prints."""

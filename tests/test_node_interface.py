@@ -20,7 +20,7 @@ from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.serialization import deserialize_message
-from ros_probe import pause, step
+from ros_probe import odom_of_step, pause, step
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
@@ -86,11 +86,9 @@ def send_until_applied(probe, publisher, msg, odom, predicate, timeout=20.0):
     """Publish a command to a paused node, wait until the node's reader has it (acknowledged), step once; the
     next odometry must show it applied (``predicate``)."""
     probe.publish_acked(publisher, msg, timeout)
-    before = len(odom.messages)
-    step(probe)
-    probe.spin_until(lambda: len(odom.messages) > before, 10, "odometry after a step")
-    assert predicate(odom.messages[-1]), "a command the node had received before the step was not applied"
-    return odom.messages[-1]
+    stepped = odom_of_step(probe, odom.messages, step(probe), "odometry of the step")
+    assert predicate(stepped), "a command the node had received before the step was not applied"
+    return stepped
 
 
 @pytest.mark.parametrize("zero_g", ["cgp-sim", "sim_node"], indirect=True)

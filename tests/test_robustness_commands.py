@@ -25,7 +25,7 @@ from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, SetParameters, SetParametersAtomically
-from ros_probe import PeerProcess, pause, step
+from ros_probe import PeerProcess, odom_of_step, pause, step
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -77,20 +77,6 @@ def odom_array(msg) -> np.ndarray:
     p, t = msg.pose.pose, msg.twist.twist
     return np.array([p.position.x, p.position.y, p.position.z, p.orientation.x, p.orientation.y, p.orientation.z,
                      p.orientation.w, t.linear.x, t.linear.y, t.linear.z, t.angular.x, t.angular.y, t.angular.z])
-
-
-def odom_of_step(probe, messages: list, reply, what: str):
-    """The odometry of the tick a ``~/step`` just took (``reply``: its response, "stepped to t = … s"), found by its
-    stamp among ``messages`` — not the newest one received: one published just before the pause may arrive after
-    the step's reply."""
-    t = float(re.search(r"stepped to t = ([0-9.]+) s", reply.message).group(1))
-
-    def of_step():
-        return next((m for m in reversed(messages)
-                     if abs(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 - t) < 1e-6), None)
-
-    probe.spin_until(lambda: of_step() is not None, 10, what)
-    return of_step()
 
 
 def watch_zero_g(probe):
