@@ -5,8 +5,9 @@ pile) and the default scene, recording on, with and without a subscriber to ``~/
 Each configuration runs in a child process that builds the node as ``cgp-sim`` does (``SimNode`` with the scene, a
 bag, ``realtime: false``) and spins the executor ``cgp-sim`` spins (its zero-period timer calls ``node.tick()``
 back to back); ``World.step`` is timed inside the tick, and the node's cost is the spin minus the step (the
-executor's own work, commands, serializing, publishing, recording), also per body (µs), split per stage (building
-odometry, contacts, TF, markers, poses, /clock; DDS publish of the odometry and of the rest; ``recorder.write``),
+executor's own work, commands, serializing, publishing, recording), also per body (µs), split per stage (the
+executor's own work outside ``node.tick()``: its wait set; building odometry, contacts, TF, markers, poses,
+/clock; DDS publish of the odometry and of the rest; ``recorder.write``),
 with the bag writer thread's CPU per tick (it runs beside the tick, under the GIL).  The hulls: ticks 1–170 while
 they drop and land (from the first tick), then 200–320 asleep; the pile: ticks 10–180 while it falls and piles up
 (0–3 s), then ticks 300–420 (5–7 s) when it is asleep; the default scene: ticks 10–300.
@@ -188,13 +189,18 @@ def child(args) -> int:
             recorder.write(publisher.topic_name, data, stamp_ns)
 
     world.step, outputs.publish = timed_step, counted_publish
+    tick = node.tick
+    ticked_s = [0.0]
+
+    def timed_tick():
+        t0 = time.perf_counter()
+        tick()
+        ticked_s[0] = time.perf_counter() - t0
+
+    node.tick = timed_tick  # the timer's callback calls self.tick(): the spin outside it is the executor's own
     # driven as cgp-sim drives it: its executor's spin_once (the zero-period timer of realtime false calls
     # node.tick), so the executor's own work per tick (its wait set) is in the figures
-    try:
-        from cgp_sim_ros.ros.cli import make_executor
-        executor = make_executor(SingleThreadedExecutor)
-    except ImportError:  # a checkout before make_executor: cgp-sim's SingleThreadedExecutor
-        executor = SingleThreadedExecutor()
+    executor = SingleThreadedExecutor()
     executor.add_node(node)
     last = max(end for _, end in windows.values())
     tick_s, marker_bytes, stages, writer_cpu, asleep_at = [], [], [], [], []
@@ -202,13 +208,16 @@ def child(args) -> int:
         sent.clear()
         stage.clear()
         ticks_before, steps_before = world.ticks, len(step_s)
+        ticked_s[0] = 0.0
         t0 = time.perf_counter()
         executor.spin_once(timeout_sec=0.05)
         spun = time.perf_counter() - t0
         if world.ticks == ticks_before:  # a spin that ran something else (a service, a discovery event)
             if tick_s:
                 tick_s[-1] += spun
+                stages[-1]["executor (spin - tick)"] = stages[-1].get("executor (spin - tick)", 0.0) + spun
             continue
+        stage["executor (spin - tick)"] = spun - ticked_s[0]
         if len(step_s) == steps_before:
             step_s.append(0.0)
         tick_s.append(spun)

@@ -1,8 +1,10 @@
 """The wrench commands the node takes, from the moment they arrive to the tick that applies them.
 
-Every command input — ``~/apply_wrench`` and every movable body's ``~/bodies/<body>/wrench``, over DDS or from a
-Foxglove client (:attr:`CommandInputs.inputs`: topic → message type and handler of its CDR bytes) — goes the
-same path, in this module:
+Every command input — ``~/apply_wrench``, every movable body's ``~/bodies/<body>/wrench`` and every robot's
+``joint_commands`` and ``joint_trajectory``, over DDS or from a Foxglove client (:attr:`CommandInputs.inputs`:
+topic → message type and handler of its CDR bytes) — goes the same path, in this module, on the executor's thread
+(the DDS subscriptions are waited on by a thread of their own, which only takes their bytes:
+cgp_sim_ros/ros/inbox.py):
 
 1. size: a message larger than any valid command (:data:`~cgp_sim_ros.interface.MAX_COMMAND_BYTES`) is
    dropped before it is decoded or recorded;
@@ -23,7 +25,6 @@ from __future__ import annotations
 
 import collections
 import re
-import time
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -38,7 +39,6 @@ from cgp_core.wrenches import MAX_NAME_LENGTH, CommandLimits, WrenchError, make_
 
 from .. import interface as itf
 from ..trajectory import Trajectory, TrajectoryError, check_trajectory, sample
-from .qos import COMMAND_QOS
 
 #: The per-body command subscriptions are made without rclpy's default QoS-event handlers (the "incompatible
 #: QoS / type" warnings): each handler is a waitable the executor adds to its wait set, in Python, on every spin
@@ -60,6 +60,8 @@ class CommandInputs:
         self._dropped = 0  # pending commands dropped (the oldest) since the last report
         self._rejections: collections.Counter = collections.Counter()
         self._last_rejection: dict[tuple[str, str, str], str] = {}  # (source, field, kind) -> last reason
+        #: the subscriptions' own waiting thread (the node's), which hands their raw bytes to the executor's
+        self.inbox = node.inbox
         self._apply_wrench = self._subscription(ApplyWrench, itf.TOPIC_APPLY_WRENCH, self._on_apply_wrench)
         self._body_wrench: dict = {}  # body name -> its ~/bodies/<body>/wrench subscription
         self._body_names: list[str] = []  # the body set the pending commands' indices refer to
@@ -76,11 +78,10 @@ class CommandInputs:
         """After the body set changed: a ``~/bodies/<body>/wrench`` subscription for every movable body (made
         for new ones, destroyed for gone ones, kept for the others); pending commands follow their body (its
         new index), those on deleted bodies are dropped.  Returns the subscriptions made."""
-        node = self._node
         for name in [n for n in self._body_wrench if n not in movable]:
             subscription = self._body_wrench.pop(name)
             self.inputs.pop(subscription.topic_name, None)
-            node.destroy_subscription(subscription)
+            self.inbox.destroy(subscription)
         added = []
         for name in names:
             if name in movable and name not in self._body_wrench:
@@ -101,7 +102,6 @@ class CommandInputs:
         """After the robot set changed: ``~/robots/<robot>/joint_commands`` and ``joint_trajectory``
         subscriptions for every robot (made for new ones, destroyed for gone ones); pending joint commands and
         trajectories of gone robots are dropped.  Returns the subscriptions made."""
-        node = self._node
         added = []
         for subscriptions, topic, msg_type, handle in (
                 (self._joint_commands, itf.TOPIC_ROBOT_JOINT_COMMANDS, JointState, self._on_joint_command),
@@ -109,7 +109,7 @@ class CommandInputs:
             for name in [n for n in subscriptions if n not in robots]:
                 subscription = subscriptions.pop(name)
                 self.inputs.pop(subscription.topic_name, None)
-                node.destroy_subscription(subscription)
+                self.inbox.destroy(subscription)
             for name in robots:
                 if name not in subscriptions:
                     subscriptions[name] = self._subscription(
@@ -121,28 +121,17 @@ class CommandInputs:
         return added
 
     def _subscription(self, msg_type, topic: str, handle, per_entity: bool = False):
-        """A raw command subscription whose callback also takes the messages already waiting behind the first.
-
-        rclpy's executor takes one message per subscription per wait, and a wait costs a fraction of a
-        millisecond of Python, so a flood would be read at a few hundred messages per tick at best and the rest
-        overwritten in the DDS reader's bounded history.  Taking what is waiting in one go (bounded by
-        COMMAND_BATCH_S of wall time, so a tick is never held up for long) reads thousands per second."""
-        subscription = None
-
-        def take_all(data: bytes) -> None:
-            handle(data)
-            deadline = time.perf_counter() + itf.COMMAND_BATCH_S
-            while time.perf_counter() < deadline:
-                with subscription.handle:
-                    taken = subscription.handle.take_message(msg_type, True)
-                if taken is None:
-                    return
-                handle(taken[0])
-
-        subscription = self._node.create_subscription(msg_type, topic, take_all, COMMAND_QOS, raw=True,
-                                                      event_callbacks=_NO_EVENT_HANDLERS if per_entity else None)
+        """A raw command subscription, waited on by the inbox's thread (cgp_sim_ros/ros/inbox.py); its messages
+        reach ``handle`` on the executor's thread."""
+        subscription = self.inbox.subscribe(msg_type, topic, handle,
+                                            event_callbacks=_NO_EVENT_HANDLERS if per_entity else None)
         self.inputs[subscription.topic_name] = (msg_type, handle)
         return subscription
+
+    def take_arrived(self) -> None:
+        """Before a paused node's step: every command its readers have is taken and queued now
+        (:meth:`~cgp_sim_ros.ros.inbox.CommandInbox.flush`)."""
+        self.inbox.flush()
 
     # ---- arrival: size, record, decode, validate, queue ----------------------------------------------------
 

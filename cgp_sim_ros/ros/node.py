@@ -46,6 +46,7 @@ from .. import interface as itf
 from ..drawing import detail as lod
 from . import process
 from .commands import CommandInputs
+from .inbox import CommandInbox
 from .messages import robot_names
 from .pace import BatchReport, RateCheck
 from .parameters import ConfigError, coerce, read_parameters, refusal
@@ -96,25 +97,31 @@ class SimNode(Node):
         #: the recording (parameter `bag`) and the live view (parameter `foxglove`), or None
         self.recorder = None
         self.foxglove = None
-        self.outputs = TickPublisher(self)
-        self.commands = CommandInputs(self)
-        self._make_services()
-        # Per body / per flock endpoints (odometry, wrench commands, flock poses): made here and again after
-        # every spawn, delete or reset (see _sync_entities).
-        self._synced_version = None
-        self._sync_entities()
-        # ROS 2's simulation_interfaces services and action (cgp_sim_ros.ros.sim_services)
-        self.sim = SimulationInterfaces(self)
-        if self.params["foxglove"]:
-            self._start_foxglove()  # after the per-entity endpoints exist: it makes a channel for each
-        self._plan_detail()
-        if self.bag_path is not None:
-            self._start_recording()
-        self.emit_event(self.detail.event())  # after the recorder: the plan is the bag's first event
-        self._start_timers()
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._log_start()
-        self._prepare_process()
+        #: the command subscriptions' and the publishers' QoS events' own waiting thread (ros/inbox.py)
+        self.inbox = CommandInbox(self)
+        try:
+            self.outputs = TickPublisher(self)
+            self.commands = CommandInputs(self)
+            self._make_services()
+            # Per body / per flock endpoints (odometry, wrench commands, flock poses): made here and again after
+            # every spawn, delete or reset (see _sync_entities).
+            self._synced_version = None
+            self._sync_entities()
+            # ROS 2's simulation_interfaces services and action (cgp_sim_ros.ros.sim_services)
+            self.sim = SimulationInterfaces(self)
+            if self.params["foxglove"]:
+                self._start_foxglove()  # after the per-entity endpoints exist: it makes a channel for each
+            self._plan_detail()
+            if self.bag_path is not None:
+                self._start_recording()
+            self.emit_event(self.detail.event())  # after the recorder: the plan is the bag's first event
+            self._start_timers()
+            self.add_on_set_parameters_callback(self._on_set_parameters)
+            self._log_start()
+            self._prepare_process()
+        except BaseException:
+            self.inbox.close()  # a refused start leaves no thread running
+            raise
 
     # ---- set-up (in the order __init__ runs them) -------------------------------------------------------
 
@@ -444,6 +451,7 @@ class SimNode(Node):
             response.message = "a stepping request (~/step_simulation or ~/simulate_steps) is running"
             return response
         self.sim.stopped = False
+        self.commands.take_arrived()  # what was sent before the request is applied by this step
         self.tick()
         response.success = True
         response.message = f"stepped to t = {self.world.time:.9f} s (tick {self.world.ticks})"
@@ -486,8 +494,10 @@ class SimNode(Node):
     # ---- shutdown ----------------------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Stop the Foxglove server, finish the recording (summary, metadata.yaml) and the progress line; safe to
-        call twice."""
+        """Stop the command inbox's thread and the Foxglove server, finish the recording (summary, metadata.yaml)
+        and the progress line; safe to call twice."""
+        if hasattr(self, "inbox"):
+            self.inbox.close()
         if self.foxglove is not None:
             self.foxglove.close()
         if self._progress is not None:
@@ -503,6 +513,8 @@ class SimNode(Node):
         threads still handle other participants leaving — seen as a node hanging at exit at full CPU, or
         aborting with "malloc_consolidate(): unaligned fastbin chunk detected", when several nodes on one
         domain stop at once."""
+        if hasattr(self, "inbox"):
+            self.inbox.close()  # its thread waits on subscriptions rclpy is about to destroy
         self.sim.close()
         if hasattr(self, "threads"):
             self.threads.release()

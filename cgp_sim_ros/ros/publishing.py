@@ -23,6 +23,7 @@ while they were spawned).  The node's fixed topics keep the warnings.
 from __future__ import annotations
 
 import json
+import weakref
 
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.serialization import serialize_message
@@ -36,6 +37,10 @@ from ..wire import cdr
 from .messages import TickMessages, robot_names
 from .qos import CLOCK_QOS, EVENTS_QOS, LATCHED_QOS, STATE_QOS, TF_QOS, TF_STATIC_QOS
 from .tf import BodyTransforms
+
+#: publisher -> its topic name, for the bag's records: rclpy's ``topic_name`` asks rcl every time (~1–2 µs, a call
+#: per record: an odometry per body per tick); a publisher's name never changes, and a destroyed one drops out
+_TOPIC_NAMES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 _NO_EVENT_HANDLERS = PublisherEventCallbacks(use_default_callbacks=False)
 
@@ -70,16 +75,18 @@ class TickPublisher:
         self.messages = TickMessages(self.world, node.frames, contact_force_scale=self._force_scale,
                                      drawings=self.drawings)
         self.tf = BodyTransforms(self.world, node.frames)
-        self.pub_clock = node.create_publisher(TickMessages.Clock, itf.TOPIC_CLOCK, CLOCK_QOS)
-        self.pub_body_poses = node.create_publisher(TickMessages.PoseArray, itf.TOPIC_BODY_POSES, STATE_QOS)
-        self.pub_markers = node.create_publisher(TickMessages.MarkerArray, itf.TOPIC_MARKERS, STATE_QOS)
-        self.pub_static_markers = node.create_publisher(TickMessages.MarkerArray, itf.TOPIC_STATIC_MARKERS,
-                                                        LATCHED_QOS)
-        self.pub_contacts = (node.create_publisher(TickMessages.Contacts, itf.TOPIC_CONTACTS, STATE_QOS)
+        # The publishers' QoS events (an incompatible subscriber: rclpy's warning) are waited on by the command
+        # inbox's thread (cgp_sim_ros/ros/inbox.py), not by the executor, which rebuilds its wait set every spin.
+        publisher = node.inbox.publisher
+        self.pub_clock = publisher(TickMessages.Clock, itf.TOPIC_CLOCK, CLOCK_QOS)
+        self.pub_body_poses = publisher(TickMessages.PoseArray, itf.TOPIC_BODY_POSES, STATE_QOS)
+        self.pub_markers = publisher(TickMessages.MarkerArray, itf.TOPIC_MARKERS, STATE_QOS)
+        self.pub_static_markers = publisher(TickMessages.MarkerArray, itf.TOPIC_STATIC_MARKERS, LATCHED_QOS)
+        self.pub_contacts = (publisher(TickMessages.Contacts, itf.TOPIC_CONTACTS, STATE_QOS)
                              if params["contacts"] else None)
-        self.pub_events = node.create_publisher(String, itf.TOPIC_EVENTS, EVENTS_QOS)
-        self.pub_tf = node.create_publisher(BodyTransforms.TFMessage, itf.TOPIC_TF, TF_QOS)
-        self.pub_tf_static = node.create_publisher(BodyTransforms.TFMessage, itf.TOPIC_TF_STATIC, TF_STATIC_QOS)
+        self.pub_events = publisher(String, itf.TOPIC_EVENTS, EVENTS_QOS)
+        self.pub_tf = publisher(BodyTransforms.TFMessage, itf.TOPIC_TF, TF_QOS)
+        self.pub_tf_static = publisher(BodyTransforms.TFMessage, itf.TOPIC_TF_STATIC, TF_STATIC_QOS)
         # per body / per flock (name -> publisher), and in the world's order (see follow_entities)
         self._odom: dict = {}
         self._flock_poses: dict = {}
@@ -218,7 +225,10 @@ class TickPublisher:
         publisher.publish(data)
         recorder, foxglove = self._node.recorder, self._node.foxglove
         if record and recorder is not None:
-            recorder.write(publisher.topic_name, data, stamp_ns)
+            topic = _TOPIC_NAMES.get(publisher)
+            if topic is None:
+                topic = _TOPIC_NAMES[publisher] = publisher.topic_name
+            recorder.write(topic, data, stamp_ns)
         if foxglove is not None:
             foxglove.publish(publisher, data, stamp_ns)
 

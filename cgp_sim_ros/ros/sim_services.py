@@ -349,6 +349,7 @@ class SimulationInterfaces:
             return FAILED, f"steps must be at least 1, got {steps}"
         self._job = _SteppingJob(int(steps), on_tick=on_tick, cancel_requested=cancel_requested)
         self.stopped = False
+        self.node.commands.take_arrived()  # what was sent before the request is applied by its first step
         return self._job
 
     # ---- helpers ----------------------------------------------------------------------------------------
