@@ -164,3 +164,48 @@ def test_a_subscriber_asking_for_an_incompatible_qos_is_warned_about(start_node,
         assert time.monotonic() < deadline, node.log()[-3000:]
         probe.spin_for(0.1)
     assert "DURABILITY" in node.log()
+
+
+def test_bodies_deleted_and_restored_while_commands_arrive_leave_the_thread_taking_them():
+    """Subscriptions destroyed and made again 40 times (a body deleted, then the world reset) while another
+    thread publishes to them without pause: the inbox's thread may be reading a subscription as it is destroyed
+    (rclpy then raises InvalidHandle there); it must go on waiting, and a command afterwards still arrives."""
+    out = run("""
+        import threading
+        spinner = publisher(peer, WrenchStamped, "/cgp_sim/bodies/spinner/wrench")
+        box = publisher(peer, WrenchStamped, "/cgp_sim/bodies/box/wrench")
+        done = threading.Event()
+
+        def flood():
+            msg = WrenchStamped()
+            msg.wrench.force.y = 1.0
+            while not done.is_set():
+                spinner.publish(msg)
+                box.publish(msg)
+                time.sleep(0.0005)
+
+        flooder = threading.Thread(target=flood)
+        flooder.start()
+        for _ in range(40):
+            node.world.delete("spinner")
+            node.world_edited()
+            rclpy.spin_once(node, timeout_sec=0.0)  # the executor drains what the inbox took
+            node.reset()
+            rclpy.spin_once(node, timeout_sec=0.0)
+        done.set()
+        flooder.join()
+        out["alive"] = node.inbox._thread.is_alive()
+        node.commands.take_arrived()
+        node.commands.clear_pending()
+        until(lambda: box.get_subscription_count() >= 1, 30, "the box's reader after the resets")
+        before = momentum(node)
+        msg = WrenchStamped()
+        msg.wrench.force.x = 3.0
+        box.publish(msg)
+        assert box.wait_for_all_acked(rclpy.duration.Duration(seconds=30)), "not acknowledged"
+        node.commands.take_arrived()
+        node.tick()
+        out["gained"] = (momentum(node) - before).tolist()
+    """)
+    assert out["alive"]
+    assert out["gained"][0] == pytest.approx(3.0 * out["dt"], rel=1e-12)

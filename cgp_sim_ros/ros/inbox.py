@@ -29,6 +29,7 @@ import threading
 import time
 
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.exceptions import InvalidHandle
 from rclpy.executors import (
     ConditionReachedException,
     ExternalShutdownException,
@@ -87,7 +88,10 @@ class CommandInbox:
         self.group = _InboxGroup()
         self._waited = _Waited()
         self._executor = SingleThreadedExecutor(context=node.context)
-        self._inbox: collections.deque = collections.deque()  # (handler, raw bytes), in the order taken
+        self._inbox: collections.deque = collections.deque()  # (subscription, handler, raw bytes), as taken
+        #: the subscriptions not destroyed (the executor's thread's view): what the inbox still holds of a destroyed
+        #: one (a body deleted after its command was taken) is dropped, as a deleted body's pending commands are
+        self._live: set = set()
         self._lock = threading.Lock()
         self._dropped = 0  # taken and dropped (the inbox full) since the executor's last turn
         self._stopping = False
@@ -109,17 +113,18 @@ class CommandInbox:
         def take_all(data: bytes) -> None:
             # the inbox's thread: this message, then those already waiting behind it (rclpy's executor takes one
             # per subscription per wait, and a wait costs a fraction of a millisecond of Python)
-            self._put(handle, data)
+            self._put(subscription, handle, data)
             deadline = time.perf_counter() + TAKE_BATCH_S
             while time.perf_counter() < deadline:
                 with subscription.handle:
                     taken = subscription.handle.take_message(msg_type, True)
                 if taken is None:
                     return
-                self._put(handle, taken[0])
+                self._put(subscription, handle, taken[0])
 
         subscription = self._node.create_subscription(msg_type, topic, take_all, COMMAND_QOS, raw=True,
                                                       callback_group=self.group, event_callbacks=event_callbacks)
+        self._live.add(subscription)
         self._waited.subscriptions = (*self._waited.subscriptions, subscription)
         self._waited.waitables = (*self._waited.waitables, *subscription.event_handlers)  # its QoS events, if any
         self._executor.wake()
@@ -134,7 +139,9 @@ class CommandInbox:
         return publisher
 
     def destroy(self, subscription) -> None:
-        """Stop waiting on ``subscription`` and destroy it (rclpy defers that while the thread's wait holds it)."""
+        """Stop waiting on ``subscription`` and destroy it (rclpy defers that while the thread's wait holds it);
+        what the inbox holds of it is not handed on."""
+        self._live.discard(subscription)
         self._waited.subscriptions = tuple(s for s in self._waited.subscriptions if s is not subscription)
         self._waited.waitables = tuple(w for w in self._waited.waitables if w not in subscription.event_handlers)
         self._node.destroy_subscription(subscription)
@@ -174,7 +181,7 @@ class CommandInbox:
         nodes = [self._waited]
         while not self._stopping:
             try:
-                handler, _, _ = self._executor.wait_for_ready_callbacks(None, nodes, self._interrupted)
+                handler = self._next(None, nodes, self._interrupted)
             except ConditionReachedException:
                 if self._stopping:
                     return
@@ -187,7 +194,19 @@ class CommandInbox:
                 continue
             except (ShutdownException, ExternalShutdownException):
                 return
-            self._run(handler)
+            if handler is not None:
+                self._run(handler)
+
+    def _next(self, timeout_s, nodes, condition=None):
+        """The next ready callback's handler, or None when a subscription the executor was reading was destroyed
+        meanwhile by the executor's thread (a body deleted: rclpy raises ``InvalidHandle``; the next wait is
+        without it)."""
+        try:
+            if condition is None:
+                return self._executor.wait_for_ready_callbacks(timeout_s, nodes)[0]
+            return self._executor.wait_for_ready_callbacks(timeout_s, nodes, condition)[0]
+        except InvalidHandle:
+            return None
 
     def _interrupted(self) -> bool:
         return self._stopping or self._flush_requested != self._flushed
@@ -196,25 +215,24 @@ class CommandInbox:
         """One pass over the readers without blocking: take what is ready."""
         while True:
             try:
-                handler, _, _ = self._executor.wait_for_ready_callbacks(0, nodes)
-            except TimeoutException:
+                handler = self._next(0, nodes)
+            except (TimeoutException, ShutdownException, ExternalShutdownException):
                 return
-            except (ShutdownException, ExternalShutdownException):
-                return
-            self._run(handler)
+            if handler is not None:
+                self._run(handler)
 
     def _run(self, handler) -> None:
         handler()
         if handler.exception() is not None:  # only rclpy's own take can raise here: say so, keep waiting
             self._node.get_logger().error(f"taking a command failed: {handler.exception()!r}")
 
-    def _put(self, handle, data: bytes) -> None:
+    def _put(self, subscription, handle, data: bytes) -> None:
         with self._lock:
             was_empty = not self._inbox
             if len(self._inbox) >= MAX_INBOX:
                 self._inbox.popleft()
                 self._dropped += 1
-            self._inbox.append((handle, data))
+            self._inbox.append((subscription, handle, data))
         if was_empty:
             self._wake.trigger()
 
@@ -235,7 +253,9 @@ class CommandInbox:
                     "oldest", "flood"), count=dropped)
             if item is None:
                 return
-            item[0](item[1])
+            subscription, handle, data = item
+            if subscription in self._live:
+                handle(data)
             if deadline is not None and time.perf_counter() > deadline:
                 self._wake.trigger()
                 return
