@@ -336,7 +336,8 @@ MAX_JOINT_COMMAND_BYTES = 65536
 #: a ~/robots/<robot>/joint_trajectory message larger than this is dropped unread (10,000 points of 7 joints with
 #: positions, velocities and accelerations are ~1.8 MB)
 MAX_TRAJECTORY_BYTES = 4 * 1024 * 1024
-#: a command callback goes on taking waiting commands for at most this long (wall seconds)
+#: the commands handed to their handlers in one executor turn take at most this long (wall seconds; the rest in the
+#: next turn, after the timer had its chance), and the inbox thread takes at most this long in one go
 COMMAND_BATCH_S = 0.002
 
 # ---- limits on what a tick sends (issue 38; the markers' level of detail: cgp_sim_ros/drawing/detail.py)

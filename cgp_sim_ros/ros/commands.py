@@ -41,8 +41,8 @@ from .. import interface as itf
 from ..trajectory import Trajectory, TrajectoryError, check_trajectory, sample
 
 #: The per-body command subscriptions are made without rclpy's default QoS-event handlers (the "incompatible
-#: QoS / type" warnings): each handler is a waitable the executor adds to its wait set, in Python, on every spin
-#: (see cgp_sim_ros/ros/publishing.py, which does the same for the per-entity publishers).
+#: QoS / type" warnings): each handler is a waitable that the inbox's thread adds to its wait set, in Python, every
+#: time a command arrives (see cgp_sim_ros/ros/publishing.py, which does the same for the per-entity publishers).
 _NO_EVENT_HANDLERS = SubscriptionEventCallbacks(use_default_callbacks=False)
 #: a joint command's rejection as reported (log, ~/events) is cut to this many characters (a name may be long)
 MAX_REASON_LENGTH = 300

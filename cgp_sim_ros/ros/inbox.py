@@ -154,6 +154,8 @@ class CommandInbox:
         reader, then a step requested must be applied by that step, as it was when one executor waited on the
         commands and the services together.  The inbox's thread makes one more pass over the readers (costing
         one build of its wait set) while this thread waits, at most ``timeout_s``."""
+        if self._stopping:  # closed: the node is shutting down
+            return
         with self._flush_done:
             self._flush_requested += 1
             target = self._flush_requested
