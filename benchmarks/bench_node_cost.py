@@ -12,7 +12,9 @@ with the bag writer thread's CPU per tick (it runs beside the tick, under the GI
 they drop and land (from the first tick), then 200–320 asleep; the pile: ticks 10–180 while it falls and piles up
 (0–3 s), then ticks 300–420 (5–7 s) when it is asleep; the default scene: ticks 10–300.
 The subscriber (``--subscriber``, its own process) takes ``~/markers`` and ``~/static_markers`` raw and counts
-their bytes; the node's side counts the bytes it hands to each topic per tick.
+their bytes; the node's side counts the bytes it hands to each topic per tick.  After the pile's runs the same pile
+is stepped in PyBullet and in MuJoCo in process (``bench_convex_pile``'s, tick by tick in turn, the same windows),
+and the tick through the node is given as a ratio of theirs, measured in the same run (issue 37: <= 0.7x PyBullet).
 
 ``--before PATH`` also runs every configuration with the code of another checkout (``PYTHONPATH=PATH``: e.g. the
 main branch before a change), interleaved with this one — before, after, before, after — so that both see the same
@@ -262,7 +264,47 @@ def child(args) -> int:
     return 0
 
 
+# ---- the peers' pile (its own process) -----------------------------------------------------------------------
+
+def peers_child(out_path: str, windows: dict) -> int:
+    """bench_convex_pile's pile in PyBullet and in MuJoCo, stepped tick by tick in turn (4 x 1/240 s each) for the
+    node's windows, in process: what issue 37 compares the tick through the node with.  Writes each peer's
+    median / p99 tick per window to ``out_path``."""
+    sys.path.insert(1, str(HERE))
+    from bench_convex_pile import mujoco_pile, pybullet_pile
+
+    peers = {}
+    for name, make in (("pybullet", pybullet_pile), ("mujoco", mujoco_pile)):
+        try:
+            peers[name] = make()
+        except ImportError:  # not installed: the row says so
+            pass
+    last = max(end for _, end in windows.values())
+    times = {name: np.empty(last) for name in peers}
+    for k in range(last):
+        for name, (step, _, _) in peers.items():
+            t0 = time.perf_counter()
+            step()
+            times[name][k] = time.perf_counter() - t0
+    for _, _, close in peers.values():
+        close()
+    Path(out_path).write_text(json.dumps({
+        name: {window: {"median": float(np.median(t[first:end])) * 1e3,
+                        "p99": float(np.percentile(t[first:end], 99)) * 1e3}
+               for window, (first, end) in windows.items()} for name, t in times.items()}))
+    return 0
+
+
 # ---- the parent ----------------------------------------------------------------------------------------------
+
+def run_peers(windows: dict, workdir: Path) -> dict:
+    out = workdir / "peers.json"
+    result = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--peers", str(out), "--windows",
+                             json.dumps(windows)], cwd=workdir, capture_output=True, text=True, timeout=900)
+    if result.returncode != 0 or not out.exists():
+        raise RuntimeError(f"peers failed ({result.returncode}):\n{(result.stdout + result.stderr)[-3000:]}")
+    return json.loads(out.read_text())
+
 
 def run_child(code_root: Path, scene: str, windows: dict, with_subscriber: bool, workdir: Path, label: str) -> dict:
     out = workdir / f"{label}.json"
@@ -288,7 +330,10 @@ def main(argv=None) -> int:
     parser.add_argument("--with-subscriber", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--only", nargs="*", default=None, help="scenes of hulls300, pile, default")
     parser.add_argument("--no-subscriber-runs", action="store_true", help="only the runs with a subscriber")
+    parser.add_argument("--peers", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.peers:
+        return peers_child(args.peers, json.loads(args.windows))
     if args.subscriber:
         return subscriber(args.subscriber)
     if args.child:
@@ -326,6 +371,24 @@ def main(argv=None) -> int:
                     print(f"{'':31s} {w['node_us_per_body']:.1f} us/body; bag writer thread "
                           f"{w['writer_thread_ms']:.2f} ms/tick; stages (ms, median): "
                           + ", ".join(f"{k} {v:.2f}" for k, v in w["stages_ms"].items() if v >= 0.01), flush=True)
+        if name == "pile":  # issue 37: the tick through the node against the peers' in-process tick, this run
+            peers = run_peers(windows, workdir)
+            out.data["peers"] = peers
+            for window in windows:
+                for version, _ in versions:
+                    ticks = [r["tick_ms"]["median"] for r in rows
+                             if r["scene"] == "pile" and r["window"] == window and r["version"] == version]
+                    node_tick = float(np.median(ticks))
+                    line = f"pile {window:8s} {version}: through the node {node_tick:6.2f} ms"
+                    for peer, figures in peers.items():
+                        ratio = node_tick / figures[window]["median"]
+                        line += f"; {peer} in process {figures[window]['median']:6.2f} ms ({ratio:.2f}x)"
+                        out.figure(f"pile_{window.replace(' ', '_')}_{version}_node_vs_{peer}",
+                                   f"the 100-hull pile {window}, tick through the node ({version}) / {peer}'s "
+                                   "tick in process, same run", ratio, "x",
+                                   "<= 0.7 (issue 37)" if peer == "pybullet" else "(reference)",
+                                   ratio <= 0.7 if peer == "pybullet" else None)
+                    print(line, flush=True)
     print("\nThe node's own cost (the executor's spin - World.step), ms per tick, median / p99; recording on:")
     print(f"  {'scene':8s} {'window':8s} {'subscriber':10s} " + " ".join(f"{v:>18s}" for v, _ in versions)
           + "  us/body " + " / ".join(v for v, _ in versions)
