@@ -394,3 +394,34 @@ def test_a_bad_scene_on_the_command_line_is_refused_before_the_kernels_compile(s
         log = node.log()
         assert log.startswith("cgp-sim: scene: ") and says in log, (args, log)
         assert "compiling the simulation kernels" not in log, (args, log)
+
+
+def test_a_scene_on_the_command_line_is_loaded_once(tmp_path):
+    """`cgp-sim` loads a scene named on its command line before the kernels' compile (above) and hands what it
+    loaded to the node: a scene file is read and built once, not again in the node (a big mesh's BVH would be
+    built twice)."""
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent("""
+        import sys
+        import cgp_core.scene, cgp_core.world
+        from cgp_sim_ros.ros import cli
+        loads = []
+        original = cgp_core.scene.load_scene
+        def counted(source, *args, **kwargs):
+            loads.append(str(source))
+            return original(source, *args, **kwargs)
+        cgp_core.scene.load_scene = cgp_core.world.load_scene = counted
+        status = cli.main(["cgp-sim", *sys.argv[1:], "--duration", "0.05", "--realtime", "false"])
+        print("LOADS", status, loads)
+    """)
+    path = tmp_path / "two_boxes.yaml"
+    path.write_text("bodies:\n  - {name: a, shape: box, size: [1, 1, 1], mass: 1, position: [0, 0, 1]}\n"
+                    "  - {name: b, shape: box, size: [1, 1, 1], mass: 1, position: [0, 0, 3]}\n")
+    env = dict(os.environ, NUMBA_DISABLE_JIT="1")  # (what is counted here is the loads, not the kernels)
+    out = subprocess.run([sys.executable, "-c", code, "--scene", str(path)], capture_output=True, text=True,
+                         timeout=120, env=env)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert f"LOADS 0 [{str(path)!r}]" in out.stdout, out.stdout[-2000:] + out.stderr[-2000:]

@@ -199,9 +199,9 @@ def main(argv: list[str] | None = None) -> int:
         print(_scene_list())
         return 0
     # A scene named on the command line is read before anything slow happens: right after an install or an edit
-    # the kernels' compile below takes half a minute or more, and a typo in a path should not wait for it.  (The
-    # node reads it again: this check is the parse alone, milliseconds for the built-in scenes.  A scene set in
-    # a --params-file is checked by the node, after the compile.)
+    # the kernels' compile below takes half a minute or more, and a typo in a path should not wait for it.  The
+    # node is handed what was loaded (a scene with a big mesh is not loaded twice).  (A scene set in a
+    # --params-file is checked by the node, after the compile.)
     scene = _scene_argument(args.scene, argv)
     loaded = None
     if scene is not None:
@@ -238,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, request_stop)
     watchdog = StopWatchdog()
     try:
-        node = SimNode(parameter_overrides=overrides)
+        node = SimNode(parameter_overrides=overrides, loaded_scene=None if loaded is None else (scene, loaded))
     except ConfigError as exc:
         print(f"cgp-sim: {exc}", file=sys.stderr)
         rclpy.try_shutdown()

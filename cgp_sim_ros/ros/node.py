@@ -79,8 +79,12 @@ class SimNode(Node):
     :meth:`world_edited`, :meth:`report_rejection`, :meth:`emit_event`, and rclpy's own ``Node`` methods.
     """
 
-    def __init__(self, *, parameter_overrides=None, node_name: str = "cgp_sim"):
+    def __init__(self, *, parameter_overrides=None, node_name: str = "cgp_sim", loaded_scene=None):
+        """``loaded_scene``: ``(value, Scene)``, the ``scene`` parameter's value as the caller already loaded it
+        (``cgp-sim`` loads a scene named on its command line before the kernels' compile, to refuse a bad one at
+        once); used when the parameter still has that value, so a big mesh's BVH is not built twice."""
         super().__init__(node_name, parameter_overrides=parameter_overrides)
+        self._loaded_scene = loaded_scene
         #: the parameters' values by name (checked; updated by the parameter callback)
         self.params = read_parameters(self, self._parameter_overrides)
         #: the TF frame ids it writes and reads (parameter `frame_prefix`)
@@ -134,8 +138,12 @@ class SimNode(Node):
 
     def _load_world(self) -> World:
         seed = self.params["seed"]
+        scene = self.params["scene"]
+        if self._loaded_scene is not None and self._loaded_scene[0] == scene:
+            scene = self._loaded_scene[1]
+        self._loaded_scene = None  # (not kept: a reset rebuilds from the world's own scene)
         try:
-            return World.from_scene(self.params["scene"], dt=1.0 / self.params["rate_hz"],
+            return World.from_scene(scene, dt=1.0 / self.params["rate_hz"],
                                     substeps=self.params["substeps"] or None, seed=None if seed < 0 else seed)
         except SceneError as exc:
             raise ConfigError(f"scene: {exc}") from None
