@@ -91,7 +91,9 @@ def load_kernels_for(world: World) -> None:
     some takes that much longer: every rigid-body contact kernel (:func:`warm_up`'s scenario, two ticks: ~0.5 s);
     for a world of enough movable bodies to make :data:`~cgp_core.solver.sequential_impulse.SPLIT_MIN_CONTACTS`
     contacts (four a body), the solver's path for big worlds and numba's thread pool (~0.25 s: measured, the
-    100-hull pile's first sub-step of 256 contacts took 115 ms when it loaded them itself)."""
+    100-hull pile's first sub-step of 256 contacts took 115 ms when it loaded them itself); for a world with robots
+    and free bodies, the loop that solves a robot and the bodies its links touch together (the ``arm`` scene's first
+    such sub-step took 110–240 ms when it loaded it itself)."""
     import numpy as np
 
     from .solver.sequential_impulse import SPLIT_MIN_CONTACTS
@@ -99,6 +101,11 @@ def load_kernels_for(world: World) -> None:
     warm_up(ticks=2, complete=False, flocks=False)  # two: one with the contact report, one without
     if 4 * int(np.count_nonzero(world.body_model.inv_mass > 0.0)) >= SPLIT_MIN_CONTACTS:
         _warm_up_solver_by_regions()
+    robots = getattr(world, "robots", None)
+    if robots is not None and bool(np.any((world.body_model.inv_mass > 0.0) & (robots.body_robot < 0))):
+        # a robot and free bodies (movable, not links): the first sub-step a link touches one runs the coupled
+        # loop (the arm scene's tick 231: 110-240 ms loading it, measured through the node and in process)
+        _warm_up_robot_contacts(ticks=2)
 
 
 def _compiles_any(*modules: str) -> bool:
@@ -128,17 +135,9 @@ def warm_up_robots(ticks: int = 4) -> World:
 
     for r in world.robots.robots:
         algorithms.mass_matrix(r.kernel_arrays, world.robots.q[r.q_slice])
-    # a robot whose link touches a body (a crate resting on its level upper arm): its contact rows, its rows and the
-    # body rows in one loop (Robots.solve, robots.coupled.step_coupled)
+    _warm_up_robot_contacts(ticks)
     from .scene import scene_from_dict
 
-    for fixed in (False, True):  # a free crate: the one loop; a fixed one: the joint step alone, from Python
-        touching = World(scene_from_dict({
-            "robots": [{"name": "arm", "urdf": "arm.urdf", "joints": {"shoulder_lift": 1.5708, "elbow": -1.5708}}],
-            "bodies": [{"name": "crate", "shape": "box", "size": [0.06, 0.06, 0.04], "mass": 0.4, "fixed": fixed,
-                        "position": [0.25, 0.0, 0.247]}]}, "<warm-up>"))
-        for _ in range(ticks):
-            touching.step()
     # the Gauss–Legendre joint integrators (a scene's `joint_integrator`; both methods share one compile): ~21 s of
     # CPU that a scene choosing one waited for in its first tick, measured in a cold suite
     smooth = World(scene_from_dict({"world": {"joint_integrator": "gauss_legendre_4"},
@@ -146,6 +145,22 @@ def warm_up_robots(ticks: int = 4) -> World:
     for _ in range(2):
         smooth.step()
     return world
+
+
+def _warm_up_robot_contacts(ticks: int = 4) -> None:
+    """A robot whose link touches a body (a crate resting on its level upper arm): its contact rows, its rows and
+    the body rows in one loop (Robots.solve, robots.coupled.step_coupled); a fixed crate: the joint step alone,
+    from Python."""
+    from .scene import scene_from_dict
+    from .world import World
+
+    for fixed in (False, True):
+        touching = World(scene_from_dict({
+            "robots": [{"name": "arm", "urdf": "arm.urdf", "joints": {"shoulder_lift": 1.5708, "elbow": -1.5708}}],
+            "bodies": [{"name": "crate", "shape": "box", "size": [0.06, 0.06, 0.04], "mass": 0.4, "fixed": fixed,
+                        "position": [0.25, 0.0, 0.247]}]}, "<warm-up>"))
+        for _ in range(ticks):
+            touching.step()
 
 
 def _warm_up_grid() -> None:

@@ -379,3 +379,38 @@ def test_a_copy_of_a_world_with_robots_steps_alike_and_is_commanded_alone():
         twin.step()
     assert twin.robots.q[0] == pytest.approx(0.5, abs=1e-3)
     assert world.robots.q[0] == pytest.approx(0.0, abs=1e-9)
+
+
+ROBOT_LOADS = """
+from cgp_core import World
+from cgp_core.robots import coupled
+from cgp_core.scene import scene_from_dict
+from cgp_core.warmup import load_kernels_for
+world = World(scene_from_dict({"robots": [{"name": "arm", "urdf": "arm.urdf"}], "bodies": BODIES}, "<test>"))
+before = len(coupled.step_coupled.signatures)
+load_kernels_for(world)
+print(before, len(coupled.step_coupled.signatures))
+"""
+
+
+@pytest.mark.parametrize("bodies, loaded", [
+    ([{"name": "crate", "shape": "box", "size": [0.1, 0.1, 0.1], "mass": 1.0, "position": [1.0, 0.0, 0.05]}], True),
+    ([{"name": "wall", "shape": "box", "size": [0.1, 1.0, 1.0], "fixed": True, "position": [1.0, 0.0, 0.5]}], False)])
+def test_the_robot_and_body_loop_is_loaded_before_the_first_tick_of_a_world_that_may_take_it(bodies, loaded):
+    """load_kernels_for (the node's start-up): a world with a robot and a free body has the loop that solves them
+    together loaded (the ``arm`` scene's first sub-step with a link on a body took 110-240 ms loading it, mid-run,
+    through the node and in process); with only fixed bodies beside the robot that loop never runs and is not
+    loaded.  In a fresh process: nothing loaded before."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from cgp_core.jit import JIT_DISABLED
+
+    if JIT_DISABLED:
+        pytest.skip("numba's kernels are loaded only when compiled")
+    result = subprocess.run([sys.executable, "-c", f"BODIES = {bodies!r}\n" + ROBOT_LOADS],
+                            cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    before, after = map(int, result.stdout.split())
+    assert before == 0 and (after > 0) == loaded
