@@ -2,8 +2,9 @@
 (cgp_sim_ros/ros/inbox.py), not by the node's executor, which rebuilt its wait set from every per-body
 subscription on every spin.  What must hold: the node's executor leaves them out; a command sent to a paused node,
 acknowledged by its reader, is applied by the next step even though nothing spun the executor in between; the
-inbox is bounded (the oldest dropped, the flood reported with its count); a body deleted takes its subscription
-out of the thread's wait.
+inbox is bounded (the oldest dropped, the flood reported with its count); after a body is deleted (also 40 times
+while commands pour in) the others still take commands; the publishers' QoS warnings, whose events the thread now
+waits on, still come out.
 
 Each test runs a node in a child process (its own rclpy context; the session's ROS_DOMAIN_ID) with a peer node
 publishing over DDS from the same process, waiting on matching and acknowledgement with deadlines; the effect is
