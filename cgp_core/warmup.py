@@ -105,7 +105,7 @@ def load_kernels_for(world: World) -> None:
     if robots is not None and bool(np.any((world.body_model.inv_mass > 0.0) & (robots.body_robot < 0))):
         # a robot and free bodies (movable, not links): the first sub-step a link touches one runs the coupled
         # loop (the arm scene's tick 231: 110-240 ms loading it, measured through the node and in process)
-        _warm_up_robot_contacts(ticks=2)
+        warm_up_robot_contacts(ticks=2)
 
 
 def _compiles_any(*modules: str) -> bool:
@@ -135,7 +135,7 @@ def warm_up_robots(ticks: int = 4) -> World:
 
     for r in world.robots.robots:
         algorithms.mass_matrix(r.kernel_arrays, world.robots.q[r.q_slice])
-    _warm_up_robot_contacts(ticks)
+    warm_up_robot_contacts(ticks)
     from .scene import scene_from_dict
 
     # the Gauss–Legendre joint integrators (a scene's `joint_integrator`; both methods share one compile): ~21 s of
@@ -147,7 +147,7 @@ def warm_up_robots(ticks: int = 4) -> World:
     return world
 
 
-def _warm_up_robot_contacts(ticks: int = 4) -> None:
+def warm_up_robot_contacts(ticks: int = 4) -> None:
     """A robot whose link touches a body (a crate resting on its level upper arm): its contact rows, its rows and
     the body rows in one loop (Robots.solve, robots.coupled.step_coupled); a fixed crate: the joint step alone,
     from Python."""

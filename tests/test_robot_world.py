@@ -414,3 +414,42 @@ def test_the_robot_and_body_loop_is_loaded_before_the_first_tick_of_a_world_that
     assert result.returncode == 0, result.stderr
     before, after = map(int, result.stdout.split())
     assert before == 0 and (after > 0) == loaded
+
+
+SPAWN_LOADS = """
+from cgp_core import World
+from cgp_core.robots import coupled
+from cgp_core.scene import scene_from_dict
+from cgp_sim_ros.ros.process import ConvexKernels
+robots = [{"name": "arm", "urdf": "arm.urdf"}] if ROBOT else []
+wall = {"name": "wall", "shape": "box", "size": [0.1, 1.0, 1.0], "fixed": True, "position": [1.0, 0.0, 0.5]}
+world = World(scene_from_dict({"robots": robots, "bodies": [wall]}, "<test>"))
+kernels = ConvexKernels(world)
+box = world.prepare_spawn({"body": {"shape": "box", "size": [0.1, 0.1, 0.1], "mass": 1.0, "fixed": FIXED}},
+                          name="box", taken=set(world.entity_names()), position=(1.0, 0.5, 0.05))
+waiting = kernels.before_adding(box, world)
+if waiting is not None:
+    waiting.result(timeout=300)
+print(waiting is not None, len(coupled.step_coupled.signatures))
+"""
+
+
+@pytest.mark.parametrize("robot, fixed, waits", [(True, False, True), (True, True, False), (False, False, False)])
+def test_a_free_body_spawned_into_a_robot_world_waits_for_the_robot_and_body_loop(robot, fixed, waits):
+    """The node's spawn path (process.ConvexKernels.before_adding): the first free body spawned into a world with
+    a robot and no free body yet has the loop that solves them together loaded first, off the tick's thread (its
+    first contact with a link would load it mid-run: 110-240 ms); a fixed body, or a world without robots, does
+    not wait for it.  In a fresh process."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from cgp_core.jit import JIT_DISABLED
+
+    if JIT_DISABLED:
+        pytest.skip("numba's kernels are loaded only when compiled")
+    result = subprocess.run([sys.executable, "-c", f"ROBOT, FIXED = {robot}, {fixed}\n" + SPAWN_LOADS],
+                            cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    waited, loaded = result.stdout.split()
+    assert (waited == "True") == waits and (int(loaded) > 0) == waits

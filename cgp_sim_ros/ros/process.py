@@ -13,8 +13,10 @@ import gc
 import sys
 import threading
 from collections.abc import Callable
-from concurrent.futures import Future
+from concurrent.futures import Future, InvalidStateError
 from types import SimpleNamespace
+
+import numpy as np
 
 from cgp_core.bodies import Shape
 from cgp_core.jit import JIT_DISABLED, ThreadPlacement, runs_on_pool
@@ -162,6 +164,31 @@ class ThreadPinning:
 _CONVEX_SHAPES = (int(Shape.CONVEX), int(Shape.COMPOUND), int(Shape.MESH))
 
 
+def _done() -> Future:
+    future = Future()
+    future.set_result(None)
+    return future
+
+
+def _all_of(futures: list) -> Future | None:
+    """None for no future, the one future, or a future done when all of them are."""
+    if not futures:
+        return None
+    if len(futures) == 1:
+        return futures[0]
+    joined = Future()
+
+    def done(_):
+        if all(f.done() for f in futures):
+            try:
+                joined.set_result(None)
+            except InvalidStateError:  # the other helper thread's callback set it first
+                pass
+    for f in futures:
+        f.add_done_callback(done)
+    return joined
+
+
 class ConvexKernels:
     """Issue 25's kernels (hulls, compound parts, static meshes), loaded from numba's cache *before* the first
     such body is added, off the tick's thread.  :func:`load_kernels` loads at start-up only what the scene's
@@ -174,37 +201,39 @@ class ConvexKernels:
         model = world.body_model
         self._future: Future | None = None
         if any(int(k) in _CONVEX_SHAPES for k in model.shape):  # the scene's first ticks load them
-            self._future = Future()
-            self._future.set_result(None)
+            self._future = _done()
         #: issue 36: the robots' kernels (kinematics, CRBA, RNEA, the joint solver) likewise before the first
         #: robot is spawned into a world that had none (a 0.36 s tick when its first tick loaded them)
-        self._robots_future: Future | None = None
-        if getattr(world, "robots", None) is not None:
-            self._robots_future = Future()
-            self._robots_future.set_result(None)
+        robots = getattr(world, "robots", None)
+        self._robots_future: Future | None = _done() if robots is not None else None
+        #: the loop that solves a robot and the bodies its links touch (robots.coupled.step_coupled): loaded at
+        #: start-up for a world with a robot and free bodies (cgp_core.warmup.load_kernels_for), with the robots'
+        #: kernels for a robot spawned, else before the first free body joins a robot world (the arm's first
+        #: sub-step with a link on a box took 110-240 ms loading it)
+        self._coupled_future: Future | None = None
+        if robots is not None and bool(np.any((model.inv_mass > 0.0) & (robots.body_robot < 0))):
+            self._coupled_future = _done()
 
-    def before_adding(self, prepared) -> Future | None:
-        """A future to wait for before ``prepared`` (a :class:`cgp_core.world.PreparedSpawn`) is added, or None
-        when nothing needs loading."""
-        if getattr(prepared, "kind", None) == "robot" and self._robots_future is None:
-            self._robots_future = Future()
-            threading.Thread(target=self._load_robots, args=(self._robots_future,), name="cgp-sim-kernels",
-                             daemon=True).start()
-        robots = self._robots_future if getattr(prepared, "kind", None) == "robot" else None
+    def before_adding(self, prepared, world=None) -> Future | None:
+        """A future to wait for before ``prepared`` (a :class:`cgp_core.world.PreparedSpawn`) is added to
+        ``world`` (the node's current world), or None when nothing needs loading."""
+        kind = getattr(prepared, "kind", None)
         model = getattr(prepared, "model", None)
-        if model is None or not any(int(k) in _CONVEX_SHAPES for k in model.shape):
-            return robots if robots is not None and not robots.done() else None
-        if robots is not None and not robots.done():
-            convex = self._convex()
-            both = Future()
-
-            def joined(_):
-                if robots.done() and convex.done() and not both.done():
-                    both.set_result(None)
-            robots.add_done_callback(joined)
-            convex.add_done_callback(joined)
-            return both
-        return self._convex()
+        pending = []
+        if kind == "robot":
+            if self._robots_future is None:
+                self._robots_future = self._start(self._load_robots)
+            if self._coupled_future is None:  # warm_up_robots steps a robot with a crate on its arm too
+                self._coupled_future = self._robots_future
+            pending.append(self._robots_future)
+        if model is not None and any(int(k) in _CONVEX_SHAPES for k in model.shape):
+            pending.append(self._convex())
+        if (kind == "body" and world is not None and getattr(world, "robots", None) is not None
+                and bool(np.any(np.asarray(model.inv_mass) > 0.0))):
+            if self._coupled_future is None:
+                self._coupled_future = self._start(self._load_coupled)
+            pending.append(self._coupled_future)
+        return _all_of([f for f in pending if not f.done()])
 
     def before_loading(self, loaded) -> Future | None:
         """:meth:`before_adding` for a whole scene about to be loaded (a :class:`cgp_sim_ros.worlds.LoadedScene`):
@@ -225,9 +254,25 @@ class ConvexKernels:
 
     def _convex(self) -> Future:
         if self._future is None:
-            self._future = Future()
-            threading.Thread(target=self._load, args=(self._future,), name="cgp-sim-kernels", daemon=True).start()
+            self._future = self._start(self._load)
         return self._future
+
+    @staticmethod
+    def _start(load) -> Future:
+        """``load(future)`` on a helper thread (it sets the future's result when done)."""
+        future = Future()
+        threading.Thread(target=load, args=(future,), name="cgp-sim-kernels", daemon=True).start()
+        return future
+
+    @staticmethod
+    def _load_coupled(future: Future) -> None:
+        from cgp_core.warmup import warm_up_robot_contacts
+
+        try:
+            warm_up_robot_contacts(ticks=2)
+        except Exception:  # noqa: BLE001 - the first tick with the contact loads (and reports) whatever failed here
+            pass
+        future.set_result(None)
 
     @staticmethod
     def _load(future: Future) -> None:

@@ -448,7 +448,7 @@ class SimulationInterfaces:
                 return (*outcome, "")
             if isinstance(outcome, Refusal):
                 return _REFUSAL_CODES.get(outcome.kind, FAILED), outcome.message, ""
-            refusal = await self._kernels_for(self.node.convex_kernels.before_adding(outcome.prepared))
+            refusal = await self._kernels_for(self.node.convex_kernels.before_adding(outcome.prepared, self.node.world))
             if refusal is not None:
                 return (*refusal, "")
             try:
@@ -590,7 +590,7 @@ class SimulationInterfaces:
         """Add the batch's prepared entities (after their kernels are loaded): their names, or the refusal
         (code, message, entry) of the one the world refused — and then none is added."""
         for outcome in spawned:
-            refusal = await self._kernels_for(self.node.convex_kernels.before_adding(outcome.prepared))
+            refusal = await self._kernels_for(self.node.convex_kernels.before_adding(outcome.prepared, self.node.world))
             if refusal is not None:
                 return (*refusal, 0)
         try:
