@@ -8,8 +8,11 @@ it playing, and reports, per switch:
 - the reply's latency (request → reply);
 - the largest gap between two ``/clock`` arrivals from the request to the reply (the old world ticking while the
   new one is prepared: 16.7 ms is one tick, DDS delivery adds its own jitter);
-- the first gap after PLAYING (the new world's first tick: its kernels were loaded beforehand, on a helper
-  thread) and the largest over the following 300 ticks;
+- the new world's first tick: from the PLAYING reply to the first ``/clock`` after it (the world is left STOPPED
+  after a load, so the gap across the pause is the client's own round trip, not the node's; the
+  ``set_simulation_state`` client is made and used once before the load, as a new client's discovery alone took
+  ~100 ms in one run of six); its kernels were loaded beforehand, on a helper thread;
+- the largest gap between two of the new world's ticks over the following 300 ticks;
 - that ``/clock`` never went backwards or stood still.
 
 Switches: ``arm -> fish_school`` (a flock where the old world had none: the case whose first tick used to load
@@ -60,6 +63,9 @@ def switch(start: str, target: str) -> dict:
     try:
         probe.client(GetSimulatorFeatures, "/cgp_sim/get_simulator_features", timeout=120)
         probe.spin_until(lambda: len(arrivals) > 300, 60, "300 ticks of the first scene")
+        # the client that sets the new world playing, discovered and used now (the node plays already)
+        probe.call(SetSimulationState, "/cgp_sim/set_simulation_state",
+                   SetSimulationState.Request(state=SimulationState(state=SimulationState.STATE_PLAYING)))
         sent = time.monotonic()
         reply = probe.call(LoadWorld, "/cgp_sim/load_world", LoadWorld.Request(uri=target), timeout=120,
                            idempotent=False)
@@ -77,11 +83,13 @@ def switch(start: str, target: str) -> dict:
         log.close()
     gaps = [(b[0], 1000.0 * (b[0] - a[0])) for a, b in zip(arrivals, arrivals[1:])]
     during = [g for t, g in gaps if sent < t <= replied + 0.05]
-    after = [g for t, g in gaps if t > playing]
+    after_play = [t for t, _ in arrivals if t > playing]
+    after = [1000.0 * (b - a) for a, b in zip(after_play, after_play[1:])]
     stamps = [a[1] for a in arrivals]
     return {"switch": f"{start} -> {target}", "reply_s": round(replied - sent, 2),
             "max_gap_loading_ms": round(max(during or [0.0]), 1), "ticks_while_loading": len(during),
-            "first_tick_gap_ms": round(after[0], 1), "max_gap_after_ms": round(max(after), 1),
+            "first_tick_ms": round(1000.0 * (after_play[0] - playing), 1),
+            "max_gap_after_ms": round(max(after), 1),
             "clock_monotonic": all(b > a for a, b in zip(stamps, stamps[1:]))}
 
 
@@ -95,10 +103,10 @@ def main() -> int:
     out.data["rows"] = rows
     for row in rows:
         key = row["switch"].replace(" -> ", "_to_")
-        worst = max(row["max_gap_loading_ms"], row["max_gap_after_ms"])
-        out.figure(f"load_world_{key}_max_gap", f"load_world {row['switch']}: largest /clock gap while loading "
-                   "and over the first 300 ticks after", worst, "ms", f"<= {GAP_TARGET_MS:g}",
-                   worst <= GAP_TARGET_MS and row["clock_monotonic"])
+        worst = max(row["max_gap_loading_ms"], row["max_gap_after_ms"], row["first_tick_ms"])
+        out.figure(f"load_world_{key}_max_gap", f"load_world {row['switch']}: largest /clock gap while loading, "
+                   "from PLAYING to the first tick, and over the first 300 ticks after", worst, "ms",
+                   f"<= {GAP_TARGET_MS:g}", worst <= GAP_TARGET_MS and row["clock_monotonic"])
         out.figure(f"load_world_{key}_reply", f"load_world {row['switch']}: reply latency", row["reply_s"], "s",
                    "(reference)", None, note="no target: the worker's reading and the kernels' loading")
     print(format_figures(out.data["figures"]))
