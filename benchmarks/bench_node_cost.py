@@ -16,12 +16,19 @@ their bytes; the node's side counts the bytes it hands to each topic per tick.  
 is stepped in PyBullet and in MuJoCo in process (``bench_convex_pile``'s, tick by tick in turn, the same windows),
 and the tick through the node is given as a ratio of theirs, measured in the same run (issue 37: <= 0.7x PyBullet).
 
+``--realtime`` runs every configuration as ``make run`` does instead: ``realtime: true`` at 60 Hz, the bag writer
+held during each tick and woken after it (:meth:`cgp_sim_ros.wire.bag.BagWriter.hold`), so that its work falls in
+the sleep between ticks.  The tick figure is then the tick's own duration (``node.tick()``: what must fit in the
+period to hold the rate) and the node's cost is that minus ``World.step``; the executor's own work runs in the
+period's slack and is not in it.  The default (batch, ``realtime: false``) runs the ticks back to back, where the
+writer thread and the executor share the tick's time.
+
 ``--before PATH`` also runs every configuration with the code of another checkout (``PYTHONPATH=PATH``: e.g. the
 main branch before a change), interleaved with this one — before, after, before, after — so that both see the same
 phases of the shared machine.  The speed probe (``common.speed_probe``) is taken before and after each child.
 
     .venv/bin/python benchmarks/bench_node_cost.py [--quick] [--before /work/main] [--only hulls300 pile default]
-        [--no-subscriber-runs]
+        [--no-subscriber-runs] [--realtime]
 
 Writes ``benchmarks/results/node_cost.json``.
 """
@@ -140,7 +147,7 @@ def child(args) -> int:
     rclpy.init()
     root = Path(tempfile.mkdtemp(prefix="bench_node_cost_", dir=os.environ.get("BENCH_BAG_DIR")))
     node = SimNode(parameter_overrides=[Parameter("scene", value=args.scene), Parameter("bag", value=str(root / "bag")),
-                                        Parameter("realtime", value=False)])
+                                        Parameter("realtime", value=args.realtime)])
     sub = None
     if args.with_subscriber:
         sub_out = root / "subscriber.json"
@@ -181,14 +188,18 @@ def child(args) -> int:
     recorder.write = timed(recorder.write, "recorder.write")
     writer_thread = recorder.writer._thread
 
+    topic_names: dict = {}  # (rclpy asks rcl for a publisher's topic name at every call: ~1-2 µs, not the node's)
+
     def counted_publish(publisher, data, stamp_ns, record=True):
-        sent[publisher.topic_name] = sent.get(publisher.topic_name, 0) + len(data)
+        topic = topic_names.get(publisher)
+        if topic is None:
+            topic = topic_names[publisher] = publisher.topic_name
+        sent[topic] = sent.get(topic, 0) + len(data)
         t0 = time.perf_counter()
         publisher.publish(data)
-        add("DDS publish odom" if publisher.topic_name.endswith("/odom") else "DDS publish other",
-            time.perf_counter() - t0)
+        add("DDS publish odom" if topic.endswith("/odom") else "DDS publish other", time.perf_counter() - t0)
         if record and recorder is not None:
-            recorder.write(publisher.topic_name, data, stamp_ns)
+            recorder.write(topic, data, stamp_ns)
 
     world.step, outputs.publish = timed_step, counted_publish
     tick = node.tick
@@ -215,14 +226,15 @@ def child(args) -> int:
         executor.spin_once(timeout_sec=0.05)
         spun = time.perf_counter() - t0
         if world.ticks == ticks_before:  # a spin that ran something else (a service, a discovery event)
-            if tick_s:
+            if tick_s and not args.realtime:
                 tick_s[-1] += spun
                 stages[-1]["executor (spin - tick)"] = stages[-1].get("executor (spin - tick)", 0.0) + spun
             continue
-        stage["executor (spin - tick)"] = spun - ticked_s[0]
+        if not args.realtime:  # (in real time the spin waits for the timer: its slack, not a cost)
+            stage["executor (spin - tick)"] = spun - ticked_s[0]
         if len(step_s) == steps_before:
             step_s.append(0.0)
-        tick_s.append(spun)
+        tick_s.append(ticked_s[0] if args.realtime else spun)
         writer_cpu.append(thread_cpu_s(writer_thread))  # cumulative (the clock ticks are 10 ms: per window)
         stages.append(dict(stage))
         marker_bytes.append(sent.get("/cgp_sim/markers", 0) + sent.get("/cgp_sim/static_markers", 0))
@@ -306,10 +318,12 @@ def run_peers(windows: dict, workdir: Path) -> dict:
     return json.loads(out.read_text())
 
 
-def run_child(code_root: Path, scene: str, windows: dict, with_subscriber: bool, workdir: Path, label: str) -> dict:
+def run_child(code_root: Path, scene: str, windows: dict, with_subscriber: bool, workdir: Path, label: str,
+              realtime: bool = False) -> dict:
     out = workdir / f"{label}.json"
     command = [sys.executable, str(Path(__file__).resolve()), "--child", str(out), "--root", str(code_root),
-               "--scene", scene, "--windows", json.dumps(windows)] + (["--with-subscriber"] if with_subscriber else [])
+               "--scene", scene, "--windows", json.dumps(windows)]
+    command += (["--with-subscriber"] if with_subscriber else []) + (["--realtime"] if realtime else [])
     env = dict(os.environ, PYTHONPATH=str(code_root), PYTHONUNBUFFERED="1")
     result = subprocess.run(command, cwd=workdir, env=env, capture_output=True, text=True, timeout=900)
     if result.returncode != 0 or not out.exists():
@@ -331,6 +345,8 @@ def main(argv=None) -> int:
     parser.add_argument("--only", nargs="*", default=None, help="scenes of hulls300, pile, default")
     parser.add_argument("--no-subscriber-runs", action="store_true", help="only the runs with a subscriber")
     parser.add_argument("--peers", default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--realtime", action="store_true",
+                        help="as make run runs: real time at 60 Hz, the tick's own duration (see the docstring)")
     args = parser.parse_args(argv)
     if args.peers:
         return peers_child(args.peers, json.loads(args.windows))
@@ -341,7 +357,9 @@ def main(argv=None) -> int:
     sys.path.insert(0, str(HERE))
     from common import Results, speed_probe
 
-    out = Results("node_cost", options={"quick": args.quick, "before": str(args.before) if args.before else None})
+    out = Results("node_cost_realtime" if args.realtime else "node_cost",
+                  options={"quick": args.quick, "before": str(args.before) if args.before else None,
+                           "realtime": args.realtime})
     workdir = Path(tempfile.mkdtemp(prefix="bench_node_cost_"))
     scene = str(pile_scene(workdir / "convex_pile.yaml"))
     versions = [("after", ROOT)] + ([("before", args.before.resolve())] if args.before else [])
@@ -357,10 +375,10 @@ def main(argv=None) -> int:
         for with_subscriber in ((True,) if args.no_subscriber_runs else (False, True)):
             for version, code_root in versions:
                 label = f"{name}_{'sub' if with_subscriber else 'nosub'}_{version}"
-                result = run_child(code_root, scene_arg, windows, with_subscriber, workdir, label)
+                result = run_child(code_root, scene_arg, windows, with_subscriber, workdir, label, args.realtime)
                 for window, w in result["windows"].items():
                     row = {"scene": name, "bodies": result["bodies"], "window": window, "subscriber": with_subscriber,
-                           "version": version, **w, "probe_before": result["probe_before"],
+                           "version": version, "realtime": args.realtime, **w, "probe_before": result["probe_before"],
                            "probe_after": result["probe_after"], "received": result.get("received")}
                     rows.append(row)
                     print(f"{label:22s} {window:8s} tick {w['tick_ms']['median']:6.2f} / {w['tick_ms']['p99']:6.2f}  "
@@ -379,17 +397,20 @@ def main(argv=None) -> int:
                     ticks = [r["tick_ms"]["median"] for r in rows
                              if r["scene"] == "pile" and r["window"] == window and r["version"] == version]
                     node_tick = float(np.median(ticks))
-                    line = f"pile {window:8s} {version}: through the node {node_tick:6.2f} ms"
+                    line = (f"pile {window:8s} {version}: through the node "
+                            f"({'real time: the tick' if args.realtime else 'batch: the spin'}) {node_tick:6.2f} ms")
                     for peer, figures in peers.items():
                         ratio = node_tick / figures[window]["median"]
                         line += f"; {peer} in process {figures[window]['median']:6.2f} ms ({ratio:.2f}x)"
                         out.figure(f"pile_{window.replace(' ', '_')}_{version}_node_vs_{peer}",
-                                   f"the 100-hull pile {window}, tick through the node ({version}) / {peer}'s "
+                                   f"the 100-hull pile {window}, tick through the node "
+                                   f"({'real time' if args.realtime else 'batch'}; {version}) / {peer}'s "
                                    "tick in process, same run", ratio, "x",
                                    "<= 0.7 (issue 37)" if peer == "pybullet" else "(reference)",
                                    ratio <= 0.7 if peer == "pybullet" else None)
                     print(line, flush=True)
-    print("\nThe node's own cost (the executor's spin - World.step), ms per tick, median / p99; recording on:")
+    measured = "the tick - World.step, real time" if args.realtime else "the executor's spin - World.step"
+    print(f"\nThe node's own cost ({measured}), ms per tick, median / p99; recording on:")
     print(f"  {'scene':8s} {'window':8s} {'subscriber':10s} " + " ".join(f"{v:>18s}" for v, _ in versions)
           + "  us/body " + " / ".join(v for v, _ in versions)
           + "  markers kB/tick " + " / ".join(v for v, _ in versions))
