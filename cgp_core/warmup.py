@@ -101,11 +101,19 @@ def load_kernels_for(world: World) -> None:
     warm_up(ticks=2, complete=False, flocks=False)  # two: one with the contact report, one without
     if 4 * int(np.count_nonzero(world.body_model.inv_mass > 0.0)) >= SPLIT_MIN_CONTACTS:
         _warm_up_solver_by_regions()
+    if runs_robot_and_body_loop(world):  # (the arm scene's tick 231: 110-240 ms loading it, measured through
+        warm_up_robot_contacts(ticks=2)   # the node and in process)
+
+
+def runs_robot_and_body_loop(world: World) -> bool:
+    """Whether ``world`` has a robot and free bodies (movable, not links): the first sub-step a link touches one
+    runs the loop that solves them together (``robots.coupled.step_coupled``), which :func:`load_kernels_for`
+    loads beforehand (and the node's spawn path, :class:`cgp_sim_ros.ros.process.ConvexKernels`, before the
+    first free body joins a robot world)."""
+    import numpy as np
+
     robots = getattr(world, "robots", None)
-    if robots is not None and bool(np.any((world.body_model.inv_mass > 0.0) & (robots.body_robot < 0))):
-        # a robot and free bodies (movable, not links): the first sub-step a link touches one runs the coupled
-        # loop (the arm scene's tick 231: 110-240 ms loading it, measured through the node and in process)
-        warm_up_robot_contacts(ticks=2)
+    return robots is not None and bool(np.any((world.body_model.inv_mass > 0.0) & (robots.body_robot < 0)))
 
 
 def _compiles_any(*modules: str) -> bool:

@@ -210,9 +210,9 @@ class ConvexKernels:
         #: start-up for a world with a robot and free bodies (cgp_core.warmup.load_kernels_for), with the robots'
         #: kernels for a robot spawned, else before the first free body joins a robot world (the arm's first
         #: sub-step with a link on a box took 110-240 ms loading it)
-        self._coupled_future: Future | None = None
-        if robots is not None and bool(np.any((model.inv_mass > 0.0) & (robots.body_robot < 0))):
-            self._coupled_future = _done()
+        from cgp_core.warmup import runs_robot_and_body_loop
+
+        self._coupled_future: Future | None = _done() if runs_robot_and_body_loop(world) else None
 
     def before_adding(self, prepared, world=None) -> Future | None:
         """A future to wait for before ``prepared`` (a :class:`cgp_core.world.PreparedSpawn`) is added to
@@ -222,7 +222,7 @@ class ConvexKernels:
         pending = []
         if kind == "robot":
             if self._robots_future is None:
-                self._robots_future = self._start(self._load_robots)
+                self._robots_future = self._start("warm_up_robots")
             if self._coupled_future is None:  # warm_up_robots steps a robot with a crate on its arm too
                 self._coupled_future = self._robots_future
             pending.append(self._robots_future)
@@ -231,7 +231,7 @@ class ConvexKernels:
         if (kind == "body" and world is not None and getattr(world, "robots", None) is not None
                 and bool(np.any(np.asarray(model.inv_mass) > 0.0))):
             if self._coupled_future is None:
-                self._coupled_future = self._start(self._load_coupled)
+                self._coupled_future = self._start("warm_up_robot_contacts", ticks=2)
             pending.append(self._coupled_future)
         return _all_of([f for f in pending if not f.done()])
 
@@ -242,44 +242,25 @@ class ConvexKernels:
         kind = "robot" if scene.robots or scene.articulations else "scene"
         return self.before_adding(SimpleNamespace(kind=kind, model=SimpleNamespace(shape=loaded.shapes)))
 
-    @staticmethod
-    def _load_robots(future: Future) -> None:
-        from cgp_core.warmup import warm_up_robots
-
-        try:
-            warm_up_robots()
-        except Exception:  # noqa: BLE001 - the first tick with the robot loads (and reports) whatever failed here
-            pass
-        future.set_result(None)
-
     def _convex(self) -> Future:
         if self._future is None:
-            self._future = self._start(self._load)
+            self._future = self._start("warm_up_convex")
         return self._future
 
     @staticmethod
-    def _start(load) -> Future:
-        """``load(future)`` on a helper thread (it sets the future's result when done)."""
+    def _start(warm_up: str, **kwargs) -> Future:
+        """``cgp_core.warmup.<warm_up>(**kwargs)`` on a helper thread: a future done when it has returned.  A
+        failure there is dropped: the first tick that runs those kernels loads (and reports) whatever failed."""
         future = Future()
-        threading.Thread(target=load, args=(future,), name="cgp-sim-kernels", daemon=True).start()
+
+        def run() -> None:
+            from cgp_core import warmup
+
+            try:
+                getattr(warmup, warm_up)(**kwargs)
+            except Exception:  # noqa: BLE001 - see the docstring
+                pass
+            future.set_result(None)
+
+        threading.Thread(target=run, name="cgp-sim-kernels", daemon=True).start()
         return future
-
-    @staticmethod
-    def _load_coupled(future: Future) -> None:
-        from cgp_core.warmup import warm_up_robot_contacts
-
-        try:
-            warm_up_robot_contacts(ticks=2)
-        except Exception:  # noqa: BLE001 - the first tick with the contact loads (and reports) whatever failed here
-            pass
-        future.set_result(None)
-
-    @staticmethod
-    def _load(future: Future) -> None:
-        from cgp_core.warmup import warm_up_convex
-
-        try:
-            warm_up_convex()
-        except Exception:  # noqa: BLE001 - the first tick with the shape loads (and reports) whatever failed here
-            pass
-        future.set_result(None)
