@@ -273,6 +273,31 @@ def test_two_arms_each_holding_a_crate_of_its_own_step_exactly_as_one_alone():
     assert one.robots.joint_state("arm0")[3][1] < -1.0  # the crate's weight is on the shoulder
 
 
+def test_robot_islands_are_the_connected_components_of_the_link_link_contacts():
+    """The robot stage's islands (a union–find of its own, for speed) are scipy's connected components of the
+    robots joined by link–link contacts: each robot's root its island's smallest robot, the islands ascending and
+    ordered by their smallest robot; contacts with a non-link side (−1) or within one robot join nothing."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from cgp_core.robots.world import _islands
+
+    rng = np.random.default_rng(7)
+    for trial in range(300):
+        count = int(rng.integers(1, 12))
+        m = int(rng.integers(0, 3 * count))
+        robot_a = rng.integers(-1, count, size=m)
+        robot_b = rng.integers(-1, count, size=m)
+        root, groups = _islands(count, robot_a, robot_b)
+        between = (robot_a >= 0) & (robot_b >= 0) & (robot_a != robot_b)
+        graph = coo_matrix((np.ones(between.sum()), (robot_a[between], robot_b[between])), shape=(count, count))
+        _, label = connected_components(graph, directed=False)
+        expected = [np.flatnonzero(label == c).tolist() for c in np.unique(label)]
+        expected.sort(key=lambda g: g[0])
+        assert groups == expected, trial
+        assert root.tolist() == [min(g) for k in range(count) for g in expected if k in g], trial
+
+
 def test_a_limp_arm_falls_onto_the_ground_and_rests_there():
     world = World(arm_scene(hold=False))
     run(world, 3.0)
