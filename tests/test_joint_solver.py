@@ -588,3 +588,58 @@ def test_compiled_and_plain_python_agree(tmp_path):
         results[mode] = np.load(path)
     assert results["compiled"].shape == (60, 9)
     np.testing.assert_allclose(results["compiled"], results["plain"], rtol=0, atol=1e-12)
+
+
+def test_the_factorization_of_a_block_diagonal_a_is_the_dense_one_and_its_solves_stay_in_their_blocks():
+    """An island of robots has a block-diagonal A (one block per robot): the envelope Cholesky (which skips what
+    lies outside the envelope) gives the dense loops' factor, the blocks are found from it, and a right-hand side
+    inside some blocks is solved there alone — the dense solve's numbers, zeros elsewhere."""
+    from cgp_core.robots.joint_solver import (
+        cholesky,
+        cholesky_solve,
+        cholesky_solve_into,
+        diagonal_blocks,
+        envelope,
+    )
+
+    def dense_cholesky(A):  # the plain loops over every column (what the envelope version must equal)
+        n = len(A)
+        L = np.zeros((n, n))
+        for j in range(n):
+            s = A[j, j]
+            for k in range(j):
+                s -= L[j, k] * L[j, k]
+            L[j, j] = np.sqrt(s)
+            for i in range(j + 1, n):
+                s = A[i, j]
+                for k in range(j):
+                    s -= L[i, k] * L[j, k]
+                L[i, j] = s / L[j, j]
+        return L
+
+    rng = np.random.default_rng(11)
+    sizes = [3, 1, 4, 2]
+    n = sum(sizes)
+    A = np.zeros((n, n))
+    at = 0
+    for size in sizes:
+        B = rng.normal(size=(size, size))
+        A[at:at + size, at:at + size] = B @ B.T + size * np.eye(size)
+        at += size
+    A[5, 3] = A[3, 5] = 0.0  # a zero inside the third block, under its envelope: still one block
+    A[6, 3] = A[3, 6] = 0.0
+    first = envelope(A)
+    assert first.tolist() == [0, 0, 0, 3, 4, 4, 4, 4, 8, 8]
+    block_start, block_end = diagonal_blocks(first)
+    assert block_start.tolist() == [0, 0, 0, 3, 4, 4, 4, 4, 8, 8]
+    assert block_end.tolist() == [3, 3, 3, 4, 8, 8, 8, 8, 10, 10]
+    L = cholesky(A)
+    assert np.array_equal(L, dense_cholesky(A))
+    np.testing.assert_allclose(L @ L.T, A, atol=1e-12)
+    b = np.zeros(n)
+    b[4:8] = rng.normal(size=4)  # the third block only
+    x = np.full(n, 7.0)  # outside the range: left as it is
+    cholesky_solve_into(L, b, 4, 8, x)
+    assert np.array_equal(x[4:8], cholesky_solve(L, b)[4:8])
+    assert np.all(x[:4] == 7.0) and np.all(x[8:] == 7.0)
+    assert np.all(cholesky_solve(L, b)[np.r_[0:4, 8:10]] == 0.0)

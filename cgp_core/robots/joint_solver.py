@@ -295,14 +295,18 @@ class JointRows(NamedTuple):
     error: np.ndarray        # (R,) position error at the sub-step's start: a limit's gap s, a mimic's C
     dof: np.ndarray          # (R,) int64 the dof i of a row J = ±e_i (drive, friction, velocity-limit, limit rows);
     #                          −1 for the others
+    lo: np.ndarray           # (R,) int64 J's and W's columns outside lo … hi − 1 are zero: the blocks of A (one per
+    hi: np.ndarray           # (R,) int64   robot of an island) that J touches (:func:`prepare_rows`)
 
 
 class Implicit(NamedTuple):
     """The implicit solve of the drives and damping."""
 
-    factor: np.ndarray    # (n, n) lower-triangular Cholesky factor L of A (L Lᵀ = A)
-    velocity: np.ndarray  # (n,) qd_free = A⁻¹ (M qd + h (...)): the velocity before any row
-    implicit: np.ndarray  # (n,) bool: the dof's drive is in A (not saturated)
+    factor: np.ndarray       # (n, n) lower-triangular Cholesky factor L of A (L Lᵀ = A)
+    velocity: np.ndarray     # (n,) qd_free = A⁻¹ (M qd + h (...)): the velocity before any row
+    implicit: np.ndarray     # (n,) bool: the dof's drive is in A (not saturated)
+    block_start: np.ndarray  # (n,) int64 A is block-diagonal (one block per robot of an island, or finer): dof
+    block_end: np.ndarray    # (n,) int64   i's block is block_start[i] … block_end[i] − 1 (:func:`diagonal_blocks`)
 
 
 class JointStep(NamedTuple):
@@ -320,22 +324,84 @@ class JointStep(NamedTuple):
 # ---- dense linear algebra (our own loops: bit-identical compiled and plain) ----------------------------------
 
 @njit
-def cholesky(A):
-    """The lower-triangular L with L Lᵀ = A for a symmetric positive definite A (n, n)."""
+def envelope(A):
+    """(n,) int64: the first column of each row of the symmetric A (n, n) that is not zero (its diagonal if none
+    is) — A's *envelope* (profile), which its Cholesky factor keeps (George & Liu, *Computer Solution of Large
+    Sparse Positive Definite Systems*, 1981, ch. 4): L[i, k] = 0 for k < first[i]."""
     n = A.shape[0]
+    first = np.empty(n, np.int64)
+    for i in range(n):
+        first[i] = i
+        for k in range(i):
+            if A[i, k] != 0.0:
+                first[i] = k
+                break
+    return first
+
+
+@njit
+def diagonal_blocks(first):
+    """``(block_start, block_end)`` (n,) int64 each: the diagonal blocks of a symmetric matrix of envelope
+    ``first`` (:func:`envelope`) — dof i starts a block when no row from i on reaches a column before i.  An
+    island of robots has one block per robot at least (block-diagonal M: the robots share no dof)."""
+    n = len(first)
+    block_start = np.empty(n, np.int64)
+    block_end = np.empty(n, np.int64)
+    reach = n  # the smallest first[k] over the rows k ≥ i
+    end = n
+    for i in range(n - 1, -1, -1):
+        reach = min(reach, first[i])
+        block_end[i] = end
+        if reach == i:  # a block starts here: the rows before it end at i
+            end = i
+    start = 0
+    for i in range(n):
+        if block_end[i] != block_end[start]:
+            start = i
+        block_start[i] = start
+    return block_start, block_end
+
+
+@njit
+def cholesky(A):
+    """The lower-triangular L with L Lᵀ = A for a symmetric positive definite A (n, n), within A's envelope
+    (:func:`envelope`): the terms outside it are zeros, so an island of k robots costs the sum of each robot's
+    factorization, not that of one system of all their dofs (a block-diagonal A: cubic in each robot's dofs, not
+    in their sum; the same numbers as the dense loops, which only added those zeros)."""
+    n = A.shape[0]
+    first = envelope(A)
     L = np.zeros((n, n))
     for j in range(n):
         s = A[j, j]
-        for k in range(j):
+        for k in range(first[j], j):
             s -= L[j, k] * L[j, k]
         d = math.sqrt(s) if s > 0.0 else 0.0
         L[j, j] = d
         for i in range(j + 1, n):
+            if first[i] > j:
+                continue  # outside the envelope: L[i, j] = 0
             s = A[i, j]
-            for k in range(j):
+            for k in range(max(first[i], first[j]), j):
                 s -= L[i, k] * L[j, k]
             L[i, j] = s / d
     return L
+
+
+@njit
+def cholesky_solve_into(L, b, lo, hi, x):
+    """x with L Lᵀ x = b for a block-diagonal A = L Lᵀ and a b that is zero outside lo … hi − 1, a whole number
+    of A's blocks (:func:`diagonal_blocks`): x is zero there too, and only x[lo:hi] is written (the rest of ``x``
+    (n,) left as it is).  The same numbers as :func:`cholesky_solve`, whose loops outside only added zeros."""
+    for i in range(lo, hi):
+        s = b[i]
+        for k in range(lo, i):
+            s -= L[i, k] * x[k]
+        x[i] = s / L[i, i]
+    for i in range(hi - 1, lo - 1, -1):
+        s = x[i]
+        for k in range(i + 1, hi):
+            s -= L[k, i] * x[k]
+        x[i] = s / L[i, i]
 
 
 @njit
@@ -435,7 +501,8 @@ def implicit_drives(system, joints, terms, h, allowed):
                     implicit[i] = False
                     saturated = True
         if not saturated:
-            return Implicit(L, v, implicit)
+            block_start, block_end = diagonal_blocks(envelope(M))
+            return Implicit(L, v, implicit, block_start, block_end)
 
 
 @njit
@@ -460,7 +527,8 @@ def _count_rows(joints, terms, implicit, n_contacts):
 def _empty_rows(R, n):
     return JointRows(np.zeros(R, np.int64), np.zeros(R, np.int64), np.zeros((R, n)), np.zeros((R, n)),
                      np.full(R, -1, np.int64), np.zeros((R, 6)), np.zeros((R, 6)), np.zeros(R), np.zeros(R),
-                     np.zeros(R), np.zeros(R), np.zeros(R), np.zeros(R), np.zeros(R), np.full(R, -1, np.int64))
+                     np.zeros(R), np.zeros(R), np.zeros(R), np.zeros(R), np.zeros(R), np.full(R, -1, np.int64),
+                     np.zeros(R, np.int64), np.full(R, n, np.int64))
 
 
 # (inlined: its callers pass literal kinds and a row counter that starts as the literal 0, and numba compiled a
@@ -580,25 +648,37 @@ def prepare_rows(system, joints, terms, implicit, contacts, bodies, h):
     # A⁻¹ e_i once per dof (column i of `unit`, solved at its first row): the rows of one dof (a drive, its
     # friction, two velocity limits, two limits) share it, J = ±e_i giving ±A⁻¹ e_i exactly (rounding is
     # symmetric in sign)
+    # Every row's J and W live in the blocks of A its J touches (rows.lo … rows.hi − 1; an island's robot rows in
+    # their robot's block): the solves, the products here and every sweep's loops run there only, so k robots cost
+    # k times one robot, not k² (the dense loops only added zeros: the same numbers)
     unit = np.zeros((n, n))
     solved = np.zeros(n, np.bool_)
     e = np.zeros(n)
+    block_start, block_end = implicit.block_start, implicit.block_end
     for r in range(len(rows.kind)):
+        lo, hi = n, 0
+        for c in range(n):
+            if rows.J[r, c] != 0.0:
+                lo = min(lo, c)
+                hi = c + 1
+        if hi == 0:
+            lo = 0  # no column at all (a point on a link that no dof moves)
+        else:
+            lo, hi = block_start[lo], block_end[hi - 1]
+        rows.lo[r], rows.hi[r] = lo, hi
         i = rows.dof[r]
         if i < 0:
-            w = cholesky_solve(implicit.factor, rows.J[r])
-            for c in range(n):
-                rows.W[r, c] = w[c]
+            cholesky_solve_into(implicit.factor, rows.J[r], lo, hi, rows.W[r])
         else:
             if not solved[i]:
-                e[:] = 0.0
                 e[i] = 1.0
-                unit[i] = cholesky_solve(implicit.factor, e)
+                cholesky_solve_into(implicit.factor, e, block_start[i], block_end[i], unit[i])
+                e[i] = 0.0
                 solved[i] = True
-            for c in range(n):  # (written in place: a temporary per row costs more than the products)
+            for c in range(lo, hi):  # (written in place: a temporary per row costs more than the products)
                 rows.W[r, c] = unit[i, c] * rows.J[r, i]
         k = 0.0
-        for i in range(n):
+        for i in range(lo, hi):
             k += rows.J[r, i] * rows.W[r, i]
         for i in range(6):
             k += rows.Jb[r, i] * rows.Wb[r, i]
@@ -610,11 +690,11 @@ def prepare_rows(system, joints, terms, implicit, contacts, bodies, h):
 # ---- 2.–3. warm start and the sweeps -------------------------------------------------------------------------
 
 @njit
-def _row_velocity(J, Jb, b, r, v, V):
+def _row_velocity(J, Jb, b, r, v, V, lo, hi):
     """Row r's velocity J v (+ J_b V of its free body ``b``, −1: none) (the rows' arrays, not the bundle: see
-    :class:`DriveTerms`)."""
+    :class:`DriveTerms`); J's columns ``lo`` … ``hi`` − 1 (:class:`JointRows`: the others are zero)."""
     s = 0.0
-    for i in range(len(v)):
+    for i in range(lo, hi):
         s += J[r, i] * v[i]
     if b >= 0:
         for k in range(6):
@@ -623,9 +703,10 @@ def _row_velocity(J, Jb, b, r, v, V):
 
 
 @njit
-def _apply_row(W, Wb, b, r, delta, v, V):
-    """Row r's impulse change ``delta`` applied to v (and to its free body ``b``'s V)."""
-    for i in range(len(v)):
+def _apply_row(W, Wb, b, r, delta, v, V, lo, hi):
+    """Row r's impulse change ``delta`` applied to v (and to its free body ``b``'s V); W's columns ``lo`` …
+    ``hi`` − 1 (the others are zero)."""
+    for i in range(lo, hi):
         v[i] += W[r, i] * delta
     if b >= 0:
         for k in range(6):
@@ -651,7 +732,7 @@ def warm_start_joints(rows, memory, v, V, warm_start):
             _clamp_cone(rows.upper[r], r, lam)
     for r in range(R):
         if lam[r] != 0.0:
-            _apply_row(rows.W, rows.Wb, rows.body[r], r, lam[r], v, V)
+            _apply_row(rows.W, rows.Wb, rows.body[r], r, lam[r], v, V, rows.lo[r], rows.hi[r])
     return lam
 
 
@@ -684,29 +765,30 @@ def sweep_joints(rows, lam, v, V):
     rows and body rows together, :mod:`cgp_core.robots.coupled`); returns the largest change of a row's velocity
     it made (the early stop's measure)."""
     R = len(rows.kind)
-    J, W, Jb, Wb, body = rows.J, rows.W, rows.Jb, rows.Wb, rows.body
+    J, W, Jb, Wb, body, lo, hi = rows.J, rows.W, rows.Jb, rows.Wb, rows.body, rows.lo, rows.hi
     change = 0.0
     r = np.int64(0)  # (not the literal 0: numba would compile the row helpers once more for a literal row index)
     while r < R:
         if rows.kind[r] == ROW_TANGENT:  # t₁ and t₂ of a point together, clamped to its cone
             b = body[r]
-            d1 = rows.eff[r] * (rows.target[r] - _row_velocity(J, Jb, b, r, v, V))
-            d2 = rows.eff[r + 1] * (rows.target[r + 1] - _row_velocity(J, Jb, b, r + 1, v, V))
+            d1 = rows.eff[r] * (rows.target[r] - _row_velocity(J, Jb, b, r, v, V, lo[r], hi[r]))
+            d2 = rows.eff[r + 1] * (rows.target[r + 1] - _row_velocity(J, Jb, b, r + 1, v, V, lo[r + 1], hi[r + 1]))
             old1, old2 = lam[r], lam[r + 1]
             lam[r], lam[r + 1] = old1 + d1, old2 + d2
             _clamp_cone(rows.upper[r], r, lam)
             d1, d2 = lam[r] - old1, lam[r + 1] - old2
-            _apply_row(W, Wb, b, r, d1, v, V)
-            _apply_row(W, Wb, b, r + 1, d2, v, V)
+            _apply_row(W, Wb, b, r, d1, v, V, lo[r], hi[r])
+            _apply_row(W, Wb, b, r + 1, d2, v, V, lo[r + 1], hi[r + 1])
             change = max(change, abs(d1) * rows.stiff[r], abs(d2) * rows.stiff[r + 1])
             r += 2
             continue
         b = body[r]
-        delta = rows.eff[r] * (rows.target[r] - _row_velocity(J, Jb, b, r, v, V) - rows.softness[r] * lam[r])
+        delta = rows.eff[r] * (rows.target[r] - _row_velocity(J, Jb, b, r, v, V, lo[r], hi[r])
+                               - rows.softness[r] * lam[r])
         old = lam[r]
         lam[r] = min(max(old + delta, rows.lower[r]), rows.upper[r])
         delta = lam[r] - old
-        _apply_row(W, Wb, b, r, delta, v, V)
+        _apply_row(W, Wb, b, r, delta, v, V, lo[r], hi[r])
         change = max(change, abs(delta) * (rows.stiff[r] + rows.softness[r]))
         r += 1
     return change
@@ -763,7 +845,8 @@ def position_goals(rows, v, V, settings):
     goal = np.zeros(R)
     for r in range(R):
         if _positional(rows.kind[r]):
-            predicted = rows.error[r] + h * _row_velocity(rows.J, rows.Jb, rows.body[r], r, v, V)
+            predicted = rows.error[r] + h * _row_velocity(rows.J, rows.Jb, rows.body[r], r, v, V, rows.lo[r],
+                                                          rows.hi[r])
             if rows.kind[r] == ROW_NORMAL:  # as the contact solver's position stage: slop, β, a cap
                 goal[r] = min(-settings.contact_correction * (predicted + settings.penetration_slop),
                               settings.max_correction)
@@ -782,11 +865,12 @@ def relax_sweep(rows, goal, lam, d, D):
     for r in range(len(rows.kind)):
         if not _positional(rows.kind[r]) or rows.stiff[r] <= 0.0:
             continue
-        delta = (goal[r] - _row_velocity(rows.J, rows.Jb, rows.body[r], r, d, D)) / rows.stiff[r]
+        delta = (goal[r] - _row_velocity(rows.J, rows.Jb, rows.body[r], r, d, D, rows.lo[r], rows.hi[r])) \
+            / rows.stiff[r]
         if rows.kind[r] != ROW_MIMIC and rows.kind[r] != ROW_EQUALITY:  # one-sided
             delta = max(lam[r] + delta, 0.0) - lam[r]
         lam[r] += delta
-        _apply_row(rows.W, rows.Wb, rows.body[r], r, delta, d, D)
+        _apply_row(rows.W, rows.Wb, rows.body[r], r, delta, d, D, rows.lo[r], rows.hi[r])
         change = max(change, abs(delta) * rows.stiff[r])
     return change
 
@@ -809,14 +893,14 @@ def drive_efforts(joints, terms, implicit, v, h):
 def store_joints(joints, terms, implicit, rows, lam, v, bodies, h):
     """Adds the contact rows' impulses to the free bodies' momenta (in place); returns the effort (n,) (see the
     module docstring), the contact impulses (c, 3) and the new :class:`JointSolverMemory`."""
-    n, R = len(v), len(rows.kind)
+    R = len(rows.kind)
     effort = drive_efforts(joints, terms, implicit, v, h)
     n_joint_rows = 0  # rows before the contacts: the joint's own and the equalities
     for r in range(R):
         if rows.kind[r] < ROW_TANGENT:
             n_joint_rows += 1
         if rows.kind[r] <= ROW_LIMIT:
-            for i in range(n):
+            for i in range(rows.lo[r], rows.hi[r]):
                 effort[i] += rows.J[r, i] * lam[r] / h
         b = rows.body[r]
         if b >= 0:

@@ -238,26 +238,40 @@ def _merge_memories(parts):
     return JointSolverMemory(key, impulse[first])
 
 
-def _split_memory(memory, dofs: int, n: int, mimics: int, k_mimic: int, equalities: int, k_equality: int,
-                  robot: int, contact_robots: dict):
-    """Robot ``robot``'s part of an island's memory (its dofs ``dofs`` … ``dofs + n``, mimics and loop rows
-    likewise, back in its own indices; the contacts that touch its links, ``contact_robots``: contact key →
-    robots)."""
+def _split_memories(memory, parts, contact_key: np.ndarray, contact_robots: tuple[np.ndarray, np.ndarray]) -> dict:
+    """Each robot's part of an island's memory: ``parts`` per robot ``(robot, dofs, n, mimics, k_mimic, equalities,
+    k_equality)`` — its dofs ``dofs`` … ``dofs + n``, mimics and loop rows likewise, back in its own indices — and
+    the rows of the contacts that touch its links (``contact_key`` (c,) the island's contacts' keys,
+    ``contact_robots`` the robots of their sides A and B, −1 for a side that is no link: a link–link contact is in
+    both robots' parts).  What is common to the robots is worked out once (per robot, an island of k robots cost
+    k² in Python)."""
     from .joint_solver import JointSolverMemory
 
     kind, index = memory.key // KEY_SLOTS, memory.key % KEY_SLOTS
     dof = np.where((kind == ROW_VELOCITY_LIMIT) | (kind == ROW_LIMIT), index // 2, index)
-    mine = np.zeros(len(kind), bool)
     per_dof = (kind == ROW_DRIVE) | (kind == ROW_FRICTION) | (kind == ROW_VELOCITY_LIMIT) | (kind == ROW_LIMIT)
-    mine |= per_dof & (dof >= dofs) & (dof < dofs + n)
-    mine |= (kind == ROW_MIMIC) & (index >= mimics) & (index < mimics + k_mimic)
-    mine |= (kind == ROW_EQUALITY) & (index >= equalities) & (index < equalities + k_equality)
-    contact = (kind == ROW_NORMAL) | (kind == ROW_TANGENT)
-    for r in np.flatnonzero(contact):
-        mine[r] = robot in contact_robots.get(int(index[r] // 3), ())
-    key = _shift_keys(memory.key[mine], -dofs, -mimics, -equalities)
-    order = np.argsort(key, kind="mergesort")
-    return JointSolverMemory(key[order], memory.impulse[mine][order])
+    mimic, equality = kind == ROW_MIMIC, kind == ROW_EQUALITY
+    # each contact row's robots, from the contact of its key (keys are unique among a sub-step's contacts)
+    robot_a = robot_b = np.full(len(kind), -1, np.int64)
+    contact = np.flatnonzero((kind == ROW_NORMAL) | (kind == ROW_TANGENT))
+    if contact.size and len(contact_key):
+        order = np.argsort(contact_key, kind="stable")
+        ordered = contact_key[order]
+        at = np.minimum(np.searchsorted(ordered, index[contact] // 3), len(ordered) - 1)
+        found = ordered[at] == index[contact] // 3
+        robot_a, robot_b = robot_a.copy(), robot_b.copy()
+        robot_a[contact[found]] = contact_robots[0][order[at[found]]]
+        robot_b[contact[found]] = contact_robots[1][order[at[found]]]
+    out = {}
+    for robot, dofs, n, mimics, k_mimic, equalities, k_equality in parts:
+        mine = per_dof & (dof >= dofs) & (dof < dofs + n)
+        mine |= mimic & (index >= mimics) & (index < mimics + k_mimic)
+        mine |= equality & (index >= equalities) & (index < equalities + k_equality)
+        mine |= (robot_a == robot) | (robot_b == robot)
+        key = _shift_keys(memory.key[mine], -dofs, -mimics, -equalities)
+        o = np.argsort(key, kind="mergesort")
+        out[robot] = JointSolverMemory(key[o], memory.impulse[mine][o])
+    return out
 
 
 class Island(NamedTuple):
@@ -400,10 +414,15 @@ class Robots:
 
     def _set_memory(self, k: int, memory) -> None:
         """Robot ``k``'s warm-start memory replaced (the others' kept; one concatenation of all)."""
+        self._set_memories({k: memory})
+
+    def _set_memories(self, memories: dict) -> None:
+        """The warm-start memories of the robots ``memories`` (robot → its memory) replaced, the others' kept: one
+        concatenation of all (per robot, an island of k robots was k concatenations of every robot's)."""
         from .joint_solver import RobotMemories
 
         old = self._memories
-        parts = [(memory.key, memory.impulse) if j == k else
+        parts = [(memories[j].key, memories[j].impulse) if j in memories else
                  (old.key[old.start[j]:old.start[j + 1]], old.impulse[old.start[j]:old.start[j + 1]])
                  for j in range(len(self.robots))]
         start = row_starts([len(key) for key, _ in parts])
@@ -912,19 +931,20 @@ class Robots:
             self.robots[k].solver.profile.seconds += seconds
             self._finish(island.group, step, rows, selected, state)
             return
-        contact_robots = {}
+        # each contact's robots: the links' on either side (a link–link contact is in both robots' memories)
         if selected is not None:
-            for c in range(selected.count):
-                key = int(rows.key[c])
-                for side in (int(selected.body_a[c]), int(selected.body_b[c])):
-                    if side >= 0 and self.body_robot[side] >= 0:
-                        contact_robots.setdefault(key, set()).add(int(self.body_robot[side]))
+            key = rows.key
+            sides = tuple(np.where(side >= 0, self.body_robot[np.maximum(side, 0)], -1)
+                          for side in (selected.body_a, selected.body_b))
+        else:
+            key, sides = np.zeros(0, np.int64), (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        parts = _split_memories(memory, [(k, offsets[k], self.robots[k].model.n_dofs, mimic_offsets[k],
+                                          len(self.robots[k].properties.mimic_follower), equality_offsets[k],
+                                          len(self.robots[k].properties.equality_error)) for k in island.group],
+                                key, sides)
         for k in island.group:
-            r = self.robots[k]
-            self._set_memory(k, _split_memory(memory, offsets[k], r.model.n_dofs, mimic_offsets[k],
-                                              len(r.properties.mimic_follower), equality_offsets[k],
-                                              len(r.properties.equality_error), k, contact_robots))
-            r.solver.profile.seconds += seconds / len(island.group)
+            self.robots[k].solver.profile.seconds += seconds / len(island.group)
+        self._set_memories(parts)
         self._finish(island.group, step, rows, selected, state)
 
     def _solve_island(self, group, selected, body_model, state, gravity) -> None:
