@@ -26,7 +26,15 @@ double pendulum, on the built-in ``arm`` scene (the 7-DoF arm following its traj
 on the ``chain`` scene (30 pinned links, 32 dofs), interleaved, with the fixed-point passes per sub-step, the
 fallbacks and the speed probe beside.
 
-    .venv/bin/python benchmarks/bench_robots.py [--quick] [--joint-integrators]
+``--pushing``: instead, robots whose links push free bodies — the built-in ``arm`` scene (the 7-DoF arm sweeping
+the boxes off its table: in the sweep's sub-steps its links touch boxes, and its rows and theirs are solved in one
+loop, :mod:`cgp_core.robots.coupled`) tiled 1, 4 and 16 times 3 m apart, all arms on the same trajectory, so
+that in those sub-steps every arm is in the one coupled system.  Per 1/60 s tick, median, p99 and max over one
+trajectory cycle (9 s: the sweep and the return), and the ticks with a coupled sub-step apart; cgp_sim only (no
+peer has this scene).  Each world runs in a child process of its own; ``--before TREE`` runs another checkout's
+code (e.g. ``git worktree add /tmp/before <commit>``) the same way, interleaved with this one's, round by round.
+
+    .venv/bin/python benchmarks/bench_robots.py [--quick] [--joint-integrators | --pushing [--before TREE]]
 """
 
 from __future__ import annotations
@@ -246,15 +254,130 @@ def joint_integrator_ticks(seconds: float) -> dict:
     return out
 
 
+#: the child process of ``--pushing``: the arm scene tiled ``count`` times, stepped for ``ticks`` ticks; prints the
+#: tick times [s] and which ticks had a coupled sub-step, as JSON (the tree under test is on PYTHONPATH)
+PUSHING_CHILD = r"""
+import copy, json, sys, time
+import numpy as np, yaml
+from cgp_core import World
+from cgp_core.scene import parse_scene
+from cgp_core.warmup import load_kernels_for
+import cgp_core.robots.world as robots_world
+
+count, ticks, arm_yaml = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
+base = yaml.safe_load(open(arm_yaml))
+side = int(np.ceil(np.sqrt(count)))
+scene = {"world": base["world"], "robots": [], "bodies": []}
+for k in range(count):
+    dx, dy = 3.0 * (k % side), 3.0 * (k // side)
+    robot = copy.deepcopy(base["robots"][0])
+    robot["name"] = f"arm{k}"
+    robot["position"] = [robot["position"][0] + dx, robot["position"][1] + dy, robot["position"][2]]
+    scene["robots"].append(robot)
+    for body in base["bodies"]:
+        body = copy.deepcopy(body)
+        body["name"] = f"{body['name']}_{k}"
+        body["position"] = [body["position"][0] + dx, body["position"][1] + dy, body["position"][2]]
+        scene["bodies"].append(body)
+world = World(parse_scene(yaml.safe_dump(scene), f"arms_{count}"))
+load_kernels_for(world)  # as the node does before its first tick
+copy.deepcopy(world).step()
+coupled = [0]
+island = robots_world.Robots._island
+def counted(self, *args, **kwargs):
+    coupled[0] += 1
+    return island(self, *args, **kwargs)
+robots_world.Robots._island = counted
+times, flags = [], []
+for _ in range(ticks):
+    coupled[0] = 0
+    t0 = time.perf_counter()
+    world.step()
+    times.append(time.perf_counter() - t0)
+    flags.append(coupled[0] > 0)
+print(json.dumps({"times": times, "coupled": flags}))
+"""
+
+#: ``--pushing``: the tilings
+PUSHING_COUNTS = (1, 4, 16)
+
+
+def pushing_run(tree: Path, count: int, ticks: int) -> dict:
+    """One child process (:data:`PUSHING_CHILD`) on ``tree``'s code: its tick statistics [ms]."""
+    import json
+    import os
+    import subprocess
+
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+    done = subprocess.run([sys.executable, "-c", PUSHING_CHILD, str(count), str(ticks),
+                           str(tree / "msgs_config" / "scenes" / "arm.yaml")], env=env, capture_output=True,
+                          text=True, timeout=1800, cwd=str(tree))
+    if done.returncode != 0:
+        raise RuntimeError(f"the pushing child on {tree} failed:\n{done.stderr[-3000:]}")
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    t, coupled = np.array(result["times"]), np.array(result["coupled"], bool)
+    return {**_stats(t), "max": float(t.max() * 1e3), "coupled_ticks": int(coupled.sum()),
+            "coupled_median": float(np.median(t[coupled]) * 1e3) if coupled.any() else None,
+            "free_median": float(np.median(t[~coupled]) * 1e3) if (~coupled).any() else None}
+
+
+def pushing_figures(out, before: Path | None, rounds: int, seconds: float) -> int:
+    ticks = round(seconds / TICK)
+    versions = {"after": HERE.parent} if before is None else {"before": before.resolve(), "after": HERE.parent}
+    runs = {label: {count: [] for count in PUSHING_COUNTS} for label in versions}
+    probes = []
+    for r in range(rounds):
+        for count in PUSHING_COUNTS:
+            for label, tree in versions.items():
+                probes.append(speed_probe())
+                runs[label][count].append(pushing_run(tree, count, ticks))
+                row = runs[label][count][-1]
+                print(f"  round {r + 1} {label:6s} {count:2d} arm(s): median {row['median']:6.2f}  "
+                      f"p99 {row['p99']:6.2f}  max {row['max']:6.2f} ms  (coupled ticks {row['coupled_ticks']}: median "
+                      f"{row['coupled_median']:.2f} ms)  probe python {probes[-1]['python_ms']:.1f} ms", flush=True)
+    print(f"arms sweeping boxes off their tables (the arm scene tiled), ms per 1/60 s tick over {seconds:.0f} s, "
+          f"median of {rounds} round(s):")
+    print(f"  {'':7s} {'arms':>4s} {'median':>7s} {'p99':>7s} {'max':>7s} {'coupled tick median':>20s} "
+          f"{'per arm':>8s}")
+    summary = {}
+    for label in versions:
+        for count in PUSHING_COUNTS:
+            rows = runs[label][count]
+            m = {key: float(np.median([row[key] for row in rows])) for key in ("median", "p99", "max")}
+            m["coupled_median"] = float(np.median([row["coupled_median"] for row in rows]))
+            summary.setdefault(label, {})[count] = m
+            print(f"  {label:7s} {count:4d} {m['median']:7.2f} {m['p99']:7.2f} {m['max']:7.2f} "
+                  f"{m['coupled_median']:20.2f} {m['coupled_median'] / count:8.2f}")
+    after = summary["after"]
+    for count in PUSHING_COUNTS:
+        extra = {f"before_{key}_ms": summary["before"][count][key] for key in ("median", "p99")} \
+            if "before" in summary else {}
+        out.figure(f"robots_pushing_{count}_p99", f"{count} arm(s) sweeping boxes: cgp_sim p99 tick",
+                   after[count]["p99"], "ms", "<= 16.7 (60 Hz)", after[count]["p99"] <= 1000.0 / 60.0,
+                   median_ms=after[count]["median"], coupled_median_ms=after[count]["coupled_median"], **extra)
+    out.data.update(pushing=runs, pushing_summary=summary, probes=probes)
+    print(f"speed probe (python ms) over the runs: {min(p['python_ms'] for p in probes):.1f} - "
+          f"{max(p['python_ms'] for p in probes):.1f}")
+    print(f"wrote {out.write()}")
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="shorter runs")
     parser.add_argument("--joint-integrators", action="store_true",
                         help="only the cost of each joint_integrator (double pendulum, the arm scene)")
+    parser.add_argument("--pushing", action="store_true",
+                        help="only arms sweeping boxes (the arm scene tiled 1, 4, 16 times)")
+    parser.add_argument("--before", type=Path, help="--pushing: another checkout run interleaved with this one")
+    parser.add_argument("--rounds", type=int, default=1, help="--pushing: rounds (default 1)")
     args = parser.parse_args(argv)
-    out = Results("robots" if not args.joint_integrators else "robots_joint_integrators", options=vars(args))
+    name = "robots_joint_integrators" if args.joint_integrators else "robots_pushing" if args.pushing else "robots"
+    out = Results(name, options={k: str(v) for k, v in vars(args).items()})
     if args.joint_integrators:
         return joint_integrator_figures(out, 5.0 if args.quick else 20.0)
+    if args.pushing:
+        return pushing_figures(out, args.before, args.rounds, 9.0)
     probe_before = speed_probe()
     one = side_by_side(1, 5.0 if args.quick else 10.0)
     many = side_by_side(64, 2.0 if args.quick else 5.0)
