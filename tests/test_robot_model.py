@@ -33,7 +33,6 @@ from cgp_core.robots import (
     mass_matrix,
     neutral_positions,
     point_jacobian,
-    point_jacobians,
 )
 
 pin = pytest.importorskip("pinocchio")
@@ -203,25 +202,6 @@ def test_the_point_jacobian_gives_a_points_velocity_by_finite_differences():
     np.testing.assert_allclose(J @ qd, numeric, atol=1e-8)
     linear, angular = body_velocities(arrays, q, qd, R, x)
     np.testing.assert_allclose(linear[body] + np.cross(angular[body], R[body] @ local), numeric, atol=1e-8)
-
-
-def test_the_point_jacobians_of_many_points_are_the_point_jacobians_of_each():
-    """algorithms.point_jacobians (the robot stage's contact rows: one call per robot) gives, for every point, the
-    columns point_jacobian gives for it alone, to the bit — on every body of a planar + floating + revolute tree,
-    the root included."""
-    model = load_urdf(_planar_urdf(), fixed_base=False)
-    arrays = tuple(model.arrays)
-    rng = np.random.default_rng(5)
-    q = rng.normal(size=model.n_q)
-    q[3:7] /= np.linalg.norm(q[3:7])
-    R, x = forward_kinematics(arrays, q)
-    bodies = rng.integers(0, model.n_bodies, size=9).astype(np.int64)
-    points = rng.normal(size=(9, 3))
-    J = point_jacobians(arrays, R, x, bodies, points)
-    assert J.shape == (9, 3, model.n_dofs)
-    for k in range(9):
-        assert np.array_equal(J[k], point_jacobian(arrays, R, x, int(bodies[k]), points[k]))
-    assert np.count_nonzero(J[bodies == model.n_bodies - 1]) > np.count_nonzero(J[bodies == 0])  # more ancestors
 
 
 def _planar_urdf() -> str:

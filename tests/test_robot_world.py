@@ -298,6 +298,68 @@ def test_robot_islands_are_the_connected_components_of_the_link_link_contacts():
         assert root.tolist() == [min(g) for k in range(count) for g in expected if k in g], trial
 
 
+def test_the_link_contact_rows_are_each_points_directions_times_its_links_point_jacobian():
+    """The robot stage's contact rows (one compiled call for an island's points: joint_solver.link_contact_rows)
+    against the definition written per point here: directions d = (n, t₁, t₂) from A to B; a link side adds
+    ± d · J_point(q) in its robot's columns of the island, a free body side is the body's row ± [d, r × d] — for two
+    arms in one island (the second's columns after the first's), points with a link on side A or B, against a
+    crate, the ground and the other arm, to the bit."""
+    from cgp_core.collision.contacts import ContactSet
+    from cgp_core.robots import algorithms
+    from cgp_core.solver.sequential_impulse import tangent_basis_scalar
+
+    joints = {"shoulder_lift": np.pi / 2, "elbow": -np.pi / 2}
+    world = World(scene_from_dict({
+        "robots": [{"name": f"arm{i}", "urdf": "arm.urdf", "position": [0, 1.0 * i, 0], "joints": joints}
+                   for i in range(2)],
+        "bodies": [{"name": "crate", "shape": "box", "size": [0.06, 0.06, 0.04], "mass": 0.4,
+                    "position": [0.25, 0.0, 0.247]}]}, "<test>"))
+    world.step()
+    robots, model, state = world.robots, world.body_model, world.body_state
+    crate = model.index("crate")
+    links = [int(b) for b in np.flatnonzero(robots.body_robot >= 0)]
+    arm0 = [b for b in links if robots.body_robot[b] == 0]
+    arm1 = [b for b in links if robots.body_robot[b] == 1]
+    rng = np.random.default_rng(3)
+    sides = [(arm0[2], crate), (crate, arm0[3]), (-1, arm1[2]), (arm1[3], -1), (arm0[-1], arm1[-1])]
+    normal = rng.normal(size=(len(sides), 3))
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    normal[2] = (0.0, 0.0, -1.0)  # the branch of the tangent basis for z < 0 too
+    m = len(sides)
+    contacts = ContactSet(np.array([a for a, _ in sides], np.intp), np.array([b for _, b in sides], np.intp),
+                          normal, np.zeros(m), rng.normal(size=(m, 3)) * 0.3, np.arange(m, dtype=np.int64),
+                          np.full(m, 0.5), np.zeros(m))
+    n0 = robots.robots[0].model.n_dofs
+    n = n0 + robots.robots[1].model.n_dofs
+    rows = robots._contact_rows(contacts, model, state, {0: 0, 1: n0}, n)
+
+    J = np.zeros((m, 3, n))
+    body = np.full(m, -1)
+    body_jacobian = np.zeros((m, 3, 6))
+    for c, pair in enumerate(sides):
+        t = tangent_basis_scalar(*normal[c])
+        D = np.array([normal[c], t[:3], t[3:]])
+        for side, sign in zip(pair, (-1.0, 1.0)):
+            if side < 0:
+                continue
+            k = int(robots.body_robot[side])
+            if k >= 0:
+                r = robots.robots[k]
+                rotation, position = robots._poses[k]
+                Jp = algorithms.point_jacobian(r.kernel_arrays, rotation, position, int(robots.body_link[side]),
+                                               contacts.point[c])
+                start = (0, n0)[k]
+                J[c, :, start:start + r.model.n_dofs] += sign * (D @ Jp)
+            else:
+                body[c] = side
+                body_jacobian[c, :, :3] = sign * D
+                body_jacobian[c, :, 3:] = np.cross(contacts.point[c] - state.position[side], sign * D)
+    assert np.array_equal(rows.joint_jacobian, J)
+    assert np.array_equal(rows.body, body) and body.tolist() == [crate, crate, -1, -1, -1]
+    assert np.array_equal(rows.body_jacobian, body_jacobian)
+    assert np.count_nonzero(J[4, :, :n0]) and np.count_nonzero(J[4, :, n0:])  # both arms' columns
+
+
 def test_a_limp_arm_falls_onto_the_ground_and_rests_there():
     world = World(arm_scene(hold=False))
     run(world, 3.0)

@@ -13,7 +13,6 @@ from .algorithms import (
     mass_matrix,
     motion_subspace,
     point_jacobian,
-    point_jacobians,
 )
 from .model import (
     JOINT_BALL,
@@ -35,5 +34,5 @@ __all__ = ["JOINT_FIXED_ROOT", "JOINT_FLOATING", "JOINT_REVOLUTE", "JOINT_PRISMA
            "Geometry",
            "RobotModel", "RobotArrays", "robot_arrays", "neutral_positions", "plane_basis", "UrdfError", "load_urdf",
            "forward_kinematics", "frame_poses", "motion_subspace", "body_velocities", "point_jacobian",
-           "point_jacobians", "angular_jacobian", "mass_matrix", "inverse_dynamics", "bias_forces",
-           "forward_dynamics", "integrate_positions"]
+           "angular_jacobian", "mass_matrix", "inverse_dynamics", "bias_forces", "forward_dynamics",
+           "integrate_positions"]

@@ -400,23 +400,6 @@ def point_jacobian(arrays, rotation, position, body, point):
 
 
 @njit
-def point_jacobians(arrays, rotation, position, bodies, points):
-    """:func:`point_jacobian` of many points at once, ``(s, 3, n_dofs)``: point ``k`` (``points (s, 3)`` [m])
-    moving with body ``bodies[k]`` (``(s,)`` int64); the motion subspace computed once for all (the robot stage's
-    contact rows: one call per robot and sub-step, not one per contact point).  The same columns, bit for bit."""
-    arrays = RobotArrays(*arrays)
-    S = motion_subspace(arrays, rotation, position)
-    J = np.zeros((len(bodies), 3, arrays.n_dofs))
-    for k in range(len(bodies)):
-        i = bodies[k]
-        while i >= 0:
-            for d in range(arrays.dof_start[i], arrays.dof_start[i] + arrays.dof_count[i]):
-                J[k, :, d] = S[d, 3:6] + _cross(S[d, 0:3], points[k])
-            i = arrays.parent[i]
-    return J
-
-
-@njit
 def angular_jacobian(arrays, rotation, position, body):
     """``J`` (3, n_dofs) with ``J qd`` the world angular velocity [rad/s] of ``body``."""
     arrays = RobotArrays(*arrays)

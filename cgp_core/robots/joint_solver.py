@@ -129,7 +129,8 @@ import numpy as np
 
 from ..checks import positive
 from ..jit import StageProfile, clock, lap, njit
-from .algorithms import joint_space_terms, robot_view
+from ..solver.sequential_impulse import tangent_basis_scalar
+from .algorithms import joint_space_terms, point_jacobian, robot_view
 from .model import RobotStarts, row_starts
 
 #: drive modes (:attr:`JointDrives.mode`)
@@ -229,6 +230,64 @@ class ContactRows(NamedTuple):
     def empty(n: int) -> ContactRows:
         return ContactRows(np.zeros((0, 3, n)), np.zeros(0, np.int64), np.zeros((0, 3, 6)), np.zeros(0),
                            np.zeros(0), np.zeros(0, np.int64))
+
+
+@njit
+def link_contact_rows(models, starts, rotation, position, offsets, n, body_robot, body_link, contact, free_a,
+                      free_b, body_position):
+    """The :class:`ContactRows` arrays ``(joint_jacobian (c, 3, n), body (c,), body_jacobian (c, 3, 6))`` of an
+    island's link contacts (the robot stage's, :meth:`cgp_core.robots.world.Robots._contact_rows`): per point the
+    three directions (n, t₁, t₂) of the contact solver (:func:`~cgp_core.solver.sequential_impulse.
+    tangent_basis_scalar`), from A to B; a link side adds ± d · J_point(q) in its robot's columns of the island
+    (``offsets`` (robots,) int64: each robot's first dof there, −1 for one not in it; ``n`` dofs), a free side
+    (``free_a``, ``free_b`` (c,) bool) is the point's free body with the row ± [d, r × d], r = point − its COM
+    (``body_position`` (b, 3)).
+
+    ``models``, ``starts``: every robot's arrays stacked and their :class:`~cgp_core.robots.model.RobotStarts`;
+    ``rotation`` (B, 3, 3), ``position`` (B, 3): every robot's body poses side by side; ``body_robot``,
+    ``body_link`` (b,) int64: each world body's robot and link (−1: none); ``contact``: the island's contacts as
+    ``(body_a, body_b, point, normal)`` ((c,) int64 ×2, (c, 3) ×2; a side −1: the static world).  One call per
+    sub-step (the numpy of it per point and side cost ~0.2 ms a sub-step for a few points)."""
+    starts = RobotStarts(*starts)
+    body_a, body_b, point, normal = contact
+    m = len(body_a)
+    J = np.zeros((m, 3, n))
+    body = np.full(m, -1, np.int64)
+    body_jacobian = np.zeros((m, 3, 6))
+    D = np.empty((3, 3))
+    for c in range(m):
+        t = tangent_basis_scalar(normal[c, 0], normal[c, 1], normal[c, 2])
+        for k in range(3):
+            D[0, k] = normal[c, k]
+            D[1, k] = t[k]
+            D[2, k] = t[3 + k]
+        for side in range(2):
+            s = body_a[c] if side == 0 else body_b[c]
+            sign = -1.0 if side == 0 else 1.0
+            if s < 0:
+                continue
+            k = body_robot[s]
+            if k >= 0:
+                b0, b1 = starts.body[k], starts.body[k + 1]
+                Jp = point_jacobian(robot_view(models, starts, k), rotation[b0:b1], position[b0:b1], body_link[s],
+                                    point[c])
+                P = np.dot(D, Jp)
+                o = offsets[k]
+                for e in range(3):
+                    for d in range(Jp.shape[1]):
+                        J[c, e, o + d] += sign * P[e, d]
+            elif (free_a[c] if side == 0 else free_b[c]):
+                body[c] = s
+                ax = point[c, 0] - body_position[s, 0]
+                ay = point[c, 1] - body_position[s, 1]
+                az = point[c, 2] - body_position[s, 2]
+                for e in range(3):
+                    dx, dy, dz = sign * D[e, 0], sign * D[e, 1], sign * D[e, 2]
+                    body_jacobian[c, e, 0], body_jacobian[c, e, 1], body_jacobian[c, e, 2] = dx, dy, dz
+                    body_jacobian[c, e, 3] = ay * dz - az * dy
+                    body_jacobian[c, e, 4] = az * dx - ax * dz
+                    body_jacobian[c, e, 5] = ax * dy - ay * dx
+    return J, body, body_jacobian
 
 
 class FreeBodies(NamedTuple):

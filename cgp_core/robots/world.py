@@ -69,6 +69,7 @@ from .joint_solver import (
     ROW_NORMAL,
     ROW_TANGENT,
     ROW_VELOCITY_LIMIT,
+    link_contact_rows,
 )
 from .links import link_body_specs, link_name
 from .model import (
@@ -1023,39 +1024,20 @@ class Robots:
 
         if contacts is None or not contacts.count:
             return ContactRows.empty(n)
-        m = contacts.count
-        J = np.zeros((m, 3, n))
-        body = np.full(m, -1, np.int64)
-        body_jacobian = np.zeros((m, 3, 6))
-        # the three directions (n, t₁, t₂) of every point, from A to B: tangent_basis_scalar's formula on columns
-        x, y, z = contacts.normal[:, 0], contacts.normal[:, 1], contacts.normal[:, 2]
-        sign = np.where(z >= 0.0, 1.0, -1.0)
-        a = -1.0 / (sign + z)
-        b = x * y * a
-        D = np.stack([contacts.normal, np.stack([1.0 + sign * x * x * a, sign * b, -sign * x], axis=1),
-                      np.stack([b, sign + y * y * a, -y], axis=1)], axis=1)  # (m, 3 directions, 3)
-        for side, direction, free in ((contacts.body_a, -1.0, self._free_side(contacts.body_a, body_model)),
-                                      (contacts.body_b, 1.0, self._free_side(contacts.body_b, body_model))):
-            row = np.maximum(side, 0)
-            robot = np.where(side >= 0, self.body_robot[row], -1)
-            for k in np.unique(robot[robot >= 0]).tolist():  # a robot's points in one call (algorithms.point_jacobians)
-                on = np.flatnonzero(robot == k)
-                r = self.robots[k]
-                rotation, position = self._poses[k]
-                Jp = algorithms.point_jacobians(r.kernel_arrays, rotation, position, self.body_link[side[on]],
-                                                np.ascontiguousarray(contacts.point[on]))
-                start = offsets[k]
-                J[on, :, start:start + r.model.n_dofs] += direction * (D[on] @ Jp)
-            # a free body's row: sign · [D, r × D] (np.cross's formula, written out for the columns)
-            hit = np.flatnonzero(free)
-            if hit.size:
-                body[hit] = side[hit]
-                arm = (contacts.point[hit] - state.position[side[hit]])[:, None, :]
-                d = direction * D[hit]
-                body_jacobian[hit, :, :3] = d
-                body_jacobian[hit, :, 3] = arm[..., 1] * d[..., 2] - arm[..., 2] * d[..., 1]
-                body_jacobian[hit, :, 4] = arm[..., 2] * d[..., 0] - arm[..., 0] * d[..., 2]
-                body_jacobian[hit, :, 5] = arm[..., 0] * d[..., 1] - arm[..., 1] * d[..., 0]
+        poses = self._poses
+        if isinstance(poses, _Poses):
+            rotation, position = poses.rotation, poses.position
+        else:  # (as prepare() left them: one pair per robot)
+            rotation = np.concatenate([R for R, _ in poses]) if poses else np.zeros((0, 3, 3))
+            position = np.concatenate([x for _, x in poses]) if poses else np.zeros((0, 3))
+        in_island = np.full(len(self.robots), -1, np.int64)
+        for k, start in offsets.items():
+            in_island[k] = start
+        J, body, body_jacobian = link_contact_rows(
+            self._models, tuple(self._starts), rotation, position, in_island, n, self.body_robot, self.body_link,
+            (contacts.body_a, contacts.body_b, contacts.point, contacts.normal),
+            self._free_side(contacts.body_a, body_model), self._free_side(contacts.body_b, body_model),
+            state.position)
         return ContactRows(J, body, body_jacobian, contacts.separation.copy(), contacts.friction.copy(),
                            contacts.key % (1 << 37))
 
