@@ -233,23 +233,26 @@ class ContactRows(NamedTuple):
 
 
 @njit
-def link_contact_rows(models, starts, rotation, position, offsets, n, body_robot, body_link, contact, free_a,
-                      free_b, body_position):
+def link_contact_rows(robots, island, bodies, contact):
     """The :class:`ContactRows` arrays ``(joint_jacobian (c, 3, n), body (c,), body_jacobian (c, 3, 6))`` of an
     island's link contacts (the robot stage's, :meth:`cgp_core.robots.world.Robots._contact_rows`): per point the
     three directions (n, t₁, t₂) of the contact solver (:func:`~cgp_core.solver.sequential_impulse.
-    tangent_basis_scalar`), from A to B; a link side adds ± d · J_point(q) in its robot's columns of the island
-    (``offsets`` (robots,) int64: each robot's first dof there, −1 for one not in it; ``n`` dofs), a free side
-    (``free_a``, ``free_b`` (c,) bool) is the point's free body with the row ± [d, r × d], r = point − its COM
-    (``body_position`` (b, 3)).
+    tangent_basis_scalar`), from A to B; a link side adds ± d · J_point(q) in its robot's columns of the island, a
+    free body side is the point's free body with the row ± [d, r × d], r = point − its COM.  One call per sub-step
+    (the numpy of it per point and side cost ~0.2 ms a sub-step for a few points).  Plain tuples:
 
-    ``models``, ``starts``: every robot's arrays stacked and their :class:`~cgp_core.robots.model.RobotStarts`;
-    ``rotation`` (B, 3, 3), ``position`` (B, 3): every robot's body poses side by side; ``body_robot``,
-    ``body_link`` (b,) int64: each world body's robot and link (−1: none); ``contact``: the island's contacts as
-    ``(body_a, body_b, point, normal)`` ((c,) int64 ×2, (c, 3) ×2; a side −1: the static world).  One call per
-    sub-step (the numpy of it per point and side cost ~0.2 ms a sub-step for a few points)."""
+    - ``robots``: ``(models, starts, rotation, position)`` — every robot's arrays stacked, their
+      :class:`~cgp_core.robots.model.RobotStarts`, and their body poses side by side, (B, 3, 3) and (B, 3);
+    - ``island``: ``(offsets, n)`` — (robots,) int64 each robot's first dof in the island (−1: not in it), its dofs;
+    - ``bodies``: ``(body_robot, body_link, position)`` — each world body's robot and link ((b,) int64, −1: none)
+      and COM (b, 3);
+    - ``contact``: ``(body_a, body_b, point, normal, free_a, free_b)`` — the island's contacts ((c,) int64 ×2, a
+      side −1 the static world; (c, 3) ×2) and whether each side is a free body the rows move ((c,) bool ×2)."""
+    models, starts, rotation, position = robots
     starts = RobotStarts(*starts)
-    body_a, body_b, point, normal = contact
+    offsets, n = island
+    body_robot, body_link, body_position = bodies
+    body_a, body_b, point, normal, free_a, free_b = contact
     m = len(body_a)
     J = np.zeros((m, 3, n))
     body = np.full(m, -1, np.int64)

@@ -1034,10 +1034,10 @@ class Robots:
         for k, start in offsets.items():
             in_island[k] = start
         J, body, body_jacobian = link_contact_rows(
-            self._models, tuple(self._starts), rotation, position, in_island, n, self.body_robot, self.body_link,
-            (contacts.body_a, contacts.body_b, contacts.point, contacts.normal),
-            self._free_side(contacts.body_a, body_model), self._free_side(contacts.body_b, body_model),
-            state.position)
+            (self._models, tuple(self._starts), rotation, position), (in_island, n),
+            (self.body_robot, self.body_link, state.position),
+            (contacts.body_a, contacts.body_b, contacts.point, contacts.normal,
+             self._free_side(contacts.body_a, body_model), self._free_side(contacts.body_b, body_model)))
         return ContactRows(J, body, body_jacobian, contacts.separation.copy(), contacts.friction.copy(),
                            contacts.key % (1 << 37))
 
