@@ -633,7 +633,7 @@ def test_the_factorization_of_a_block_diagonal_a_is_the_dense_one_and_its_solves
     block_start, block_end = diagonal_blocks(first)
     assert block_start.tolist() == [0, 0, 0, 3, 4, 4, 4, 4, 8, 8]
     assert block_end.tolist() == [3, 3, 3, 4, 8, 8, 8, 8, 10, 10]
-    L = cholesky(A)
+    L = cholesky(A, first)
     assert np.array_equal(L, dense_cholesky(A))
     np.testing.assert_allclose(L @ L.T, A, atol=1e-12)
     b = np.zeros(n)

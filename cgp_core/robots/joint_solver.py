@@ -425,13 +425,12 @@ def diagonal_blocks(first):
 
 
 @njit
-def cholesky(A):
+def cholesky(A, first):
     """The lower-triangular L with L Lᵀ = A for a symmetric positive definite A (n, n), within A's envelope
-    (:func:`envelope`): the terms outside it are zeros, so an island of k robots costs the sum of each robot's
-    factorization, not that of one system of all their dofs (a block-diagonal A: cubic in each robot's dofs, not
-    in their sum; the same numbers as the dense loops, which only added those zeros)."""
+    ``first`` (:func:`envelope`): the terms outside it are zeros, so an island of k robots costs the sum of each
+    robot's factorization, not that of one system of all their dofs (a block-diagonal A: cubic in each robot's
+    dofs, not in their sum; the same numbers as the dense loops, which only added those zeros)."""
     n = A.shape[0]
-    first = envelope(A)
     L = np.zeros((n, n))
     for j in range(n):
         s = A[j, j]
@@ -544,6 +543,7 @@ def implicit_drives(system, joints, terms, h, allowed):
         for k in range(n):
             s += M[i, k] * system.velocity[k]
         base[i] = s + h * (system.applied[i] - system.bias[i] + terms.command[i])
+    first = envelope(M)  # A's too: A is M plus diagonal terms
     while True:  # at most n + 1 passes: each but the last takes a drive out of A
         A = M.copy()
         rhs = base.copy()
@@ -553,7 +553,7 @@ def implicit_drives(system, joints, terms, h, allowed):
                 kp, kd = terms.kp[i], terms.kd[i]
                 A[i, i] += h * kd + h * h * kp
                 rhs[i] += h * terms.push[i]
-        L = cholesky(A)
+        L = cholesky(A, first)
         v = cholesky_solve(L, rhs)
         saturated = False
         for i in range(n):
@@ -563,7 +563,7 @@ def implicit_drives(system, joints, terms, h, allowed):
                     implicit[i] = False
                     saturated = True
         if not saturated:
-            block_start, block_end = diagonal_blocks(envelope(M))
+            block_start, block_end = diagonal_blocks(first)
             return Implicit(L, v, implicit, block_start, block_end)
 
 

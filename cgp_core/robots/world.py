@@ -694,9 +694,13 @@ class Robots:
             state.torque[rows] = 0.0
 
     def prepare(self) -> None:
-        """The body poses of every robot at the current q (cached for the sub-step)."""
+        """The body poses of every robot at the current q (cached for the sub-step), side by side as
+        :meth:`integrate` leaves them (:class:`_Poses`)."""
         self._velocities = None
-        self._poses = [algorithms.forward_kinematics(r.kernel_arrays, self.q[r.q_slice]) for r in self.robots]
+        poses = [algorithms.forward_kinematics(r.kernel_arrays, self.q[r.q_slice]) for r in self.robots]
+        rotation = np.concatenate([R for R, _ in poses]) if poses else np.zeros((0, 3, 3))
+        position = np.concatenate([x for _, x in poses]) if poses else np.zeros((0, 3))
+        self._poses = _Poses(rotation, position, self._body_start)
         self._loop_rows()
 
     def _loop_rows(self) -> None:
@@ -1024,17 +1028,11 @@ class Robots:
 
         if contacts is None or not contacts.count:
             return ContactRows.empty(n)
-        poses = self._poses
-        if isinstance(poses, _Poses):
-            rotation, position = poses.rotation, poses.position
-        else:  # (as prepare() left them: one pair per robot)
-            rotation = np.concatenate([R for R, _ in poses]) if poses else np.zeros((0, 3, 3))
-            position = np.concatenate([x for _, x in poses]) if poses else np.zeros((0, 3))
         in_island = np.full(len(self.robots), -1, np.int64)
         for k, start in offsets.items():
             in_island[k] = start
         J, body, body_jacobian = link_contact_rows(
-            (self._models, tuple(self._starts), rotation, position), (in_island, n),
+            (self._models, tuple(self._starts), self._poses.rotation, self._poses.position), (in_island, n),
             (self.body_robot, self.body_link, state.position),
             (contacts.body_a, contacts.body_b, contacts.point, contacts.normal,
              self._free_side(contacts.body_a, body_model), self._free_side(contacts.body_b, body_model)))
@@ -1167,8 +1165,7 @@ class Robots:
         rows = self._all_rows
         if flat is None:  # not right after integrate: the kinematics at the current q
             self.prepare()
-            rotation = np.concatenate([p[0] for p in self._poses]) if self.robots else np.zeros((0, 3, 3))
-            position = np.concatenate([p[1] for p in self._poses]) if self.robots else np.zeros((0, 3))
+            rotation, position = self._poses.rotation, self._poses.position
             velocities = [algorithms.body_velocities(r.kernel_arrays, self.q[r.q_slice], self.qd[r.dof_slice],
                                                      *self._poses[k]) for k, r in enumerate(self.robots)]
             linear = np.concatenate([v[0] for v in velocities]) if self.robots else np.zeros((0, 3))
