@@ -44,6 +44,8 @@ SUBSTEPS = 4
 TICK = H * SUBSTEPS
 FRICTION = 0.6
 FALL_S, REST_S = 3.0, 5.0
+#: the row of cgp_sim with contacts found once per tick (world.contact_detection: once_per_tick)
+ONCE = "once/tick"
 
 
 def pile_hulls(seed: int = 25) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
@@ -65,10 +67,11 @@ def pile_hulls(seed: int = 25) -> tuple[list[np.ndarray], np.ndarray, np.ndarray
     return points, np.array(positions), np.array(orientations)
 
 
-def ours(sleep: bool) -> World:
+def ours(sleep: bool, detection: str = "every_substep") -> World:
+    """The pile in cgp_sim; ``detection``: the scene's ``world.contact_detection``."""
     points, positions, orientations = pile_hulls()
     lines = [f"world: {{substeps: {SUBSTEPS}, sleep: {str(sleep).lower()}, ground_friction: {FRICTION}, "
-             "ground_restitution: 0.0}", "bodies:"]
+             f"ground_restitution: 0.0, contact_detection: {detection}}}", "bodies:"]
     for n, (p, x, q) in enumerate(zip(points, positions, orientations)):
         pts = ", ".join(f"[{a:.6f}, {b:.6f}, {c:.6f}]" for a, b, c in p)
         lines.append(f"  - {{name: h{n}, shape: convex, mass: 1.0, friction: {FRICTION}, restitution: 0.0, "
@@ -133,13 +136,16 @@ def _stats(t: np.ndarray) -> dict:
 
 
 def side_by_side(seconds_fall: float, seconds_rest: float) -> dict:
-    """All three stepped tick by tick in turn (cgp_sim with its default sleeping)."""
+    """All three stepped tick by tick in turn (cgp_sim with its default sleeping), and cgp_sim once more with
+    contacts found once per tick (``contact_detection: once_per_tick``, cgp_core/collision/carry.py)."""
     world = ours(sleep=True)
+    once = ours(sleep=True, detection="once_per_tick")
     pb_step, pb_where, pb_close = pybullet_pile()
     mj_step, mj_where, _ = mujoco_pile()
     ticks = round((seconds_fall + seconds_rest) / TICK)
     fall = round(seconds_fall / TICK)
-    times = {name: np.empty(ticks) for name in ("cgp_sim", "pybullet", "mujoco")}
+    times = {name: np.empty(ticks) for name in ("cgp_sim", "pybullet", "mujoco", ONCE)}
+    once_penetration = np.zeros(ticks)
     asleep_at = None
     contacts = []
     rest_start = {}
@@ -154,6 +160,9 @@ def side_by_side(seconds_fall: float, seconds_rest: float) -> dict:
         t2 = clock()
         mj_step()
         t3 = clock()
+        once.step()
+        times[ONCE][k] = clock() - t3
+        once_penetration[k] = once.solver.stats.get("max_penetration", 0.0) if not once.bodies_asleep else 0.0
         times["cgp_sim"][k], times["pybullet"][k], times["mujoco"][k] = t1 - t0, t2 - t1, t3 - t2
         contacts.append(world.solver.stats.get("contacts", 0) if not world.bodies_asleep else 0)
         if asleep_at is None and world.bodies_asleep:
@@ -170,18 +179,22 @@ def side_by_side(seconds_fall: float, seconds_rest: float) -> dict:
         extra += 1
         if world.bodies_asleep:
             asleep_at = world.time
-    return {"ticks": out, "asleep_at_s": asleep_at, "creep": creep, "contacts_median_fall": float(np.median(
+    return {"ticks": out, "asleep_at_s": asleep_at, "creep": creep, "once_max_penetration_m": {
+        "fall_p99": float(np.percentile(once_penetration[:fall], 99)), "max": float(once_penetration.max())},
+            "contacts_median_fall": float(np.median(
         contacts[:fall])), "contacts_max": int(max(contacts)), "pile_top_m": heights,
             "lowest_m": float(world.body_state.position[:, 2].min())}
 
 
-def resting_creep(seconds_fall: float, seconds_rest: float) -> dict:
+def resting_creep(seconds_fall: float, seconds_rest: float, detection: str = "every_substep") -> dict:
     """cgp_sim with sleeping off: the mean displacement from ``seconds_fall`` over ``seconds_rest``, and the
-    per-tick time while everything is solved every sub-step at rest."""
-    world = ours(sleep=False)
+    per-tick time while everything is solved every sub-step at rest; the deepest penetration while piling."""
+    world = ours(sleep=False, detection=detection)
     fall = round(seconds_fall / TICK)
-    for _ in range(fall):
+    penetration = np.empty(fall)
+    for k in range(fall):
         world.step()
+        penetration[k] = world.solver.stats.get("max_penetration", 0.0)
     start = world.body_state.position.copy()
     rest = np.empty(round(seconds_rest / TICK))
     for k in range(len(rest)):
@@ -189,7 +202,8 @@ def resting_creep(seconds_fall: float, seconds_rest: float) -> dict:
         world.step()
         rest[k] = time.perf_counter() - t0
     return {"creep": float(np.linalg.norm(world.body_state.position - start, axis=1).mean()),
-            "rest": _stats(rest), "max_penetration_m": float(world.solver.stats.get("max_penetration", 0.0))}
+            "rest": _stats(rest), "max_penetration_m": float(world.solver.stats.get("max_penetration", 0.0)),
+            "piling_penetration_m": {"p99": float(np.percentile(penetration, 99)), "max": float(penetration.max())}}
 
 
 def main(argv=None) -> int:
@@ -201,22 +215,30 @@ def main(argv=None) -> int:
     ours(sleep=True).step()  # compile / load every kernel before timing
     run = side_by_side(FALL_S, REST_S)
     still = resting_creep(FALL_S, REST_S)
+    still_once = resting_creep(FALL_S, REST_S, "once_per_tick")
     probe_after = speed_probe()
     t = run["ticks"]
     print(f"speed probe (python loop): {probe_before['python_ms']:.1f} ms before, {probe_after['python_ms']:.1f} ms "
           "after", flush=True)
     print("100 convex hulls dropped onto a plane, ms per 1/60 s tick (4 x 1/240 s):")
     print(f"  {'':9s} {'0-3 s median':>13s} {'p99':>7s} {'3-8 s median':>13s} {'p99':>7s}")
-    for name in ("cgp_sim", "pybullet", "mujoco"):
+    for name in ("cgp_sim", "pybullet", "mujoco", ONCE):
         f, r = t[name]["fall"], t[name]["rest"]
         print(f"  {name:9s} {f['median']:13.2f} {f['p99']:7.2f} {r['median']:13.2f} {r['p99']:7.2f}")
+    print(f"  ({ONCE}: cgp_sim with contacts found once per tick, world.contact_detection: once_per_tick)")
     print(f"  cgp_sim, sleeping off, at rest (3-8 s): median {still['rest']['median']:.2f}, p99 "
-          f"{still['rest']['p99']:.2f}")
+          f"{still['rest']['p99']:.2f}; contacts once per tick {still_once['rest']['median']:.2f}, p99 "
+          f"{still_once['rest']['p99']:.2f}")
+    print("deepest penetration while piling, sleeping off (p99 of the ticks' / max), mm: every sub-step "
+          f"{still['piling_penetration_m']['p99'] * 1e3:.1f} / {still['piling_penetration_m']['max'] * 1e3:.1f}, "
+          f"once per tick {still_once['piling_penetration_m']['p99'] * 1e3:.1f} / "
+          f"{still_once['piling_penetration_m']['max'] * 1e3:.1f}")
     asleep = run["asleep_at_s"]
     print(f"cgp_sim's pile asleep at {asleep if asleep is None else round(asleep, 2)} s; contacts while piling "
           f"(median) {run['contacts_median_fall']:.0f}, max {run['contacts_max']}; lowest body {run['lowest_m']:.3f} m")
     print(f"resting creep 3-8 s (mean displacement): cgp_sim (sleeping off) {still['creep'] * 1e3:.3f} mm, MuJoCo "
-          f"{run['creep']['mujoco'] * 1e3:.3f} mm, PyBullet {run['creep']['pybullet'] * 1e3:.3f} mm")
+          f"{run['creep']['mujoco'] * 1e3:.3f} mm, PyBullet {run['creep']['pybullet'] * 1e3:.3f} mm; cgp_sim contacts "
+          f"once per tick {still_once['creep'] * 1e3:.3f} mm")
 
     ours_fall, pb_fall, mj_fall = (t[n]["fall"]["median"] for n in ("cgp_sim", "pybullet", "mujoco"))
     out.figure("convex_pile_fall_tick", "100 convex hulls falling and piling (first 3 s): cgp_sim median tick",
@@ -233,7 +255,13 @@ def main(argv=None) -> int:
                still["creep"] * 1e3, "mm", f"< MuJoCo's ({run['creep']['mujoco'] * 1e3:.3f} mm)",
                still["creep"] < run["creep"]["mujoco"], mujoco_mm=run["creep"]["mujoco"] * 1e3,
                pybullet_mm=run["creep"]["pybullet"] * 1e3)
-    out.data.update(side_by_side=run, sleeping_off=still, probe_before=probe_before, probe_after=probe_after)
+    once_fall = t[ONCE]["fall"]["median"]
+    out.figure("convex_pile_fall_once_vs_mujoco", "  ... contacts found once per tick (world.contact_detection: "
+               "once_per_tick): cgp_sim / MuJoCo (median tick, first 3 s)", once_fall / mj_fall, "x", "<= 2 (aim)",
+               once_fall / mj_fall <= 2.0, ms=once_fall, p99_ms=t[ONCE]["fall"]["p99"],
+               awake_rest_ms=still_once["rest"]["median"], creep_mm=still_once["creep"] * 1e3)
+    out.data.update(side_by_side=run, sleeping_off=still, sleeping_off_once_per_tick=still_once,
+                    probe_before=probe_before, probe_after=probe_after)
     print(f"wrote {out.write()}")
     return 0
 

@@ -52,6 +52,7 @@ from ..bodies import BodyModel, BodyState, Shape
 from ..jit import StageProfile, njit
 from .box_box import box_box_contacts
 from .broadphase import DEFAULT_BROAD_PHASE, get_broad_phase, grid_kernel, sweep_and_prune_kernel, sweep_and_prune_pairs
+from .carry import carried_contacts, carry
 from .contacts import FEATURE_SLOTS, GROUND, ContactSet
 from .convex_phase import (
     MESH_CANDIDATES,
@@ -86,6 +87,10 @@ from .primitives import CollisionModel, PrimitivePoses, build_collision_model, p
 #: default speculative distance [m]: contacts within this gap are kept even at rest, so a resting contact
 #: does not flicker in and out (and lose its warm-start impulse) with the solver's tiny residual motion
 DEFAULT_SPECULATIVE_DISTANCE = 0.002
+
+#: how far [m] a turn since the detection may move a body's farthest surface point before contacts carried through a
+#: tick (``world.contact_detection: once_per_tick``) are detected again (CollisionDetector._carried_hold)
+CARRY_TURN_TOLERANCE = 0.005
 
 #: up to this many primitives the broad phase tests every pair (compiled) whatever is configured
 SMALL_SCENE = 64
@@ -123,8 +128,8 @@ CONVEX_SPLIT_MIN_PAIRS = 64
 GROUND_PER_PAIR = 0.2
 
 #: the stages of :attr:`CollisionDetector.profile`, in order
-STAGES = ("bounds", "broad_phase", "narrow_phase", "convex_phase", "time_of_impact")
-BOUNDS, BROAD_PHASE, NARROW_PHASE, CONVEX_PHASE, TIME_OF_IMPACT = range(len(STAGES))
+STAGES = ("bounds", "broad_phase", "narrow_phase", "convex_phase", "time_of_impact", "carry")
+BOUNDS, BROAD_PHASE, NARROW_PHASE, CONVEX_PHASE, TIME_OF_IMPACT, CARRY = range(len(STAGES))
 
 
 class Pairs(NamedTuple):
@@ -172,6 +177,17 @@ class CollisionDetector:
         self._shapes: ShapeModel | None = None  # the convex stage's primitives (None: the model has none)
         self._plain_shapes: tuple = ()
         self._sweeps = None  # what sweep_fast_rotation needs from the last detect
+        #: ``world.contact_detection: once_per_tick`` (:mod:`.carry`): the sub-steps left in the tick, this one
+        #: included (the margins of a detection are sized for them), and whether the next :meth:`detect` may carry
+        #: the last one's contacts instead of detecting (World sets both for every sub-step: 1 and False by default)
+        self.substeps_left = 1
+        self.carry_next = False
+        #: a body of the carried contacts that turned since their detection so far that its farthest surface
+        #: point moved by more than this [m] has the sub-step detect again (:meth:`_carried_hold`)
+        self.carry_turn_tolerance = CARRY_TURN_TOLERANCE
+        #: (model, CarriedContacts, the fast-turn sweep's pairs or None, rotations (n, 3, 3) at the detection,
+        #: the bodies of the contacts (k,)) of the last detection, or None
+        self._carried = None
         #: the convex stage's BVH query scratch, kept from sub-step to sub-step (grown when a mesh pair needs it)
         self._candidates = np.empty(MESH_CANDIDATES, np.int64)
         self._candidates_beside = np.empty(MESH_CANDIDATES, np.int64)  # the second call's (CONVEX_SPLIT_MIN_PAIRS)
@@ -213,6 +229,80 @@ class CollisionDetector:
         and acts as static, and the contacts that touch one are reported in :attr:`touched_sleeping` (the
         caller wakes it: see :mod:`cgp_core.sleep`).
         """
+        R = state.rotation_matrices() if rotation is None else rotation
+        if self.carry_next and self._carried is not None and self._carried[0] is model:
+            turning = self._turning(R)
+            if not len(turning):
+                return self._carry(state, R)
+            return self._carry_and_detect(model, state, (h, ground, velocity, angular_velocity, active), R, turning)
+        contacts = self._detect(model, state, h * self.substeps_left, ground, velocity, angular_velocity, R, active)
+        self._carried = None
+        if self.substeps_left > 1:
+            fixed = self._cmodel.fixed_body
+            a, b = contacts.body_a, contacts.body_b
+            bodies = np.unique(np.concatenate([a[a >= 0], b]))
+            self._carried = (model, carry(contacts, state.position, R, fixed), self._sweep_pairs(None), np.array(R),
+                             bodies[~fixed[bodies]])
+        return contacts
+
+    def _sweep_pairs(self, otherwise):
+        """The fast-turn sweep's pairs (moving, static, poses) the last :meth:`_detect` armed, else ``otherwise``."""
+        sweeps = self._sweeps
+        return otherwise if sweeps is None else (sweeps[1], sweeps[2], sweeps[5])
+
+    def _turning(self, R: np.ndarray) -> np.ndarray:
+        """The bodies of the carried contacts that turned since their detection by an angle θ with θ · reach >
+        :attr:`carry_turn_tolerance` (at the rotations ``R (n, 3, 3)``).  A body that turns about one contact point
+        of a manifold brings other points of its surface to the other body — points the detection did not report,
+        as they were out of the margin then (a hull tumbling onto another sank 69 mm within a tick without this check
+        in the 100-hull pile): their pairs are detected again (:meth:`_carry_and_detect`).  Translation needs no
+        check: the margins cover the motion along the normal, and the carry moves the points with the bodies."""
+        R0, bodies = self._carried[3], self._carried[4]
+        if not len(bodies):
+            return bodies
+        # cos θ = (trace(R R0ᵀ) − 1) / 2, and trace(R R0ᵀ) = Σᵢⱼ Rᵢⱼ R0ᵢⱼ
+        cos_turn = 0.5 * (np.einsum("nij,nij->n", R[bodies], R0[bodies]) - 1.0)
+        reach = (self._shapes.body_reach if self._shapes is not None else self._cmodel.body_reach)[bodies]
+        return bodies[np.arccos(np.clip(cos_turn, -1.0, 1.0)) * reach > self.carry_turn_tolerance]
+
+    def _carry_and_detect(self, model: BodyModel, state: BodyState, asked: tuple, R: np.ndarray,
+                          turning: np.ndarray) -> ContactSet:
+        """The contacts of the bodies ``turning`` detected again (every pair with one of them, and their ground
+        contacts: the narrow and convex phases test only pairs with an *active* body), the others' carried; the
+        new ones carried from here on.  ``asked``: :meth:`detect`'s ``(h, ground, velocity, angular_velocity,
+        active)``.  A body that touches a turning one is not woken here (the tick's first sub-step does that)."""
+        h, ground, velocity, angular_velocity, active = asked
+        again = np.zeros(model.count, bool)
+        again[turning] = True
+        if active is not None:
+            again &= active
+        fresh = self._detect(model, state, h * self.substeps_left, ground, velocity, angular_velocity, R, again)
+        self.touched_sleeping = np.zeros(0, np.intp)  # (_detect takes the bodies not turning for sleeping ones)
+        old = self._carried
+        kept = old[1].select(~(np.isin(old[1].found.body_a, turning) | np.isin(old[1].found.body_b, turning)))
+        fixed = self._cmodel.fixed_body
+        merged = kept.concatenate(carry(fresh, state.position, R, fixed))
+        R0 = old[3].copy()
+        R0[turning] = R[turning]
+        a, b = fresh.body_a, fresh.body_b
+        bodies = np.unique(np.concatenate([old[4], a[a >= 0], b]))
+        self._carried = (model, merged, self._sweep_pairs(old[2]), R0, bodies[~fixed[bodies]])
+        return carried_contacts(merged, state.position, R)
+
+    def _carry(self, state: BodyState, R: np.ndarray) -> ContactSet:
+        """The last detection's contacts carried to the poses of ``state`` (rotations ``R``: :mod:`.carry`), and
+        the fast-turn sweep (:meth:`sweep_fast_rotation`) armed again for the pairs it found."""
+        start = time.perf_counter()
+        model, carried, sweep_pairs = self._carried[:3]
+        self.touched_sleeping = np.zeros(0, np.intp)
+        self._sweeps = None if sweep_pairs is None else (model, sweep_pairs[0], sweep_pairs[1], state.position.copy(),
+                                                          np.array(R), sweep_pairs[2])
+        contacts = carried_contacts(carried, state.position, R)
+        self.profile.add(CARRY, time.perf_counter() - start)
+        return contacts
+
+    def _detect(self, model, state, h, ground, velocity, angular_velocity, rotation, active) -> ContactSet:
+        """:meth:`detect`'s detection, margins sized for ``h`` seconds of motion."""
         cm = self.collision_model(model)
         self.touched_sleeping = np.zeros(0, np.intp)
         self._sweeps = None

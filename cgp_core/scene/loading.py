@@ -27,7 +27,7 @@ from .flocks import parse_flock, parse_flocks
 from .joints import parse_joints
 from .named_poses import parse_named_poses, parse_tags
 from .robots import articulation_spec, parse_robot, parse_robots
-from .specs import Scene, WorldSpec
+from .specs import CONTACT_DETECTION, Scene, WorldSpec
 from .validation import SceneError, Validator, kind_of
 
 #: the largest scene file (cgp_core.limits.MAX_FILE_BYTES); every other limit is in cgp_core.limits too
@@ -333,6 +333,9 @@ def parse_world(v: Validator, raw: Any) -> WorldSpec:
                                          DEFAULT_JOINT_INTEGRATOR)
     if "substeps" in d:
         spec.substeps = v.integer(d["substeps"], "world.substeps", minimum=1, maximum=1000, default=4)
+    if "contact_detection" in d:
+        spec.contact_detection = v.choice(d["contact_detection"], "world.contact_detection", list(CONTACT_DETECTION),
+                                          "every_substep")
     for key, top, unit in (("linear_damping", MAX_DAMPING, "1/s"), ("angular_damping", MAX_DAMPING, "1/s"),
                            ("rolling_resistance", MAX_ROLLING_RESISTANCE, "")):
         if key in d:

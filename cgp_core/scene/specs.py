@@ -12,6 +12,10 @@ from ..bodies import BodyModel, BodyState, CompoundParts, Shape, rigid_work
 from ..integrators import DEFAULT_INTEGRATOR
 from ..robots.joint_integrators import DEFAULT_JOINT_INTEGRATOR
 
+#: ``world.contact_detection``'s values: contacts found every sub-step (the default), or once per tick and carried
+#: through its sub-steps (cgp_core.collision.carry)
+CONTACT_DETECTION = ("every_substep", "once_per_tick")
+
 
 @dataclass
 class WorldSpec:
@@ -21,6 +25,9 @@ class WorldSpec:
     ground_restitution: float = 0.0
     integrator: str = DEFAULT_INTEGRATOR
     substeps: int = 4
+    #: ``every_substep`` (default) or ``once_per_tick``: the contacts found at a tick's first sub-step carried
+    #: through the others, their separations following the bodies' motion (cgp_core.collision.carry)
+    contact_detection: str = "every_substep"
     linear_damping: float = 0.0
     angular_damping: float = 0.0
     #: c_rr of every contact (cgp_core.solver.SolverSettings.rolling_resistance): 0.01, a rubber tyre on
