@@ -30,6 +30,9 @@ phases of the shared machine.  The speed probe (``common.speed_probe``) is taken
     .venv/bin/python benchmarks/bench_node_cost.py [--quick] [--before /work/main] [--only hulls300 pile default]
         [--no-subscriber-runs] [--realtime]
 
+``--only pile_awake pile_awake_once`` runs the pile with sleeping off (solved every sub-step at rest, as the peers
+are) with its contacts found every sub-step and once per tick (``world.contact_detection: once_per_tick``).
+
 Writes ``benchmarks/results/node_cost.json``.
 """
 
@@ -65,13 +68,15 @@ DEFAULT_WINDOWS_QUICK = {"running": (10, 150)}
 MARKER_TOPICS = ("/cgp_sim/markers", "/cgp_sim/static_markers")
 
 
-def pile_scene(path: Path) -> Path:
-    """bench_convex_pile's 100 hulls as a scene file (sleeping on, as by default)."""
+def pile_scene(path: Path, world: str = "") -> Path:
+    """bench_convex_pile's 100 hulls as a scene file (sleeping on, as by default); ``world``: more of its ``world:``
+    keys (e.g. ``sleep: false, contact_detection: once_per_tick``)."""
     sys.path.insert(1, str(HERE))
     from bench_convex_pile import FRICTION, SUBSTEPS, pile_hulls
 
     points, positions, orientations = pile_hulls()
-    lines = [f"world: {{substeps: {SUBSTEPS}, ground_friction: {FRICTION}, ground_restitution: 0.0}}", "bodies:"]
+    lines = [f"world: {{substeps: {SUBSTEPS}, ground_friction: {FRICTION}, ground_restitution: 0.0"
+             f"{', ' + world if world else ''}}}", "bodies:"]
     for n, (p, x, q) in enumerate(zip(points, positions, orientations)):
         pts = ", ".join(f"[{a:.6f}, {b:.6f}, {c:.6f}]" for a, b, c in p)
         lines.append(f"  - {{name: h{n}, shape: convex, mass: 1.0, friction: {FRICTION}, restitution: 0.0, "
@@ -342,7 +347,8 @@ def main(argv=None) -> int:
     parser.add_argument("--scene", default="default", help=argparse.SUPPRESS)
     parser.add_argument("--windows", default="{}", help=argparse.SUPPRESS)
     parser.add_argument("--with-subscriber", action="store_true", help=argparse.SUPPRESS)
-    parser.add_argument("--only", nargs="*", default=None, help="scenes of hulls300, pile, default")
+    parser.add_argument("--only", nargs="*", default=None,
+                        help="scenes of hulls300, pile, default (and the extras pile_awake, pile_awake_once)")
     parser.add_argument("--no-subscriber-runs", action="store_true", help="only the runs with a subscriber")
     parser.add_argument("--peers", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--realtime", action="store_true",
@@ -364,11 +370,16 @@ def main(argv=None) -> int:
     scene = str(pile_scene(workdir / "convex_pile.yaml"))
     versions = [("after", ROOT)] + ([("before", args.before.resolve())] if args.before else [])
     versions.reverse()  # before, then after, in each configuration
+    pile_windows = PILE_WINDOWS_QUICK if args.quick else PILE_WINDOWS
     configs = [("hulls300", str(hulls_scene(workdir)), HULLS_WINDOWS_QUICK if args.quick else HULLS_WINDOWS),
-               ("pile", scene, PILE_WINDOWS_QUICK if args.quick else PILE_WINDOWS),
+               ("pile", scene, pile_windows),
                ("default", "default", DEFAULT_WINDOWS_QUICK if args.quick else DEFAULT_WINDOWS)]
-    if args.only:
-        configs = [c for c in configs if c[0] in args.only]
+    # extras, only when --only names them: the pile with sleeping off (solved every sub-step at rest, as the peers
+    # are), its contacts found every sub-step and once per tick (world.contact_detection, cgp_core/collision/carry.py)
+    extras = [("pile_awake", str(pile_scene(workdir / "pile_awake.yaml", "sleep: false")), pile_windows),
+              ("pile_awake_once", str(pile_scene(workdir / "pile_awake_once.yaml",
+                                                 "sleep: false, contact_detection: once_per_tick")), pile_windows)]
+    configs = [c for c in configs + extras if c[0] in args.only] if args.only else configs
     rows = []
     print(f"speed probe before: {speed_probe()}", flush=True)
     for name, scene_arg, windows in configs:
@@ -389,21 +400,21 @@ def main(argv=None) -> int:
                     print(f"{'':31s} {w['node_us_per_body']:.1f} us/body; bag writer thread "
                           f"{w['writer_thread_ms']:.2f} ms/tick; stages (ms, median): "
                           + ", ".join(f"{k} {v:.2f}" for k, v in w["stages_ms"].items() if v >= 0.01), flush=True)
-        if name == "pile":  # issue 37: the tick through the node against the peers' in-process tick, this run
-            peers = run_peers(windows, workdir)
+        if name.startswith("pile"):  # issue 37: the tick through the node against the peers' in-process tick
+            peers = out.data.get("peers") or run_peers(windows, workdir)  # (once a run: the same pile for every one)
             out.data["peers"] = peers
             for window in windows:
                 for version, _ in versions:
                     ticks = [r["tick_ms"]["median"] for r in rows
-                             if r["scene"] == "pile" and r["window"] == window and r["version"] == version]
+                             if r["scene"] == name and r["window"] == window and r["version"] == version]
                     node_tick = float(np.median(ticks))
-                    line = (f"pile {window:8s} {version}: through the node "
+                    line = (f"{name} {window:8s} {version}: through the node "
                             f"({'real time: the tick' if args.realtime else 'batch: the spin'}) {node_tick:6.2f} ms")
                     for peer, figures in peers.items():
                         ratio = node_tick / figures[window]["median"]
                         line += f"; {peer} in process {figures[window]['median']:6.2f} ms ({ratio:.2f}x)"
-                        out.figure(f"pile_{window.replace(' ', '_')}_{version}_node_vs_{peer}",
-                                   f"the 100-hull pile {window}, tick through the node "
+                        out.figure(f"{name}_{window.replace(' ', '_')}_{version}_node_vs_{peer}",
+                                   f"the 100-hull pile ({name}) {window}, tick through the node "
                                    f"({'real time' if args.realtime else 'batch'}; {version}) / {peer}'s "
                                    "tick in process, same run", ratio, "x",
                                    "<= 0.7 (issue 37)" if peer == "pybullet" else "(reference)",

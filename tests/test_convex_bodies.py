@@ -222,17 +222,19 @@ def test_a_stack_of_ten_hulls_stands_for_ten_seconds():
     assert drift.max() <= 0.01 * 0.4, drift
 
 
+@pytest.mark.parametrize("detection", ["every_substep", "once_per_tick"])
 @pytest.mark.parametrize("mu, sticks", [(0.5, True), (0.2, False)])
-def test_a_hull_on_a_25_degree_ramp_sticks_or_slides_by_mu(mu, sticks):
+def test_a_hull_on_a_25_degree_ramp_sticks_or_slides_by_mu(mu, sticks, detection):
     """tan 25° = 0.466: with μ = 0.5 a hexagonal prism resting on a fixed ramp (a box) stays put; with μ = 0.2
-    it slides with a = g (sin θ − μ cos θ) (within 1 %), as the box does in tests/test_contacts.py."""
+    it slides with a = g (sin θ − μ cos θ) (within 1 %), as the box does in tests/test_contacts.py — with its
+    contacts found every sub-step and once per tick (``world.contact_detection``, cgp_core/collision/carry.py)."""
     theta = math.radians(25.0)
     q = quat_from_rotvec(np.array([0.0, -theta, 0.0]))
     normal = quat_rotate(q, np.array([0.0, 0.0, 1.0]))
     downhill = -quat_rotate(q, np.array([1.0, 0.0, 0.0]))
     start = np.array([0.0, 0.0, 1.0]) + normal * (0.1 + 0.05)
     w = world(f"""
-world: {{substeps: 4, sleep: false, ground: false}}
+world: {{substeps: 4, sleep: false, ground: false, contact_detection: {detection}}}
 bodies:
   - {{name: ramp, shape: box, size: [6, 2, 0.2], position: [0, 0, 1], orientation: {q.tolist()}, fixed: true,
      friction: {mu}}}
