@@ -44,11 +44,12 @@ def test_carried_to_the_poses_they_were_found_at_the_contacts_are_the_found_ones
         assert getattr(now, field) is getattr(contacts, field)
 
 
-def test_a_rigid_motion_of_both_bodies_keeps_the_separation_and_moves_the_point_with_them():
+def test_a_rigid_motion_carries_each_surface_point_with_its_body():
     """Every movable body turned by the same rotation Q about a point c and shifted by t (the fixed body and the
-    ground stay): a contact between two movable bodies keeps its separation exactly (both anchors land on the same
-    point, Q (p − c) + c + t); B's anchor is where a contact with a still A now is, and its separation moved by
-    n · (that point − p)."""
+    ground stay).  Each side's surface point, p ∓ (s/2) n, moves with its body; the separation is their gap along
+    the normal as found, n · (p_B − p_A): for two movable bodies s (n · Q n) — unchanged by the shift, and by a turn
+    about the normal — and the point the midway Q (p − c) + c + t; where A stays, the point is B's surface point
+    moved back by half the new gap."""
     rng = np.random.default_rng(2)
     contacts, position, rotation, fixed = random_contacts(rng)
     carried = carry(contacts, position, rotation, fixed)
@@ -58,16 +59,22 @@ def test_a_rigid_motion_of_both_bodies_keeps_the_separation_and_moves_the_point_
     moved_position[~fixed] = (position[~fixed] - c) @ Q.T + c + t
     moved_rotation[~fixed] = Q @ rotation[~fixed]
     now = carried_contacts(carried, moved_position, moved_rotation)
-    moved_point = (contacts.point - c) @ Q.T + c + t
+    n, s0, p = contacts.normal, contacts.separation, contacts.point
     both = (contacts.body_a != GROUND) & ~fixed[np.maximum(contacts.body_a, 0)]
     assert both.any() and (~both).any()
-    np.testing.assert_allclose(now.separation[both], contacts.separation[both], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(now.point[both], moved_point[both], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(now.separation[both], s0[both] * np.einsum("mk,kj,mj->m", n[both], Q, n[both]),
+                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(now.point[both], (p[both] - c) @ Q.T + c + t, rtol=0, atol=1e-12)
     still = ~both
-    np.testing.assert_allclose(now.point[still], moved_point[still], rtol=0, atol=1e-12)
-    expected = contacts.separation[still] + np.einsum("mk,mk->m", contacts.normal[still],
-                                                     moved_point[still] - contacts.point[still])
-    np.testing.assert_allclose(now.separation[still], expected, rtol=0, atol=1e-12)
+    surface_b = (p[still] + 0.5 * s0[still, None] * n[still] - c) @ Q.T + c + t
+    surface_a = p[still] - 0.5 * s0[still, None] * n[still]
+    gap = np.einsum("mk,mk->m", n[still], surface_b - surface_a)
+    np.testing.assert_allclose(now.separation[still], gap, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(now.point[still], surface_b - 0.5 * gap[:, None] * n[still], rtol=0, atol=1e-12)
+    shifted = position.copy()
+    shifted[~fixed] += t
+    np.testing.assert_allclose(carried_contacts(carried, shifted, rotation).separation[both], s0[both], rtol=0,
+                               atol=1e-12)
 
 
 def test_b_moved_along_the_normal_by_d_moves_the_separation_by_d():

@@ -1,18 +1,20 @@
 """Contacts found once per tick and carried through its sub-steps (``world.contact_detection: once_per_tick``).
 
 Box2D v3 finds its contacts once per step and relaxes them over the step's sub-steps: within the step each
-contact point is held by both bodies (an *anchor* fixed in each body's frame), and its separation follows the
-bodies' motion,
+contact point is held by both bodies and its separation follows the bodies' motion.  Here each side holds its own
+surface point — ``p_A = p₀ − (s₀/2) n`` on A, ``p_B = p₀ + (s₀/2) n`` on B, from the point ``p₀`` found midway
+between the surfaces at ``t₀`` — as an *anchor* fixed in its body's frame, ``r = R(t₀)ᵀ (p − x(t₀))``, and
 
-    s(t) = s₀ + n · ((x_B(t) + R_B(t) r_B) − (x_A(t) + R_A(t) r_A)),
+    s(t) = n · ((x_B(t) + R_B(t) r_B) − (x_A(t) + R_A(t) r_A)),
 
-where ``r_A = R_A(t₀)ᵀ (p₀ − x_A(t₀))`` and ``r_B`` likewise are the contact point ``p₀`` found at ``t₀`` in each
-body's own frame (both anchors start at the same point, so the bracket starts at zero), and the normal ``n`` is
-kept as found.  The point the solver takes both lever arms to (one point: the impulse pair conserves angular
-momentum, see :mod:`.contacts`) moves with the bodies: midway between the two anchors, or B's anchor where A does
-not move (the ground, a fixed body) — there A's lever arm does not matter, and the midpoint would trail a box
-sliding over the ground by half its slide.  Detection, ~40 % of a tick of the 100-hull pile, then runs once per
-tick instead of once per sub-step, for the bodies that do not turn.
+which is ``s₀`` at ``t₀``; the normal ``n`` is kept as found.  (Box2D v3 anchors both sides at the one midway
+point, which its 2 cm speculative margin keeps near the surfaces; here a fast body's margin can be metres — the
+`bullet` scene's hull is found 1 m before a wall — and a midway anchor carried with it would end up past the wall.)
+The point the solver takes both lever arms to (one point: the impulse pair conserves angular momentum, see
+:mod:`.contacts`) is midway between the two surface points, or B's moved back by half the gap along the normal
+where A does not move (the ground, a fixed body) — there A's lever arm does not matter, and the midpoint would trail
+a box sliding over the ground by half its slide.  Detection, ~40 % of a tick of the 100-hull pile, then runs once
+per tick instead of once per sub-step, for the bodies that do not turn.
 
 A body that turns changes which of its points touch: a hull turning about one point of its manifold brings other
 points of its surface to the other body, points the detection did not report (a hull tumbling onto another in the
@@ -62,31 +64,32 @@ class CarriedContacts(NamedTuple):
 
 
 def carry(contacts: ContactSet, position: np.ndarray, rotation: np.ndarray, fixed: np.ndarray) -> CarriedContacts:
-    """The anchors of ``contacts`` at the poses ``position (n, 3)``, ``rotation (n, 3, 3)`` they were found at;
-    ``fixed (n,)`` bool: the bodies that never move."""
+    """The anchors of ``contacts`` at the poses ``position (n, 3)``, ``rotation (n, 3, 3)`` they were found at:
+    each side's own surface point, p ∓ (s / 2) n; ``fixed (n,)`` bool: the bodies that never move."""
     a, b, p = contacts.body_a, contacts.body_b, contacts.point
-    # rᵀ = (p − x)ᵀ R  is  r = Rᵀ (p − x), row by row
-    anchor_b = np.einsum("mk,mkj->mj", p - position[b], rotation[b])
+    half_gap = 0.5 * contacts.separation[:, None] * contacts.normal
+    # r = Rᵀ (x_surface − x), row by row: rᵀ = (x_surface − x)ᵀ R
+    anchor_b = np.einsum("mk,mkj->mj", p + half_gap - position[b], rotation[b])
     on_body = a != GROUND
-    anchor_a = p.copy()
+    anchor_a = p - half_gap
     ia = a[on_body]
-    anchor_a[on_body] = np.einsum("mk,mkj->mj", p[on_body] - position[ia], rotation[ia])
+    anchor_a[on_body] = np.einsum("mk,mkj->mj", anchor_a[on_body] - position[ia], rotation[ia])
     a_still = ~on_body
     a_still[on_body] = fixed[ia]
     return CarriedContacts(contacts, anchor_a, anchor_b, a_still)
 
 
 def carried_contacts(carried: CarriedContacts, position: np.ndarray, rotation: np.ndarray) -> ContactSet:
-    """The carried contacts at the poses ``position (n, 3)``, ``rotation (n, 3, 3)`` now: each separation moved by
-    the anchors' relative displacement along the normal, each point midway between the anchors, or at B's where A
-    does not move (the module docstring); every other field as found."""
+    """The carried contacts at the poses ``position (n, 3)``, ``rotation (n, 3, 3)`` now: each separation the gap
+    between the two surface points along the normal, each point midway between them — or, where A does not move,
+    B's surface point moved back by half the gap (the module docstring); every other field as found."""
     found = carried.found
-    a, b = found.body_a, found.body_b
+    a, b, normal = found.body_a, found.body_b, found.normal
     point_b = position[b] + np.einsum("mkj,mj->mk", rotation[b], carried.anchor_b)
     point_a = carried.anchor_a.copy()
     on_body = a != GROUND
     ia = a[on_body]
     point_a[on_body] = position[ia] + np.einsum("mkj,mj->mk", rotation[ia], carried.anchor_a[on_body])
-    separation = found.separation + np.einsum("mk,mk->m", found.normal, point_b - point_a)
-    point = np.where(carried.a_still[:, None], point_b, 0.5 * (point_a + point_b))
+    separation = np.einsum("mk,mk->m", normal, point_b - point_a)
+    point = np.where(carried.a_still[:, None], point_b - 0.5 * separation[:, None] * normal, 0.5 * (point_a + point_b))
     return found._replace(separation=separation, point=point)
