@@ -231,9 +231,10 @@ class CollisionDetector:
         """
         R = state.rotation_matrices() if rotation is None else rotation
         if self.carry_next and self._carried is not None and self._carried[0] is model:
+            start = time.perf_counter()
             turning = self._turning(R)
             if not len(turning):
-                return self._carry(state, R)
+                return self._carry(state, R, start)
             return self._carry_and_detect(model, state, (h, ground, velocity, angular_velocity, active), R, turning)
         contacts = self._detect(model, state, h * self.substeps_left, ground, velocity, angular_velocity, R, active)
         self._carried = None
@@ -289,10 +290,10 @@ class CollisionDetector:
         self._carried = (model, merged, self._sweep_pairs(old[2]), R0, bodies[~fixed[bodies]])
         return carried_contacts(merged, state.position, R)
 
-    def _carry(self, state: BodyState, R: np.ndarray) -> ContactSet:
+    def _carry(self, state: BodyState, R: np.ndarray, start: float) -> ContactSet:
         """The last detection's contacts carried to the poses of ``state`` (rotations ``R``: :mod:`.carry`), and
-        the fast-turn sweep (:meth:`sweep_fast_rotation`) armed again for the pairs it found."""
-        start = time.perf_counter()
+        the fast-turn sweep (:meth:`sweep_fast_rotation`) armed again for the pairs it found; timed from ``start``
+        (the clock when :meth:`detect` began: the turn check is the ``carry`` stage's too)."""
         model, carried, sweep_pairs = self._carried[:3]
         self.touched_sleeping = np.zeros(0, np.intp)
         self._sweeps = None if sweep_pairs is None else (model, sweep_pairs[0], sweep_pairs[1], state.position.copy(),
