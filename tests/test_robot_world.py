@@ -122,14 +122,17 @@ def test_a_wrench_on_a_link_is_taken_by_the_joints_as_j_transpose_f():
         assert effort[k] - effort_bare[k] == pytest.approx(-column @ force, abs=1e-3), joint
 
 
-def _push_a_crate(**robot):
+def _push_a_crate(detection="every_substep", **robot):
     """The arm turning at 1 rad/s into a tall crate: the crate's displacement and the deepest contact per pair of
     kinds, (link, crate) and the others, over 1.5 s (the link contacts are in the report since the robot stage
-    adds its contacts to it).  ``robot``: more keys of the robot's entry."""
+    adds its contacts to it).  ``detection``: the scene's ``world.contact_detection``; ``robot``: more keys of the
+    robot's entry."""
     # the forearm slants down to ~0.2 m above the ground at 0.48 m out; a tall crate stands 0.35 rad ahead of it
     crate = {"name": "crate", "shape": "box", "size": [0.1, 0.1, 0.3], "mass": 0.3, "friction": 0.4,
              "position": [0.48 * np.cos(0.35), 0.48 * np.sin(0.35), 0.15]}
-    world = World(arm_scene(joints={"shoulder_lift": 1.2, "elbow": 1.3, "wrist": -0.3}, bodies=[crate], **robot))
+    scene = arm_scene(joints={"shoulder_lift": 1.2, "elbow": 1.3, "wrist": -0.3}, bodies=[crate], **robot)
+    scene.world.contact_detection = detection
+    world = World(scene)
     start = world.body_state.position[world.body_model.index("crate")].copy()
     world.robots.command("arm", ["shoulder_pan"], velocity=[1.0])
     world.report_contacts = True
@@ -146,10 +149,15 @@ def _push_a_crate(**robot):
     return world.body_state.position[world.body_model.index("crate")] - start, deepest
 
 
-def test_the_turning_arm_pushes_a_crate_and_never_sinks_into_it():
-    moved, deepest = _push_a_crate()
+@pytest.mark.parametrize("detection", ["every_substep", "once_per_tick"])
+def test_the_turning_arm_pushes_a_crate_and_never_sinks_into_it(detection):
+    """With the contacts found every sub-step, and once per tick: the forearm turns by ~1 mm of its reach a
+    sub-step, under the 5 mm that has a turning body detected again, so its contacts with the crate are carried
+    through each tick with the link the joint moves (cgp_core/collision/carry.py)."""
+    moved, deepest = _push_a_crate(detection)
     assert np.linalg.norm(moved[:2]) > 0.05, moved
     assert deepest["other"] > -0.01, deepest
+    assert deepest["link"] > -0.002, deepest
 
 
 @pytest.mark.parametrize("integrator", ["semi_implicit_euler", "gauss_legendre_4"])

@@ -89,7 +89,7 @@ from .primitives import CollisionModel, PrimitivePoses, build_collision_model, p
 DEFAULT_SPECULATIVE_DISTANCE = 0.002
 
 #: how far [m] a turn since the detection may move a body's farthest surface point before contacts carried through a
-#: tick (``world.contact_detection: once_per_tick``) are detected again (CollisionDetector._carried_hold)
+#: tick (``world.contact_detection: once_per_tick``) are detected again (CollisionDetector._turning)
 CARRY_TURN_TOLERANCE = 0.005
 
 #: up to this many primitives the broad phase tests every pair (compiled) whatever is configured
@@ -183,7 +183,7 @@ class CollisionDetector:
         self.substeps_left = 1
         self.carry_next = False
         #: a body of the carried contacts that turned since their detection so far that its farthest surface
-        #: point moved by more than this [m] has the sub-step detect again (:meth:`_carried_hold`)
+        #: point moved by more than this [m] has its pairs detected again (:meth:`_turning`)
         self.carry_turn_tolerance = CARRY_TURN_TOLERANCE
         #: (model, CarriedContacts, the fast-turn sweep's pairs or None, rotations (n, 3, 3) at the detection,
         #: the bodies of the contacts (k,)) of the last detection, or None
