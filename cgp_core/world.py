@@ -223,6 +223,7 @@ class World:
         #: ``world.contact_detection``: contacts found every sub-step, or once per tick and carried through its
         #: sub-steps (cgp_core.collision.carry)
         self.contacts_once_per_tick = scene.world.contact_detection == "once_per_tick"
+        self.solver.detector.carrying = self.contacts_once_per_tick
         # a scene file's own sub-steps were checked when it was loaded; these may be the caller's (the node's)
         refusal = rigid_work_refusal(*scene.rigid_work(), self.substeps)
         if refusal:
@@ -298,13 +299,13 @@ class World:
                 for k in range(self.substeps):
                     self.wrenches.apply(state)
                     if self.contacts_once_per_tick:  # (cgp_core.collision.carry)
-                        self.solver.detector.carry_next, self.solver.detector.substeps_left = k > 0, self.substeps - k
+                        self.solver.detector.carry_next = k > 0
                     contacts = step_bodies(model, state, self.integrator, self.solver, h, gravity=self.gravity,
                                            ground=self.ground, damping=(self.scene.world.linear_damping,
                                                                         self.scene.world.angular_damping),
                                            islands=islands,
                                            robots=self.robots)
-                self.solver.detector.carry_next, self.solver.detector.substeps_left = False, 1  # (between ticks)
+                self.solver.detector.carry_next = False  # (a detect between ticks detects)
             if self.robots is not None:
                 self.robots.end_tick()
             if self.report_contacts:

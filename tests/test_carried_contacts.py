@@ -1,10 +1,12 @@
 """``world.contact_detection: once_per_tick`` (cgp_core/collision/carry.py): contacts found at a tick's first
-sub-step and carried through the others, each separation following the bodies' motion along the normal.  The
-kinematics of the carry against their definition (a rigid motion of both bodies leaves a separation as it is; B
-moved along the normal by d moves it by d), then the physics of a world that detects once per tick against the
-closed forms the every-sub-step tests use (a stack stands; a dropped box rebounds to e² of its height; the hull on a
-ramp that sticks or slides by μ is tests/test_convex_bodies.py's, in both modes), piling hulls sink no deeper than
-with every sub-step's detection, and what the mode is for: one detection per tick."""
+sub-step and carried through the others — each side's surface point with its body, the separation their gap along
+the normal — for the bodies that did not move by more than half the speculative distance; those that did are
+detected again.  The kinematics of the carry against its definition, then the physics of a world that detects once
+per tick against the closed forms the every-sub-step tests use (a stack stands; a dropped box rebounds to e² of its
+height; the hull on a ramp that sticks or slides by μ, the bullets stopped by a thin wall and the arm pushing a crate
+are tests/test_convex_bodies.py's, test_convex_scenes.py's and test_robot_world.py's, in both modes), piling hulls
+sink no deeper than with every sub-step's detection, and what the mode is for: a resting stack detected once a
+tick."""
 
 from __future__ import annotations
 
@@ -165,9 +167,11 @@ def hull_pile_scene(mode: str, count: int) -> str:
     return "\n".join(lines) + "\n"
 
 
-def test_a_body_turning_within_the_tick_has_the_sub_step_detect_again():
-    """A hull resting on the ground, its contacts carried: turned afterwards by θ with θ · reach just under the
-    detector's ``carry_turn_tolerance`` the next sub-step carries them (no detection), just over it detects."""
+@pytest.mark.parametrize("motion", ["shift", "turn"])
+def test_a_body_that_moved_within_the_tick_has_its_contacts_detected_again(motion):
+    """A hull resting on the ground, its contacts carried: moved afterwards — shifted sideways, or turned about the
+    vertical — so that its surface moved by just under the carry tolerance (half the speculative distance: |Δx| +
+    θ · reach), the next sub-step carries its contacts (no detection); just over it, it detects them again."""
     w = world(f"""
 world: {{substeps: 4, sleep: false, contact_detection: once_per_tick}}
 bodies:
@@ -177,32 +181,36 @@ bodies:
         w.step()
     detector = w.solver.detector
     reach = detector.shape_model(w.body_model).body_reach[0]
+    tolerance = 0.5 * detector.speculative_distance
     start = w.body_state.copy()
     counted = []
     for share in (0.8, 1.2):
         state = start.copy()
-        turn = quat_from_rotvec(np.array([0.0, 0.0, share * detector.carry_turn_tolerance / reach]))
-        state.orientation[0] = quat_multiply(turn, start.orientation[0])
+        if motion == "shift":
+            state.position[0, 0] += share * tolerance
+        else:
+            turn = quat_from_rotvec(np.array([0.0, 0.0, share * tolerance / reach]))
+            state.orientation[0] = quat_multiply(turn, start.orientation[0])
         w.body_state = state
-        detector.carry_next, detector.substeps_left = True, 3
+        detector.carry_next = True
         calls = detector.profile.calls
         contacts = detector.detect(w.body_model, state, w.dt / 4, ground=w.ground)
         counted.append(detector.profile.calls - calls)
         assert contacts.count >= 3
-    detector.carry_next, detector.substeps_left = False, 1
+    detector.carry_next = False
     assert counted == [0, 1]
 
 
 def test_hulls_piling_with_contacts_found_once_per_tick_sink_no_deeper_than_found_every_sub_step():
     """Fifty hulls of the benchmark's pile dropped in two layers (2.5 s): with contacts once per tick, the deepest
-    penetration of any tick is within 2 mm of every-sub-step detection's.  Without the re-detection of a turning
-    body (``carry_turn_tolerance`` = ∞) hulls tumbling onto others within a tick sink several mm deeper — what the
-    check is for."""
+    penetration of any tick is within 2 mm of every-sub-step detection's.  Carrying every body's contacts through
+    the tick however it moves (``carry_tolerance`` = ∞) lets hulls fall into others several mm deeper — what the
+    re-detection of the bodies that moved is for."""
     deepest = {}
     for mode, tolerance in (("every_substep", None), ("once_per_tick", None), ("once_per_tick", np.inf)):
         w = world(hull_pile_scene(mode, 50), dt=1 / 60)
         if tolerance is not None:
-            w.solver.detector.carry_turn_tolerance = tolerance
+            w.solver.detector.carry_tolerance = tolerance
         worst = 0.0
         for _ in range(150):
             w.step()

@@ -151,9 +151,9 @@ def _push_a_crate(detection="every_substep", **robot):
 
 @pytest.mark.parametrize("detection", ["every_substep", "once_per_tick"])
 def test_the_turning_arm_pushes_a_crate_and_never_sinks_into_it(detection):
-    """With the contacts found every sub-step, and once per tick: the forearm turns by ~1 mm of its reach a
-    sub-step, under the 5 mm that has a turning body detected again, so its contacts with the crate are carried
-    through each tick with the link the joint moves (cgp_core/collision/carry.py)."""
+    """With the contacts found every sub-step, and once per tick (cgp_core/collision/carry.py: the links the joints
+    move are bodies like the others — the crate and the links at rest carried, the turning forearm detected again
+    in every sub-step)."""
     moved, deepest = _push_a_crate(detection)
     assert np.linalg.norm(moved[:2]) > 0.05, moved
     assert deepest["other"] > -0.01, deepest

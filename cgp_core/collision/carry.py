@@ -9,28 +9,27 @@ between the surfaces at ``t₀`` — as an *anchor* fixed in its body's frame, `
 
 which is ``s₀`` at ``t₀``; the normal ``n`` is kept as found.  (Box2D v3 anchors both sides at the one midway
 point, which its 2 cm speculative margin keeps near the surfaces; here a fast body's margin can be metres — the
-`bullet` scene's hull is found 1 m before a wall — and a midway anchor carried with it would end up past the wall.)
+`bullet` scene's hull is found 1 m before a wall — and a midway anchor carried with it ended up past the wall.)
 The point the solver takes both lever arms to (one point: the impulse pair conserves angular momentum, see
 :mod:`.contacts`) is midway between the two surface points, or B's moved back by half the gap along the normal
 where A does not move (the ground, a fixed body) — there A's lever arm does not matter, and the midpoint would trail
-a box sliding over the ground by half its slide.  Detection, ~40 % of a tick of the 100-hull pile, then runs once
-per tick instead of once per sub-step, for the bodies that do not turn.
+a box sliding over the ground by half its slide.
 
-A body that turns changes which of its points touch: a hull turning about one point of its manifold brings other
-points of its surface to the other body, points the detection did not report (a hull tumbling onto another in the
-100-hull pile sank 69 mm within a tick), and a ball's body-fixed bottom point rises by r (1 − cos θ) as it rolls
-by θ.  So a body of the carried contacts that turned since their detection by θ with θ · reach above the detector's
-``carry_turn_tolerance`` (5 mm) has its pairs and ground contacts detected again in that sub-step, and carried from
-there (:meth:`.detector.CollisionDetector._carry_and_detect`); the others stay carried.  Translation needs no
-such check: the margins are sized for the rest of the tick's motion, ``(|v| + |ω| reach)`` times the time left in
-it (:mod:`.detector`), and the carry moves the points with the bodies.
+When they are carried.  The tick's first sub-step detects as every sub-step does by default (margins for one
+sub-step's motion).  The others carry its contacts as long as no movable body's surface may have moved since by
+more than half the speculative distance — |Δx| + θ · reach — and detect everything again (and carry that) once one
+has (:meth:`.detector.CollisionDetector._moved`).  Carrying then misses no contact a detection in every sub-step
+would find: each side's margin holds at least the speculative distance (one margin against the ground), and two
+bodies that each moved by at most half of it closed their gap by less.  The turn matters as much as the shift: a
+hull turning about one point of its manifold brings other points of its surface to the other body — carrying every
+contact through the tick unchecked (margins sized for the whole tick), a hull tumbling onto another in the 100-hull
+pile sank 69 mm.  So while anything moves, the sub-steps detect as by default (the same contacts, the same bits);
+only a world at rest — awake: a sleeping island is not stepped at all — carries its contacts.  (Detecting again only
+the pairs of the bodies that moved, and sorting their new contacts in among the carried ones, was tried: in numpy it
+cost more than it saved while a pile piled.)
 
-What it costs in physics (why it is a choice, not the default): a pair that was not within its margin at the
-detection has no contact until the next one, and a body whose velocity grows within the tick (an impact) can outrun
-its margin; a point that slides off an edge or a face within the tick keeps its normal and its feature until the
-next detection; a sleeping island an awake body reaches within the tick wakes at the next tick (meanwhile it is
-static to the awake bodies, its contact holding them off).  A body's own motion within a sub-step is what the
-integrator gives, as before.  Measured: benchmarks/README.md, "Contacts once per tick".
+What differs from detecting every sub-step, at rest: a body's points are up to a tick old (its motion within the
+tolerance).  Measured: benchmarks/README.md, "Contacts once per tick".
 
 The ground's side (``body_a`` = ``GROUND``) has its anchor in world coordinates (the plane does not move); a fixed
 body's pose does not change, so its anchor stays where it was found.
@@ -52,15 +51,6 @@ class CarriedContacts(NamedTuple):
     anchor_a: np.ndarray     # (m, 3) [m] — the point in A's body frame (world coordinates for the ground)
     anchor_b: np.ndarray     # (m, 3) [m] — the point in B's body frame
     a_still: np.ndarray      # (m,) bool — A does not move (the ground or a fixed body): the point is B's anchor
-
-    def select(self, mask: np.ndarray) -> CarriedContacts:
-        """The contacts ``mask (m,)`` picks, with their anchors."""
-        return CarriedContacts(self.found.select(mask), self.anchor_a[mask], self.anchor_b[mask], self.a_still[mask])
-
-    def concatenate(self, other: CarriedContacts) -> CarriedContacts:
-        """These contacts, then ``other``'s."""
-        return CarriedContacts(ContactSet(*(np.concatenate(pair) for pair in zip(self.found, other.found))),
-                               *(np.concatenate(pair) for pair in zip(self[1:], other[1:])))
 
 
 def carry(contacts: ContactSet, position: np.ndarray, rotation: np.ndarray, fixed: np.ndarray) -> CarriedContacts:

@@ -52,7 +52,7 @@ from ..bodies import BodyModel, BodyState, Shape
 from ..jit import StageProfile, njit
 from .box_box import box_box_contacts
 from .broadphase import DEFAULT_BROAD_PHASE, get_broad_phase, grid_kernel, sweep_and_prune_kernel, sweep_and_prune_pairs
-from .carry import carried_contacts, carry
+from .carry import CarriedContacts, carried_contacts, carry
 from .contacts import FEATURE_SLOTS, GROUND, ContactSet
 from .convex_phase import (
     MESH_CANDIDATES,
@@ -88,9 +88,11 @@ from .primitives import CollisionModel, PrimitivePoses, build_collision_model, p
 #: does not flicker in and out (and lose its warm-start impulse) with the solver's tiny residual motion
 DEFAULT_SPECULATIVE_DISTANCE = 0.002
 
-#: how far [m] a turn since the detection may move a body's farthest surface point before contacts carried through a
-#: tick (``world.contact_detection: once_per_tick``) are detected again (CollisionDetector._turning)
-CARRY_TURN_TOLERANCE = 0.005
+#: contacts carried through a tick (``world.contact_detection: once_per_tick``): once a body's surface may have moved
+#: by more than this share of the speculative distance since the contacts were detected, they are detected again
+#: (CollisionDetector._moved).  Half: two bodies then close by less than one speculative distance, less than the sum
+#: of their margins (each at least one), so no pair that a detection in every sub-step finds is missed
+CARRY_SHARE = 0.5
 
 #: up to this many primitives the broad phase tests every pair (compiled) whatever is configured
 SMALL_SCENE = 64
@@ -177,16 +179,17 @@ class CollisionDetector:
         self._shapes: ShapeModel | None = None  # the convex stage's primitives (None: the model has none)
         self._plain_shapes: tuple = ()
         self._sweeps = None  # what sweep_fast_rotation needs from the last detect
-        #: ``world.contact_detection: once_per_tick`` (:mod:`.carry`): the sub-steps left in the tick, this one
-        #: included (the margins of a detection are sized for them), and whether the next :meth:`detect` may carry
-        #: the last one's contacts instead of detecting (World sets both for every sub-step: 1 and False by default)
-        self.substeps_left = 1
+        #: ``world.contact_detection: once_per_tick`` (:mod:`.carry`): whether a detection keeps its contacts to
+        #: carry (World sets it for such a world), and whether the next :meth:`detect` carries them instead of
+        #: detecting (World sets it for every sub-step but a tick's first)
+        self.carrying = False
         self.carry_next = False
-        #: a body of the carried contacts that turned since their detection so far that its farthest surface
-        #: point moved by more than this [m] has its pairs detected again (:meth:`_turning`)
-        self.carry_turn_tolerance = CARRY_TURN_TOLERANCE
-        #: (model, CarriedContacts, the fast-turn sweep's pairs or None, rotations (n, 3, 3) at the detection,
-        #: the bodies of the contacts (k,)) of the last detection, or None
+        #: how far [m] a body's surface may have moved since the contacts were detected before :meth:`detect`
+        #: detects them again (:meth:`_moved`); None: :data:`CARRY_SHARE` of the speculative distance
+        self.carry_tolerance: float | None = None
+        #: (model, its contacts — a ContactSet, or once a sub-step carried them the CarriedContacts —, the fast-turn
+        #: sweep's pairs or None, the positions (n, 3) and rotations (n, 3, 3) at the detection, the movable bodies
+        #: (k,)) of the last detection, or None
         self._carried = None
         #: the convex stage's BVH query scratch, kept from sub-step to sub-step (grown when a mesh pair needs it)
         self._candidates = np.empty(MESH_CANDIDATES, np.int64)
@@ -232,69 +235,53 @@ class CollisionDetector:
         R = state.rotation_matrices() if rotation is None else rotation
         if self.carry_next and self._carried is not None and self._carried[0] is model:
             start = time.perf_counter()
-            turning = self._turning(R)
-            if not len(turning):
+            if not self._moved(state.position, R):
                 return self._carry(state, R, start)
-            return self._carry_and_detect(model, state, (h, ground, velocity, angular_velocity, active), R, turning)
-        contacts = self._detect(model, state, h * self.substeps_left, ground, velocity, angular_velocity, R, active)
+            # a body moved: everything is detected again, as at a tick's first sub-step (detecting again only the
+            # pairs of the bodies that moved, and sorting their new contacts in among the carried ones, cost more in
+            # numpy than it saved while a pile piles: 100 hulls 19 % slower than detecting every sub-step)
+        contacts = self._detect(model, state, h, ground, velocity, angular_velocity, R, active)
         self._carried = None
-        if self.substeps_left > 1:
-            fixed = self._cmodel.fixed_body
-            a, b = contacts.body_a, contacts.body_b
-            bodies = np.unique(np.concatenate([a[a >= 0], b]))
-            self._carried = (model, carry(contacts, state.position, R, fixed), self._sweep_pairs(None), np.array(R),
-                             bodies[~fixed[bodies]])
+        if self.carrying:  # (the anchors only when a sub-step carries them: _anchored)
+            sweeps = self._sweeps  # (the fast-turn sweep's pairs: moving, static, poses)
+            self._carried = (model, contacts, None if sweeps is None else (sweeps[1], sweeps[2], sweeps[5]),
+                             state.position.copy(), np.array(R), np.flatnonzero(~self._cmodel.fixed_body))
         return contacts
 
-    def _sweep_pairs(self, otherwise):
-        """The fast-turn sweep's pairs (moving, static, poses) the last :meth:`_detect` armed, else ``otherwise``."""
-        sweeps = self._sweeps
-        return otherwise if sweeps is None else (sweeps[1], sweeps[2], sweeps[5])
+    def _anchored(self) -> CarriedContacts:
+        """The carried contacts with their anchors, computed at the first sub-step that carries them after a
+        detection (at the poses of that detection, ``_carried``'s positions and rotations)."""
+        carried = self._carried
+        if isinstance(carried[1], ContactSet):
+            carried = self._carried = (carried[0], carry(carried[1], carried[3], carried[4], self._cmodel.fixed_body),
+                                       *carried[2:])
+        return carried[1]
 
-    def _turning(self, R: np.ndarray) -> np.ndarray:
-        """The bodies of the carried contacts that turned since their detection by an angle θ with θ · reach >
-        :attr:`carry_turn_tolerance` (at the rotations ``R (n, 3, 3)``).  A body that turns about one contact point
-        of a manifold brings other points of its surface to the other body — points the detection did not report,
-        as they were out of the margin then (a hull tumbling onto another sank 69 mm within a tick without this check
-        in the 100-hull pile): their pairs are detected again (:meth:`_carry_and_detect`).  Translation needs no
-        check: the margins cover the motion along the normal, and the carry moves the points with the bodies."""
-        R0, bodies = self._carried[3], self._carried[4]
+    def _moved(self, position: np.ndarray, R: np.ndarray) -> bool:
+        """Whether a movable body's surface may have moved since the contacts' detection by more than the carry
+        tolerance (:attr:`carry_tolerance`): |Δx| + θ · reach, at the positions ``position (n, 3)`` and rotations
+        ``R (n, 3, 3)`` now.  If none did, carrying them misses no contact: a detection's margins hold at least the
+        speculative distance on each side (one for the ground), and two bodies that each moved by at most half of it
+        closed their gap by less.  The turn matters as much as the shift: a hull turning about one point of its
+        manifold brings other points of its surface to the other body, points the detection did not report
+        (carrying every contact through the tick, margins sized for the whole tick, a hull tumbling onto another in
+        the 100-hull pile sank 69 mm)."""
+        X0, R0, bodies = self._carried[3], self._carried[4], self._carried[5]
         if not len(bodies):
-            return bodies
+            return False
         # cos θ = (trace(R R0ᵀ) − 1) / 2, and trace(R R0ᵀ) = Σᵢⱼ Rᵢⱼ R0ᵢⱼ
         cos_turn = 0.5 * (np.einsum("nij,nij->n", R[bodies], R0[bodies]) - 1.0)
         reach = (self._shapes.body_reach if self._shapes is not None else self._cmodel.body_reach)[bodies]
-        return bodies[np.arccos(np.clip(cos_turn, -1.0, 1.0)) * reach > self.carry_turn_tolerance]
-
-    def _carry_and_detect(self, model: BodyModel, state: BodyState, asked: tuple, R: np.ndarray,
-                          turning: np.ndarray) -> ContactSet:
-        """The contacts of the bodies ``turning`` detected again (every pair with one of them, and their ground
-        contacts: the narrow and convex phases test only pairs with an *active* body), the others' carried; the
-        new ones carried from here on.  ``asked``: :meth:`detect`'s ``(h, ground, velocity, angular_velocity,
-        active)``.  A body that touches a turning one is not woken here (the tick's first sub-step does that)."""
-        h, ground, velocity, angular_velocity, active = asked
-        again = np.zeros(model.count, bool)
-        again[turning] = True
-        if active is not None:
-            again &= active
-        fresh = self._detect(model, state, h * self.substeps_left, ground, velocity, angular_velocity, R, again)
-        self.touched_sleeping = np.zeros(0, np.intp)  # (_detect takes the bodies not turning for sleeping ones)
-        old = self._carried
-        kept = old[1].select(~(np.isin(old[1].found.body_a, turning) | np.isin(old[1].found.body_b, turning)))
-        fixed = self._cmodel.fixed_body
-        merged = kept.concatenate(carry(fresh, state.position, R, fixed))
-        R0 = old[3].copy()
-        R0[turning] = R[turning]
-        a, b = fresh.body_a, fresh.body_b
-        bodies = np.unique(np.concatenate([old[4], a[a >= 0], b]))
-        self._carried = (model, merged, self._sweep_pairs(old[2]), R0, bodies[~fixed[bodies]])
-        return carried_contacts(merged, state.position, R)
+        shift = np.linalg.norm(position[bodies] - X0[bodies], axis=1)
+        tolerance = CARRY_SHARE * self.speculative_distance if self.carry_tolerance is None else self.carry_tolerance
+        return bool((shift + np.arccos(np.clip(cos_turn, -1.0, 1.0)) * reach > tolerance).any())
 
     def _carry(self, state: BodyState, R: np.ndarray, start: float) -> ContactSet:
         """The last detection's contacts carried to the poses of ``state`` (rotations ``R``: :mod:`.carry`), and
         the fast-turn sweep (:meth:`sweep_fast_rotation`) armed again for the pairs it found; timed from ``start``
-        (the clock when :meth:`detect` began: the turn check is the ``carry`` stage's too)."""
-        model, carried, sweep_pairs = self._carried[:3]
+        (the clock when :meth:`detect` began: the motion check is the ``carry`` stage's too)."""
+        carried = self._anchored()
+        model, sweep_pairs = self._carried[0], self._carried[2]
         self.touched_sleeping = np.zeros(0, np.intp)
         self._sweeps = None if sweep_pairs is None else (model, sweep_pairs[0], sweep_pairs[1], state.position.copy(),
                                                           np.array(R), sweep_pairs[2])

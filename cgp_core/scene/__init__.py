@@ -15,8 +15,8 @@ addition: a key given twice in one mapping is an error, not silently "the last o
       ground_restitution: 0.0          # e of the ground
       integrator: implicit_midpoint    # explicit_euler | symplectic_euler | rk4 | implicit_midpoint
       substeps: 4                      # physics sub-steps per tick (the node's `substeps` overrides)
-      contact_detection: every_substep # | once_per_tick: found at a tick's first sub-step, carried through the
-                                       # others (cgp_core.collision.carry)
+      contact_detection: every_substep # | once_per_tick: a tick's first sub-step's contacts carried through the
+                                       # others while nothing moves (cgp_core.collision.carry)
       linear_damping: 0.0              # 1/s
       angular_damping: 0.0             # 1/s
       rolling_resistance: 0.01         # c_rr of every contact: a rolling ball slows at (5/7) c_rr g

@@ -13,7 +13,7 @@ from ..integrators import DEFAULT_INTEGRATOR
 from ..robots.joint_integrators import DEFAULT_JOINT_INTEGRATOR
 
 #: ``world.contact_detection``'s values: contacts found every sub-step (the default), or once per tick and carried
-#: through its sub-steps (cgp_core.collision.carry)
+#: through its sub-steps while nothing moves (cgp_core.collision.carry)
 CONTACT_DETECTION = ("every_substep", "once_per_tick")
 
 
@@ -26,7 +26,7 @@ class WorldSpec:
     integrator: str = DEFAULT_INTEGRATOR
     substeps: int = 4
     #: ``every_substep`` (default) or ``once_per_tick``: the contacts found at a tick's first sub-step carried
-    #: through the others, their separations following the bodies' motion (cgp_core.collision.carry)
+    #: through the others while no body moved by more than 1 mm (cgp_core.collision.carry)
     contact_detection: str = "every_substep"
     linear_damping: float = 0.0
     angular_damping: float = 0.0
