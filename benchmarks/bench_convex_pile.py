@@ -14,10 +14,10 @@ bodies from 3 s to 8 s — of cgp_sim with sleeping off (solved every sub-step, 
 PyBullet's; that run's per-tick time at rest too.  The same pile once more with ``world.contact_detection:
 once_per_tick`` (cgp_core/collision/carry.py): a fourth world stepped in the same loop (the ``once/tick`` row), and
 the sleeping-off rest run again in that mode, with the deepest penetration of each while piling.  The speed probe
-(``common.speed_probe``) is printed beside them.  cgp_sim's kernels are loaded from numba's cache before the first tick, as the node loads them
-(``cgp_core.warmup.load_kernels_for`` and a throwaway copy's tick): without it the first ticks that run a kernel load
-it (tick 0 ~115 ms, the first contact ~50 ms, the first sub-step of 256 contacts ~115 ms), and those are the p99 of
-the 180 piling ticks.
+(``common.speed_probe``) is printed beside them.  cgp_sim's kernels are loaded from numba's cache before the first
+tick, as the node loads them (``cgp_core.warmup.load_kernels_for`` and a throwaway copy's tick): without it the
+first ticks that run a kernel load it (tick 0 ~115 ms, the first contact ~50 ms, the first sub-step of 256 contacts
+~115 ms), and those are the p99 of the 180 piling ticks.
 
     .venv/bin/python benchmarks/bench_convex_pile.py [--quick]
 """
