@@ -220,10 +220,9 @@ class World:
                              restitution=scene.world.ground_restitution) if scene.world.ground else None
         self.integrator = make_integrator(scene.world.integrator)
         self.solver = make_solver(rolling_resistance=scene.world.rolling_resistance)
-        #: ``world.contact_detection``: contacts found every sub-step, or once per tick and carried through its
-        #: sub-steps (cgp_core.collision.carry)
-        self.contacts_once_per_tick = scene.world.contact_detection == "once_per_tick"
-        self.solver.detector.carrying = self.contacts_once_per_tick
+        # ``world.contact_detection``: contacts found every sub-step, or once per tick and carried through its
+        # sub-steps (cgp_core.collision.carry)
+        self.solver.detector.carrying = scene.world.contact_detection == "once_per_tick"
         # a scene file's own sub-steps were checked when it was loaded; these may be the caller's (the node's)
         refusal = rigid_work_refusal(*scene.rigid_work(), self.substeps)
         if refusal:
@@ -295,17 +294,18 @@ class World:
                 self.solver.start_report()
                 if self.robots is not None:  # the link contacts are solved (and summed) in the robot stage
                     self.robots.start_report(model.count)
+            detector = self.solver.detector
             with np.errstate(over="ignore", invalid="ignore"):
                 for k in range(self.substeps):
                     self.wrenches.apply(state)
-                    if self.contacts_once_per_tick:  # (cgp_core.collision.carry)
-                        self.solver.detector.carry_next = k > 0
+                    if detector.carrying:  # (cgp_core.collision.carry)
+                        detector.carry_next = k > 0
                     contacts = step_bodies(model, state, self.integrator, self.solver, h, gravity=self.gravity,
                                            ground=self.ground, damping=(self.scene.world.linear_damping,
                                                                         self.scene.world.angular_damping),
                                            islands=islands,
                                            robots=self.robots)
-                self.solver.detector.carry_next = False  # (a detect between ticks detects)
+                detector.carry_next = False  # (a detect between ticks detects)
             if self.robots is not None:
                 self.robots.end_tick()
             if self.report_contacts:

@@ -134,6 +134,17 @@ STAGES = ("bounds", "broad_phase", "narrow_phase", "convex_phase", "time_of_impa
 BOUNDS, BROAD_PHASE, NARROW_PHASE, CONVEX_PHASE, TIME_OF_IMPACT, CARRY = range(len(STAGES))
 
 
+class _Detection(NamedTuple):
+    """What a detection leaves for the sub-steps that carry its contacts (``world.contact_detection:
+    once_per_tick``, :mod:`.carry`)."""
+
+    model: BodyModel                        # the body model it was made for
+    contacts: ContactSet | CarriedContacts  # its contacts; with their anchors once a sub-step has carried them
+    sweep_pairs: tuple | None               # the fast-turn sweep's (moving, static, shape poses), or None
+    position: np.ndarray                    # (n, 3) [m] the bodies' positions at the detection
+    rotation: np.ndarray                    # (n, 3, 3) their rotations
+
+
 class Pairs(NamedTuple):
     """Candidate primitive pairs (their AABBs overlap), ``q`` of them."""
 
@@ -187,10 +198,8 @@ class CollisionDetector:
         #: how far [m] a body's surface may have moved since the contacts were detected before :meth:`detect`
         #: detects them again (:meth:`_moved`); None: :data:`CARRY_SHARE` of the speculative distance
         self.carry_tolerance: float | None = None
-        #: (model, its contacts — a ContactSet, or once a sub-step carried them the CarriedContacts —, the fast-turn
-        #: sweep's pairs or None, the positions (n, 3) and rotations (n, 3, 3) at the detection, the movable bodies
-        #: (k,)) of the last detection, or None
-        self._carried = None
+        #: the last detection's :class:`_Detection` while :attr:`carrying`, else None
+        self._carried: _Detection | None = None
         #: the convex stage's BVH query scratch, kept from sub-step to sub-step (grown when a mesh pair needs it)
         self._candidates = np.empty(MESH_CANDIDATES, np.int64)
         self._candidates_beside = np.empty(MESH_CANDIDATES, np.int64)  # the second call's (CONVEX_SPLIT_MIN_PAIRS)
@@ -233,7 +242,7 @@ class CollisionDetector:
         caller wakes it: see :mod:`cgp_core.sleep`).
         """
         R = state.rotation_matrices() if rotation is None else rotation
-        if self.carry_next and self._carried is not None and self._carried[0] is model:
+        if self.carry_next and self._carried is not None and self._carried.model is model:
             start = time.perf_counter()
             if not self._moved(state.position, R):
                 return self._carry(state, R, start)
@@ -243,19 +252,19 @@ class CollisionDetector:
         contacts = self._detect(model, state, h, ground, velocity, angular_velocity, R, active)
         self._carried = None
         if self.carrying:  # (the anchors only when a sub-step carries them: _anchored)
-            sweeps = self._sweeps  # (the fast-turn sweep's pairs: moving, static, poses)
-            self._carried = (model, contacts, None if sweeps is None else (sweeps[1], sweeps[2], sweeps[5]),
-                             state.position.copy(), np.array(R), np.flatnonzero(~self._cmodel.fixed_body))
+            sweeps = self._sweeps
+            self._carried = _Detection(model, contacts, None if sweeps is None else (sweeps[1], sweeps[2], sweeps[5]),
+                                       state.position.copy(), np.array(R))
         return contacts
 
     def _anchored(self) -> CarriedContacts:
         """The carried contacts with their anchors, computed at the first sub-step that carries them after a
-        detection (at the poses of that detection, ``_carried``'s positions and rotations)."""
-        carried = self._carried
-        if isinstance(carried[1], ContactSet):
-            carried = self._carried = (carried[0], carry(carried[1], carried[3], carried[4], self._cmodel.fixed_body),
-                                       *carried[2:])
-        return carried[1]
+        detection (at the poses of that detection)."""
+        found = self._carried
+        if isinstance(found.contacts, ContactSet):
+            found = self._carried = found._replace(contacts=carry(found.contacts, found.position, found.rotation,
+                                                                  self._cmodel.fixed_body))
+        return found.contacts
 
     def _moved(self, position: np.ndarray, R: np.ndarray) -> bool:
         """Whether a movable body's surface may have moved since the contacts' detection by more than the carry
@@ -266,13 +275,11 @@ class CollisionDetector:
         manifold brings other points of its surface to the other body, points the detection did not report
         (carrying every contact through the tick, margins sized for the whole tick, a hull tumbling onto another in
         the 100-hull pile sank 69 mm)."""
-        X0, R0, bodies = self._carried[3], self._carried[4], self._carried[5]
-        if not len(bodies):
-            return False
+        X0, R0 = self._carried.position, self._carried.rotation  # (a fixed body's terms are zero)
         # cos θ = (trace(R R0ᵀ) − 1) / 2, and trace(R R0ᵀ) = Σᵢⱼ Rᵢⱼ R0ᵢⱼ
-        cos_turn = 0.5 * (np.einsum("nij,nij->n", R[bodies], R0[bodies]) - 1.0)
-        reach = (self._shapes.body_reach if self._shapes is not None else self._cmodel.body_reach)[bodies]
-        shift = np.linalg.norm(position[bodies] - X0[bodies], axis=1)
+        cos_turn = 0.5 * (np.einsum("nij,nij->n", R, R0) - 1.0)
+        reach = self._shapes.body_reach if self._shapes is not None else self._cmodel.body_reach
+        shift = np.linalg.norm(position - X0, axis=1)
         tolerance = CARRY_SHARE * self.speculative_distance if self.carry_tolerance is None else self.carry_tolerance
         return bool((shift + np.arccos(np.clip(cos_turn, -1.0, 1.0)) * reach > tolerance).any())
 
@@ -281,7 +288,7 @@ class CollisionDetector:
         the fast-turn sweep (:meth:`sweep_fast_rotation`) armed again for the pairs it found; timed from ``start``
         (the clock when :meth:`detect` began: the motion check is the ``carry`` stage's too)."""
         carried = self._anchored()
-        model, sweep_pairs = self._carried[0], self._carried[2]
+        model, sweep_pairs = self._carried.model, self._carried.sweep_pairs
         self.touched_sleeping = np.zeros(0, np.intp)
         self._sweeps = None if sweep_pairs is None else (model, sweep_pairs[0], sweep_pairs[1], state.position.copy(),
                                                           np.array(R), sweep_pairs[2])
