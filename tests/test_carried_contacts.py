@@ -167,6 +167,29 @@ def hull_pile_scene(mode: str, count: int) -> str:
     return "\n".join(lines) + "\n"
 
 
+def test_a_body_whose_state_went_non_finite_has_the_sub_step_detect_again():
+    """A blown-up body (its position NaN within the tick; World resets it after the tick) is not carried: the
+    sub-step detects, which leaves it out of every pair — no NaN gap is handed to the bodies it touched."""
+    w = world(f"""
+world: {{substeps: 4, sleep: false, contact_detection: once_per_tick}}
+bodies:
+  - {{name: puck, shape: convex, points: {prism_points(8, 0.1, 0.05)}, mass: 1.0, position: [0, 0, 0.05]}}
+  - {{name: lid, shape: convex, points: {prism_points(8, 0.1, 0.05)}, mass: 1.0, position: [0, 0, 0.15]}}
+""", dt=1 / 60)
+    for _ in range(30):
+        w.step()
+    detector = w.solver.detector
+    state = w.body_state.copy()
+    state.position[1] = np.nan
+    detector.carry_next = True
+    calls = detector.profile.calls
+    contacts = detector.detect(w.body_model, state, w.dt / 4, ground=w.ground)
+    detector.carry_next = False
+    assert detector.profile.calls == calls + 1
+    assert contacts.count and np.isfinite(contacts.separation).all()
+    assert not (contacts.body_b == 1).any() and not (contacts.body_a == 1).any()
+
+
 @pytest.mark.parametrize("motion", ["shift", "turn"])
 def test_a_body_that_moved_within_the_tick_has_its_contacts_detected_again(motion):
     """A hull resting on the ground, its contacts carried: moved afterwards — shifted sideways, or turned about the

@@ -281,7 +281,9 @@ class CollisionDetector:
         reach = self._shapes.body_reach if self._shapes is not None else self._cmodel.body_reach
         shift = np.linalg.norm(position - X0, axis=1)
         tolerance = CARRY_SHARE * self.speculative_distance if self.carry_tolerance is None else self.carry_tolerance
-        return bool((shift + np.arccos(np.clip(cos_turn, -1.0, 1.0)) * reach > tolerance).any())
+        # (not ≤: a body whose state went non-finite within the tick counts as moved, and the detection that follows
+        # leaves it out of every pair, as every sub-step's detection does, rather than carry NaN gaps to its partners)
+        return not bool((shift + np.arccos(np.clip(cos_turn, -1.0, 1.0)) * reach <= tolerance).all())
 
     def _carry(self, state: BodyState, R: np.ndarray, start: float) -> ContactSet:
         """The last detection's contacts carried to the poses of ``state`` (rotations ``R``: :mod:`.carry`), and
