@@ -5,7 +5,7 @@ stepped in separate processes, one importing ``cgp_core`` from each tree, and th
 with ``np.array_equal`` tick by tick.
 
     .venv/bin/python tools/compare_trees.py bits  [--old ee7b2f6] [--ticks 300]
-    .venv/bin/python tools/compare_trees.py speed [--old ee7b2f6] [--rounds 5]
+    .venv/bin/python tools/compare_trees.py speed [--old ee7b2f6] [--rounds 5] [--paired]
     .venv/bin/python tools/compare_trees.py compile [--old ee7b2f6]
 
 ``--old`` is a git revision (exported with ``git archive`` into a temporary directory) or the path of a tree;
@@ -21,8 +21,10 @@ every flock's positions, velocities and orientations, and the contact count.
 
 ``speed`` — per round and tree, one child process per case, the rounds interleaved old / new / new / old ...:
 the default scene's bodies (5 bodies, sleep off; the dispatch overhead of the compiled calls matters most there),
-bench_rigid's 200-body pile, the built-in sphere_pile, and a 15k-boid flock step (bench_boids' scene); the
-median tick of each, with ``benchmarks/common.py: speed_probe`` before each child.  ``compile`` — the cold
+the default scene as ``make run`` steps it (its fish too), bench_rigid's 200-body pile, the built-in sphere_pile,
+and a 15k-boid flock step (bench_boids' scene); the median tick of each, with ``benchmarks/common.py: speed_probe``
+before each child; ``--paired``: one long-lived child per tree and case instead, the two timing the same steps in
+turn, ``--rounds`` pairs.  ``compile`` — the cold
 compile (``python -m cgp_core.warmup`` with an empty ``NUMBA_CACHE_DIR``), old and new alternately.
 """
 
@@ -250,7 +252,7 @@ def compare_bits(old: Path, new: Path, cases: list[str], ticks: int, scratch: Pa
 
 
 # the speed cases (child side): a world and its name; timed tick by tick after a warm-up
-SPEED_CASES = ("default_bodies", "pile", "sphere_pile", "boids_15k")
+SPEED_CASES = ("default_bodies", "default", "pile", "sphere_pile", "boids_15k")
 
 
 def speed_stepper(case: str):
@@ -264,6 +266,8 @@ def speed_stepper(case: str):
         world.flocks = []
         world.sleep_enabled = False
         return world.step, 60, 600
+    if case == "default":  # what `make run` steps: the default scene as it is, its 300 fish and sleeping on
+        return World(load_scene("default")).step, 0, 300
     if case == "pile":
         return World(parse_scene(pile_scene())).step, 0, 240
     if case == "sphere_pile":  # the built-in scene (~2,500 contacts, one-point manifolds: the regions' case)
@@ -295,6 +299,22 @@ def run_speed(case: str) -> None:
                       "probe": probe}))
 
 
+def run_chunks(case: str) -> None:
+    """``speed --paired``'s child: for each line ``go`` on stdin, the case built afresh, warmed up and timed over its
+    steps; prints the mean ms a step."""
+    print("ready", flush=True)
+    for line in sys.stdin:
+        if line.strip() != "go":
+            break
+        step, warm, steps = speed_stepper(case)
+        for _ in range(max(warm, 3)):
+            step()
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            step()
+        print((time.perf_counter() - t0) / steps * 1e3, flush=True)
+
+
 def _probe(probes: list[dict]) -> str:
     return (f"{np.median([p['numpy_ms'] for p in probes]):.1f}/"
             f"{np.median([p['python_ms'] for p in probes]):.1f}")
@@ -316,6 +336,48 @@ def compare_speed(old: Path, new: Path, rounds: int, cases: list[str]) -> dict:
         print(f"{case:15s} old {old_ms:8.3f} ms  new {new_ms:8.3f} ms  new/old {new_ms / old_ms:5.3f} "
               f"(per round {' '.join(f'{x:.3f}' for x in ratios)}); speed probe numpy/python ms: old "
               f"{_probe(row['probe_old'])}, new {_probe(row['probe_new'])}")
+    return table
+
+
+def compare_paired(old: Path, new: Path, rounds: int, cases: list[str]) -> dict:
+    """``speed --paired``: per case, one long-lived child per tree, the two timing the same steps in turn (old, new,
+    new, old ...; ``rounds`` pairs), so that a slow phase of the machine falls on both sides of a pair.  Per-round
+    child processes (the plain ``speed``) saw per-round ratios of 0.72-1.33 for one unchanged case on this machine;
+    pairs of chunks taken seconds apart resolve a few per cent."""
+    sys.path.insert(0, str(HERE / "benchmarks"))
+    from common import speed_probe
+
+    table: dict = {}
+    for case in cases:
+        probe = speed_probe()
+        kids = {}
+        for label, tree in (("old", old), ("new", new)):
+            env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "CGP_SIM_JIT_ONLY")}
+            env["PYTHONPATH"] = str(tree)
+            kids[label] = subprocess.Popen([sys.executable, "-P", str(Path(__file__).resolve()), "_chunks", case],
+                                           cwd=str(tree), env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                           text=True)
+        try:
+            for kid in kids.values():
+                if kid.stdout.readline().strip() != "ready":
+                    raise RuntimeError(f"{case}: a child did not start")
+            times: dict = {"old": [], "new": []}
+            for r in range(rounds):
+                for label in (("old", "new") if r % 2 == 0 else ("new", "old")):
+                    kids[label].stdin.write("go\n")
+                    kids[label].stdin.flush()
+                    times[label].append(float(kids[label].stdout.readline()))
+        finally:
+            for kid in kids.values():
+                kid.kill()
+                kid.wait()
+        o, n = np.array(times["old"]), np.array(times["new"])
+        ratios = n / o
+        table[case] = {"old_ms": o.tolist(), "new_ms": n.tolist(), "probe": probe}
+        print(f"{case:15s} old {np.median(o):8.4f} ms  new {np.median(n):8.4f} ms a step (medians of {rounds}); "
+              f"new/old: median of the pairs {np.median(ratios):.3f}, of the best {n.min() / o.min():.3f}, "
+              f"pairs where new is faster {np.mean(ratios < 1):.0%}; speed probe numpy/python ms before "
+              f"{probe['numpy_ms']:.1f}/{probe['python_ms']:.1f}", flush=True)
     return table
 
 
@@ -352,6 +414,9 @@ def main(argv: list[str]) -> int:
     if argv and argv[0] == "_speed":
         run_speed(argv[1])
         return 0
+    if argv and argv[0] == "_chunks":
+        run_chunks(argv[1])
+        return 0
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("what", choices=("bits", "speed", "compile"))
     parser.add_argument("--old", default="ee7b2f6", help="git revision or tree directory (default ee7b2f6)")
@@ -360,6 +425,9 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--cases", nargs="*", default=None,
                         help=f"bits: a subset of {', '.join(CASES)}; speed: of {', '.join(SPEED_CASES)}")
     parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--paired", action="store_true",
+                        help="speed: one long-lived child per tree and case, timing the same steps in turn "
+                             "(--rounds pairs; 20-30 resolve a few per cent on this machine)")
     parser.add_argument("--scratch", default=None, help="where the exported tree and the results go (default: a "
                                                         "temporary directory, removed afterwards)")
     args = parser.parse_args(argv)
@@ -370,7 +438,9 @@ def main(argv: list[str]) -> int:
         print(f"old: {old}\nnew: {new}", flush=True)
         if args.what == "bits":
             return 0 if compare_bits(old, new, args.cases or list(CASES), args.ticks, scratch) else 1
-        if args.what == "speed":
+        if args.what == "speed" and args.paired:
+            compare_paired(old, new, args.rounds, args.cases or list(SPEED_CASES))
+        elif args.what == "speed":
             compare_speed(old, new, args.rounds, args.cases or list(SPEED_CASES))
         else:
             compare_compile(old, new, args.rounds)
