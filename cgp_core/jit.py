@@ -426,6 +426,36 @@ def _box_arrays_from_constants() -> None:
 _box_arrays_from_constants()
 
 
+# ---- a slice assignment's shape mismatch: numba's fixed message, not one formatted by compiled string code --------
+#
+# Wherever a kernel assigns an array to a slice (``out[i, :] = v``), numba 0.68 compiles the error raised when the
+# shapes differ, and its CPU version formats both shapes into the message with compiled string code (f-strings,
+# ``str.join``, ``repr`` of integers: some twenty of numba's unicode functions), compiled in every worker that has
+# such a kernel and linked into every kernel that calls one: ~10 s of own compile CPU over every kernel's warm-up
+# (``bench_compile.py``, issue 34), for an error that is a bug of ours if it ever happens.  Here the CPU target uses
+# numba's own generic-target version, which raises ``ValueError("cannot assign slice from input of different
+# size")`` without the shapes (the same exception type; under ``NUMBA_DISABLE_JIT`` numpy's message, with them).
+# Left as numba has it where its overloads differ.
+
+def _plain_shape_mismatch_error() -> None:
+    from numba.core.typing import templates
+    from numba.np import arrayobj
+
+    stub = getattr(arrayobj, "raise_with_shape_context", None)
+    formatted = getattr(arrayobj, "ol_raise_with_shape_context_cpu", None)
+    plain = getattr(arrayobj, "ol_raise_with_shape_context_generic", None)
+    if stub is None or formatted is None or plain is None:
+        return
+    for function, function_type in templates.builtin_registry.globals:
+        if function is stub:
+            for template in getattr(function_type, "templates", ()):
+                if getattr(template, "_overload_func", None) is formatted and not template.__dict__.get("_impl_cache"):
+                    template._overload_func = plain
+
+
+_plain_shape_mismatch_error()
+
+
 def njit(*args, **options):
     """``numba.njit`` with cgp_core's defaults (see the module docstring); use as ``@njit`` or ``@njit(...)``."""
     settings = {**_DEFAULTS, **options}

@@ -523,6 +523,25 @@ def test_numbas_inliner_and_flags_patches_keep_numbas_results(tmp_path):
     assert twice(x) == twice.py_func(x)
 
 
+def test_a_slice_assignments_shape_error_is_numbas_plain_one_and_compiles_no_string_code():
+    """cgp_core.jit's third compile-time patch (issue 34): a slice assignment whose shapes differ raises numba's
+    generic-target ValueError, so no kernel compiles (and links) numba's string formatting for that message."""
+    from numba import njit
+
+    @njit
+    def put(out, row):
+        out[0, :] = row
+        return out
+
+    assert put(np.zeros((2, 3)), np.arange(3.0)).tolist() == [[0.0, 1.0, 2.0], [0.0, 0.0, 0.0]]
+    with pytest.raises(ValueError, match="cannot assign slice from input of different size"):
+        put(np.zeros((2, 3)), np.arange(4.0))
+    with pytest.raises(ValueError):  # numpy's own, plain Python
+        put.py_func(np.zeros((2, 3)), np.arange(4.0))
+    code = "".join(put.inspect_llvm().values())
+    assert "unicode" not in code and "raise_with_shape_context" in code
+
+
 SAVER = r"""
 import os, sys, time
 sys.path[:0] = [sys.argv[1], sys.argv[2]]
