@@ -67,6 +67,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import inspect
 import os
 import re
 import sys
@@ -400,8 +401,13 @@ def _box_arrays_from_constants() -> None:
 
     boxers = getattr(getattr(pythonapi, "_boxers", None), "functions", None)
     original = boxers.get(types.Array) if isinstance(boxers, dict) else None
-    if original is not getattr(boxing, "box_array", None) or not hasattr(pythonapi.PythonAPI, "_get_function"):
-        return  # a numba whose boxing differs: left alone
+    try:
+        adapt_source = inspect.getsource(pythonapi.PythonAPI.nrt_adapt_ndarray_to_python)
+    except (AttributeError, OSError, TypeError):
+        return
+    if (original is not getattr(boxing, "box_array", None) or not hasattr(pythonapi.PythonAPI, "_get_function")
+            or "NRT_adapt_ndarray_to_python_acqref" not in adapt_source or "captures(none)" not in adapt_source):
+        return  # a numba whose boxing differs (the C function, its signature, the attribute LLVM takes): left alone
 
     def box_array(typ, val, c):
         if not c.context.enable_nrt or c.env_manager is None:
