@@ -342,8 +342,8 @@ PARTS: tuple[CompilePart, ...] = (
     # issue 25's shapes: ~60 s of compiling on an idle core (GJK, EPA, the manifolds and the stage that calls them
     # all), more than any other part; it calls the sphere / box / capsule kernels too (compiled here as well)
     # (after "contacts": the sphere / box / capsule kernels it calls are that part's, ~25 s of CPU that both
-    # workers compiled side by side on a cold cache, issue 34; so the workers run one per CPU, contacts first, and
-    # the other parts keep the other CPUs busy meanwhile: compile_in_parallel)
+    # workers compiled side by side on a cold cache, issue 34; so the workers run one more than the CPUs at a time,
+    # the chains' heads first, and the other parts keep the CPUs busy meanwhile: compile_in_parallel)
     CompilePart("convex", _CONVEX_MODULES + _CONTACT_MODULES,
                 ("cgp_core.collision.convex_phase:convex_phase", "cgp_core.collision.convex_phase:sweep_times"),
                 steps_flocks=False, default_scene=False, after=("contacts",), cpu_s=54.0),
@@ -412,8 +412,13 @@ def _sigint_deferred():
 
 
 def worker_slots() -> int:
-    """How many compile workers run at once when some wait for others: one per CPU this process may use."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    """How many compile workers run at once when some wait for others: one more than the CPUs this process may use
+    (a worker's imports and its plain-Python scenario steps leave its CPU part idle; and a third worker keeps both
+    CPUs busy while the last one runs).  Measured on 2 CPUs, every kernel cold, three pairs alternated (2026-12-07
+    19:56-20:10 UTC, probe python 10.7-11.7 ms): 3 slots 127.6 / 126.1 / 135.6 s against 2 slots 130.7 / 135.6 /
+    144.3 s (issue 34; when one slot per CPU was chosen the parts were smaller and the convex part the longest)."""
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return cpus + 1
 
 
 def _chain_s(part: CompilePart, parts: list[CompilePart]) -> float:
@@ -430,9 +435,10 @@ def compile_in_parallel(parts: list[CompilePart], worker_module: str, *worker_ar
 
     Order: a part starts once the parts it comes :attr:`~CompilePart.after`, among those given, have finished.
     When none waits for another, every worker starts at once (they share the CPUs and end about together).  When
-    some do, at most :func:`worker_slots` run at a time (one per CPU), the longest chain of waiting parts first
-    (by :attr:`~CompilePart.cpu_s`): more workers than CPUs would slow the chain's head — the contacts part,
-    which the convex part waits for — and with it the end of the whole compile (issue 34)."""
+    some do, at most :func:`worker_slots` run at a time (one more than the CPUs), the longest chain of waiting
+    parts first (by :attr:`~CompilePart.cpu_s`): every worker at once would slow the chains' heads — the contacts
+    and solver parts, which the convex and robots parts wait for — and with them the end of the whole compile
+    (issue 34)."""
     root = str(Path(__file__).resolve().parents[1])  # the directory cgp_core (and cgp_sim_ros) was imported from
     python_path = os.pathsep.join([root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
     names = {part.name for part in parts}

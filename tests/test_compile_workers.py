@@ -306,7 +306,7 @@ def test_a_part_after_another_starts_once_that_ones_worker_has_finished(tmp_path
         "time.sleep(0.2)\n"
         "(out / f'{name}.end').touch()\n")
     monkeypatch.setenv("PYTHONPATH", str(tmp_path))
-    monkeypatch.setattr(warmup, "worker_slots", lambda: 2)  # (a part waits: one worker per CPU, here 2)
+    monkeypatch.setattr(warmup, "worker_slots", lambda: 2)  # (a part waits: worker_slots() at a time, here 2)
     parts = [warmup.CompilePart("first", ("cgp_core",), ()),
              warmup.CompilePart("second", ("cgp_core",), (), after=("first",)),
              warmup.CompilePart("free", ("cgp_core",), ()),
@@ -318,7 +318,7 @@ def test_a_part_after_another_starts_once_that_ones_worker_has_finished(tmp_path
     assert stamp["free.start"] <= stamp["first.end"]
 
 
-def test_with_a_part_that_waits_one_worker_runs_per_cpu_the_longest_chain_first(tmp_path, monkeypatch):
+def test_with_a_part_that_waits_at_most_worker_slots_run_the_longest_chain_first(tmp_path, monkeypatch):
     """When a part waits for another, at most worker_slots() workers run at once, and the head of the longest
     chain (by CompilePart.cpu_s: contacts, then convex after it) starts first, the shorter parts after it."""
     from cgp_core import warmup
