@@ -67,7 +67,6 @@ from __future__ import annotations
 
 import copy
 import functools
-import inspect
 import os
 import re
 import sys
@@ -401,12 +400,10 @@ def _box_arrays_from_constants() -> None:
 
     boxers = getattr(getattr(pythonapi, "_boxers", None), "functions", None)
     original = boxers.get(types.Array) if isinstance(boxers, dict) else None
-    try:
-        adapt_source = inspect.getsource(pythonapi.PythonAPI.nrt_adapt_ndarray_to_python)
-    except (AttributeError, OSError, TypeError):
-        return
+    # (the strings numba's own boxing uses, read from its code's constants: no source file read at every import)
+    adapt = getattr(getattr(pythonapi.PythonAPI, "nrt_adapt_ndarray_to_python", None), "__code__", None)
     if (original is not getattr(boxing, "box_array", None) or not hasattr(pythonapi.PythonAPI, "_get_function")
-            or "NRT_adapt_ndarray_to_python_acqref" not in adapt_source or "captures(none)" not in adapt_source):
+            or adapt is None or not {"NRT_adapt_ndarray_to_python_acqref", "captures(none)"} <= set(adapt.co_consts)):
         return  # a numba whose boxing differs (the C function, its signature, the attribute LLVM takes): left alone
 
     def box_array(typ, val, c):
