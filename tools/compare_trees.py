@@ -214,11 +214,21 @@ def tree_of(spec: str, scratch: Path) -> Path:
     return target
 
 
-def child(tree: Path, args: list[str], env: dict | None = None, timeout: float = 3600) -> subprocess.CompletedProcess:
+def tree_environment(tree: Path, **extra: str) -> dict:
+    """This process's environment for a child that imports ``tree`` only (``PYTHONPATH``), plus ``extra``."""
     environment = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "CGP_SIM_JIT_ONLY")}
-    environment.update(env or {}, PYTHONPATH=str(tree))
-    done = subprocess.run([sys.executable, "-P", str(Path(__file__).resolve()), *args], env=environment,
-                          capture_output=True, text=True, timeout=timeout, cwd=str(tree))
+    environment.update(extra, PYTHONPATH=str(tree))
+    return environment
+
+
+def child_command(args: list[str]) -> list[str]:
+    """This script run as a child with ``args`` (``-P``: the tree on ``PYTHONPATH``, not the checkout, is imported)."""
+    return [sys.executable, "-P", str(Path(__file__).resolve()), *args]
+
+
+def child(tree: Path, args: list[str], env: dict | None = None, timeout: float = 3600) -> subprocess.CompletedProcess:
+    done = subprocess.run(child_command(args), env=tree_environment(tree, **(env or {})), capture_output=True,
+                          text=True, timeout=timeout, cwd=str(tree))
     if done.returncode != 0:
         raise RuntimeError(f"child {args} in {tree} failed:\n{done.stderr[-4000:]}")
     return done
@@ -282,13 +292,19 @@ def speed_stepper(case: str):
     raise ValueError(case)
 
 
+def warmed_stepper(case: str):
+    """:func:`speed_stepper`'s step, already taken its warm-up steps (at least 3), and how many steps to time."""
+    step, warm, steps = speed_stepper(case)
+    for _ in range(max(warm, 3)):
+        step()
+    return step, steps
+
+
 def run_speed(case: str) -> None:
     sys.path.insert(0, str(HERE / "benchmarks"))
     from common import speed_probe
 
-    step, warm, steps = speed_stepper(case)
-    for _ in range(max(warm, 3)):
-        step()
+    step, steps = warmed_stepper(case)
     probe = speed_probe()
     times = np.empty(steps)
     for k in range(steps):
@@ -306,9 +322,7 @@ def run_chunks(case: str) -> None:
     for line in sys.stdin:
         if line.strip() != "go":
             break
-        step, warm, steps = speed_stepper(case)
-        for _ in range(max(warm, 3)):
-            step()
+        step, steps = warmed_stepper(case)
         t0 = time.perf_counter()
         for _ in range(steps):
             step()
@@ -352,11 +366,8 @@ def compare_paired(old: Path, new: Path, rounds: int, cases: list[str]) -> dict:
         probe = speed_probe()
         kids = {}
         for label, tree in (("old", old), ("new", new)):
-            env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "CGP_SIM_JIT_ONLY")}
-            env["PYTHONPATH"] = str(tree)
-            kids[label] = subprocess.Popen([sys.executable, "-P", str(Path(__file__).resolve()), "_chunks", case],
-                                           cwd=str(tree), env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                           text=True)
+            kids[label] = subprocess.Popen(child_command(["_chunks", case]), cwd=str(tree), env=tree_environment(tree),
+                                           stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
         try:
             for kid in kids.values():
                 if kid.stdout.readline().strip() != "ready":
@@ -392,9 +403,8 @@ def compare_compile(old: Path, new: Path, rounds: int) -> dict:
             with tempfile.TemporaryDirectory() as cache:
                 probe = speed_probe()
                 t0 = time.perf_counter()
-                environment = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "CGP_SIM_JIT_ONLY")}
-                environment.update(PYTHONPATH=str(tree), NUMBA_CACHE_DIR=cache)
-                done = subprocess.run([sys.executable, "-P", "-m", "cgp_core.warmup"], env=environment, cwd=str(tree),
+                done = subprocess.run([sys.executable, "-P", "-m", "cgp_core.warmup"],
+                                      env=tree_environment(tree, NUMBA_CACHE_DIR=cache), cwd=str(tree),
                                       capture_output=True, text=True, timeout=3600)
                 elapsed = time.perf_counter() - t0
                 if done.returncode != 0:
