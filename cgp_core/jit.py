@@ -459,6 +459,49 @@ def _plain_shape_mismatch_error() -> None:
 _plain_shape_mismatch_error()
 
 
+# ---- a constant argument of a compiled call: one compile of the callee, not one per value --------------------
+#
+# When compiled code calls a kernel with a constant (``_w(a, b, i, 0)``, ``sweep_and_prune_kernel(lo, hi, g, -1)``)
+# or with a tuple holding one, numba 0.68 types that argument as the literal value (``Literal[int](0)``) and compiles
+# the callee for it: EPA's ``_w`` was compiled 18 times (each literal pair of its row and column), the sweep's
+# ``_sweep_box`` 4 times (its axis a literal ``0`` in the first pass of the caller's type inference, an ``int64`` in
+# the next), and every such copy was linked into, optimized and emitted with each caller again (issue 34).  Here
+# an integer or boolean literal is typed as its plain type first — as numba does for a call from Python — and the
+# literal is tried only when the kernel cannot be typed without it (a constant index into a tuple of several
+# types).  The same machine code per value: nothing of ours branches on a literal argument's type, and LLVM still
+# folds a constant it inlines.
+
+def _plain_type(value_type):
+    """``value_type`` with integer and boolean literals (also inside tuples) as their plain types."""
+    from numba.core import types
+
+    if isinstance(value_type, (types.IntegerLiteral, types.BooleanLiteral)):
+        return value_type.literal_type
+    if isinstance(value_type, types.BaseTuple) and not isinstance(value_type, types.BaseNamedTuple):
+        items = [_plain_type(item) for item in value_type]
+        if items != list(value_type):
+            return types.BaseTuple.from_types(items)
+    return value_type
+
+
+def _compile_plain_literals(dispatcher) -> None:
+    """Have compiled callers of ``dispatcher`` get its plain-typed compile for literal arguments (see above)."""
+    from numba.core import errors
+
+    original = dispatcher.get_call_template
+
+    def get_call_template(args, kws):
+        plain_args, plain_kws = tuple(_plain_type(a) for a in args), {k: _plain_type(v) for k, v in kws.items()}
+        if plain_args != tuple(args) or plain_kws != kws:
+            try:
+                return original(plain_args, plain_kws)
+            except errors.NumbaError:
+                pass  # it needs the literal: typed with it, as numba would
+        return original(args, kws)
+
+    dispatcher.get_call_template = get_call_template
+
+
 def njit(*args, **options):
     """``numba.njit`` with cgp_core's defaults (see the module docstring); use as ``@njit`` or ``@njit(...)``."""
     settings = {**_DEFAULTS, **options}
@@ -476,7 +519,9 @@ def _compiled(function, settings):
         return function  # plain Python: the JIT is off, or this is another compile worker's kernel
     if settings.get("parallel") and twin:
         return ParallelKernel(function, settings)
-    return numba.njit(**settings)(function)
+    dispatcher = numba.njit(**settings)(function)
+    _compile_plain_literals(dispatcher)
+    return dispatcher
 
 
 class ParallelKernel:

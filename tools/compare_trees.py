@@ -262,7 +262,7 @@ def compare_bits(old: Path, new: Path, cases: list[str], ticks: int, scratch: Pa
 
 
 # the speed cases (child side): a world and its name; timed tick by tick after a warm-up
-SPEED_CASES = ("default_bodies", "default", "pile", "sphere_pile", "boids_15k")
+SPEED_CASES = ("default_bodies", "default", "pile", "sphere_pile", "boids_15k", "hull_pile")
 
 
 def speed_stepper(case: str):
@@ -289,6 +289,10 @@ def speed_stepper(case: str):
                                   spawn_extent=[side, side, side], bounds_min=[-1.5 * side, -1.5 * side, 0.5],
                                   bounds_max=[1.5 * side, 1.5 * side, 3.0 * side + 1]))
         return (lambda: flock.step(1.0 / 60.0)), 20, 100
+    if case == "hull_pile":  # bench_convex_pile's 100 hulls while they fall and pile (its 0-3 s window)
+        from benchmarks.bench_convex_pile import ours
+
+        return ours(sleep=True).step, 10, 150
     raise ValueError(case)
 
 
