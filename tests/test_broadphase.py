@@ -7,7 +7,9 @@ import pytest
 
 from cgp_core.collision.broadphase import (
     BROAD_PHASES,
+    LARGE_FACTOR,
     brute_force_pairs,
+    cell_edge,
     get_broad_phase,
     grid_pairs,
     sweep_and_prune_pairs,
@@ -233,3 +235,14 @@ def test_a_pile_too_dense_for_the_sweep_goes_to_the_grid_with_the_same_contacts(
     sparse = CollisionDetector()
     sparse.detect(model, state, 1.0 / 240.0, ground=Ground())
     assert not sparse.dense
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 10, 11, 1000, 1001])
+def test_grid_cell_is_the_largest_extent_within_the_factor_of_numpys_median(n):
+    """The grid's cell edge (its median from a merge sort, not np.median): the largest extent no larger than
+    LARGE_FACTOR × numpy's median, for odd and even counts, ties, and a heavy tail of sizes."""
+    rng = np.random.default_rng(n)
+    for extent in (rng.uniform(0.0, 1.0, n), np.round(rng.uniform(0.0, 3.0, n), 1), rng.lognormal(0.0, 2.0, n)):
+        top = LARGE_FACTOR * np.median(extent)
+        expected = max((e for e in extent if 0.0 < e <= top), default=1.0)
+        assert cell_edge(extent) == expected

@@ -134,7 +134,8 @@ def sweep_and_prune_kernel(lo, hi, group, max_tests):
     for d in range(1, 3):
         if spread[d] > spread[axis]:
             axis = d
-    order = np.argsort(lo[:, axis], kind="mergesort")
+    # (a contiguous copy: the grid sorts contiguous float64 too, so numba compiles one merge sort for both)
+    order = np.argsort(np.ascontiguousarray(lo[:, axis]), kind="mergesort")
     next_other = np.empty(p, np.int64)  # position -> the first later position holding another group
     for a in range(p - 1, -1, -1):
         if a + 1 < p and group[order[a + 1]] == group[order[a]]:
@@ -233,9 +234,15 @@ def grid_cell_size(lo: np.ndarray, hi: np.ndarray) -> float:
 def cell_edge(extent):
     """The grid's cell edge from the boxes' largest extents ``(n,)`` (finite): the largest among those no larger
     than ``LARGE_FACTOR`` × the median; 1 m when there are none or all are points."""
-    if len(extent) == 0:
+    n = len(extent)
+    if n == 0:
         return 1.0
-    top = LARGE_FACTOR * np.median(extent)
+    # the median as numpy's (the middle one, or the mean of the middle two), from the float merge sort the grid and
+    # the sweep use anyway: numba's np.median compiles a selection algorithm of its own, ~1 s of a cold compile
+    # (issue 34)
+    ranked = extent[np.argsort(extent, kind="mergesort")]
+    median = ranked[n // 2] if n % 2 else (ranked[n // 2 - 1] + ranked[n // 2]) / 2.0
+    top = LARGE_FACTOR * median
     cell = 0.0
     for e in extent:
         if cell < e <= top:
@@ -394,7 +401,7 @@ def grid_kernel(lo, hi, group, cell):
     # against each other by the sweep
     large = np.flatnonzero(finite & ~small)
     if len(large):
-        by_x = members[np.argsort(lo[members, 0])]
+        by_x = members[np.argsort(lo[members, 0], kind="mergesort")]  # (the grid's one sort: no quicksort compiled)
         start_x = lo[by_x, 0]
         for i in large:
             first = np.searchsorted(start_x, lo[i, 0] - cell)
