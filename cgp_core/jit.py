@@ -468,8 +468,8 @@ _plain_shape_mismatch_error()
 # the next), and every such copy was linked into, optimized and emitted with each caller again (issue 34).  Here
 # an integer or boolean literal is typed as its plain type first — as numba does for a call from Python — and the
 # literal is tried only when the kernel cannot be typed without it (a constant index into a tuple of several
-# types).  The same machine code per value: nothing of ours branches on a literal argument's type, and LLVM still
-# folds a constant it inlines.
+# types).  Nothing of ours branches on a literal argument's type, and LLVM still folds a constant into a callee it
+# inlines: every scene compared stepped to the same bits, at the same speed (``tools/compare_trees.py``).
 
 def _plain_type(value_type):
     """``value_type`` with integer and boolean literals (also inside tuples) as their plain types."""
