@@ -502,6 +502,65 @@ def _compile_plain_literals(dispatcher) -> None:
     dispatcher.get_call_template = get_call_template
 
 
+# ---- numba's own overloads (np.empty, argsort ...): their compiled implementations cached as our kernels are ---------
+#
+# numba compiles the implementation of each numpy function a kernel uses (``np.empty`` for each dtype and shape type,
+# ``np.argsort``'s merge sort, ``np.zeros``, ``max`` ...) in every process, without a cache: the compile workers each
+# compiled their own copies, ~23 s of the ~220 s of compile CPU over every kernel (76 compiles of ``np.empty``'s alone;
+# ``bench_compile.py``, issue 34), and a worker that starts after another (convex after contacts, robots after solver)
+# compiled again what the first had.  Here such an implementation gets numba's on-disk cache where numba can cache
+# it: defined in a file of numba's, its closure's values picklable (numba keys the cache on them, so two
+# implementations of one code with different closed-over types never share an entry).  Left uncached otherwise.
+
+def _cachable_implementation(function) -> bool:
+    from numba.core import serialize
+
+    code = getattr(function, "__code__", None)
+    if code is None or not os.path.isfile(code.co_filename):
+        return False
+    try:
+        serialize.dumps(tuple(cell.cell_contents for cell in function.__closure__ or ()))
+    except Exception:  # (anything pickle raises: numba's cache key would raise it at every compile)
+        return False
+    return True
+
+
+def _cache_numba_overloads() -> None:
+    from numba.core.typing import templates
+
+    template = getattr(templates, "_OverloadFunctionTemplate", None)
+    original = getattr(template, "_get_jit_decorator", None)
+    if original is None:
+        return  # a numba whose overload templates differ: left alone
+
+    def _get_jit_decorator(self):
+        jitter = original(self)
+        if not (getattr(getattr(self, "_overload_func", None), "__module__", None) or "").startswith("numba."):
+            return jitter  # (a library's own overloads: as that library has them)
+
+        def cached_jitter(*args, **options):
+            decorate = jitter(*args, **options)
+
+            def decorator(function):
+                dispatcher = decorate(function)
+                cache = getattr(dispatcher, "_cache", None)
+                if type(cache).__name__ == "NullCache" and _cachable_implementation(function):
+                    try:
+                        dispatcher.enable_caching()
+                    except RuntimeError:  # no writable cache location: compiled as before
+                        pass
+                return dispatcher
+
+            return decorator
+
+        return cached_jitter
+
+    template._get_jit_decorator = _get_jit_decorator
+
+
+_cache_numba_overloads()
+
+
 def njit(*args, **options):
     """``numba.njit`` with cgp_core's defaults (see the module docstring); use as ``@njit`` or ``@njit(...)``."""
     settings = {**_DEFAULTS, **options}
