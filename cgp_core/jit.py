@@ -238,15 +238,24 @@ _lock_cache_saves()
 # here as cgp_core's kernels are (numba's own locators: beside numba's sources, or the user's cache directory),
 # once numba loads that module: it is not imported before a typed list is made, and costs ~40 ms to import.
 
+def _enable_cache(dispatcher) -> bool:
+    """numba's on-disk cache for a dispatcher of numba's own that has none (numba's locators: beside numba's sources,
+    or the user's cache directory); False where there is no writable location (it compiles as before)."""
+    if type(getattr(dispatcher, "_cache", None)).__name__ != "NullCache":
+        return True  # (cached already)
+    try:
+        dispatcher.enable_caching()
+    except RuntimeError:
+        return False
+    return True
+
+
 def _cache_typed_list_functions(module) -> None:
     from numba.core.registry import CPUDispatcher
 
     for value in vars(module).values():
-        if isinstance(value, CPUDispatcher) and value._cache.__class__.__name__ == "NullCache":
-            try:
-                value.enable_caching()
-            except RuntimeError:  # no writable cache location for numba's sources: compiled as before
-                return
+        if isinstance(value, CPUDispatcher) and not _enable_cache(value):
+            return  # (no writable location for numba's sources: none of the others has one either)
 
 
 class _TypedListHook:
@@ -543,12 +552,8 @@ def _cache_numba_overloads() -> None:
 
             def decorator(function):
                 dispatcher = decorate(function)
-                cache = getattr(dispatcher, "_cache", None)
-                if type(cache).__name__ == "NullCache" and _cachable_implementation(function):
-                    try:
-                        dispatcher.enable_caching()
-                    except RuntimeError:  # no writable cache location: compiled as before
-                        pass
+                if _cachable_implementation(function):
+                    _enable_cache(dispatcher)
                 return dispatcher
 
             return decorator
