@@ -74,6 +74,7 @@ import threading
 import time
 import types
 import warnings
+import weakref
 from contextlib import contextmanager
 
 # Before numba loads its OpenMP thread pool (at the first parallel kernel); a user's own setting wins.
@@ -566,6 +567,212 @@ def _cache_numba_overloads() -> None:
 _cache_numba_overloads()
 
 
+# ---- a kernel compiled for its compiled callers only: the cheap pipeline, no machine code of its own ---------------
+#
+# numba finishes every kernel it compiles as if Python were to call it: the kernel's module (with every callee it
+# links) goes through LLVM's module passes twice — the "cheap" pipeline that inlines, then the full one at O3 — and
+# is emitted as machine code with a CPython wrapper.  A kernel compiled only because a compiled caller calls it
+# (the solver's stages in ``contacts_head``, the joint solver's, the convex manifolds ...) needs none of that for
+# itself: its caller links the callee's IR into its own module, runs both pipelines over the whole again and emits
+# it there — so in a deep tree every level's code went through the full pipeline once per level above it.  LLVM's
+# time per library over every kernel's warm-up (issue 34, one run): module passes ~38 s, machine code ~35 s of ~196 s
+# of CPU, about half of each for libraries only linked into others.  Here a kernel compiled while a compiled caller
+# is being typed is lowered as numba lowers it; its module passes stop after the cheap pipeline (and numba's
+# reference-count pruning) unless the module is small (:data:`SMALL_CALLEE_INSTRUCTIONS`); and it stays out of
+# LLVM's execution engine: its entry point is a placeholder (:class:`_ForCallersOnly`) that keys its implementation
+# for its callers and is not in the dispatcher's table of Python entries.  Its callers are optimized as before, the
+# full pipeline over everything they link (their machine code can differ a little — LLVM sees the callee less
+# simplified — but not their arithmetic: no fast-math, so the same bits; ``tools/compare_trees.py bits``).  If
+# Python calls it later with those types, :func:`_emitted` runs the full pipeline on it then and emits it: numba's
+# own sequence (cheap, prune, full).  numba's disk cache keeps such a kernel as LLVM bitcode (kinds
+# :data:`CALLERS_ONLY`, not machine code), which another process — the next compile worker — links without compiling
+# it, and which one that calls it from Python finishes and emits.  Measured: every kernel cold 109 → 105 s wall,
+# 192 → 179 s CPU, one run each; the skipped machine code alone saved nothing measurable, the skipped full pipeline
+# of the big callees the rest (benchmarks/README.md, "Seventh round").
+
+class _ForCallersOnly:
+    """The entry point of a compile made for compiled callers only (never called: see above)."""
+
+    __slots__ = ("__weakref__",)
+
+
+class _TypingCaller(threading.local):
+    active = False  # a compiled caller is being typed on this thread (its callees compile for callers only)
+
+
+_typing_caller = _TypingCaller()
+
+#: the cache's kinds of serialized library for a kernel compiled for callers only, after the cheap pipeline alone
+#: or after both (a small one: :data:`SMALL_CALLEE_INSTRUCTIONS`); numba's own are "object" and "bitcode"
+CALLERS_ONLY = {True: "cgp_sim: callers-only bitcode, cheap passes", False: "cgp_sim: callers-only bitcode"}
+
+
+def _for_callers_only(library) -> bool:
+    return getattr(library, "_cgp_for_callers_only", False)
+
+
+#: a callee's module (with what it links) of at most this many LLVM instructions, before the passes, still gets the
+#: full pipeline: small helpers called in hot loops (the flock's per-neighbour functions, 140–760 instructions) are
+#: inlined into their callers, and LLVM decides that on their optimized size — given only the cheap pipeline, the
+#: default scene's flock stepped ~3 % slower (``tools/compare_trees.py speed``, 2 × 12–20 pairs); the modules that
+#: cost the full pipeline most are the big stages (``contacts_head`` 8,600 instructions, ``_solve_region`` 3,700)
+SMALL_CALLEE_INSTRUCTIONS = 1000
+
+
+def _small(module) -> bool:
+    count = 0
+    for function in module.functions:
+        for block in function.blocks:
+            for _ in block.instructions:
+                count += 1
+                if count > SMALL_CALLEE_INSTRUCTIONS:
+                    return False
+    return True
+
+
+def _full_module_passes(library) -> None:
+    """The full pipeline numba runs after the cheap one (``CPUCodeLibrary._optimize_final_module``)."""
+    passes, builder = library._codegen._module_pass_manager()
+    passes.run(library._final_module, builder)
+
+
+def _callers_only_hooks() -> bool:
+    """Patch numba's code library, CPU context and codegen for kernels compiled for callers only (see above);
+    False (nothing patched) for a numba whose internals differ."""
+    from numba.core import codegen, config, cpu
+
+    library, jit_codegen = getattr(codegen, "CPUCodeLibrary", None), getattr(codegen, "JITCPUCodegen", None)
+    needed = {library: ("_optimize_final_module", "_finalize_final_module", "_finalize_dynamic_globals",
+                        "serialize_using_object_code", "_unserialize", "_ensure_finalized", "_get_module_for_linking"),
+              jit_codegen: ("set_env", "_module_pass_manager", "_add_module"), cpu.CPUContext: ("get_executable",),
+              codegen: ("remove_redundant_nrt_refct",),
+              getattr(codegen, "JITCodeLibrary", None): ("_finalize_specific",)}
+    if any(owner is None or not all(hasattr(owner, name) for name in names) for owner, names in needed.items()):
+        return False
+    optimize, finalize, serialize, unserialize = (library._optimize_final_module, library._finalize_final_module,
+                                                  library.serialize_using_object_code, library._unserialize.__func__)
+    get_executable, set_env = cpu.CPUContext.get_executable, jit_codegen.set_env
+
+    def _optimize_final_module(self):
+        if not _for_callers_only(self) or _small(self._final_module):
+            return optimize(self)
+        self._cgp_cheap = True  # (the full pipeline follows if Python calls it: _emitted)
+        passes, builder = self._codegen._module_pass_manager(loop_vectorize=self._codegen._loopvect,
+                                                             slp_vectorize=False, opt=self._codegen._opt_level,
+                                                             cost="cheap")
+        passes.run(self._final_module, builder)
+        if not config.LLVM_REFPRUNE_PASS:
+            self._final_module = codegen.remove_redundant_nrt_refct(self._final_module)
+
+    def _finalize_final_module(self):
+        if not _for_callers_only(self):
+            return finalize(self)
+        self._finalize_dynamic_globals()  # (what a caller's cache check asks; no engine, no machine code)
+        self._finalized = True
+
+    def serialize_using_object_code(self):
+        if not _for_callers_only(self):
+            return serialize(self)
+        self._ensure_finalized()
+        return self.name, CALLERS_ONLY[getattr(self, "_cgp_cheap", False)], self._final_module.as_bitcode()
+
+    def _unserialize(cls, codegen_, state):
+        name, kind, data = state
+        if kind not in CALLERS_ONLY.values():
+            return unserialize(cls, codegen_, state)
+        self = codegen_.create_library(name)
+        self.enable_object_caching()
+        self._final_module = codegen.ll.parse_bitcode(data)
+        self._cgp_for_callers_only, self._cgp_cheap = True, kind == CALLERS_ONLY[True]
+        self._finalize_final_module()
+        return self
+
+    def get_executable_(self, library, fndesc, env):
+        return _ForCallersOnly() if _for_callers_only(library) else get_executable(self, library, fndesc, env)
+
+    def set_env_(self, env_name, env):
+        if self._engine.is_symbol_defined(env_name):  # (a callers-only library's environments are nowhere yet)
+            set_env(self, env_name, env)
+
+    library._optimize_final_module, library._finalize_final_module = _optimize_final_module, _finalize_final_module
+    library.serialize_using_object_code, library._unserialize = serialize_using_object_code, classmethod(_unserialize)
+    cpu.CPUContext.get_executable, jit_codegen.set_env = get_executable_, set_env_
+    return True
+
+
+_CALLERS_ONLY_HOOKS = _callers_only_hooks()
+
+
+def _emitted(dispatcher, add_overload, signature, compiled):
+    """The Python entry of ``compiled`` (compiled or loaded for callers only): the full module passes, its library
+    into the execution engine (machine code now), the CPython wrapper's address as the dispatcher's entry for these
+    types; cached as machine code from now on."""
+    library = compiled.library
+    library._ensure_finalized()
+    if getattr(library, "_cgp_cheap", False):
+        _full_module_passes(library)
+        library._cgp_cheap = False
+    library._cgp_for_callers_only = False
+    library._final_module._CPUCodeLibrary__library = weakref.proxy(library)  # (numba's object cache)
+    library._codegen._add_module(library._final_module)
+    library._finalize_specific()
+    entry = dispatcher.targetctx.get_executable(library, compiled.fndesc, compiled.environment)
+    compiled = compiled._replace(entry_point=entry)
+    dispatcher.targetctx.insert_user_function(entry, compiled.fndesc, [library])
+    add_overload(compiled)
+    dispatcher._cache.save_overload(signature, compiled)
+    return entry
+
+
+def _compile_for_callers_only(dispatcher) -> None:
+    """Have ``dispatcher``'s compiles for compiled callers stop short of machine code (see above)."""
+    from numba.core import sigutils
+    from numba.core.compiler_lock import global_compiler_lock
+
+    compiler = getattr(dispatcher, "_compiler", None)
+    if not _CALLERS_ONLY_HOOKS or not hasattr(compiler, "_customize_flags"):
+        return
+    customize, add_overload, compile_, get_call_template = (compiler._customize_flags, dispatcher.add_overload,
+                                                            dispatcher.compile, dispatcher.get_call_template)
+
+    def _customize_flags(flags):
+        flags = customize(flags)
+        if _typing_caller.active:
+            flags.no_compile = True  # lowered, not handed to the engine (numba's own flag)
+        return flags
+
+    def add_overload_(compiled):
+        if compiled.objectmode or not (compiled.entry_point is None
+                                       or isinstance(compiled.entry_point, _ForCallersOnly)):
+            return add_overload(compiled)
+        if compiled.entry_point is None:  # compiled now (not loaded from the cache)
+            compiled.library._cgp_for_callers_only = True
+            compiled = compiled._replace(entry_point=_ForCallersOnly())
+            dispatcher.targetctx.insert_user_function(compiled.entry_point, compiled.fndesc, [compiled.library])
+        dispatcher.overloads[tuple(compiled.signature.args)] = compiled  # (not a Python entry: not _insert-ed)
+
+    def compile(signature):
+        entry = compile_(signature)
+        if isinstance(entry, _ForCallersOnly) and not _typing_caller.active:  # Python calls it: machine code
+            with global_compiler_lock:
+                compiled = dispatcher.overloads[tuple(sigutils.normalize_signature(signature)[0])]
+                if isinstance(compiled.entry_point, _ForCallersOnly):
+                    return _emitted(dispatcher, add_overload, signature, compiled)
+                return compiled.entry_point
+        return entry
+
+    def get_call_template_(args, kws):
+        previous, _typing_caller.active = _typing_caller.active, True
+        try:
+            return get_call_template(args, kws)
+        finally:
+            _typing_caller.active = previous
+
+    compiler._customize_flags = _customize_flags
+    dispatcher.add_overload, dispatcher.compile, dispatcher.get_call_template = (add_overload_, compile,
+                                                                                get_call_template_)
+
+
 def njit(*args, **options):
     """``numba.njit`` with cgp_core's defaults (see the module docstring); use as ``@njit`` or ``@njit(...)``."""
     settings = {**_DEFAULTS, **options}
@@ -585,6 +792,7 @@ def _compiled(function, settings):
         return ParallelKernel(function, settings)
     dispatcher = numba.njit(**settings)(function)
     _compile_plain_literals(dispatcher)
+    _compile_for_callers_only(dispatcher)
     return dispatcher
 
 
