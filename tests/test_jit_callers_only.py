@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _compile_events import LISTENER
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -45,21 +46,7 @@ def outer_again(a):  # another caller, the same argument types for inner
 RUN = r'''
 import json, sys
 import numpy as np
-import pytest
-from numba.core import event
-
-compiled = []
-
-
-class Listener(event.Listener):
-    def on_start(self, ev):
-        pass
-
-    def on_end(self, ev):
-        compiled.append(ev.data["dispatcher"].py_func.__qualname__)
-
-
-event.register("numba:compile", Listener())
+''' + LISTENER + r'''
 import cgp_core.jit  # noqa: E402
 
 cgp_core.jit.SMALL_CALLEE_INSTRUCTIONS = int(sys.argv[2])  # 0: every callee after the cheap pipeline alone

@@ -11,26 +11,17 @@ import subprocess
 import sys
 from pathlib import Path
 
+from _compile_events import LISTENER
+
 ROOT = Path(__file__).resolve().parents[1]
 
 RUN = r'''
 import json, sys
 import numpy as np
-from numba.core import event
 if sys.argv[1] == "patched":
     import cgp_core.jit  # noqa: F401 - its patches of numba
 from numba import njit
-
-compiled = []
-
-class Listener(event.Listener):
-    def on_start(self, ev):
-        pass
-
-    def on_end(self, ev):
-        compiled.append(ev.data["dispatcher"].py_func.__qualname__)
-
-event.register("numba:compile", Listener())
+''' + LISTENER + r'''
 
 # a kernel of this process's own (not cached: each process compiles it), calling np.empty and np.zeros
 if sys.argv[2] == "first":
