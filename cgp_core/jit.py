@@ -74,7 +74,6 @@ import threading
 import time
 import types
 import warnings
-import weakref
 from contextlib import contextmanager
 
 # Before numba loads its OpenMP thread pool (at the first parallel kernel); a user's own setting wins.
@@ -713,9 +712,7 @@ def _emitted(dispatcher, add_overload, signature, compiled):
         _full_module_passes(library)
         library._cgp_cheap = False
     library._cgp_for_callers_only = False
-    library._final_module._CPUCodeLibrary__library = weakref.proxy(library)  # (numba's object cache)
-    library._codegen._add_module(library._final_module)
-    library._finalize_specific()
+    library._finalize_final_module()  # numba's own now: into the engine, machine code
     entry = dispatcher.targetctx.get_executable(library, compiled.fndesc, compiled.environment)
     compiled = compiled._replace(entry_point=entry)
     dispatcher.targetctx.insert_user_function(entry, compiled.fndesc, [library])

@@ -21,7 +21,6 @@ ROOT = Path(__file__).resolve().parents[1]
 
 KERNELS = '''
 import numpy as np
-import pytest
 from cgp_core.jit import njit
 
 
